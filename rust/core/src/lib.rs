@@ -11,3 +11,18 @@ pub use error::{Error, Result};
 pub use frame::FrameView;
 pub use layout::{Binning, CfaPattern, POSITIONS, SensorLayout};
 pub use meta::FrameMeta;
+pub mod codec;
+pub mod drift;
+pub mod fill;
+pub mod fit;
+pub mod flat;
+pub mod histogram;
+pub mod pack;
+pub mod pmf;
+pub mod recording;
+pub mod sampler;
+pub mod session;
+pub mod synth;
+
+pub use pack::ModelPack;
+pub use session::{CalibrationSession, SessionConfig};

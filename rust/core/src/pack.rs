@@ -1,0 +1,240 @@
+//! The model pack: everything a sampler needs, serialised behind a magic, a format version and a
+//! checksum (see [`crate::codec`]). Same frames in, same bytes out.
+
+use serde::{Deserialize, Serialize};
+
+use crate::codec;
+use crate::error::{CodecError, ModelError};
+use crate::layout::{Binning, POSITIONS, SensorLayout};
+use crate::pmf::Pmf;
+
+pub const PACK_MAGIC: &[u8; 8] = b"NCALPACK";
+pub const PACK_MAGIC_TEXT: &str = "NCALPACK";
+/// Bump on any change to the serialised structs.
+pub const PACK_VERSION: u16 = 1;
+
+/// A calibrated (or interpolated) non-parametric noise model of one camera.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ModelPack {
+    pub layout: SensorLayout,
+    pub make: String,
+    pub model: String,
+    /// Levels per bin (DN).
+    pub bin_width: u16,
+    /// The reference (lowest) ISO of the calibration session.
+    pub reference_iso: u32,
+    /// Bins with fewer samples were filled from their neighbours.
+    pub min_samples: u64,
+    /// One model per ISO, sorted by ISO.
+    pub isos: Vec<IsoModel>,
+    /// What the calibration noticed (drifting frames, gain ratios off 1, sparse bins …).
+    pub warnings: Vec<String>,
+}
+
+/// Where an ISO's model comes from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub enum ModelOrigin {
+    /// Measured from target bursts.
+    Calibrated,
+    /// Interpolated between calibrated ISOs (paper §4.1).
+    Interpolated { from: Vec<u32> },
+    /// Extrapolated beyond the calibrated range (asked for explicitly).
+    Extrapolated { from: Vec<u32> },
+}
+
+/// The model of one ISO.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct IsoModel {
+    pub iso: u32,
+    pub origin: ModelOrigin,
+    /// Target frames folded in.
+    pub frames: u64,
+    /// Frames whose brightness drifted and was normalised.
+    pub drift_frames: u64,
+    /// Measured target/reference brightness ratio per CFA position (1 = gain exactly
+    /// proportional to ISO).
+    pub gain_ratio: [f64; POSITIONS],
+    /// The camera's own noise profile `σ² = S·x + O` (x in [0,1]) per CFA position, when the
+    /// captures carried one (DNG NoiseProfile / SENSOR_NOISE_PROFILE).
+    pub noise_profile: Option<[[f64; 2]; POSITIONS]>,
+    /// Per CFA position, per bin.
+    pub positions: Vec<PositionModel>,
+}
+
+/// The bins of one CFA position.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PositionModel {
+    pub bins: Vec<BinModel>,
+}
+
+/// The noise PMF of one (ISO, position, bin): counts (or weights, for filled bins) over
+/// `first ..`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BinModel {
+    pub first: i32,
+    pub counts: Vec<u64>,
+    /// Real samples measured in this bin (may be below `min_samples` when filled).
+    pub samples: u64,
+    /// True when the PMF was filled from neighbouring bins rather than measured.
+    pub filled: bool,
+}
+
+impl BinModel {
+    pub fn pmf(&self) -> Pmf {
+        Pmf::from_weights(self.first, self.counts.iter().map(|&c| c as f64)).unwrap_or(Pmf {
+            first: 0,
+            p: vec![1.0],
+        })
+    }
+
+    pub fn moments(&self) -> (f64, f64) {
+        crate::histogram::moments(self.first, self.counts.iter().map(|&c| c as f64))
+    }
+
+    /// Weights from a PMF, with a fixed total so filled bins serialise deterministically.
+    pub fn from_pmf(p: &Pmf, samples: u64, filled: bool) -> Self {
+        const SCALE: f64 = (1u64 << 24) as f64;
+        let counts: Vec<u64> = p.p.iter().map(|&x| (x * SCALE).round() as u64).collect();
+        let mut b = BinModel {
+            first: p.first,
+            counts,
+            samples,
+            filled,
+        };
+        if b.counts.iter().all(|&c| c == 0) {
+            b.counts = vec![1];
+            b.first = p.first + p.p.len() as i32 / 2;
+        }
+        b
+    }
+}
+
+impl IsoModel {
+    pub fn is_calibrated(&self) -> bool {
+        matches!(self.origin, ModelOrigin::Calibrated)
+    }
+
+    /// Total real samples per position.
+    pub fn samples(&self, pos: usize) -> u64 {
+        self.positions[pos].bins.iter().map(|b| b.samples).sum()
+    }
+
+    /// Bins filled from neighbours, per position.
+    pub fn filled_bins(&self, pos: usize) -> usize {
+        self.positions[pos].bins.iter().filter(|b| b.filled).count()
+    }
+}
+
+impl ModelPack {
+    pub fn binning(&self) -> Binning {
+        Binning::new(&self.layout, self.bin_width)
+    }
+
+    pub fn iso_list(&self) -> Vec<u32> {
+        self.isos.iter().map(|m| m.iso).collect()
+    }
+
+    pub fn calibrated_isos(&self) -> Vec<u32> {
+        self.isos
+            .iter()
+            .filter(|m| m.is_calibrated())
+            .map(|m| m.iso)
+            .collect()
+    }
+
+    /// The model of exactly this ISO.
+    pub fn iso(&self, iso: u32) -> Option<&IsoModel> {
+        self.isos.iter().find(|m| m.iso == iso)
+    }
+
+    /// The model of this ISO or a clear error that lists what the pack holds.
+    pub fn require_iso(&self, iso: u32) -> Result<&IsoModel, ModelError> {
+        self.iso(iso).ok_or_else(|| ModelError::IsoMissing {
+            iso,
+            available: self.iso_summary(),
+        })
+    }
+
+    pub fn iso_summary(&self) -> String {
+        self.isos
+            .iter()
+            .map(|m| m.iso.to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+
+    /// Inserts or replaces an ISO model, keeping the list sorted.
+    pub fn insert(&mut self, m: IsoModel) {
+        self.isos.retain(|x| x.iso != m.iso);
+        let at = self.isos.partition_point(|x| x.iso < m.iso);
+        self.isos.insert(at, m);
+    }
+
+    pub fn to_bytes(&self) -> Result<Vec<u8>, CodecError> {
+        codec::encode("model pack", PACK_MAGIC, PACK_VERSION, self)
+    }
+
+    pub fn from_bytes(bytes: &[u8]) -> Result<Self, CodecError> {
+        let p: ModelPack = codec::decode(
+            "model pack",
+            PACK_MAGIC,
+            PACK_MAGIC_TEXT,
+            PACK_VERSION,
+            bytes,
+        )?;
+        p.check()?;
+        Ok(p)
+    }
+
+    /// Structural checks a decoder cannot make.
+    pub fn check(&self) -> Result<(), CodecError> {
+        let bad = |detail: String| CodecError::Invalid {
+            what: "model pack",
+            detail,
+        };
+        self.layout.validate().map_err(|e| bad(e.to_string()))?;
+        if self.bin_width == 0 {
+            return Err(bad("bin width is 0".into()));
+        }
+        let binning = self.binning();
+        for w in self.isos.windows(2) {
+            if w[0].iso >= w[1].iso {
+                return Err(bad(format!(
+                    "ISOs are not sorted and unique ({} then {})",
+                    w[0].iso, w[1].iso
+                )));
+            }
+        }
+        for m in &self.isos {
+            if m.positions.len() != POSITIONS {
+                return Err(bad(format!(
+                    "ISO {} has {} CFA positions, expected 4",
+                    m.iso,
+                    m.positions.len()
+                )));
+            }
+            for (pos, pm) in m.positions.iter().enumerate() {
+                if pm.bins.len() != binning.bins(pos) {
+                    return Err(bad(format!(
+                        "ISO {} position {pos} has {} bins, the layout needs {}",
+                        m.iso,
+                        pm.bins.len(),
+                        binning.bins(pos)
+                    )));
+                }
+                if let Some((b, _)) = pm
+                    .bins
+                    .iter()
+                    .enumerate()
+                    .find(|(_, b)| b.counts.iter().all(|&c| c == 0))
+                {
+                    return Err(bad(format!(
+                        "ISO {} position {pos} bin {b} has an empty PMF",
+                        m.iso
+                    )));
+                }
+            }
+        }
+        Ok(())
+    }
+}
