@@ -26,3 +26,11 @@ pub mod synth;
 
 pub use pack::ModelPack;
 pub use session::{CalibrationSession, SessionConfig};
+// Issue 3: ISO interpolation, parametric baselines, fidelity metrics.
+pub mod baselines;
+pub mod interp;
+pub mod metrics;
+// Issue 4: noise on noise.
+pub mod bridge;
+pub mod denoise;
+pub mod renoise;

@@ -466,6 +466,56 @@ impl<R: Read> RecordingReader<R> {
     }
 }
 
+/// What a replay did.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ReplayReport {
+    pub frames: u64,
+    pub rejected: Vec<String>,
+    /// False when the recording has no End record (an interrupted capture).
+    pub complete: bool,
+}
+
+/// The session configuration a recording implies: its reference ISO, bin width, make and model,
+/// everything else at its default.
+pub fn session_config(header: &RecordingHeader) -> crate::session::SessionConfig {
+    let mut c = crate::session::SessionConfig::new(header.reference_iso);
+    c.make = header.make.clone();
+    c.model = header.model.clone();
+    c.bin_width = (header.bin_width != 0).then_some(header.bin_width);
+    c
+}
+
+/// Replays a recording into a new session, exactly as the app fed it: BeginStep → `begin_step`,
+/// Frame → `push_frame` (rejected frames are listed, not fatal), NoiseProfile →
+/// `set_noise_profile`. `configure` may adjust the implied configuration.
+pub fn replay<R: Read>(
+    mut reader: RecordingReader<R>,
+    configure: impl FnOnce(&mut crate::session::SessionConfig),
+    mut on_frame: impl FnMut(u64),
+) -> Result<(crate::session::CalibrationSession, ReplayReport), crate::error::SessionError> {
+    let mut config = session_config(reader.header());
+    configure(&mut config);
+    let mut session = crate::session::CalibrationSession::new(reader.header().layout.clone(), config)?;
+    let mut report = ReplayReport::default();
+    while let Some(record) = reader.next_record()? {
+        match record {
+            Record::BeginStep { exposure_ns } => session.begin_step(exposure_ns)?,
+            Record::Frame(f) => {
+                report.frames += 1;
+                let pushed = f.view().map_err(crate::error::SessionError::from).and_then(|v| session.push_frame(&v, &f.meta));
+                if let Err(e) = pushed {
+                    report.rejected.push(format!("frame {} (ISO {}, {} ns): {e}", report.frames - 1, f.meta.iso, f.meta.exposure_ns));
+                }
+                on_frame(report.frames);
+            }
+            Record::NoiseProfile { iso, profile } => session.set_noise_profile(iso, profile),
+            Record::End { .. } => {}
+        }
+    }
+    report.complete = reader.ended();
+    Ok((session, report))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -615,6 +615,30 @@ impl CalibrationSession {
         }
     }
 
+    /// Ends the current step's reference burst now (normally the first target frame does it):
+    /// computes the clean image and flat mask. Used by evaluation, which needs the clean image
+    /// of held-out captures.
+    pub fn close_reference_burst(&mut self) -> Result<(), SessionError> {
+        self.close_reference()
+    }
+
+    /// The current step's clean image (row-major, `round(mean)` of the reference burst) with
+    /// [`NOT_FLAT`] where a pixel is not on a flat region; `None` before the burst is closed.
+    pub fn clean_image(&self) -> Option<&[u16]> {
+        match &self.step {
+            Some(Step { phase: Phase::Targets(tp), .. }) => Some(&tp.clean),
+            _ => None,
+        }
+    }
+
+    /// The current step's flat-test report; `None` before the burst is closed.
+    pub fn flat_report(&self) -> Option<&FlatReport> {
+        match &self.step {
+            Some(Step { phase: Phase::Targets(tp), .. }) => Some(&tp.flat),
+            _ => None,
+        }
+    }
+
     /// Frames, samples and under-sampled bins so far.
     pub fn progress(&self) -> Progress {
         let isos = self

@@ -1,0 +1,57 @@
+package org.noisecal.capture.controller
+
+import java.nio.ByteBuffer
+import org.noisecal.capture.plan.SensorSpec
+
+/**
+ * One accepted RAW frame as it is handed to the sink: plane 0 of the image (valid only during
+ * [FrameSink.pushFrame]), its geometry, and ISO / exposure / black levels as the capture result
+ * reported them.
+ */
+class RawFrame(
+    val buffer: ByteBuffer,
+    val width: Int,
+    val height: Int,
+    val rowStride: Int,
+    val pixelStride: Int,
+    val iso: Int,
+    val exposureNs: Long,
+    val blackLevels: FloatArray?,
+)
+
+/** Coverage of one target ISO: bins that already have enough samples, out of all. */
+data class IsoCoverage(val iso: Int, val frames: Long, val underSampledBins: Int, val totalBins: Int) {
+    val filledFraction: Double get() = if (totalBins == 0) 0.0 else (totalBins - underSampledBins).toDouble() / totalBins
+}
+
+/** What a sink reports about itself (the session's progress). */
+data class SinkProgress(val framesAccepted: Long, val framesRejected: Long, val steps: Int, val isos: List<IsoCoverage>)
+
+/**
+ * Where accepted frames go: the calibration session (see [org.noisecal.capture.sink.NoisecalFrameSink])
+ * or a test double. Calls come from the controller's thread only.
+ */
+interface FrameSink : AutoCloseable {
+    /** Begins an EV step; the reference burst that follows has [referenceExposureNs]. */
+    fun beginStep(referenceExposureNs: Long)
+
+    /**
+     * Folds one frame in and returns whether its brightness drifted and was normalised (flicker).
+     * Throws (any RuntimeException) when the frame is refused, leaving the sink unchanged.
+     */
+    fun pushFrame(frame: RawFrame): Boolean
+
+    fun progress(): SinkProgress
+
+    /** Writes a checkpoint from which [FrameSinkFactory.restore] resumes (temporary file, then rename). */
+    fun checkpoint(path: String)
+
+    /** Builds and writes the model pack; returns a one-line summary. */
+    fun finish(packPath: String): String
+}
+
+/** Makes a fresh sink for a sensor, or restores one from a checkpoint. */
+interface FrameSinkFactory {
+    fun create(sensor: SensorSpec): FrameSink
+    fun restore(checkpointPath: String): FrameSink
+}

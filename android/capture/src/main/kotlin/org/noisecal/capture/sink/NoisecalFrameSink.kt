@@ -1,0 +1,60 @@
+package org.noisecal.capture.sink
+
+import org.noisecal.capture.controller.FrameSink
+import org.noisecal.capture.controller.FrameSinkFactory
+import org.noisecal.capture.controller.IsoCoverage
+import org.noisecal.capture.controller.RawFrame
+import org.noisecal.capture.controller.SinkProgress
+import org.noisecal.capture.plan.SensorSpec
+import org.noisecal.jni.NoisecalSession
+
+/**
+ * The real sink: a [FrameSink] over the JNI [NoisecalSession]. Frames go straight from the
+ * image's direct ByteBuffer into the Rust core. Closing the sink closes the session.
+ */
+class NoisecalFrameSink(val session: NoisecalSession) : FrameSink {
+    override fun beginStep(referenceExposureNs: Long) = session.beginStep(referenceExposureNs)
+
+    override fun pushFrame(frame: RawFrame): Boolean =
+        session.pushFrame(frame.buffer, frame.width, frame.height, frame.rowStride, frame.pixelStride,
+            frame.iso, frame.exposureNs, frame.blackLevels).driftNormalised
+
+    override fun progress(): SinkProgress {
+        val p = session.progress()
+        return SinkProgress(p.framesAccepted, p.framesRejected, p.steps,
+            p.isos.map { IsoCoverage(it.iso, it.frames, it.underSampledBins, it.totalBins) })
+    }
+
+    override fun checkpoint(path: String) = session.checkpoint(path)
+
+    override fun finish(packPath: String): String = session.finish(packPath)
+
+    override fun close() = session.close()
+}
+
+/**
+ * Makes [NoisecalFrameSink]s. [binWidth] 0 lets the core pick the default for the bit depth;
+ * [recordingPath], when set, tees every accepted frame of a *fresh* session into a recording for
+ * desktop replay (a restored session does not record: frames of the burst the kill interrupted are
+ * already in the recording, so it would no longer replay to the same pack).
+ */
+class NoisecalSinkFactory(
+    private val binWidth: Int = 0,
+    private val recordingPath: String? = null,
+) : FrameSinkFactory {
+    override fun create(sensor: SensorSpec): FrameSink {
+        val s = NoisecalSession.create(
+            sensor.width, sensor.height, sensor.cfa, sensor.blackLevels.toFloatArray(), sensor.whiteLevel,
+            sensor.referenceIso, sensor.make, sensor.model, binWidth,
+        )
+        try {
+            if (recordingPath != null) s.startRecording(recordingPath)
+        } catch (e: RuntimeException) {
+            s.close()
+            throw e
+        }
+        return NoisecalFrameSink(s)
+    }
+
+    override fun restore(checkpointPath: String): FrameSink = NoisecalFrameSink(NoisecalSession.restore(checkpointPath))
+}

@@ -1,0 +1,135 @@
+package org.noisecal.jni
+
+import java.nio.ByteBuffer
+
+/**
+ * The JNI boundary to the Rust calibration core (library `noisecal_jni`).
+ *
+ * One object owns one native session handle and closes it ([AutoCloseable]). Every native error
+ * and every native panic arrives as a [NoisecalException] whose message says what was wrong; a
+ * rejected frame leaves the session unchanged.
+ *
+ * This file is compiled both by the Android app and by the host JVM harness in `tests/jvm`.
+ */
+class NoisecalSession private constructor(private var handle: Long) : AutoCloseable {
+
+    /** Begins an EV step: the reference burst (at the reference ISO) that follows has this exposure. */
+    fun beginStep(referenceExposureNs: Long) = nativeBeginStep(live(), referenceExposureNs)
+
+    /**
+     * Folds one RAW_SENSOR frame in. [buffer] must be a direct ByteBuffer (`Image.planes[0].buffer`),
+     * [rowStride] and [pixelStride] in bytes as the plane reports them; [iso] and [exposureNs] as the
+     * TotalCaptureResult reported them; [blackLevels] the per-frame dynamic black level (4 values,
+     * CFA position order) or null. Returns whether the frame's brightness drifted (flicker) and was
+     * normalised.
+     */
+    fun pushFrame(
+        buffer: ByteBuffer,
+        width: Int,
+        height: Int,
+        rowStride: Int,
+        pixelStride: Int,
+        iso: Int,
+        exposureNs: Long,
+        blackLevels: FloatArray?,
+    ): FrameVerdict {
+        val code = nativePushFrame(live(), buffer, width, height, rowStride, pixelStride, iso, exposureNs, blackLevels)
+        return FrameVerdict(driftNormalised = (code and 1) != 0)
+    }
+
+    /** Current progress of the session. */
+    fun progress(): Progress = Progress.decode(nativeProgress(live()))
+
+    /** Writes a checkpoint (temporary file, then rename) from which [restore] resumes. */
+    fun checkpoint(path: String) = nativeCheckpoint(live(), path)
+
+    /** Tees every accepted frame from now on into a recording file for desktop replay. */
+    fun startRecording(path: String) = nativeStartRecording(live(), path)
+
+    /** Builds the model pack and writes it to [packPath] (temporary file, then rename). Returns a one-line summary. */
+    fun finish(packPath: String): String = nativeFinish(live(), packPath)
+
+    override fun close() {
+        val h = handle
+        handle = 0
+        if (h != 0L) nativeClose(h)
+    }
+
+    private fun live(): Long {
+        check(handle != 0L) { "NoisecalSession is closed" }
+        return handle
+    }
+
+    /** Whether a pushed frame was accepted as is or had its brightness drift normalised. */
+    data class FrameVerdict(val driftNormalised: Boolean)
+
+    /** Per-ISO progress: target frames folded in, samples, bins still under-sampled of all bins. */
+    data class IsoProgress(val iso: Int, val frames: Long, val samples: Long, val underSampledBins: Int, val totalBins: Int)
+
+    /** Session progress. */
+    data class Progress(
+        val framesAccepted: Long,
+        val framesRejected: Long,
+        val steps: Int,
+        val referenceFrames: Long,
+        val isos: List<IsoProgress>,
+    ) {
+        companion object {
+            /** Layout: [accepted, rejected, steps, referenceFrames, nIsos, then per ISO: iso, frames, samples, under, total]. */
+            fun decode(a: LongArray): Progress {
+                val n = a[4].toInt()
+                val isos = (0 until n).map { i ->
+                    val o = 5 + 5 * i
+                    IsoProgress(a[o].toInt(), a[o + 1], a[o + 2], a[o + 3].toInt(), a[o + 4].toInt())
+                }
+                return Progress(a[0], a[1], a[2].toInt(), a[3], isos)
+            }
+        }
+    }
+
+    companion object {
+        init {
+            System.loadLibrary("noisecal_jni")
+        }
+
+        /**
+         * A new session for a sensor. [cfa] is "RGGB", "BGGR", "GRBG" or "GBRG"; [blackLevels] holds
+         * 4 values in CFA position order ((row % 2) * 2 + (col % 2)); [referenceIso] is the sensor's
+         * lowest ISO; [binWidth] 0 picks the default for the bit depth.
+         */
+        fun create(
+            width: Int,
+            height: Int,
+            cfa: String,
+            blackLevels: FloatArray,
+            whiteLevel: Int,
+            referenceIso: Int,
+            make: String,
+            model: String,
+            binWidth: Int = 0,
+        ): NoisecalSession =
+            NoisecalSession(nativeCreate(width, height, cfa, blackLevels, whiteLevel, referenceIso, make, model, binWidth))
+
+        /** Resumes a session from a checkpoint file. */
+        fun restore(checkpointPath: String): NoisecalSession = NoisecalSession(nativeRestore(checkpointPath))
+
+        @JvmStatic private external fun nativeCreate(
+            width: Int, height: Int, cfa: String, blackLevels: FloatArray, whiteLevel: Int,
+            referenceIso: Int, make: String, model: String, binWidth: Int,
+        ): Long
+        @JvmStatic private external fun nativeRestore(path: String): Long
+        @JvmStatic private external fun nativeBeginStep(handle: Long, referenceExposureNs: Long)
+        @JvmStatic private external fun nativePushFrame(
+            handle: Long, buffer: ByteBuffer, width: Int, height: Int, rowStride: Int, pixelStride: Int,
+            iso: Int, exposureNs: Long, blackLevels: FloatArray?,
+        ): Int
+        @JvmStatic private external fun nativeProgress(handle: Long): LongArray
+        @JvmStatic private external fun nativeCheckpoint(handle: Long, path: String)
+        @JvmStatic private external fun nativeStartRecording(handle: Long, path: String)
+        @JvmStatic private external fun nativeFinish(handle: Long, packPath: String): String
+        @JvmStatic private external fun nativeClose(handle: Long)
+    }
+}
+
+/** Any failure inside the native core, with its message. */
+class NoisecalException(message: String) : RuntimeException(message)

@@ -1,0 +1,84 @@
+//! `noisecal calibrate captures/ -o pixel6.pack` (or `session.rec`).
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use noisecal_core::flat::Roi;
+
+use crate::calibrate::{CalibrateOptions, calibrate_path};
+use crate::output::write_atomic;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// A folder of DNGs (any order, any names) or a raw recording (.rec) made by the app.
+    pub input: PathBuf,
+    /// The model pack to write.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Reference ISO (default: the lowest ISO found).
+    #[arg(long)]
+    pub reference_iso: Option<u32>,
+    /// Levels per bin in DN (default: ~240 bins between black and white).
+    #[arg(long)]
+    pub bin_width: Option<u16>,
+    /// Bins with fewer samples are filled from their neighbours.
+    #[arg(long)]
+    pub min_samples: Option<u64>,
+    /// Only use pixels in this rectangle: x0,y0,x1,y1 (pixels, end exclusive).
+    #[arg(long, value_parser = parse_roi)]
+    pub roi: Option<Roi>,
+    /// Flat-test threshold in standard deviations (default 4.5).
+    #[arg(long)]
+    pub flat_k: Option<f64>,
+    /// Report frames whose brightness drifted (flicker) but use them as they are.
+    #[arg(long)]
+    pub no_drift_normalise: bool,
+}
+
+pub fn parse_roi(s: &str) -> Result<Roi, String> {
+    let v: Vec<u32> = s
+        .split(',')
+        .map(|p| p.trim().parse::<u32>().map_err(|_| format!("'{p}' is not a pixel coordinate")))
+        .collect::<Result<_, _>>()?;
+    match v[..] {
+        [x0, y0, x1, y1] if x1 > x0 && y1 > y0 => Ok(Roi { x0, y0, x1, y1 }),
+        _ => Err("expected x0,y0,x1,y1 with x1 > x0 and y1 > y0".into()),
+    }
+}
+
+pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
+    let opts = CalibrateOptions {
+        reference_iso: args.reference_iso,
+        bin_width: args.bin_width,
+        min_samples: args.min_samples,
+        roi: args.roi,
+        flat_k: args.flat_k,
+        no_drift_normalise: args.no_drift_normalise,
+    };
+    let (pack, report) = calibrate_path(&args.input, &opts, quiet)?;
+    let bytes = pack.to_bytes()?;
+    write_atomic(&args.output, &bytes).with_context(|| format!("writing {}", args.output.display()))?;
+    for w in report.warnings.iter().chain(&pack.warnings) {
+        eprintln!("warning: {w}");
+    }
+    if !report.rejected.is_empty() {
+        eprintln!("{} frames rejected:", report.rejected.len());
+        for r in report.rejected.iter().take(20) {
+            eprintln!("  {r}");
+        }
+        if report.rejected.len() > 20 {
+            eprintln!("  … and {} more", report.rejected.len() - 20);
+        }
+    }
+    if !quiet {
+        eprintln!(
+            "{}: {} frames, ISOs {} (reference {}), {} bytes",
+            args.output.display(),
+            report.frames,
+            pack.iso_summary(),
+            pack.reference_iso,
+            bytes.len()
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,8 @@
+//! `noisecal demo` (being written).
+
+#[derive(clap::Args, Debug)]
+pub struct Args {}
+
+pub fn run(_args: Args, _quiet: bool) -> anyhow::Result<()> {
+    anyhow::bail!("noisecal demo is not built yet")
+}

@@ -1,0 +1,8 @@
+//! `noisecal interp` (being written).
+
+#[derive(clap::Args, Debug)]
+pub struct Args {}
+
+pub fn run(_args: Args, _quiet: bool) -> anyhow::Result<()> {
+    anyhow::bail!("noisecal interp is not built yet")
+}

@@ -1,0 +1,82 @@
+//! DNG input and output.
+//!
+//! * [`read_dng`] reads a Bayer CFA DNG (uncompressed 10–16-bit strips or tiles, lossless JPEG,
+//!   whatever `rawler` decodes) into the mosaic of its active area, with the levels, CFA order and
+//!   capture metadata the calibration needs. The returned layout describes position (0,0) of the
+//!   returned array: DNG gives `CFAPattern` and `BlackLevel` relative to the `ActiveArea`, which is
+//!   exactly what is returned.
+//! * [`write_dng`] / [`write_dng_from_layout`] write an uncompressed 16-bit CFA DNG (one IFD, the
+//!   way Android's `DngCreator` lays it out) through the small TIFF writer in [`tiff`], atomically.
+//! * [`scan_folder`] lists the DNGs of a folder.
+
+mod error;
+mod read;
+pub mod tiff;
+mod write;
+
+use std::path::{Path, PathBuf};
+
+use ndarray::Array2;
+use noisecal_core::{FrameMeta, SensorLayout};
+
+pub use error::DngError;
+pub use read::read_dng;
+pub use write::{DngSpec, dng_tiff, write_dng, write_dng_from_layout};
+
+/// Colour tags carried from a read DNG to the ones written from it, so other tools still render
+/// them. They play no part in the noise model.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ColorTags {
+    /// `ColorMatrix1` (XYZ → camera), 9 values for a 3-colour sensor.
+    pub color_matrix1: Option<Vec<f64>>,
+    /// `CalibrationIlluminant1` (EXIF light source code; 21 = D65).
+    pub calibration_illuminant1: Option<u16>,
+    /// `AsShotNeutral`, one value per colour plane.
+    pub as_shot_neutral: Option<Vec<f64>>,
+}
+
+/// A decoded CFA DNG.
+#[derive(Debug, Clone)]
+pub struct DngImage {
+    /// Size of `pixels`, CFA order at its (0,0), black level per CFA position (the DNG
+    /// `BlackLevel` pattern, plus `BlackLevelDeltaH/V` averaged per position), white level.
+    pub layout: SensorLayout,
+    /// ISO and exposure time from EXIF; `black` is `Some(layout.black)`: each DNG carries its own
+    /// black level, which is therefore a per-frame value.
+    pub meta: FrameMeta,
+    /// The CFA mosaic of the active area, `height × width` (row-major).
+    pub pixels: Array2<u16>,
+    /// `Make` of IFD0 (trimmed; empty if absent).
+    pub make: String,
+    /// `Model` of IFD0 (trimmed; empty if absent).
+    pub model: String,
+    /// DNG `NoiseProfile` (tag 51041): `(S, O)` pairs, one per colour plane (or one for all).
+    pub noise_profile: Option<Vec<(f64, f64)>>,
+    /// Bits per sample of the stored data (10–16).
+    pub bits_per_sample: u32,
+    /// Colour tags kept for writing.
+    pub color: ColorTags,
+    /// The file this was read from.
+    pub source: PathBuf,
+}
+
+/// Every `*.dng` (any case) directly in `dir`, sorted by file name. Sub-folders are not searched.
+pub fn scan_folder(dir: &Path) -> Result<Vec<PathBuf>, DngError> {
+    let entries = std::fs::read_dir(dir).map_err(|e| DngError::io(dir, e))?;
+    let mut out = Vec::new();
+    for entry in entries {
+        let entry = entry.map_err(|e| DngError::io(dir, e))?;
+        let path = entry.path();
+        let is_dng = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("dng"));
+        if !is_dng {
+            continue;
+        }
+        // Follows symlinks: a link to a DNG counts, a folder named x.dng does not.
+        let is_file = std::fs::metadata(&path).map(|m| m.is_file()).unwrap_or(false);
+        if is_file {
+            out.push(path);
+        }
+    }
+    out.sort_by(|a, b| a.file_name().cmp(&b.file_name()));
+    Ok(out)
+}

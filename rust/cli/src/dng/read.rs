@@ -1,0 +1,586 @@
+//! Reading CFA DNGs with `rawler`: its TIFF parser for the tags, its decoders for the pixels.
+
+use std::collections::HashSet;
+use std::panic::{AssertUnwindSafe, catch_unwind};
+use std::path::Path;
+
+use ndarray::Array2;
+use noisecal_core::layout::CfaColor;
+use noisecal_core::{CfaPattern, FrameMeta, SensorLayout};
+use rawler::RawImageData;
+use rawler::decoders::plain_image_from_ifd;
+use rawler::formats::tiff::reader::TiffReader;
+use rawler::formats::tiff::{GenericTiffReader, IFD, Value};
+use rawler::rawsource::RawSource;
+
+use super::tiff::tag;
+use super::{ColorTags, DngError, DngImage};
+
+const PHOTOMETRIC_CFA: u64 = 32803;
+const PHOTOMETRIC_LINEAR_RAW: u64 = 34892;
+const COMPRESSION_LOSSY_JPEG: u64 = 34892;
+
+/// Reads a Bayer CFA DNG: the active-area mosaic, its layout (CFA at (0,0), black per position,
+/// white) and ISO / exposure time.
+///
+/// Errors: [`DngError::Io`] if the file cannot be opened; [`DngError::Decode`] for anything that is
+/// not a readable TIFF/DNG (truncated, random bytes, corrupt image data);
+/// [`DngError::MissingTag`] when ISO, exposure time or the CFA pattern is absent;
+/// [`DngError::Unsupported`] for non-Bayer (X-Trans, 4-colour), demosaiced (LinearRaw), lossy,
+/// floating-point or < 10-bit data, and levels that make no sense.
+pub fn read_dng(path: &Path) -> Result<DngImage, DngError> {
+    let len = std::fs::metadata(path).map_err(|e| DngError::io(path, e))?.len();
+    if len < 8 {
+        return Err(DngError::decode(path, format!("the file is only {len} bytes long; a DNG is a TIFF file")));
+    }
+    let src = RawSource::new(path).map_err(|e| DngError::io(path, e))?;
+    check_structure(src.buf()).map_err(|d| DngError::decode(path, d))?;
+
+    let tiff =
+        guarded(path, "parsing the TIFF structure", || GenericTiffReader::new(&mut src.reader(), 0, 0, None, &[]))?
+            .map_err(|e| DngError::decode(path, format!("invalid TIFF structure: {e}")))?;
+    let chain: Vec<&IFD> = tiff.chains().iter().collect();
+    if !chain.iter().any(|ifd| ifd.get_entry(tag::DNG_VERSION).is_some()) {
+        return Err(DngError::unsupported(
+            path,
+            "this TIFF file has no DNGVersion tag, so it is not a DNG; convert camera raw files to DNG first \
+             (e.g. with Adobe DNG Converter or dnglab)",
+        ));
+    }
+    let raw = find_raw_ifd(path, &chain)?;
+
+    // --- Geometry and sample format.
+    let int_tag = |t: u16, name: &str| -> Result<Option<u64>, DngError> {
+        match value(raw, t) {
+            None => Ok(None),
+            Some(_) => uint(raw, t)
+                .map(Some)
+                .ok_or_else(|| DngError::decode(path, format!("{name} of the raw image is not an integer"))),
+        }
+    };
+    let width = int_tag(tag::IMAGE_WIDTH, "ImageWidth")?
+        .ok_or_else(|| DngError::decode(path, "the raw image has no ImageWidth"))?;
+    let height = int_tag(tag::IMAGE_LENGTH, "ImageLength")?
+        .ok_or_else(|| DngError::decode(path, "the raw image has no ImageLength"))?;
+    // Bounds keep a corrupt header from making the decoder allocate gigabytes (≤ 256 MP).
+    if width == 0 || height == 0 || width > 65535 || height > 65535 || width * height > 1 << 28 {
+        return Err(DngError::decode(path, format!("implausible raw image size {width}×{height}")));
+    }
+    let (width, height) = (width as usize, height as usize);
+    for (t, name) in
+        [(tag::ROWS_PER_STRIP, "RowsPerStrip"), (tag::TILE_WIDTH, "TileWidth"), (tag::TILE_LENGTH, "TileLength")]
+    {
+        if int_tag(t, name)? == Some(0) {
+            return Err(DngError::decode(path, format!("{name} of the raw image is 0")));
+        }
+    }
+    let spp = int_tag(tag::SAMPLES_PER_PIXEL, "SamplesPerPixel")?.unwrap_or(1);
+    if spp != 1 {
+        return Err(DngError::unsupported(
+            path,
+            format!("{spp} samples per pixel; noisecal reads 1-sample CFA mosaics"),
+        ));
+    }
+    let bits = int_tag(tag::BITS_PER_SAMPLE, "BitsPerSample")?.unwrap_or(1).min(64) as u32;
+    if !(10..=16).contains(&bits) {
+        return Err(DngError::unsupported(
+            path,
+            format!("{bits} bits per sample; noisecal reads 10- to 16-bit raw data"),
+        ));
+    }
+    if let Some(fmt) = uint(raw, tag::SAMPLE_FORMAT)
+        && fmt != 1
+    {
+        return Err(DngError::unsupported(
+            path,
+            "floating-point (HDR-merged) samples; noisecal needs the integer data the sensor delivered",
+        ));
+    }
+    if uint(raw, tag::COMPRESSION) == Some(COMPRESSION_LOSSY_JPEG) {
+        return Err(DngError::unsupported(
+            path,
+            "lossy-compressed DNG; its noise is not the sensor's: save uncompressed or lossless DNGs",
+        ));
+    }
+
+    let cfa = read_cfa(path, raw)?;
+    let (top, left, bottom, right) = active_area(path, raw, width, height)?;
+    let (aw, ah) = (right - left, bottom - top);
+
+    let white = match value(raw, tag::WHITE_LEVEL).and_then(|v| num(v, 0)) {
+        Some(w) if w.is_finite() && (0.0..=65535.0).contains(&w) => w.round() as u16,
+        Some(w) => {
+            return Err(DngError::unsupported(path, format!("WhiteLevel {w} does not fit 16-bit samples")));
+        }
+        None => ((1u32 << bits) - 1) as u16,
+    };
+    let black = black_levels(path, raw, aw, ah)?;
+
+    // --- Pixels.
+    let data_bytes = check_data_within_file(path, raw, src.buf().len())?;
+    let needed = (width * height * bits as usize).div_ceil(8) as u64;
+    if uint(raw, tag::COMPRESSION).unwrap_or(1) == 1 && data_bytes < needed {
+        return Err(DngError::decode(
+            path,
+            format!(
+                "the uncompressed {width}×{height} {bits}-bit image needs {needed} bytes but the file stores \
+                 {data_bytes}: it is truncated or corrupt"
+            ),
+        ));
+    }
+    let data = guarded(path, "decoding the raw image data", || plain_image_from_ifd(raw, &src))?
+        .map_err(|e| DngError::decode(path, format!("raw image data: {e}")))?;
+    let data = match data {
+        RawImageData::Integer(d) => d,
+        RawImageData::Float(_) => {
+            return Err(DngError::unsupported(path, "floating-point samples; noisecal needs integer sensor data"));
+        }
+    };
+    if data.len() < width * height {
+        return Err(DngError::decode(path, format!("decoded {} samples for a {width}×{height} image", data.len())));
+    }
+    let mut cropped = Vec::with_capacity(aw * ah);
+    for row in top..bottom {
+        cropped.extend_from_slice(&data[row * width + left..row * width + right]);
+    }
+    drop(data);
+    let pixels = Array2::from_shape_vec((ah, aw), cropped)
+        .map_err(|e| DngError::decode(path, format!("cannot shape the mosaic: {e}")))?;
+
+    let layout = SensorLayout { width: aw as u32, height: ah as u32, cfa, black, white };
+    layout.validate().map_err(|e| DngError::unsupported(path, format!("the levels in this DNG are unusable: {e}")))?;
+
+    // --- Capture metadata.
+    let mut meta_ifds: Vec<&IFD> = Vec::new();
+    for ifd in std::iter::once(raw).chain(chain.iter().copied()) {
+        if let Some(subs) = ifd.sub_ifds().get(&tag::EXIF_IFD) {
+            meta_ifds.extend(subs.iter());
+        }
+    }
+    meta_ifds.push(raw);
+    meta_ifds.extend(chain.iter().copied());
+    let iso = read_iso(path, &meta_ifds)?;
+    let exposure_ns = read_exposure(path, &meta_ifds)?;
+
+    let root_then_raw: Vec<&IFD> = chain.iter().copied().chain(std::iter::once(raw)).collect();
+    let raw_then_root: Vec<&IFD> = std::iter::once(raw).chain(chain.iter().copied()).collect();
+    let noise_profile = find(&raw_then_root, tag::NOISE_PROFILE).and_then(|v| {
+        let vals = nums(v);
+        (vals.len() >= 2 && vals.iter().all(|x| x.is_finite()))
+            .then(|| vals.chunks_exact(2).map(|p| (p[0], p[1])).collect())
+    });
+    let color = ColorTags {
+        color_matrix1: find(&root_then_raw, tag::COLOR_MATRIX_1).map(nums).filter(|v| !v.is_empty()),
+        calibration_illuminant1: find(&root_then_raw, tag::CALIBRATION_ILLUMINANT_1)
+            .and_then(|v| num(v, 0))
+            .map(|x| x as u16),
+        as_shot_neutral: find(&root_then_raw, tag::AS_SHOT_NEUTRAL).map(nums).filter(|v| !v.is_empty()),
+    };
+
+    Ok(DngImage {
+        meta: FrameMeta { iso, exposure_ns, black: Some(layout.black) },
+        layout,
+        pixels,
+        make: ascii(&root_then_raw, tag::MAKE),
+        model: ascii(&root_then_raw, tag::MODEL),
+        noise_profile,
+        bits_per_sample: bits,
+        color,
+        source: path.to_path_buf(),
+    })
+}
+
+/// Runs decoder code that may panic on malformed input, turning a panic into [`DngError::Decode`].
+fn guarded<T>(path: &Path, what: &str, f: impl FnOnce() -> T) -> Result<T, DngError> {
+    catch_unwind(AssertUnwindSafe(f)).map_err(|payload| {
+        let msg = payload
+            .downcast_ref::<&str>()
+            .map(|s| (*s).to_string())
+            .or_else(|| payload.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "internal decoder error".into());
+        DngError::decode(path, format!("the decoder failed while {what}: {msg}"))
+    })
+}
+
+// ---------------------------------------------------------------------------------------------
+// Tag access
+
+fn value(ifd: &IFD, t: u16) -> Option<&Value> {
+    ifd.get_entry(t).map(|e| &e.value)
+}
+
+fn find<'a>(ifds: &[&'a IFD], t: u16) -> Option<&'a Value> {
+    ifds.iter().find_map(|ifd| value(ifd, t))
+}
+
+/// Element `i` of a numeric value as f64 (rationals divided out; a zero denominator gives None).
+fn num(v: &Value, i: usize) -> Option<f64> {
+    match v {
+        Value::Byte(x) => x.get(i).map(|&a| a as f64),
+        Value::Short(x) => x.get(i).map(|&a| a as f64),
+        Value::Long(x) => x.get(i).map(|&a| a as f64),
+        Value::SByte(x) => x.get(i).map(|&a| a as f64),
+        Value::SShort(x) => x.get(i).map(|&a| a as f64),
+        Value::SLong(x) => x.get(i).map(|&a| a as f64),
+        Value::Rational(x) => x.get(i).filter(|r| r.d != 0).map(|r| r.n as f64 / r.d as f64),
+        Value::SRational(x) => x.get(i).filter(|r| r.d != 0).map(|r| r.n as f64 / r.d as f64),
+        Value::Float(x) => x.get(i).map(|&a| a as f64),
+        Value::Double(x) => x.get(i).copied(),
+        _ => None,
+    }
+}
+
+fn nums(v: &Value) -> Vec<f64> {
+    (0..v.count()).map(|i| num(v, i).unwrap_or(f64::NAN)).collect()
+}
+
+/// First element of an unsigned integer tag.
+fn uint(ifd: &IFD, t: u16) -> Option<u64> {
+    match value(ifd, t)? {
+        Value::Byte(x) => x.first().map(|&a| a as u64),
+        Value::Short(x) => x.first().map(|&a| a as u64),
+        Value::Long(x) => x.first().map(|&a| a as u64),
+        _ => None,
+    }
+}
+
+fn ascii(ifds: &[&IFD], t: u16) -> String {
+    match find(ifds, t) {
+        Some(Value::Ascii(a)) => a.strings().first().map(|s| s.trim().to_string()).unwrap_or_default(),
+        _ => String::new(),
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Structure
+
+/// Walks the IFD structure before rawler does: rejects non-TIFF data, IFD loops and tags whose
+/// size exceeds the file (rawler would allocate them blindly).
+fn check_structure(buf: &[u8]) -> Result<(), String> {
+    let big = match &buf[..4] {
+        b"II\x2a\0" => false,
+        b"MM\0\x2a" => true,
+        other => {
+            return Err(format!(
+                "not a TIFF/DNG file (it starts with bytes {:02x?}; a DNG starts with \"II*\\0\" or \"MM\\0*\")",
+                other
+            ));
+        }
+    };
+    let rd16 = |o: usize| -> Option<u16> {
+        let b: [u8; 2] = buf.get(o..o + 2)?.try_into().ok()?;
+        Some(if big { u16::from_be_bytes(b) } else { u16::from_le_bytes(b) })
+    };
+    let rd32 = |o: usize| -> Option<u32> {
+        let b: [u8; 4] = buf.get(o..o + 4)?.try_into().ok()?;
+        Some(if big { u32::from_be_bytes(b) } else { u32::from_le_bytes(b) })
+    };
+    let first = rd32(4).unwrap_or(0) as usize;
+    if first == 0 || first >= buf.len() {
+        return Err(format!("the first IFD offset {first} lies outside the {}-byte file (truncated?)", buf.len()));
+    }
+    let mut visited = HashSet::new();
+    // (offset, depth, is_chain)
+    let mut todo = vec![(first, 0u32)];
+    while let Some((off, depth)) = todo.pop() {
+        if !visited.insert(off) {
+            return Err(format!("IFD at offset {off} is referenced twice (corrupt IFD links)"));
+        }
+        if visited.len() > 512 {
+            return Err("more than 512 IFDs (corrupt IFD links)".into());
+        }
+        let n = rd16(off).ok_or_else(|| format!("IFD at offset {off} lies past the end of the file (truncated?)"))?
+            as usize;
+        if n == 0 {
+            return Err(format!("IFD at offset {off} has no entries"));
+        }
+        if off + 2 + 12 * n > buf.len() {
+            return Err(format!("IFD at offset {off} with {n} entries runs past the end of the file (truncated?)"));
+        }
+        for i in 0..n {
+            let e = off + 2 + 12 * i;
+            let (t, ty) = (rd16(e).unwrap_or(0), rd16(e + 2).unwrap_or(0));
+            let count = rd32(e + 4).unwrap_or(0) as u64;
+            let unit: u64 = match ty {
+                3 | 8 => 2,
+                4 | 9 | 11 | 13 => 4,
+                5 | 10 | 12 => 8,
+                _ => 1,
+            };
+            let size = count.saturating_mul(unit);
+            if size > buf.len() as u64 {
+                return Err(format!("tag {t} claims {size} bytes in a {}-byte file (corrupt)", buf.len()));
+            }
+            if (t == tag::SUB_IFDS || t == tag::EXIF_IFD) && depth < 4 && (unit == 4) {
+                let at = if size <= 4 { Some(e + 8) } else { rd32(e + 8).map(|o| o as usize) };
+                if let Some(at) = at {
+                    for k in 0..count as usize {
+                        match rd32(at + 4 * k) {
+                            Some(o) if o != 0 => todo.push((o as usize, depth + 1)),
+                            _ => {}
+                        }
+                    }
+                }
+            }
+        }
+        if depth == 0
+            && let Some(next) = rd32(off + 2 + 12 * n)
+            && next != 0
+        {
+            todo.push((next as usize, 0));
+        }
+    }
+    Ok(())
+}
+
+/// The full-resolution raw image: NewSubFileType 0 in the IFD chain or its SubIFDs, CFA preferred.
+fn find_raw_ifd<'a>(path: &Path, chain: &[&'a IFD]) -> Result<&'a IFD, DngError> {
+    fn collect<'a>(ifd: &'a IFD, out: &mut Vec<&'a IFD>) {
+        out.push(ifd);
+        if let Some(subs) = ifd.sub_ifds().get(&tag::SUB_IFDS) {
+            for s in subs {
+                collect(s, out);
+            }
+        }
+    }
+    let mut all = Vec::new();
+    for ifd in chain {
+        collect(ifd, &mut all);
+    }
+    let main: Vec<&IFD> = all
+        .into_iter()
+        .filter(|ifd| uint(ifd, tag::NEW_SUBFILE_TYPE).unwrap_or(0) == 0)
+        .filter(|ifd| ifd.get_entry(tag::STRIP_OFFSETS).is_some() || ifd.get_entry(tag::TILE_OFFSETS).is_some())
+        .collect();
+    if let Some(raw) = main.iter().find(|ifd| uint(ifd, tag::PHOTOMETRIC) == Some(PHOTOMETRIC_CFA)) {
+        return Ok(raw);
+    }
+    if main.iter().any(|ifd| uint(ifd, tag::PHOTOMETRIC) == Some(PHOTOMETRIC_LINEAR_RAW)) {
+        return Err(DngError::unsupported(
+            path,
+            "this DNG holds demosaiced (LinearRaw) data, not the sensor's CFA mosaic; capture RAW_SENSOR \
+             frames (or convert without demosaicing)",
+        ));
+    }
+    Err(DngError::decode(path, "no full-resolution CFA raw image found in the DNG"))
+}
+
+fn read_cfa(path: &Path, raw: &IFD) -> Result<CfaPattern, DngError> {
+    let pattern = value(raw, tag::CFA_PATTERN).ok_or(DngError::MissingTag {
+        path: path.to_path_buf(),
+        tag: "CFAPattern (33422)",
+        fix: "the raw image does not say its colour filter order; re-export the DNG with its CFA tags",
+    })?;
+    let n = pattern.count();
+    let (rows, cols) = match value(raw, tag::CFA_REPEAT_PATTERN_DIM) {
+        Some(v) if v.count() >= 2 => (num(v, 0).unwrap_or(0.0) as usize, num(v, 1).unwrap_or(0.0) as usize),
+        _ if n == 4 => (2, 2),
+        _ => {
+            return Err(DngError::MissingTag {
+                path: path.to_path_buf(),
+                tag: "CFARepeatPatternDim (33421)",
+                fix: "the CFA pattern size is not given; re-export the DNG with its CFA tags",
+            });
+        }
+    };
+    if (rows, cols) != (2, 2) {
+        let xtrans = if (rows, cols) == (6, 6) { " (Fujifilm X-Trans)" } else { "" };
+        return Err(DngError::unsupported(
+            path,
+            format!(
+                "CFA repeat pattern {rows}×{cols}{xtrans} is not a 2×2 Bayer mosaic; noisecal supports \
+                 RGGB/BGGR/GRBG/GBRG sensors only"
+            ),
+        ));
+    }
+    if n != 4 {
+        return Err(DngError::decode(path, format!("CFAPattern has {n} entries for a 2×2 pattern")));
+    }
+    let planes: Vec<f64> = value(raw, tag::CFA_PLANE_COLOR).map(nums).unwrap_or_else(|| vec![0.0, 1.0, 2.0]);
+    let mut colors = [CfaColor::Green; 4];
+    let mut codes = [0u8; 4];
+    for (i, c) in colors.iter_mut().enumerate() {
+        let idx = num(pattern, i).unwrap_or(f64::NAN);
+        let plane = planes.get(idx as usize).copied().filter(|_| idx >= 0.0).unwrap_or(f64::NAN);
+        codes[i] = plane as u8;
+        *c = match plane as i64 {
+            0 => CfaColor::Red,
+            1 => CfaColor::Green,
+            2 => CfaColor::Blue,
+            _ => {
+                return Err(DngError::unsupported(
+                    path,
+                    format!(
+                        "CFA colour code {plane} (0=R 1=G 2=B 3=C 4=M 5=Y 6=W) is not an RGB Bayer filter; \
+                         noisecal supports RGGB/BGGR/GRBG/GBRG sensors only"
+                    ),
+                ));
+            }
+        };
+    }
+    CfaPattern::from_colors(colors).ok_or_else(|| {
+        DngError::unsupported(
+            path,
+            format!("CFA pattern {codes:?} (0=R 1=G 2=B) is not a Bayer order (RGGB, BGGR, GRBG or GBRG)"),
+        )
+    })
+}
+
+/// `ActiveArea` as (top, left, bottom, right); the whole image when absent.
+fn active_area(path: &Path, raw: &IFD, w: usize, h: usize) -> Result<(usize, usize, usize, usize), DngError> {
+    let Some(v) = value(raw, tag::ACTIVE_AREA) else {
+        return Ok((0, 0, h, w));
+    };
+    let a: Vec<f64> = nums(v);
+    if a.len() != 4 || a.iter().any(|x| !x.is_finite() || *x < 0.0) {
+        return Err(DngError::decode(path, format!("ActiveArea {a:?} is not 4 non-negative numbers")));
+    }
+    let (t, l, b, r) = (a[0] as usize, a[1] as usize, a[2] as usize, a[3] as usize);
+    if t + 2 > b || l + 2 > r || b > h || r > w {
+        return Err(DngError::decode(path, format!("ActiveArea {t},{l},{b},{r} does not fit the {w}×{h} image")));
+    }
+    Ok((t, l, b, r))
+}
+
+/// Black level per CFA position of the active area: the mean, over that position's pixels, of the
+/// `BlackLevel` pattern (relative to the active area's origin, any repeat size) plus
+/// `BlackLevelDeltaH` of the pixel's column and `BlackLevelDeltaV` of its row.
+fn black_levels(path: &Path, raw: &IFD, aw: usize, ah: usize) -> Result<[f32; 4], DngError> {
+    let (rr, rc) = match value(raw, tag::BLACK_LEVEL_REPEAT_DIM) {
+        Some(v) => (num(v, 0).unwrap_or(0.0) as usize, num(v, 1).unwrap_or(0.0) as usize),
+        None => (1, 1),
+    };
+    if rr == 0 || rc == 0 || rr > 64 || rc > 64 {
+        return Err(DngError::decode(path, format!("BlackLevelRepeatDim {rr}×{rc} is invalid")));
+    }
+    let mut levels = value(raw, tag::BLACK_LEVEL).map(nums).unwrap_or_else(|| vec![0.0]);
+    if levels.iter().any(|x| !x.is_finite()) {
+        return Err(DngError::decode(path, format!("BlackLevel {levels:?} is not a list of numbers")));
+    }
+    if levels.len() == 1 {
+        levels = vec![levels[0]; rr * rc];
+    }
+    if levels.len() != rr * rc {
+        return Err(DngError::decode(
+            path,
+            format!("BlackLevel has {} values but BlackLevelRepeatDim says {rr}×{rc}", levels.len()),
+        ));
+    }
+    let delta = |t: u16, n: usize| -> Vec<f64> {
+        value(raw, t)
+            .map(nums)
+            .unwrap_or_default()
+            .into_iter()
+            .take(n)
+            .map(|x| if x.is_finite() { x } else { 0.0 })
+            .collect()
+    };
+    let dh = delta(tag::BLACK_LEVEL_DELTA_H, aw);
+    let dv = delta(tag::BLACK_LEVEL_DELTA_V, ah);
+    let parity_mean = |d: &[f64], parity: usize| -> f64 {
+        let sel: Vec<f64> = d.iter().skip(parity).step_by(2).copied().collect();
+        if sel.is_empty() { 0.0 } else { sel.iter().sum::<f64>() / sel.len() as f64 }
+    };
+    // Exact mean over the active area's pixels of each position: count the rows (columns) of each
+    // parity that fall on each row (column) of the repeat pattern.
+    let residue_counts = |len: usize, parity: usize, period: usize| -> Vec<f64> {
+        let mut counts = vec![0.0; period];
+        for i in (parity..len).step_by(2) {
+            counts[i % period] += 1.0;
+        }
+        counts
+    };
+    let mut black = [0f32; 4];
+    for (pos, b) in black.iter_mut().enumerate() {
+        let (r, c) = (pos >> 1, pos & 1);
+        let rows = residue_counts(ah, r, rr);
+        let cols = residue_counts(aw, c, rc);
+        let mut sum = 0.0;
+        let mut weight = 0.0;
+        for (a, &nr) in rows.iter().enumerate() {
+            for (k, &nc) in cols.iter().enumerate() {
+                sum += nr * nc * levels[a * rc + k];
+                weight += nr * nc;
+            }
+        }
+        let base = if weight > 0.0 { sum / weight } else { levels[(r % rr) * rc + c % rc] };
+        *b = (base + parity_mean(&dh, c) + parity_mean(&dv, r)) as f32;
+    }
+    Ok(black)
+}
+
+/// Clear error for a truncated file, before the decoder sees the data. Returns the data's size.
+fn check_data_within_file(path: &Path, raw: &IFD, file_len: usize) -> Result<u64, DngError> {
+    let (offs, counts) = if raw.get_entry(tag::STRIP_OFFSETS).is_some() {
+        (value(raw, tag::STRIP_OFFSETS), value(raw, tag::STRIP_BYTE_COUNTS))
+    } else {
+        (value(raw, tag::TILE_OFFSETS), value(raw, tag::TILE_BYTE_COUNTS))
+    };
+    let (Some(offs), Some(counts)) = (offs, counts) else {
+        return Err(DngError::decode(path, "the raw image has no strip/tile byte counts"));
+    };
+    if offs.count() != counts.count() || offs.count() == 0 {
+        return Err(DngError::decode(
+            path,
+            format!("{} data offsets but {} byte counts", offs.count(), counts.count()),
+        ));
+    }
+    let mut end = 0u64;
+    let mut total = 0u64;
+    for i in 0..offs.count() {
+        let o = num(offs, i).unwrap_or(f64::INFINITY);
+        let c = num(counts, i).unwrap_or(f64::INFINITY);
+        end = end.max((o + c).min(u64::MAX as f64) as u64);
+        total = total.saturating_add(c.min(u64::MAX as f64) as u64);
+    }
+    if end > file_len as u64 {
+        return Err(DngError::decode(
+            path,
+            format!("the image data ends at byte {end} but the file has only {file_len} bytes: it is truncated"),
+        ));
+    }
+    Ok(total)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Capture metadata
+
+fn read_iso(path: &Path, ifds: &[&IFD]) -> Result<u32, DngError> {
+    let positive = |t: u16| find(ifds, t).and_then(|v| num(v, 0)).filter(|x| x.is_finite() && *x >= 1.0);
+    let extended = || positive(tag::ISO_SPEED).or_else(|| positive(tag::RECOMMENDED_EXPOSURE_INDEX));
+    let iso = match positive(tag::ISO_SPEED_RATINGS) {
+        // 65535 means "65535 or more" (EXIF 2.3): the exact value is in ISOSpeed / REI.
+        Some(x) if x >= 65535.0 => extended().unwrap_or(x),
+        Some(x) => x,
+        None => extended().ok_or(DngError::MissingTag {
+            path: path.to_path_buf(),
+            tag: "ISOSpeedRatings / PhotographicSensitivity (0x8827)",
+            fix: "the DNG does not record its ISO; capture with an app that writes it (Android's DngCreator \
+                  and the noisecal app do), or add it with `exiftool -ISO=<value> FILE`",
+        })?,
+    };
+    Ok(iso.round().min(u32::MAX as f64) as u32)
+}
+
+fn read_exposure(path: &Path, ifds: &[&IFD]) -> Result<u64, DngError> {
+    let v = find(ifds, tag::EXPOSURE_TIME).ok_or(DngError::MissingTag {
+        path: path.to_path_buf(),
+        tag: "ExposureTime (0x829A)",
+        fix: "the DNG does not record its exposure time; capture with an app that writes it (Android's \
+              DngCreator and the noisecal app do), or add it with `exiftool -ExposureTime=<seconds> FILE`",
+    })?;
+    let ns = match v {
+        Value::Rational(r) if !r.is_empty() && r[0].d != 0 => {
+            let (n, d) = (r[0].n as u128, r[0].d as u128);
+            ((n * 1_000_000_000 + d / 2) / d).min(u64::MAX as u128) as u64
+        }
+        other => match num(other, 0) {
+            Some(s) if s.is_finite() && s > 0.0 => (s * 1e9).round().min(u64::MAX as f64) as u64,
+            _ => 0,
+        },
+    };
+    if ns == 0 {
+        return Err(DngError::decode(path, "ExposureTime is zero or not a number"));
+    }
+    Ok(ns)
+}

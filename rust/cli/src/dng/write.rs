@@ -1,0 +1,242 @@
+//! Writing CFA DNGs.
+//!
+//! rawler's `DngWriter` converts a whole `RawImage` (camera definition, colour matrices, crop
+//! modes) and asserts on anything it does not expect; writing a bare mosaic through it means
+//! faking a camera. A Bayer DNG is one TIFF IFD with ~30 tags, so it is written here through the
+//! small writer in [`super::tiff`], with exactly the tags noisecal and other readers need:
+//! uncompressed 16-bit little-endian strips in IFD0 (like Android's `DngCreator`), CFA tags,
+//! `BlackLevel` as a 2×2 rational pattern (fractional levels survive), `WhiteLevel`, colour tags,
+//! and an EXIF IFD with `ExposureTime` and `ISOSpeedRatings`.
+
+use std::io::Write;
+use std::path::Path;
+
+use ndarray::Array2;
+use noisecal_core::layout::CfaColor;
+use noisecal_core::{FrameMeta, SensorLayout};
+
+use super::tiff::{Ifd, ImageData, TagValue, TiffBuilder, tag, u16_bytes};
+use super::{ColorTags, DngError, DngImage};
+
+/// Everything a written DNG says besides its pixels.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DngSpec {
+    pub layout: SensorLayout,
+    /// ISO and exposure; `meta.black`, when set, overrides `layout.black` as the file's BlackLevel.
+    pub meta: FrameMeta,
+    pub make: String,
+    pub model: String,
+    pub color: ColorTags,
+}
+
+/// Writes `pixels` as a DNG with `template`'s metadata (make, model, CFA, `layout.black`, white,
+/// exposure, colour tags) and the ISO `iso`. `pixels` must have the template's size. The template's
+/// `NoiseProfile` is not copied: it would not describe the new pixels.
+pub fn write_dng(path: &Path, template: &DngImage, pixels: &Array2<u16>, iso: u32) -> Result<(), DngError> {
+    let spec = DngSpec {
+        layout: template.layout.clone(),
+        // The template's layout is authoritative (read_dng sets meta.black to the same values).
+        meta: FrameMeta { iso, black: None, ..template.meta },
+        make: template.make.clone(),
+        model: template.model.clone(),
+        color: template.color.clone(),
+    };
+    write_spec(path, &spec, pixels)
+}
+
+/// Writes `pixels` as a DNG described by `layout` and `meta` (for the simulator and demos, which
+/// have no template DNG). Same writer as [`write_dng`].
+pub fn write_dng_from_layout(
+    path: &Path,
+    layout: &SensorLayout,
+    meta: &FrameMeta,
+    make: &str,
+    model: &str,
+    pixels: &Array2<u16>,
+) -> Result<(), DngError> {
+    let spec = DngSpec {
+        layout: layout.clone(),
+        meta: *meta,
+        make: make.to_string(),
+        model: model.to_string(),
+        color: ColorTags::default(),
+    };
+    write_spec(path, &spec, pixels)
+}
+
+/// Builds the TIFF structure of a DNG (IFD0 = raw image, EXIF sub-IFD) without writing it, so
+/// callers (tests) can alter tags before serializing with [`TiffBuilder::to_bytes`].
+pub fn dng_tiff(spec: &DngSpec, pixels: &Array2<u16>) -> Result<TiffBuilder, String> {
+    let layout = &spec.layout;
+    let (h, w) = pixels.dim();
+    if (w, h) != (layout.width as usize, layout.height as usize) {
+        return Err(format!("the pixel array is {w}×{h} but the layout says {}×{}", layout.width, layout.height));
+    }
+    layout.validate().map_err(|e| format!("invalid layout: {e}"))?;
+    if spec.meta.iso == 0 {
+        return Err("ISO is 0; pass the sensitivity of the frame".into());
+    }
+    if spec.meta.exposure_ns == 0 {
+        return Err("exposure time is 0 ns; pass the exposure of the frame".into());
+    }
+    let black = spec.meta.black_or(layout);
+    if let Some((pos, b)) =
+        black.iter().enumerate().find(|(_, b)| !b.is_finite() || **b < 0.0 || **b >= layout.white as f32)
+    {
+        return Err(format!("black level {b} at CFA position {pos} is not in [0, white={})", layout.white));
+    }
+
+    let mut raw = Ifd::new();
+    raw.set(tag::NEW_SUBFILE_TYPE, TagValue::Long(vec![0]))
+        .set(tag::IMAGE_WIDTH, TagValue::Long(vec![layout.width]))
+        .set(tag::IMAGE_LENGTH, TagValue::Long(vec![layout.height]))
+        .set(tag::BITS_PER_SAMPLE, TagValue::Short(vec![16]))
+        .set(tag::COMPRESSION, TagValue::Short(vec![1]))
+        .set(tag::PHOTOMETRIC, TagValue::Short(vec![32803]))
+        .set(tag::MAKE, TagValue::Ascii(spec.make.trim().to_string()))
+        .set(tag::MODEL, TagValue::Ascii(spec.model.trim().to_string()))
+        .set(tag::ORIENTATION, TagValue::Short(vec![1]))
+        .set(tag::SAMPLES_PER_PIXEL, TagValue::Short(vec![1]))
+        .set(tag::PLANAR_CONFIGURATION, TagValue::Short(vec![1]))
+        .set(tag::SOFTWARE, TagValue::Ascii(format!("noisecal {}", env!("CARGO_PKG_VERSION"))))
+        .set(tag::CFA_REPEAT_PATTERN_DIM, TagValue::Short(vec![2, 2]))
+        .set(tag::CFA_PATTERN, TagValue::Byte(layout.cfa.colors().map(color_code).to_vec()))
+        .set(tag::DNG_VERSION, TagValue::Byte(vec![1, 4, 0, 0]))
+        .set(tag::DNG_BACKWARD_VERSION, TagValue::Byte(vec![1, 1, 0, 0]))
+        .set(tag::UNIQUE_CAMERA_MODEL, TagValue::Ascii(unique_model(&spec.make, &spec.model)))
+        .set(tag::CFA_PLANE_COLOR, TagValue::Byte(vec![0, 1, 2]))
+        .set(tag::CFA_LAYOUT, TagValue::Short(vec![1]))
+        .set(tag::BLACK_LEVEL_REPEAT_DIM, TagValue::Short(vec![2, 2]))
+        .set(tag::BLACK_LEVEL, TagValue::Rational(black.iter().map(|&b| rational_f32(b)).collect()))
+        .set(tag::WHITE_LEVEL, TagValue::Long(vec![u32::from(layout.white)]));
+
+    // Colour tags: what the template had, else neutral placeholders so renderers accept the file.
+    let matrix = spec.color.color_matrix1.as_ref().filter(|m| m.len() == 9 && m.iter().all(|x| x.is_finite()));
+    let matrix: Vec<(i32, i32)> = match matrix {
+        Some(m) => {
+            m.iter().map(|&x| ((x * 10000.0).round().clamp(i32::MIN as f64, i32::MAX as f64) as i32, 10000)).collect()
+        }
+        None => (0..9).map(|i| (if i % 4 == 0 { 1 } else { 0 }, 1)).collect(),
+    };
+    raw.set(tag::COLOR_MATRIX_1, TagValue::SRational(matrix))
+        .set(tag::CALIBRATION_ILLUMINANT_1, TagValue::Short(vec![spec.color.calibration_illuminant1.unwrap_or(21)]));
+    let neutral =
+        spec.color.as_shot_neutral.as_ref().filter(|n| n.len() == 3 && n.iter().all(|x| x.is_finite() && *x > 0.0));
+    let neutral: Vec<(u32, u32)> = match neutral {
+        Some(n) => n.iter().map(|&x| ((x * 10000.0).round().min(u32::MAX as f64) as u32, 10000)).collect(),
+        None => vec![(1, 1); 3],
+    };
+    raw.set(tag::AS_SHOT_NEUTRAL, TagValue::Rational(neutral));
+
+    // Pixels: 16-bit little-endian strips of about 256 KiB.
+    let rows_per_strip = ((256 * 1024) / (2 * w)).clamp(1, h);
+    let samples: Vec<u16> = match pixels.as_slice() {
+        Some(s) => s.to_vec(),
+        None => pixels.iter().copied().collect(),
+    };
+    let strips = samples.chunks(rows_per_strip * w).map(|c| u16_bytes(c, false)).collect();
+    raw.image = Some(ImageData::Strips { rows_per_strip: rows_per_strip as u32, strips });
+
+    let mut exif = Ifd::new();
+    exif.set(tag::EXPOSURE_TIME, TagValue::Rational(vec![exposure_rational(spec.meta.exposure_ns)]))
+        .set(tag::EXIF_VERSION, TagValue::Undefined(b"0230".to_vec()));
+    if spec.meta.iso <= 65535 {
+        exif.set(tag::ISO_SPEED_RATINGS, TagValue::Short(vec![spec.meta.iso as u16]));
+    } else {
+        exif.set(tag::ISO_SPEED_RATINGS, TagValue::Short(vec![65535]))
+            .set(tag::SENSITIVITY_TYPE, TagValue::Short(vec![3]))
+            .set(tag::ISO_SPEED, TagValue::Long(vec![spec.meta.iso]));
+    }
+    raw.sub_ifds.insert(tag::EXIF_IFD, vec![exif]);
+
+    Ok(TiffBuilder { big_endian: false, chain: vec![raw] })
+}
+
+fn write_spec(path: &Path, spec: &DngSpec, pixels: &Array2<u16>) -> Result<(), DngError> {
+    let bytes = dng_tiff(spec, pixels).and_then(|t| t.to_bytes()).map_err(|what| DngError::invalid(path, what))?;
+    write_atomically(path, &bytes)
+}
+
+/// Writes to a temporary file next to `path`, then renames it into place: a failure leaves any
+/// existing file untouched and never leaves a half-written DNG under `path`.
+fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), DngError> {
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    let mut builder = tempfile::Builder::new();
+    builder.prefix(".noisecal-").suffix(".dng.tmp");
+    // Ordinary file permissions (0666 less the umask), not the private 0600 of temporary files.
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        builder.permissions(std::fs::Permissions::from_mode(0o666));
+    }
+    let mut tmp = builder.tempfile_in(dir).map_err(|e| DngError::io(path, e))?;
+    tmp.write_all(bytes).map_err(|e| DngError::io(path, e))?;
+    tmp.as_file().sync_all().map_err(|e| DngError::io(path, e))?;
+    tmp.persist(path).map_err(|e| DngError::io(path, e.error))?;
+    Ok(())
+}
+
+fn color_code(c: CfaColor) -> u8 {
+    match c {
+        CfaColor::Red => 0,
+        CfaColor::Green => 1,
+        CfaColor::Blue => 2,
+    }
+}
+
+fn unique_model(make: &str, model: &str) -> String {
+    let s = format!("{} {}", make.trim(), model.trim()).trim().to_string();
+    if s.is_empty() { "noisecal".into() } else { s }
+}
+
+/// A rational that reads back as exactly `x` (as f32): the smallest power-of-ten denominator that
+/// does, else 1/65536 steps.
+fn rational_f32(x: f32) -> (u32, u32) {
+    let v = x as f64;
+    for d in [1u32, 10, 100, 1000, 10_000, 100_000] {
+        let n = (v * d as f64).round();
+        if n <= u32::MAX as f64 && (n / d as f64) as f32 == x {
+            return (n as u32, d);
+        }
+    }
+    ((v * 65536.0).round().min(u32::MAX as f64) as u32, 65536)
+}
+
+/// Exposure time in ns as an EXIF rational in seconds (exact below 4.29 s after reduction).
+fn exposure_rational(ns: u64) -> (u32, u32) {
+    fn gcd(a: u64, b: u64) -> u64 {
+        if b == 0 { a } else { gcd(b, a % b) }
+    }
+    let g = gcd(ns, 1_000_000_000).max(1);
+    let (mut n, mut d) = (ns / g, 1_000_000_000 / g);
+    while n > u32::MAX as u64 && d >= 10 {
+        n = (n + 5) / 10;
+        d /= 10;
+    }
+    (n.min(u32::MAX as u64) as u32, d as u32)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rationals_read_back_exactly() {
+        for x in [0.0f32, 64.0, 63.5, 64.25, 255.75, 1023.3, 511.125, 4096.0, 0.1] {
+            let (n, d) = rational_f32(x);
+            assert_eq!((n as f64 / d as f64) as f32, x, "{x} -> {n}/{d}");
+        }
+        for ns in [1u64, 33_333_333, 10_000_000, 1_000_000_000, 4_500_000_000, 30_000_000_000] {
+            let (n, d) = exposure_rational(ns);
+            let back = ((n as u128 * 1_000_000_000 + d as u128 / 2) / d as u128) as u64;
+            assert_eq!(back, ns, "{ns} -> {n}/{d}");
+        }
+        // 12.3456789012 s cannot be exact in u32/u32; it stays within 1 µs.
+        let (n, d) = exposure_rational(12_345_678_901);
+        let back = n as f64 / d as f64 * 1e9;
+        assert!((back - 12_345_678_901.0).abs() < 1e3, "{back}");
+    }
+}

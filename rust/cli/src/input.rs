@@ -1,0 +1,246 @@
+//! Capture sets: a folder of DNGs (any order, any names) or a raw recording, turned into the
+//! ordered stream a calibration session takes. DNG frames are grouped into EV steps by
+//! `ISO × exposure` from their metadata, never by file name; the lowest ISO is the reference.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use noisecal_core::recording::RecordingReader;
+use noisecal_core::{CfaPattern, FrameMeta, POSITIONS, SensorLayout};
+use rayon::prelude::*;
+
+use crate::dng::{self, DngImage};
+
+/// Two EV steps closer than this factor in ISO × exposure are one step (steps are usually a
+/// factor 2 apart; reported exposures jitter by a few per cent).
+const STEP_FACTOR: f64 = 1.12;
+
+/// One DNG frame known by its metadata.
+#[derive(Debug, Clone)]
+pub struct DngFrame {
+    pub path: PathBuf,
+    pub meta: FrameMeta,
+}
+
+/// One EV step of a DNG capture set.
+#[derive(Debug, Clone)]
+pub struct DngStep {
+    /// ISO × exposure (ISO·s) of the step.
+    pub brightness: f64,
+    pub reference_exposure_ns: u64,
+    pub reference: Vec<DngFrame>,
+    /// Sorted by ISO, then file name.
+    pub targets: Vec<DngFrame>,
+}
+
+/// A folder of DNGs, grouped.
+#[derive(Debug, Clone)]
+pub struct DngSet {
+    pub layout: SensorLayout,
+    pub make: String,
+    pub model: String,
+    pub reference_iso: u32,
+    pub steps: Vec<DngStep>,
+    /// The camera's NoiseProfile per ISO, mapped to CFA positions.
+    pub noise_profiles: BTreeMap<u32, [[f64; 2]; POSITIONS]>,
+    /// What grouping noticed (steps without a reference burst, …).
+    pub warnings: Vec<String>,
+}
+
+impl DngSet {
+    pub fn frames(&self) -> usize {
+        self.steps.iter().map(|s| s.reference.len() + s.targets.len()).sum()
+    }
+
+    /// Target ISOs present.
+    pub fn target_isos(&self) -> Vec<u32> {
+        let mut v: Vec<u32> = self.steps.iter().flat_map(|s| s.targets.iter().map(|f| f.meta.iso)).collect();
+        v.sort_unstable();
+        v.dedup();
+        v
+    }
+}
+
+/// Maps a DNG NoiseProfile (one pair, or one per colour plane R, G, B, or one per CFA position)
+/// to CFA positions.
+pub fn noise_profile_per_position(np: &[(f64, f64)], cfa: CfaPattern) -> Option<[[f64; 2]; POSITIONS]> {
+    use noisecal_core::layout::CfaColor;
+    match np.len() {
+        1 => Some([[np[0].0, np[0].1]; POSITIONS]),
+        3 => Some(std::array::from_fn(|p| {
+            let i = match cfa.colors()[p] {
+                CfaColor::Red => 0,
+                CfaColor::Green => 1,
+                CfaColor::Blue => 2,
+            };
+            [np[i].0, np[i].1]
+        })),
+        4 => Some(std::array::from_fn(|p| [np[p].0, np[p].1])),
+        _ => None,
+    }
+}
+
+/// Reads the metadata of every DNG in `dir` (in parallel) and groups them into EV steps.
+/// `reference_iso` overrides the lowest ISO found.
+pub fn scan_dng_set(dir: &Path, reference_iso: Option<u32>) -> anyhow::Result<DngSet> {
+    let paths = dng::scan_folder(dir)?;
+    if paths.is_empty() {
+        bail!("{} holds no .dng files: point at the folder of a capture session's DNGs", dir.display());
+    }
+    let heads: Vec<DngImage> = paths
+        .par_iter()
+        .map(|p| read_meta(p))
+        .collect::<Result<_, _>>()?;
+    group_dngs(heads, reference_iso, dir)
+}
+
+fn group_dngs(heads: Vec<DngImage>, reference_iso: Option<u32>, dir: &Path) -> anyhow::Result<DngSet> {
+    let first = &heads[0];
+    let base = first.layout.clone();
+    for h in &heads {
+        if h.layout.width != base.width || h.layout.height != base.height || h.layout.cfa != base.cfa {
+            bail!(
+                "{} is {}×{} {} but {} is {}×{} {}: a capture set must come from one sensor mode",
+                h.source.display(),
+                h.layout.width,
+                h.layout.height,
+                h.layout.cfa,
+                first.source.display(),
+                base.width,
+                base.height,
+                base.cfa
+            );
+        }
+        if h.layout.white != base.white {
+            bail!(
+                "{} has white level {} but {} has {}: mixed bit depths in one capture set",
+                h.source.display(),
+                h.layout.white,
+                first.source.display(),
+                base.white
+            );
+        }
+    }
+    let min_iso = heads.iter().map(|h| h.meta.iso).min().unwrap_or(0);
+    let reference_iso = reference_iso.unwrap_or(min_iso);
+    if min_iso < reference_iso {
+        bail!("frames at ISO {min_iso} are below the reference ISO {reference_iso}: the reference must be the lowest ISO");
+    }
+    let mut noise_profiles = BTreeMap::new();
+    for h in &heads {
+        if let Some(np) = h.noise_profile.as_deref().and_then(|np| noise_profile_per_position(np, base.cfa)) {
+            noise_profiles.entry(h.meta.iso).or_insert(np);
+        }
+    }
+    // Layout black: the median of the reference frames' black levels (each frame keeps its own).
+    let mut layout = base.clone();
+    let mut refs: Vec<&DngImage> = heads.iter().filter(|h| h.meta.iso == reference_iso).collect();
+    if refs.is_empty() {
+        bail!(
+            "no frame at the reference ISO {reference_iso}: every EV step needs a reference burst at the lowest ISO (missing reference burst)"
+        );
+    }
+    refs.sort_by(|a, b| a.source.cmp(&b.source));
+    for p in 0..POSITIONS {
+        let mut v: Vec<f32> = refs.iter().map(|h| h.meta.black.unwrap_or(h.layout.black)[p]).collect();
+        v.sort_by(|a, b| a.total_cmp(b));
+        layout.black[p] = v[v.len() / 2];
+    }
+    let make = first.make.clone();
+    let model = first.model.clone();
+
+    let mut frames: Vec<DngFrame> =
+        heads.into_iter().map(|h| DngFrame { meta: FrameMeta { black: h.meta.black.or(Some(h.layout.black)), ..h.meta }, path: h.source }).collect();
+    frames.sort_by(|a, b| a.meta.brightness().total_cmp(&b.meta.brightness()).then(a.path.cmp(&b.path)));
+    let mut clusters: Vec<Vec<DngFrame>> = Vec::new();
+    for f in frames {
+        match clusters.last_mut() {
+            Some(c) if f.meta.brightness() <= c[0].meta.brightness() * STEP_FACTOR => c.push(f),
+            _ => clusters.push(vec![f]),
+        }
+    }
+    let mut steps = Vec::new();
+    let mut warnings = Vec::new();
+    for c in clusters {
+        let brightness = c[0].meta.brightness();
+        let (mut reference, mut targets): (Vec<DngFrame>, Vec<DngFrame>) = c.into_iter().partition(|f| f.meta.iso == reference_iso);
+        if reference.is_empty() {
+            warnings.push(format!(
+                "EV step at ISO×exposure {brightness:.4} ISO·s has {} target frames but no reference burst at ISO {reference_iso}: they are skipped",
+                targets.len()
+            ));
+            continue;
+        }
+        reference.sort_by(|a, b| a.path.cmp(&b.path));
+        targets.sort_by(|a, b| a.meta.iso.cmp(&b.meta.iso).then(a.path.cmp(&b.path)));
+        let mut exps: Vec<u64> = reference.iter().map(|f| f.meta.exposure_ns).collect();
+        exps.sort_unstable();
+        let reference_exposure_ns = exps[exps.len() / 2];
+        if targets.is_empty() {
+            warnings.push(format!(
+                "EV step with reference exposure {reference_exposure_ns} ns has no target frames: it adds nothing"
+            ));
+        }
+        steps.push(DngStep { brightness, reference_exposure_ns, reference, targets });
+    }
+    if steps.iter().all(|s| s.targets.is_empty()) {
+        bail!(
+            "{}: no EV step has both a reference burst (ISO {reference_iso}) and target frames at a higher ISO",
+            dir.display()
+        );
+    }
+    Ok(DngSet { layout, make, model, reference_iso, steps, noise_profiles, warnings })
+}
+
+/// A DNG's metadata, without keeping its pixels.
+fn read_meta(path: &Path) -> Result<DngImage, dng::DngError> {
+    let mut d = dng::read_dng(path)?;
+    d.pixels = ndarray::Array2::zeros((0, 0));
+    Ok(d)
+}
+
+/// Reads DNGs in parallel, `chunk` at a time, and hands them over in order.
+pub fn for_each_dng_in_order(
+    frames: &[DngFrame],
+    mut f: impl FnMut(&DngFrame, DngImage) -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
+    let chunk = (rayon::current_num_threads() * 2).max(2);
+    for group in frames.chunks(chunk) {
+        let imgs: Vec<Result<DngImage, dng::DngError>> = group.par_iter().map(|fr| dng::read_dng(&fr.path)).collect();
+        for (fr, img) in group.iter().zip(imgs) {
+            f(fr, img?)?;
+        }
+    }
+    Ok(())
+}
+
+/// What a path holds.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum InputKind {
+    DngFolder,
+    Recording,
+}
+
+/// Tells a DNG folder from a recording file, with a clear error for anything else.
+pub fn input_kind(path: &Path) -> anyhow::Result<InputKind> {
+    let md = std::fs::metadata(path).with_context(|| format!("cannot read {}: does it exist?", path.display()))?;
+    if md.is_dir() {
+        return Ok(InputKind::DngFolder);
+    }
+    let mut magic = [0u8; 8];
+    use std::io::Read;
+    let n = std::fs::File::open(path)
+        .and_then(|mut f| f.read(&mut magic))
+        .with_context(|| format!("cannot open {}", path.display()))?;
+    if n == 8 && &magic == noisecal_core::recording::RECORDING_MAGIC {
+        return Ok(InputKind::Recording);
+    }
+    bail!("{} is neither a folder of DNGs nor a noisecal recording (.rec)", path.display())
+}
+
+/// Opens a recording for reading.
+pub fn open_recording(path: &Path) -> anyhow::Result<RecordingReader<std::io::BufReader<std::fs::File>>> {
+    let f = std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
+    RecordingReader::new(std::io::BufReader::with_capacity(1 << 20, f)).with_context(|| format!("{} is not a usable recording", path.display()))
+}

@@ -1,0 +1,337 @@
+//! The session behind one Kotlin `NoisecalSession`: the core's [`CalibrationSession`] plus an
+//! optional recording tee. Plain Rust (no JNI types), so it is tested without a JVM.
+
+use std::path::Path;
+
+use noisecal_core::recording::RecordingHeader;
+use noisecal_core::session::FrameReport;
+use noisecal_core::{CalibrationSession, CfaPattern, FrameMeta, FrameView, SensorLayout, SessionConfig};
+
+use crate::error::{BoundaryError, Result};
+use crate::files::write_atomically;
+use crate::recording::{RecordingMark, RecordingTee};
+
+/// Magic of a boundary checkpoint file: this header, then the core's checkpoint bytes.
+pub const SESSION_CHECKPOINT_MAGIC: &[u8; 8] = b"NCALJSES";
+pub const SESSION_CHECKPOINT_VERSION: u16 = 1;
+/// Magic of the core's own checkpoint (also accepted by [`NativeSession::restore_file`]).
+const CORE_CHECKPOINT_MAGIC: &[u8; 8] = noisecal_core::session::CHECKPOINT_MAGIC;
+
+/// What `NoisecalSession.create` passes.
+#[derive(Debug, Clone)]
+pub struct CreateParams<'a> {
+    pub width: i32,
+    pub height: i32,
+    pub cfa: &'a str,
+    pub black: &'a [f32],
+    pub white: i32,
+    pub reference_iso: i32,
+    pub make: &'a str,
+    pub model: &'a str,
+    /// 0 = the default for the bit depth.
+    pub bin_width: i32,
+}
+
+/// One frame's geometry and metadata as `NoisecalSession.pushFrame` passes them.
+#[derive(Debug, Clone, Copy)]
+pub struct PlaneParams<'a> {
+    pub width: i32,
+    pub height: i32,
+    pub row_stride: i32,
+    pub pixel_stride: i32,
+    pub iso: i32,
+    pub exposure_ns: i64,
+    pub black: Option<&'a [f32]>,
+}
+
+fn positive(name: &'static str, v: i32) -> Result<u32> {
+    u32::try_from(v).ok().filter(|&x| x > 0).ok_or_else(|| BoundaryError::arg(name, v, "it must be positive"))
+}
+
+fn non_negative(name: &'static str, v: i32) -> Result<usize> {
+    usize::try_from(v).map_err(|_| BoundaryError::arg(name, v, "it must not be negative"))
+}
+
+fn black4(name: &'static str, b: &[f32]) -> Result<[f32; 4]> {
+    <[f32; 4]>::try_from(b).map_err(|_| {
+        BoundaryError::arg(name, format!("an array of {} values", b.len()), "pass 4 values in CFA position order")
+    })
+}
+
+/// The session state behind a handle.
+#[derive(Debug)]
+pub struct NativeSession {
+    session: CalibrationSession,
+    recording: Option<RecordingTee>,
+}
+
+impl NativeSession {
+    pub fn create(p: &CreateParams<'_>) -> Result<Self> {
+        let width = positive("width", p.width)?;
+        let height = positive("height", p.height)?;
+        let cfa = CfaPattern::parse(p.cfa)
+            .ok_or_else(|| BoundaryError::arg("cfa", format!("{:?}", p.cfa), "pass RGGB, BGGR, GRBG or GBRG"))?;
+        let black = black4("blackLevels", p.black)?;
+        let white = u16::try_from(p.white)
+            .ok()
+            .filter(|&w| w > 0)
+            .ok_or_else(|| BoundaryError::arg("whiteLevel", p.white, "it must be in 1..=65535"))?;
+        let reference_iso = positive("referenceIso", p.reference_iso)?;
+        let bin_width = match p.bin_width {
+            0 => None,
+            b => Some(
+                u16::try_from(b)
+                    .ok()
+                    .filter(|&w| w > 0)
+                    .ok_or_else(|| BoundaryError::arg("binWidth", b, "pass 0 for the default or 1..=65535 levels"))?,
+            ),
+        };
+        let layout = SensorLayout { width, height, cfa, black, white };
+        let mut config = SessionConfig::new(reference_iso);
+        config.make = p.make.to_string();
+        config.model = p.model.to_string();
+        config.bin_width = bin_width;
+        Ok(Self { session: CalibrationSession::new(layout, config)?, recording: None })
+    }
+
+    /// A session over an existing core session (replay, tests).
+    pub fn from_core(session: CalibrationSession) -> Self {
+        Self { session, recording: None }
+    }
+
+    pub fn core(&self) -> &CalibrationSession {
+        &self.session
+    }
+
+    /// The header a recording of this session starts with.
+    pub fn recording_header(&self) -> RecordingHeader {
+        let c = self.session.config();
+        RecordingHeader {
+            layout: self.session.layout().clone(),
+            reference_iso: c.reference_iso,
+            bin_width: c.bin_width.unwrap_or(0),
+            make: c.make.clone(),
+            model: c.model.clone(),
+        }
+    }
+
+    /// The open recording's path, if any.
+    pub fn recording_path(&self) -> Option<&Path> {
+        self.recording.as_ref().map(|r| r.path())
+    }
+
+    /// Runs a recording write; on failure the recording is stopped (so the file never gets out of
+    /// step with the session) and the error is returned.
+    fn record(&mut self, f: impl FnOnce(&mut RecordingTee) -> Result<()>) -> Result<()> {
+        if let Some(tee) = self.recording.as_mut()
+            && let Err(e) = f(tee)
+        {
+            self.recording = None;
+            log::error!("{e}");
+            return Err(e);
+        }
+        Ok(())
+    }
+
+    pub fn begin_step(&mut self, exposure_ns: i64) -> Result<()> {
+        let e = u64::try_from(exposure_ns)
+            .map_err(|_| BoundaryError::arg("referenceExposureNs", exposure_ns, "it must be positive"))?;
+        self.session.begin_step(e)?;
+        self.record(|t| t.begin_step(e))
+    }
+
+    /// Folds in one plane: `plane` is the whole buffer from its start (little-endian 16-bit samples,
+    /// rows `row_stride` bytes apart). A rejected frame leaves the session unchanged.
+    pub fn push_plane(&mut self, plane: &[u8], p: &PlaneParams<'_>) -> Result<FrameReport> {
+        let width = non_negative("width", p.width)?;
+        let height = non_negative("height", p.height)?;
+        let row_stride = non_negative("rowStride", p.row_stride)?;
+        let pixel_stride = non_negative("pixelStride", p.pixel_stride)?;
+        let iso = u32::try_from(p.iso).map_err(|_| BoundaryError::arg("iso", p.iso, "it must not be negative"))?;
+        let exposure_ns = u64::try_from(p.exposure_ns)
+            .map_err(|_| BoundaryError::arg("exposureNs", p.exposure_ns, "it must not be negative"))?;
+        let black = p.black.map(|b| black4("blackLevels", b)).transpose()?;
+        let meta = FrameMeta { iso, exposure_ns, black };
+        let view = FrameView::from_le_bytes(plane, width, height, row_stride, pixel_stride)?;
+        let report = self.session.push_frame(&view, &meta)?;
+        // Geometry fits u32: it was checked against the session's u32 layout and the plane length.
+        self.record(|t| t.frame(&meta, width as u32, height as u32, row_stride as u32, pixel_stride as u32, plane))?;
+        Ok(report)
+    }
+
+    /// Progress as the Kotlin `Progress.decode` layout: accepted, rejected, steps, reference frames,
+    /// number of ISOs, then per ISO: iso, frames, samples, under-sampled bins, total bins.
+    pub fn progress_array(&self) -> Vec<i64> {
+        let p = self.session.progress();
+        let clamp = |v: u64| i64::try_from(v).unwrap_or(i64::MAX);
+        let mut a = vec![
+            clamp(p.frames_accepted),
+            clamp(p.frames_rejected),
+            p.steps as i64,
+            clamp(p.reference_frames),
+            p.isos.len() as i64,
+        ];
+        for i in &p.isos {
+            a.extend([i.iso as i64, clamp(i.frames), clamp(i.samples), i.under_sampled_bins as i64, i.total_bins as i64]);
+        }
+        a
+    }
+
+    /// Tees every accepted frame from now on into a new recording at `path`. Only before the
+    /// first step: a recording must replay the whole session.
+    pub fn start_recording(&mut self, path: &Path) -> Result<()> {
+        if let Some(r) = &self.recording {
+            return Err(BoundaryError::Recording(format!(
+                "already recording to {}: a session has one recording",
+                r.path().display()
+            )));
+        }
+        let p = self.session.progress();
+        if p.steps > 0 || p.frames_accepted > 0 {
+            return Err(BoundaryError::Recording(format!(
+                "startRecording after {} step(s) and {} accepted frame(s): start the recording before the first beginStep so it replays the whole session",
+                p.steps, p.frames_accepted
+            )));
+        }
+        self.recording = Some(RecordingTee::create(path, &self.recording_header())?);
+        Ok(())
+    }
+
+    /// The checkpoint file's bytes: header (with the recording's mark) and the core checkpoint.
+    pub fn checkpoint_bytes(&mut self) -> Result<Vec<u8>> {
+        let mark = match self.recording.as_mut() {
+            Some(t) => match t.mark() {
+                Ok(m) => Some(m),
+                Err(e) => {
+                    self.recording = None;
+                    return Err(e);
+                }
+            },
+            None => None,
+        };
+        let core = self.session.checkpoint()?;
+        let mut info = Vec::new();
+        match &mark {
+            Some(m) => {
+                info.push(1u8);
+                info.extend_from_slice(&m.bytes.to_le_bytes());
+                info.extend_from_slice(&m.frames.to_le_bytes());
+                info.extend_from_slice(m.path.to_string_lossy().as_bytes());
+            }
+            None => info.push(0u8),
+        }
+        let mut out = Vec::with_capacity(8 + 2 + 4 + info.len() + 4 + core.len());
+        out.extend_from_slice(SESSION_CHECKPOINT_MAGIC);
+        out.extend_from_slice(&SESSION_CHECKPOINT_VERSION.to_le_bytes());
+        out.extend_from_slice(&(info.len() as u32).to_le_bytes());
+        out.extend_from_slice(&info);
+        out.extend_from_slice(&crc32fast::hash(&info).to_le_bytes());
+        out.extend_from_slice(&core);
+        Ok(out)
+    }
+
+    /// Writes a checkpoint to `path` (temporary file, then rename).
+    pub fn checkpoint_file(&mut self, path: &Path) -> Result<()> {
+        let bytes = self.checkpoint_bytes()?;
+        write_atomically("cannot write the checkpoint", path, &bytes)
+    }
+
+    /// Resumes from checkpoint bytes: a boundary checkpoint (the session and, if it was
+    /// recording, the recording cut back to its length at the checkpoint and reopened) or a bare
+    /// core checkpoint (no recording). If the recording cannot be resumed (file gone, shorter,
+    /// or not this session's), the session still resumes, without a recording, and says so in
+    /// the log.
+    pub fn restore_bytes(bytes: &[u8]) -> Result<Self> {
+        if bytes.starts_with(CORE_CHECKPOINT_MAGIC) {
+            return Ok(Self::from_core(CalibrationSession::restore(bytes)?));
+        }
+        let bad = |detail: String| BoundaryError::Recording(format!("checkpoint file is unreadable: {detail}"));
+        if bytes.len() < 14 || &bytes[..8] != SESSION_CHECKPOINT_MAGIC {
+            return Err(bad("it starts with neither NCALJSES nor NCALCKPT: this is not a noisecal checkpoint".into()));
+        }
+        let version = u16::from_le_bytes([bytes[8], bytes[9]]);
+        if version != SESSION_CHECKPOINT_VERSION {
+            return Err(bad(format!(
+                "format version {version}, this library reads {SESSION_CHECKPOINT_VERSION}; use the noisecal version that wrote it"
+            )));
+        }
+        let len = u32::from_le_bytes([bytes[10], bytes[11], bytes[12], bytes[13]]) as usize;
+        let end = 14usize.checked_add(len).and_then(|e| e.checked_add(4)).filter(|&e| e <= bytes.len());
+        let Some(end) = end else {
+            return Err(bad(format!("cut short ({} bytes); the file was not written whole", bytes.len())));
+        };
+        let info = &bytes[14..14 + len];
+        let crc = u32::from_le_bytes([bytes[end - 4], bytes[end - 3], bytes[end - 2], bytes[end - 1]]);
+        if crc32fast::hash(info) != crc {
+            return Err(bad("its header fails its checksum (corrupt file)".into()));
+        }
+        let mark = match info.first() {
+            Some(0) if info.len() == 1 => None,
+            Some(1) if info.len() >= 17 => {
+                let u64_at = |o: usize| {
+                    let mut a = [0u8; 8];
+                    a.copy_from_slice(&info[o..o + 8]);
+                    u64::from_le_bytes(a)
+                };
+                let path = String::from_utf8(info[17..].to_vec()).map_err(|_| bad("recording path is not UTF-8".into()))?;
+                Some(RecordingMark { path: path.into(), bytes: u64_at(1), frames: u64_at(9) })
+            }
+            _ => return Err(bad("its header is malformed".into())),
+        };
+        let mut s = Self::from_core(CalibrationSession::restore(&bytes[end..])?);
+        if let Some(m) = mark {
+            match RecordingTee::resume(&m, &s.recording_header()) {
+                Ok(t) => {
+                    log::info!("recording {} resumed at {} frames ({} bytes)", m.path.display(), m.frames, m.bytes);
+                    s.recording = Some(t);
+                }
+                Err(e) => log::warn!("session restored without its recording: {e}"),
+            }
+        }
+        Ok(s)
+    }
+
+    /// Resumes from a checkpoint file written by [`checkpoint_file`](Self::checkpoint_file).
+    pub fn restore_file(path: &Path) -> Result<Self> {
+        let bytes = std::fs::read(path).map_err(|e| BoundaryError::io("cannot read the checkpoint", path, e))?;
+        Self::restore_bytes(&bytes)
+    }
+
+    /// Builds the pack, writes it to `path` (temporary file, then rename), flushes and syncs the
+    /// recording (it stays open: more frames may follow; [`close`](Self::close) ends it) and
+    /// returns a one-line summary. The session stays usable.
+    pub fn finish_to(&mut self, path: &Path) -> Result<String> {
+        let pack = self.session.finish()?;
+        let bytes = pack.to_bytes()?;
+        write_atomically("cannot write the model pack", path, &bytes)?;
+        let mut summary = format!(
+            "{} {}: ISO {} from {} target frames, {} warnings; {} bytes to {}",
+            pack.make,
+            pack.model,
+            pack.iso_summary(),
+            pack.isos.iter().map(|m| m.frames).sum::<u64>(),
+            pack.warnings.len(),
+            bytes.len(),
+            path.display()
+        );
+        if let Some(t) = self.recording.as_mut() {
+            match t.mark() {
+                Ok(m) => summary.push_str(&format!("; recording {} ({} frames)", m.path.display(), m.frames)),
+                Err(e) => {
+                    self.recording = None;
+                    return Err(e);
+                }
+            }
+        }
+        Ok(summary)
+    }
+
+    /// Ends the session: writes the recording's End record, if recording.
+    pub fn close(self) -> Result<()> {
+        if let Some(t) = self.recording {
+            let m = t.finish()?;
+            log::info!("recording {} closed with {} frames ({} bytes)", m.path.display(), m.frames, m.bytes);
+        }
+        Ok(())
+    }
+}

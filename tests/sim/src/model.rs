@@ -1,0 +1,399 @@
+//! The sensor model: every parameter of the simulated signal chain, presets, and the per-ISO
+//! settings derived from it.
+//!
+//! Signal chain of one pixel at CFA position `p` (all per frame):
+//! ```text
+//! electrons  e  ~ Poisson(λ),  λ = rate · t · flicker · PRNU        (clipped at the full well)
+//! ADC input  a  = black_p + bias_p + G·(e + n_pre) + n_post + r_row  (G = DN per electron)
+//! ADC output q  = clamp(round(a), 0, white)
+//! output        = q                                        (ISO ≤ max_analog_iso)
+//!               = clamp(round(black_p + (q − black_p)·d), 0, white)  (digital gain d > 1)
+//! ```
+//! `n_pre` (electrons) and `n_post` (DN) are Gaussian or unit-variance Student-t scaled by their
+//! sigmas; `r_row` is one Gaussian per row and frame. `G = g(iso) / electrons_per_dn`, where the
+//! analog gain `g = min(iso, max_analog_iso) / base_iso · (1 + gain error)`, and the sensor's
+//! second conversion gain (if any) changes the read noise and the gain error above its ISO.
+
+use noisecal_core::{CfaPattern, POSITIONS};
+
+use crate::error::SimError;
+
+/// The second (high) conversion gain of a dual-conversion-gain sensor, used from `min_iso` up.
+///
+/// Brightness per ISO stays nominally the same across the switch (the analog gain compensates),
+/// but the read noise referred to the input drops: the variance at dark levels jumps down there.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DualGain {
+    /// First ISO read out with the high conversion gain.
+    pub min_iso: u32,
+    /// Pre-gain read noise (electrons, RMS) in high conversion gain.
+    pub read_noise_pre_e: f32,
+    /// Post-gain read noise (DN, RMS) in high conversion gain.
+    pub read_noise_post_dn: f32,
+    /// Multiplier on the total gain in high conversion gain (e.g. 1.015: 1.5 % brighter than
+    /// nominal), i.e. the electrons per DN change by its inverse.
+    pub gain_mismatch: f32,
+    /// Full-well capacity (electrons) in high conversion gain.
+    pub full_well_e: f32,
+}
+
+/// Mains-like flicker: some frames are brighter or darker by a fixed fraction.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Flicker {
+    /// Probability that a frame is affected (0..=1).
+    pub probability: f32,
+    /// Relative brightness change of an affected frame (e.g. 0.03 → ×0.97 or ×1.03).
+    pub amplitude: f32,
+}
+
+/// All parameters of a simulated phone raw sensor. Every field is public; start from a preset
+/// ([`SensorModel::phone_10bit`], [`SensorModel::phone_12bit`], [`SensorModel::phone_14bit`])
+/// and change what a test needs, then [`SensorModel::validate`] (the simulator does it too).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SensorModel {
+    /// Bayer order of the colour filter array.
+    pub cfa: CfaPattern,
+    /// Black level per CFA position (DN), as the sensor reports it.
+    pub black: [f32; POSITIONS],
+    /// White (saturation) level (DN).
+    pub white: u16,
+    /// Lowest ISO (analog gain 1).
+    pub base_iso: u32,
+    /// Highest ISO reached with analog gain; above it the rest is digital gain applied to the
+    /// quantised value (combs in the histogram).
+    pub max_analog_iso: u32,
+    /// Electrons per DN at the base ISO (the inverse conversion gain).
+    pub electrons_per_dn: f32,
+    /// Full-well capacity (electrons); collected charge saturates there.
+    pub full_well_e: f32,
+    /// Gain non-proportionality: relative gain error per stop above the base ISO
+    /// (gain error = this × log2(iso / base_iso)).
+    pub gain_error_per_stop: f32,
+    /// Explicit relative gain errors at given ISOs; they replace the per-stop rule there.
+    pub gain_error_at: Vec<(u32, f32)>,
+    /// Pre-gain read noise (electrons, RMS): amplified with the analog gain.
+    pub read_noise_pre_e: f32,
+    /// Post-gain read noise (DN, RMS at the ADC): independent of the analog gain.
+    pub read_noise_post_dn: f32,
+    /// Student-t degrees of freedom of both read-noise parts (heavy tails; ≥ 3, excess kurtosis
+    /// 6/(dof−4) for dof > 4); `None` for Gaussian read noise.
+    pub read_noise_dof: Option<f32>,
+    /// Row noise before the gain (electrons, RMS): one Gaussian offset per row and frame.
+    pub row_noise_pre_e: f32,
+    /// Row noise after the gain (DN, RMS at the ADC).
+    pub row_noise_post_dn: f32,
+    /// Small offset per CFA position (DN at the ADC) between the reported black level and the
+    /// true dark level.
+    pub bias_dn: [f32; POSITIONS],
+    /// Photo-response non-uniformity: RMS of the fixed per-pixel gain map (e.g. 0.005 = 0.5 %).
+    pub prnu: f32,
+    /// Optional second conversion gain.
+    pub dual_gain: Option<DualGain>,
+    /// Optional per-frame flicker.
+    pub flicker: Option<Flicker>,
+    /// RMS of the per-frame sub-pixel misalignment of the scene (pixels, per axis).
+    pub jitter_px: f32,
+    /// Mean electron count from which shot noise uses a Gaussian approximation instead of the
+    /// exact Poisson draw.
+    pub poisson_exact_below: f32,
+    /// Report the black level as a per-frame dynamic black level in [`FrameMeta::black`]
+    /// (Camera2 `SENSOR_DYNAMIC_BLACK_LEVEL`).
+    ///
+    /// [`FrameMeta::black`]: noisecal_core::FrameMeta::black
+    pub report_dynamic_black: bool,
+}
+
+impl SensorModel {
+    /// A 10-bit phone sensor like the paper's: RGGB, black 64, white 1023, base ISO 50,
+    /// 4 e⁻/DN at base, digital gain above ISO 1600, heavy-tailed read noise (t, 6 dof).
+    pub fn phone_10bit() -> Self {
+        Self {
+            cfa: CfaPattern::Rggb,
+            black: [64.0; POSITIONS],
+            white: 1023,
+            base_iso: 50,
+            max_analog_iso: 1600,
+            electrons_per_dn: 4.0,
+            full_well_e: 4300.0,
+            gain_error_per_stop: 0.004,
+            gain_error_at: Vec::new(),
+            read_noise_pre_e: 1.6,
+            read_noise_post_dn: 0.7,
+            read_noise_dof: Some(6.0),
+            row_noise_pre_e: 0.12,
+            row_noise_post_dn: 0.15,
+            bias_dn: [0.35, -0.2, 0.15, -0.3],
+            prnu: 0.005,
+            dual_gain: None,
+            flicker: None,
+            jitter_px: 0.08,
+            poisson_exact_below: 1000.0,
+            report_dynamic_black: false,
+        }
+    }
+
+    /// A 12-bit phone sensor: GRBG, blacks 256/257/255/256, white 4095, base ISO 100,
+    /// 1.5 e⁻/DN at base, high conversion gain from ISO 800, digital gain above ISO 3200.
+    pub fn phone_12bit() -> Self {
+        Self {
+            cfa: CfaPattern::Grbg,
+            black: [256.0, 257.0, 255.0, 256.0],
+            white: 4095,
+            base_iso: 100,
+            max_analog_iso: 3200,
+            electrons_per_dn: 1.5,
+            full_well_e: 6200.0,
+            gain_error_per_stop: 0.004,
+            gain_error_at: Vec::new(),
+            read_noise_pre_e: 2.0,
+            read_noise_post_dn: 1.1,
+            read_noise_dof: Some(6.0),
+            row_noise_pre_e: 0.15,
+            row_noise_post_dn: 0.3,
+            bias_dn: [0.4, -0.3, 0.2, 0.5],
+            prnu: 0.005,
+            dual_gain: Some(DualGain {
+                min_iso: 800,
+                read_noise_pre_e: 0.9,
+                read_noise_post_dn: 1.0,
+                gain_mismatch: 1.015,
+                full_well_e: 3000.0,
+            }),
+            flicker: None,
+            jitter_px: 0.08,
+            poisson_exact_below: 1000.0,
+            report_dynamic_black: false,
+        }
+    }
+
+    /// A 14-bit phone sensor: BGGR, black 1024, white 16383, base ISO 100, 0.4 e⁻/DN at base,
+    /// high conversion gain from ISO 400, digital gain above ISO 6400.
+    pub fn phone_14bit() -> Self {
+        Self {
+            cfa: CfaPattern::Bggr,
+            black: [1024.0; POSITIONS],
+            white: 16383,
+            base_iso: 100,
+            max_analog_iso: 6400,
+            electrons_per_dn: 0.4,
+            full_well_e: 6800.0,
+            gain_error_per_stop: -0.003,
+            gain_error_at: Vec::new(),
+            read_noise_pre_e: 2.4,
+            read_noise_post_dn: 3.0,
+            read_noise_dof: Some(6.0),
+            row_noise_pre_e: 0.2,
+            row_noise_post_dn: 0.6,
+            bias_dn: [1.0, -0.8, 0.6, -0.4],
+            prnu: 0.005,
+            dual_gain: Some(DualGain {
+                min_iso: 400,
+                read_noise_pre_e: 1.1,
+                read_noise_post_dn: 2.8,
+                gain_mismatch: 0.985,
+                full_well_e: 3500.0,
+            }),
+            flicker: None,
+            jitter_px: 0.08,
+            poisson_exact_below: 1000.0,
+            report_dynamic_black: false,
+        }
+    }
+
+    /// Checks every parameter; the error names the first bad one and its valid range.
+    pub fn validate(&self) -> Result<(), SimError> {
+        fn bad(what: &'static str, value: impl std::fmt::Display, fix: &'static str) -> SimError {
+            SimError::Parameter { what, value: value.to_string(), fix }
+        }
+        let fin_nonneg = |x: f32| x.is_finite() && x >= 0.0;
+        if self.white < 16 {
+            return Err(bad("SensorModel::white", self.white, "use the sensor's saturation level (≥ 16 DN)"));
+        }
+        for &b in &self.black {
+            if !fin_nonneg(b) || b >= self.white as f32 - 8.0 {
+                return Err(bad("SensorModel::black", b, "each black level must be ≥ 0 and below white − 8"));
+            }
+        }
+        if self.base_iso == 0 {
+            return Err(bad("SensorModel::base_iso", 0, "use the sensor's minimum ISO (≥ 1)"));
+        }
+        if self.max_analog_iso < self.base_iso {
+            return Err(bad("SensorModel::max_analog_iso", self.max_analog_iso, "must be ≥ base_iso"));
+        }
+        if !(self.electrons_per_dn.is_finite() && self.electrons_per_dn > 0.0) {
+            return Err(bad("SensorModel::electrons_per_dn", self.electrons_per_dn, "must be a positive number"));
+        }
+        if !(self.full_well_e.is_finite() && self.full_well_e > 0.0) {
+            return Err(bad("SensorModel::full_well_e", self.full_well_e, "must be a positive number of electrons"));
+        }
+        if !(self.gain_error_per_stop.is_finite() && self.gain_error_per_stop.abs() < 0.2) {
+            return Err(bad("SensorModel::gain_error_per_stop", self.gain_error_per_stop, "must be within ±0.2"));
+        }
+        for &(iso, e) in &self.gain_error_at {
+            if iso == 0 || !(e.is_finite() && e > -0.5 && e < 1.0) {
+                return Err(bad(
+                    "SensorModel::gain_error_at",
+                    format!("({iso}, {e})"),
+                    "each entry is (ISO ≥ 1, relative error in (−0.5, 1))",
+                ));
+            }
+        }
+        for (what, v) in [
+            ("SensorModel::read_noise_pre_e", self.read_noise_pre_e),
+            ("SensorModel::read_noise_post_dn", self.read_noise_post_dn),
+            ("SensorModel::row_noise_pre_e", self.row_noise_pre_e),
+            ("SensorModel::row_noise_post_dn", self.row_noise_post_dn),
+            ("SensorModel::jitter_px", self.jitter_px),
+        ] {
+            if !fin_nonneg(v) {
+                return Err(bad(what, v, "must be a finite number ≥ 0"));
+            }
+        }
+        if let Some(d) = self.read_noise_dof
+            && !(d.is_finite() && (3.0..=1000.0).contains(&d))
+        {
+            return Err(bad(
+                "SensorModel::read_noise_dof",
+                d,
+                "Student-t read noise needs 3 ≤ dof ≤ 1000 (finite variance); use None for Gaussian",
+            ));
+        }
+        for &b in &self.bias_dn {
+            if !(b.is_finite() && b.abs() < 64.0) {
+                return Err(bad("SensorModel::bias_dn", b, "each bias must be a small finite offset (|bias| < 64 DN)"));
+            }
+        }
+        if !(self.prnu.is_finite() && (0.0..0.2).contains(&self.prnu)) {
+            return Err(bad("SensorModel::prnu", self.prnu, "must be in [0, 0.2) (0.005 = 0.5 %)"));
+        }
+        if !(self.poisson_exact_below.is_finite() && self.poisson_exact_below >= 10.0) {
+            return Err(bad("SensorModel::poisson_exact_below", self.poisson_exact_below, "must be ≥ 10 electrons"));
+        }
+        if let Some(dg) = &self.dual_gain {
+            if dg.min_iso <= self.base_iso {
+                return Err(bad("DualGain::min_iso", dg.min_iso, "must be above the base ISO"));
+            }
+            if !fin_nonneg(dg.read_noise_pre_e) || !fin_nonneg(dg.read_noise_post_dn) {
+                return Err(bad(
+                    "DualGain read noise",
+                    format!("{}/{}", dg.read_noise_pre_e, dg.read_noise_post_dn),
+                    "must be finite numbers ≥ 0",
+                ));
+            }
+            if !(dg.gain_mismatch.is_finite() && dg.gain_mismatch > 0.5 && dg.gain_mismatch < 2.0) {
+                return Err(bad("DualGain::gain_mismatch", dg.gain_mismatch, "must be in (0.5, 2) (1 = none)"));
+            }
+            if !(dg.full_well_e.is_finite() && dg.full_well_e > 0.0) {
+                return Err(bad("DualGain::full_well_e", dg.full_well_e, "must be a positive number of electrons"));
+            }
+        }
+        if let Some(f) = &self.flicker
+            && !(f.probability.is_finite()
+                && (0.0..=1.0).contains(&f.probability)
+                && f.amplitude.is_finite()
+                && (0.0..0.5).contains(&f.amplitude))
+        {
+            return Err(bad(
+                "SensorModel::flicker",
+                format!("probability {} amplitude {}", f.probability, f.amplitude),
+                "probability must be in [0, 1] and amplitude in [0, 0.5)",
+            ));
+        }
+        Ok(())
+    }
+
+    /// Relative analog gain error at an ISO (0 at the base ISO).
+    pub fn gain_error(&self, iso: u32) -> f32 {
+        if let Some(&(_, e)) = self.gain_error_at.iter().find(|(i, _)| *i == iso) {
+            return e;
+        }
+        self.gain_error_per_stop * (iso.max(1) as f32 / self.base_iso.max(1) as f32).log2()
+    }
+
+    /// Settings of the signal chain at an ISO.
+    pub fn at_iso(&self, iso: u32) -> Result<IsoSettings, SimError> {
+        if iso == 0 {
+            return Err(SimError::Iso { base_iso: self.base_iso });
+        }
+        let analog_iso = iso.min(self.max_analog_iso);
+        let digital_gain = if iso > self.max_analog_iso { iso as f64 / self.max_analog_iso as f64 } else { 1.0 };
+        let hcg = self.dual_gain.as_ref().filter(|d| iso >= d.min_iso);
+        let mismatch = hcg.map_or(1.0, |d| d.gain_mismatch as f64);
+        let analog_gain = analog_iso as f64 / self.base_iso as f64 * (1.0 + self.gain_error(iso) as f64) * mismatch;
+        Ok(IsoSettings {
+            iso,
+            analog_gain,
+            digital_gain,
+            dn_per_electron: analog_gain / self.electrons_per_dn as f64,
+            high_conversion_gain: hcg.is_some(),
+            read_noise_pre_e: hcg.map_or(self.read_noise_pre_e, |d| d.read_noise_pre_e) as f64,
+            read_noise_post_dn: hcg.map_or(self.read_noise_post_dn, |d| d.read_noise_post_dn) as f64,
+            full_well_e: hcg.map_or(self.full_well_e, |d| d.full_well_e) as f64,
+            row_noise_dn: ((self.row_noise_pre_e as f64 * analog_gain / self.electrons_per_dn as f64).powi(2)
+                + (self.row_noise_post_dn as f64).powi(2))
+            .sqrt(),
+        })
+    }
+}
+
+/// The signal chain at one ISO, derived from a [`SensorModel`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct IsoSettings {
+    /// The ISO.
+    pub iso: u32,
+    /// Analog gain relative to the base ISO, gain error and conversion-gain mismatch included.
+    pub analog_gain: f64,
+    /// Digital gain applied after quantisation (1 at or below `max_analog_iso`).
+    pub digital_gain: f64,
+    /// ADC DN per electron (analog part only; the output gets `× digital_gain` more).
+    pub dn_per_electron: f64,
+    /// Whether the second conversion gain is in use.
+    pub high_conversion_gain: bool,
+    /// Pre-gain read noise (electrons, RMS).
+    pub read_noise_pre_e: f64,
+    /// Post-gain read noise (DN at the ADC, RMS).
+    pub read_noise_post_dn: f64,
+    /// Full-well capacity (electrons).
+    pub full_well_e: f64,
+    /// Total row-noise RMS at the ADC (DN).
+    pub row_noise_dn: f64,
+}
+
+impl IsoSettings {
+    /// Output DN per electron, digital gain included.
+    pub fn total_dn_per_electron(&self) -> f64 {
+        self.dn_per_electron * self.digital_gain
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn presets_are_valid_and_gain_is_nearly_proportional() {
+        for m in [SensorModel::phone_10bit(), SensorModel::phone_12bit(), SensorModel::phone_14bit()] {
+            m.validate().expect("preset");
+            let b = m.at_iso(m.base_iso).expect("base");
+            assert_eq!(b.analog_gain, 1.0);
+            assert_eq!(b.digital_gain, 1.0);
+            let s = m.at_iso(m.base_iso * 8).expect("3 stops");
+            let ratio = s.total_dn_per_electron() / b.total_dn_per_electron() / 8.0;
+            assert!((ratio - 1.0).abs() < 0.03 && ratio != 1.0, "{ratio}");
+            let d = m.at_iso(m.max_analog_iso * 2).expect("digital");
+            assert_eq!(d.digital_gain, 2.0);
+        }
+    }
+
+    #[test]
+    fn bad_parameters_are_named() {
+        let mut m = SensorModel::phone_10bit();
+        m.read_noise_dof = Some(2.0);
+        let e = m.validate().expect_err("must be refused").to_string();
+        assert!(e.contains("read_noise_dof") && e.contains("None for Gaussian"), "{e}");
+        let mut m = SensorModel::phone_12bit();
+        m.max_analog_iso = 50;
+        assert!(m.validate().expect_err("must be refused").to_string().contains("max_analog_iso"));
+        assert!(SensorModel::phone_10bit().at_iso(0).expect_err("must be refused").to_string().contains("ISO is 0"));
+    }
+}

@@ -1,0 +1,177 @@
+//! The capture order of a calibration session: per EV step, the reference burst, then one burst
+//! per target ISO with the same ISO × exposure product.
+
+use crate::error::SimError;
+use crate::sim::Simulator;
+
+/// One frame of a [`SessionPlan`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PlannedFrame {
+    /// EV step (0 = base exposure at the reference ISO).
+    pub step: i32,
+    /// ISO of the frame.
+    pub iso: u32,
+    /// Exposure time (ns).
+    pub exposure_ns: u64,
+    /// Running index in capture order (0, 1, 2, …), unique in the session: pass it to
+    /// [`Simulator::capture`] as the frame index.
+    pub index: u64,
+    /// Index of the frame within its burst (0..frames_per_burst).
+    pub in_burst: u32,
+    /// Whether the frame belongs to the reference burst of its step.
+    pub is_reference: bool,
+}
+
+/// A calibration capture plan. All fields are public.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SessionPlan {
+    /// ISO of the reference bursts (the lowest ISO of the session).
+    pub reference_iso: u32,
+    /// ISOs to calibrate; each gets a burst per EV step after the reference burst. An ISO equal
+    /// to the reference gets its own burst (fresh noise) too.
+    pub target_isos: Vec<u32>,
+    /// EV steps in capture order (default −4..=4).
+    pub ev_steps: Vec<i32>,
+    /// Frames per burst (M).
+    pub frames_per_burst: u32,
+    /// Reference exposure at EV 0 (ns).
+    pub base_exposure_ns: u64,
+}
+
+impl SessionPlan {
+    /// A plan with the default EV steps −4..=4.
+    pub fn new(reference_iso: u32, target_isos: Vec<u32>, frames_per_burst: u32, base_exposure_ns: u64) -> Self {
+        Self { reference_iso, target_isos, ev_steps: (-4..=4).collect(), frames_per_burst, base_exposure_ns }
+    }
+
+    /// A plan for a simulator: reference at the model's base ISO, EV 0 exposure from
+    /// [`Simulator::mid_range_exposure_ns`] (chart mid-range at EV 0, bright patches clipped at
+    /// EV +4, dark chart at EV −4), default EV steps.
+    pub fn for_simulator(sim: &Simulator, target_isos: Vec<u32>, frames_per_burst: u32) -> Result<Self, SimError> {
+        let reference_iso = sim.model().base_iso;
+        let plan = Self::new(reference_iso, target_isos, frames_per_burst, sim.mid_range_exposure_ns(reference_iso)?);
+        plan.validate()?;
+        Ok(plan)
+    }
+
+    /// The same plan with other EV steps.
+    pub fn with_ev_steps(mut self, ev_steps: impl IntoIterator<Item = i32>) -> Self {
+        self.ev_steps = ev_steps.into_iter().collect();
+        self
+    }
+
+    /// Checks the plan; the error names the first bad field.
+    pub fn validate(&self) -> Result<(), SimError> {
+        let bad = |what: &'static str, value: String, fix: &'static str| Err(SimError::Parameter { what, value, fix });
+        if self.reference_iso == 0 {
+            return bad("SessionPlan::reference_iso", "0".into(), "use the sensor's base ISO");
+        }
+        if self.target_isos.is_empty() {
+            return bad("SessionPlan::target_isos", "empty".into(), "list at least one ISO to calibrate");
+        }
+        if let Some(&iso) = self.target_isos.iter().find(|&&i| i < self.reference_iso) {
+            return bad(
+                "SessionPlan::target_isos",
+                format!("{iso} (below reference {})", self.reference_iso),
+                "every target ISO must be ≥ the reference ISO (the reference is the lowest)",
+            );
+        }
+        if self.ev_steps.is_empty() || self.ev_steps.iter().any(|s| !(-16..=16).contains(s)) {
+            return bad("SessionPlan::ev_steps", format!("{:?}", self.ev_steps), "give one or more steps in −16..=16");
+        }
+        let mut sorted = self.ev_steps.clone();
+        sorted.sort_unstable();
+        sorted.dedup();
+        if sorted.len() != self.ev_steps.len() {
+            return bad("SessionPlan::ev_steps", format!("{:?}", self.ev_steps), "list each EV step once");
+        }
+        if self.frames_per_burst == 0 {
+            return bad(
+                "SessionPlan::frames_per_burst",
+                "0".into(),
+                "use at least 1 frame per burst (2+ to measure spread)",
+            );
+        }
+        if self.base_exposure_ns == 0 {
+            return bad("SessionPlan::base_exposure_ns", "0".into(), "use a positive exposure");
+        }
+        Ok(())
+    }
+
+    /// Exposure (ns) of `iso` at EV `step`: `base · 2^step · reference_iso / iso`, rounded, ≥ 1.
+    pub fn exposure_ns(&self, step: i32, iso: u32) -> u64 {
+        let e = self.base_exposure_ns as f64 * 2f64.powi(step) * self.reference_iso as f64 / iso.max(1) as f64;
+        (e.round() as u64).max(1)
+    }
+
+    /// Number of frames in the plan.
+    pub fn len(&self) -> usize {
+        self.ev_steps.len() * (1 + self.target_isos.len()) * self.frames_per_burst as usize
+    }
+
+    /// Whether the plan has no frames.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The frames in capture order: per EV step, the reference burst, then each target ISO's
+    /// burst in `target_isos` order.
+    pub fn frames(&self) -> impl Iterator<Item = PlannedFrame> + '_ {
+        let m = self.frames_per_burst;
+        let bursts = std::iter::once((self.reference_iso, true)).chain(self.target_isos.iter().map(|&i| (i, false)));
+        let per_step: Vec<(u32, bool)> = bursts.collect();
+        let per_step_frames = per_step.len() as u64 * m as u64;
+        self.ev_steps.iter().enumerate().flat_map(move |(si, &step)| {
+            let per_step = per_step.clone();
+            per_step.into_iter().enumerate().flat_map(move |(bi, (iso, is_reference))| {
+                let exposure_ns = self.exposure_ns(step, iso);
+                (0..m).map(move |k| PlannedFrame {
+                    step,
+                    iso,
+                    exposure_ns,
+                    index: si as u64 * per_step_frames + bi as u64 * m as u64 + k as u64,
+                    in_burst: k,
+                    is_reference,
+                })
+            })
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn capture_order_and_constant_brightness() {
+        let plan = SessionPlan::new(50, vec![100, 400], 3, 8_000_000).with_ev_steps([-1, 0, 2]);
+        plan.validate().expect("valid");
+        let frames: Vec<PlannedFrame> = plan.frames().collect();
+        assert_eq!(frames.len(), plan.len());
+        assert_eq!(frames.len(), 3 * 3 * 3);
+        for (i, f) in frames.iter().enumerate() {
+            assert_eq!(f.index, i as u64);
+        }
+        assert_eq!((frames[0].step, frames[0].iso, frames[0].exposure_ns), (-1, 50, 4_000_000));
+        assert!(frames[..3].iter().all(|f| f.is_reference));
+        assert_eq!((frames[3].iso, frames[3].exposure_ns, frames[3].in_burst), (100, 2_000_000, 0));
+        assert_eq!((frames[6].iso, frames[6].exposure_ns), (400, 500_000));
+        assert_eq!((frames[9].step, frames[9].iso, frames[9].exposure_ns), (0, 50, 8_000_000));
+        assert_eq!(frames[26].exposure_ns, 32_000_000 / 8);
+        for f in &frames {
+            let bright = f.iso as f64 * f.exposure_ns as f64;
+            let want = 50.0 * 8e6 * 2f64.powi(f.step);
+            assert!((bright / want - 1.0).abs() < 1e-6);
+        }
+    }
+
+    #[test]
+    fn bad_plans_are_named() {
+        let p = SessionPlan::new(100, vec![50], 2, 1000);
+        assert!(p.validate().expect_err("must be refused").to_string().contains("target_isos"));
+        let p = SessionPlan::new(100, vec![200], 0, 1000);
+        assert!(p.validate().expect_err("must be refused").to_string().contains("frames_per_burst"));
+        let p = SessionPlan::new(100, vec![200], 2, 1000).with_ev_steps([0, 0]);
+        assert!(p.validate().expect_err("must be refused").to_string().contains("ev_steps"));
+    }
+}
