@@ -3,7 +3,9 @@
 use std::path::Path;
 
 use anyhow::bail;
-use noisecal_core::pack::IsoModel;
+use noisecal_core::baselines::{self, BaselineKind};
+use noisecal_core::interp;
+use noisecal_core::pack::{IsoModel, ModelOrigin};
 use noisecal_core::{ModelPack, SensorLayout};
 
 /// Which noise model to synthesize with.
@@ -19,17 +21,38 @@ pub enum ModelKind {
     Noiseprofile,
 }
 
+impl ModelKind {
+    /// The parametric baseline this kind names, if any.
+    pub fn baseline(self) -> Option<BaselineKind> {
+        match self {
+            ModelKind::Noisecal => None,
+            ModelKind::Hg => Some(BaselineKind::Hg),
+            ModelKind::Pg => Some(BaselineKind::Pg),
+            ModelKind::Noiseprofile => Some(BaselineKind::NoiseProfile),
+        }
+    }
+}
+
 /// The model for `iso`, and a note for stderr when it was interpolated or is a baseline.
 pub fn resolve_model(pack: &ModelPack, iso: u32, kind: ModelKind, extrapolate: bool) -> anyhow::Result<(IsoModel, Option<String>)> {
-    match kind {
-        ModelKind::Noisecal => match pack.iso(iso) {
-            Some(m) => Ok((m.clone(), None)),
-            None => {
-                let _ = extrapolate;
-                bail!(noisecal_core::error::ModelError::IsoMissing { iso, available: pack.iso_summary() })
-            }
-        },
-        other => bail!("the {other:?} baseline is not available in this build"),
+    match kind.baseline() {
+        None => {
+            let (m, derived) = interp::model_for(pack, iso, extrapolate)?;
+            let note = derived.then(|| match &m.origin {
+                ModelOrigin::Interpolated { from } => {
+                    format!("ISO {iso} is not calibrated: interpolated from ISOs {from:?}")
+                }
+                ModelOrigin::Extrapolated { from } => {
+                    format!("ISO {iso} is outside the calibrated range: extrapolated from ISOs {from:?} (--extrapolate)")
+                }
+                ModelOrigin::Calibrated => String::new(),
+            });
+            Ok((m.into_owned(), note))
+        }
+        Some(b) => {
+            let m = baselines::baseline_model(pack, iso, b)?;
+            Ok((m, Some(format!("synthesizing with the {} baseline ({}) at ISO {iso}", b.name(), b.label()))))
+        }
     }
 }
 

@@ -480,6 +480,12 @@ fn solve_bin(pa_full: &Pmf, pb_full: &Pmf, opts: &BridgeOptions) -> BridgeBin {
     convolve(a, &q, &mut y);
     let tv = 0.5 * y.iter().zip(&b).map(|(u, v)| (u - v).abs()).sum::<f64>();
     let jsd = jsd_aligned(&y, &b);
+    if tv > 0.05 && jsd == 0.0 {
+        let neg = y.iter().filter(|v| **v < 0.0).count();
+        let nan = y.iter().filter(|v| v.is_nan()).count() + q.iter().filter(|v| v.is_nan()).count();
+        for (i,(&x,&z)) in y.iter().zip(&b).enumerate() { let m = 0.5*(x+z); let t = if x>0.0 {0.5*x*(x/m).ln()} else {0.0} + if z>0.0 {0.5*z*(z/m).ln()} else {0.0}; if !t.is_finite() || t < 0.0 { eprintln!("DBG term {i} x {x:e} z {z:e} t {t}"); } }
+        eprintln!("DBG tv {tv} neg {neg} nan {nan} sum y {} sum b {} ylen {} qsum {}", y.iter().sum::<f64>(), b.iter().sum::<f64>(), y.len(), q.iter().sum::<f64>());
+    }
     let q = Pmf::from_weights(lo, q.iter().map(|&x| if x < 1e-15 { 0.0 } else { x })).unwrap_or(Pmf {
         first: d_mean.round() as i32,
         p: vec![1.0],
@@ -551,5 +557,19 @@ mod tests {
         assert!((v.iter().sum::<f64>() - 1.0).abs() < 1e-12);
         assert!(v.iter().all(|&x| x >= 0.0));
         assert!((v[1] - v[0] - 0.4).abs() < 1e-12);
+    }
+}
+#[cfg(test)]
+mod dbg_tests {
+    use super::*;
+    #[test]
+    fn dbg_jsd() {
+        let a = vec![0.2, 0.3, 0.5];
+        let b = vec![0.5, 0.3, 0.2];
+        eprintln!("jsd {}", jsd_aligned(&a, &b));
+        let pa = Pmf { first: -40, p: (0..74).map(|i| if i == 73 { 0.3 } else { 0.7 / 73.0 }).collect() };
+        let pb = Pmf { first: -60, p: (0..94).map(|i| if i == 93 { 0.4 } else { 0.6 / 93.0 }).collect() };
+        let r = solve_bin(&pa, &pb, &BridgeOptions::default());
+        eprintln!("tv {} jsd {}", r.tv, r.jsd);
     }
 }

@@ -15,10 +15,10 @@ use interp_sim::{sample_iso_with, sim_pack_with, simulator};
 use noisecal_core::baselines::{self, BaselineKind};
 use noisecal_core::histogram::NoiseHistogram;
 use noisecal_core::interp::{self, InterpOptions, ShapeSource};
-use noisecal_core::metrics::{jsd_hist, jsd_pmf};
+use noisecal_core::metrics::jsd_pmf;
 use noisecal_core::pack::{IsoModel, ModelOrigin, ModelPack};
 use noisecal_core::pmf::Pmf;
-use noisecal_core::{POSITIONS, error::ModelError};
+use noisecal_core::error::ModelError;
 use noisecal_sim::SensorModel;
 
 const CAL: usize = 200_000;
@@ -48,7 +48,7 @@ fn jsds(model: &IsoModel, truth: &[Vec<NoiseHistogram>]) -> (Vec<f64>, f64) {
     (v, m)
 }
 
-fn mean_jsd(model: &IsoModel, truth: &[Vec<NoiseHistogram>], _unused: usize) -> f64 {
+fn mean_jsd(model: &IsoModel, truth: &[Vec<NoiseHistogram>]) -> f64 {
     jsds(model, truth).1
 }
 
@@ -83,9 +83,8 @@ fn setup() -> &'static Setup {
 #[test]
 fn interpolated_iso_matches_truth_and_beats_parametric_hg() {
     let s = setup();
-    let binning = s.full.binning();
     let calibrated = s.full.iso(400).expect("400");
-    let floor = mean_jsd(calibrated, &s.truth, 0);
+    let floor = mean_jsd(calibrated, &s.truth);
     let (blend, plan) = interp::interpolate_with(&s.without, 400, false, &InterpOptions::default()).expect("inside");
     assert_eq!(plan.neighbours, vec![100, 200, 800, 1600]);
     assert_eq!(plan.shape_from, vec![200, 800]);
@@ -98,21 +97,29 @@ fn interpolated_iso_matches_truth_and_beats_parametric_hg() {
     )
     .expect("inside")
     .0;
-    let j_blend = mean_jsd(&blend, &s.truth, 0);
-    let j_near = mean_jsd(&nearest, &s.truth, 0);
+    let j_blend = mean_jsd(&blend, &s.truth);
+    let j_near = mean_jsd(&nearest, &s.truth);
     let hg = baselines::interpolate(&s.without, 400, BaselineKind::Hg, false).expect("hg").to_model(&s.without);
-    let j_hg = mean_jsd(&hg, &s.truth, 0);
+    let j_hg = mean_jsd(&hg, &s.truth);
     let hg_cal = baselines::fit(&s.full, calibrated, BaselineKind::Hg).expect("hg").to_model(&s.full);
-    let j_hg_cal = mean_jsd(&hg_cal, &s.truth, 0);
-    eprintln!("per bin: blend {:.5?}\n nearest {:.5?}\n hg {:.5?}\n floor {:.5?}", jsds(&blend, &s.truth).0, jsds(&nearest, &s.truth).0, jsds(&hg, &s.truth).0, jsds(calibrated, &s.truth).0);
+    let j_hg_cal = mean_jsd(&hg_cal, &s.truth);
     eprintln!(
         "ISO 400 mean per-bin JSD: floor {floor:.5}, blend {j_blend:.5}, nearest {j_near:.5}, HG interpolated {j_hg:.5}, HG calibrated {j_hg_cal:.5}"
     );
-    // The interpolated model is about as close to the truth as a calibration of that ISO ...
-    assert!(j_blend < 2.0 * floor + 2e-3, "blend {j_blend} vs floor {floor}");
-    // ... and far closer than the HG model interpolated the usual parametric way.
-    assert!(j_blend < 0.5 * j_hg, "blend {j_blend} vs HG {j_hg}");
-    assert!(j_blend <= j_near * 1.05, "blend {j_blend} vs nearest {j_near}");
+    // Measured (seeded): floor 1.6e-4, blend 1.0e-4, nearest 1.7e-4, HG 5.4e-4 (1.9e-3 in the
+    // darkest bin). A variance 6 % off alone costs ≈ 2e-4 per bin.
+    // The interpolated model is as close to the truth as a calibration of that ISO ...
+    assert!(j_blend < 1.25 * floor, "blend {j_blend} vs floor {floor}");
+    // ... and far closer than the HG model interpolated the usual parametric way, above all in
+    // the dark, heavy-tailed bins.
+    assert!(j_blend < 0.3 * j_hg, "blend {j_blend} vs HG {j_hg}");
+    let (vb, _) = jsds(&blend, &s.truth);
+    let (vh, _) = jsds(&hg, &s.truth);
+    for i in [0, 1, 8, 9] {
+        assert!(vb[i] < 0.2 * vh[i], "dark bin #{i}: blend {} vs HG {}", vb[i], vh[i]);
+    }
+    // The quantile blend is the better shape source (the default).
+    assert!(j_blend < 0.8 * j_near, "blend {j_blend} vs nearest {j_near}");
     // The variance follows the truth bin by bin.
     for pos in EVAL_POS {
         for b in EVAL_BINS {
@@ -156,5 +163,4 @@ fn leave_one_out_on_a_calibrated_iso_ignores_it() {
     p.insert(a);
     let back = ModelPack::from_bytes(&p.to_bytes().expect("encode")).expect("decode");
     assert_eq!(back, p);
-    let _ = jsd_hist(&s.truth[0][3], &s.truth[0][3]);
 }

@@ -10,7 +10,7 @@
 use std::any::Any;
 
 use jni::errors::ErrorPolicy;
-use jni::objects::{JByteBuffer, JClass, JFloatArray, JLongArray, JObject, JString};
+use jni::objects::{JByteBuffer, JClass, JDoubleArray, JFloatArray, JLongArray, JObject, JString};
 use jni::strings::JNIString;
 use jni::sys::{jint, jlong};
 use jni::{Env, EnvUnowned, jni_str};
@@ -226,6 +226,26 @@ pub extern "system" fn Java_org_noisecal_jni_NoisecalSession_nativePushFrame<'lo
             };
             let report = registry::with(handle, |s| s.push_plane(plane, &params))?;
             Ok(if report.drift_normalised { VERDICT_DRIFT_NORMALISED } else { 0 })
+        })
+        .resolve::<ThrowNoisecal>()
+}
+
+#[unsafe(no_mangle)]
+pub extern "system" fn Java_org_noisecal_jni_NoisecalSession_nativeSetNoiseProfile<'local>(
+    mut unowned: EnvUnowned<'local>,
+    _class: JClass<'local>,
+    handle: jlong,
+    iso: jint,
+    profile: JDoubleArray<'local>,
+) {
+    unowned
+        .with_env(|env| -> Result<()> {
+            if profile.is_null() {
+                return Err(BoundaryError::arg("noise profile", "null", "pass 8 values: (S, O) per CFA position"));
+            }
+            let mut values = vec![0f64; profile.len(env)?];
+            profile.get_region(env, 0, &mut values)?;
+            registry::with(handle, |s| s.set_noise_profile(iso, &values))
         })
         .resolve::<ThrowNoisecal>()
 }

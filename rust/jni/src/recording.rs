@@ -150,6 +150,10 @@ impl RecordingTee {
         Ok(())
     }
 
+    pub fn noise_profile(&mut self, iso: u32, profile: &[[f64; 2]; 4]) -> Result<()> {
+        self.writer.noise_profile(iso, profile).map_err(|e| self.err(e))
+    }
+
     /// Flushes and syncs, and says where the recording stands (for a checkpoint).
     pub fn mark(&mut self) -> Result<RecordingMark> {
         self.writer.flush().map_err(|e| self.err(e))?;

@@ -159,6 +159,22 @@ impl NativeSession {
         Ok(report)
     }
 
+    /// Records the camera's own noise profile for an ISO (Camera2 `SENSOR_NOISE_PROFILE`): 8
+    /// values, `(S, O)` per CFA position in position order, `σ² = S·x + O` with x in [0, 1].
+    pub fn set_noise_profile(&mut self, iso: i32, profile: &[f64]) -> Result<()> {
+        let iso = positive("iso", iso)?;
+        if profile.len() != 8 || profile.iter().any(|v| !v.is_finite()) {
+            return Err(BoundaryError::arg(
+                "noise profile",
+                format!("{profile:?}"),
+                "pass 8 finite values: (S, O) for each of the 4 CFA positions",
+            ));
+        }
+        let p: [[f64; 2]; 4] = std::array::from_fn(|i| [profile[2 * i], profile[2 * i + 1]]);
+        self.session.set_noise_profile(iso, p);
+        self.record(|t| t.noise_profile(iso, &p))
+    }
+
     /// Progress as the Kotlin `Progress.decode` layout: accepted, rejected, steps, reference frames,
     /// number of ISOs, then per ISO: iso, frames, samples, under-sampled bins, total bins.
     pub fn progress_array(&self) -> Vec<i64> {

@@ -109,7 +109,8 @@ pub fn to_plane(samples: &[u16], width: usize, height: usize, row_stride: usize)
 }
 
 /// The capture plan of the synthetic session: per EV step, a reference burst at the reference
-/// ISO then target bursts at ISO 100, 200, 400 (same ISO × exposure).
+/// ISO then target bursts at ISO 200, 400 and 100 (same ISO × exposure; the ISO 100 targets come
+/// last, after the burst is closed, else they would join it).
 #[derive(Debug, Clone)]
 pub struct Plan {
     pub steps_ms: Vec<f64>,
@@ -120,7 +121,7 @@ pub struct Plan {
 
 impl Default for Plan {
     fn default() -> Self {
-        Self { steps_ms: vec![4.0, 10.0], reference_frames: 6, target_isos: vec![100, 200, 400], target_frames: 4 }
+        Self { steps_ms: vec![4.0, 10.0], reference_frames: 6, target_isos: vec![200, 400, 100], target_frames: 4 }
     }
 }
 

@@ -8,6 +8,9 @@ use noisecal_jni::session::{CreateParams, NativeSession, PlaneParams};
 use noisecal_jni::testkit::{Plan, Synth, write_recording};
 use noisecal_jni::{BoundaryError, replay_recording};
 
+const W: usize = 320;
+const H: usize = 240;
+
 struct Frame {
     iso: u32,
     exposure_ns: u64,
@@ -21,9 +24,9 @@ enum Event {
 }
 
 fn synthetic() -> (Synth, Vec<u8>, Vec<Event>) {
-    let synth = Synth::new(128, 96, 3);
+    let synth = Synth::new(W as u32, H as u32, 3);
     let mut rec = Vec::new();
-    write_recording(&mut rec, &synth, &Plan::default(), 2 * 128).expect("recording");
+    write_recording(&mut rec, &synth, &Plan::default(), 2 * W).expect("recording");
     let mut r = RecordingReader::new(&rec[..]).expect("reader");
     let mut events = Vec::new();
     while let Some(record) = r.next_record().expect("record") {
@@ -31,7 +34,7 @@ fn synthetic() -> (Synth, Vec<u8>, Vec<Event>) {
             Record::BeginStep { exposure_ns } => events.push(Event::Step(exposure_ns)),
             Record::Frame(f) => {
                 let v = f.view().expect("view");
-                let samples = (0..96).flat_map(|y| v.row(y).into_owned()).collect();
+                let samples = (0..H).flat_map(|y| v.row(y).into_owned()).collect();
                 events.push(Event::Frame(Frame {
                     iso: f.meta.iso,
                     exposure_ns: f.meta.exposure_ns,
@@ -94,12 +97,12 @@ fn plane(f: &Frame, w: usize, h: usize, pad: usize) -> (Vec<u8>, usize) {
 }
 
 fn push(s: &mut NativeSession, f: &Frame, pad: usize) -> Result<(), BoundaryError> {
-    let (p, stride) = plane(f, 128, 96, pad);
+    let (p, stride) = plane(f, W, H, pad);
     s.push_plane(
         &p,
         &PlaneParams {
-            width: 128,
-            height: 96,
+            width: W as i32,
+            height: H as i32,
             row_stride: stride as i32,
             pixel_stride: 2,
             iso: f.iso as i32,
@@ -154,10 +157,10 @@ fn bad_frames_are_named_and_change_nothing() {
         };
         if i % 7 == 3 {
             let before = s.progress_array();
-            let (p, stride) = plane(f, 128, 96, 4);
+            let (p, stride) = plane(f, W, H, 4);
             let good = PlaneParams {
-                width: 128,
-                height: 96,
+                width: W as i32,
+                height: H as i32,
                 row_stride: stride as i32,
                 pixel_stride: 2,
                 iso: f.iso as i32,
@@ -167,7 +170,7 @@ fn bad_frames_are_named_and_change_nothing() {
             let cases: Vec<(Vec<u8>, PlaneParams<'_>, &str)> = vec![
                 (p[..p.len() - 10].to_vec(), good, "((height − 1) · rowStride + 2 · width)"),
                 (p.clone(), PlaneParams { pixel_stride: 4, ..good }, "pixel stride is 4 bytes"),
-                (p.clone(), PlaneParams { width: 126, ..good }, "frame is 126×96 but the session's sensor is 128×96"),
+                (p.clone(), PlaneParams { width: 318, ..good }, "frame is 318×240 but the session's sensor is 320×240"),
                 (p.clone(), PlaneParams { row_stride: 100, ..good }, "row stride 100 bytes is less than"),
                 (p.clone(), PlaneParams { iso: -1, ..good }, "iso is -1"),
                 (p.clone(), PlaneParams { black: Some(&[64.0; 3]), ..good }, "pass 4 values"),

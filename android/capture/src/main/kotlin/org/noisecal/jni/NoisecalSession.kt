@@ -10,6 +10,16 @@ import java.nio.ByteBuffer
  * rejected frame leaves the session unchanged.
  *
  * This file is compiled both by the Android app and by the host JVM harness in `tests/jvm`.
+ *
+ * Threads: calls on one session are serialised natively (a per-session lock), so [pushFrame] on the
+ * ImageReader thread and [progress] on the UI thread may overlap. A closed session throws
+ * [NoisecalException] on every call.
+ *
+ * Kill and resume: [checkpoint] stores the session and, when recording, the recording's path and
+ * length at that moment. [restore] reopens that recording, cuts it back to that length (the frames a
+ * killed session pushed after its last checkpoint are gone from both) and keeps appending, so one
+ * recording file still replays to the resumed session's pack. If the file is gone or shorter, the
+ * session resumes without recording (logged).
  */
 class NoisecalSession private constructor(private var handle: Long) : AutoCloseable {
 
@@ -17,7 +27,12 @@ class NoisecalSession private constructor(private var handle: Long) : AutoClosea
     fun beginStep(referenceExposureNs: Long) = nativeBeginStep(live(), referenceExposureNs)
 
     /**
-     * Folds one RAW_SENSOR frame in. [buffer] must be a direct ByteBuffer (`Image.planes[0].buffer`),
+     * Folds one RAW_SENSOR frame in, read in place (no copy) from the buffer's native memory. [buffer]
+     * must be a direct ByteBuffer (`Image.planes[0].buffer`); the plane is read from the buffer's
+     * start address over its capacity, whatever its position (Camera2 planes start at 0; pass
+     * `buffer.slice()` to start elsewhere), as little-endian 16-bit samples. It must hold
+     * `(height − 1) · rowStride + 2 · width` bytes and must not change during the call (an Image's
+     * planes do not until it is closed).
      * [rowStride] and [pixelStride] in bytes as the plane reports them; [iso] and [exposureNs] as the
      * TotalCaptureResult reported them; [blackLevels] the per-frame dynamic black level (4 values,
      * CFA position order) or null. Returns whether the frame's brightness drifted (flicker) and was
@@ -40,15 +55,29 @@ class NoisecalSession private constructor(private var handle: Long) : AutoClosea
     /** Current progress of the session. */
     fun progress(): Progress = Progress.decode(nativeProgress(live()))
 
+    /**
+     * Records the camera's own noise profile for an ISO (`SENSOR_NOISE_PROFILE`): [profile] holds 8
+     * values, (S, O) for each CFA position in position order ((row % 2) * 2 + (col % 2)).
+     */
+    fun setNoiseProfile(iso: Int, profile: DoubleArray) = nativeSetNoiseProfile(live(), iso, profile)
+
     /** Writes a checkpoint (temporary file, then rename) from which [restore] resumes. */
     fun checkpoint(path: String) = nativeCheckpoint(live(), path)
 
-    /** Tees every accepted frame from now on into a recording file for desktop replay. */
+    /**
+     * Tees every accepted frame (exactly as handed over), every [beginStep] and every
+     * [setNoiseProfile] from now on into a recording file for desktop replay
+     * (`noisecal calibrate session.rec` gives the same pack). Call it before the first [beginStep].
+     */
     fun startRecording(path: String) = nativeStartRecording(live(), path)
 
-    /** Builds the model pack and writes it to [packPath] (temporary file, then rename). Returns a one-line summary. */
+    /**
+     * Builds the model pack and writes it to [packPath] (temporary file, then rename). Returns a
+     * one-line summary. The session stays usable; the recording is flushed and stays open.
+     */
     fun finish(packPath: String): String = nativeFinish(live(), packPath)
 
+    /** Frees the native session; ends the recording (its End record). Safe to call twice. */
     override fun close() {
         val h = handle
         handle = 0
@@ -56,7 +85,7 @@ class NoisecalSession private constructor(private var handle: Long) : AutoClosea
     }
 
     private fun live(): Long {
-        check(handle != 0L) { "NoisecalSession is closed" }
+        if (handle == 0L) throw NoisecalException("NoisecalSession is closed: create or restore a new one")
         return handle
     }
 
@@ -123,6 +152,7 @@ class NoisecalSession private constructor(private var handle: Long) : AutoClosea
             handle: Long, buffer: ByteBuffer, width: Int, height: Int, rowStride: Int, pixelStride: Int,
             iso: Int, exposureNs: Long, blackLevels: FloatArray?,
         ): Int
+        @JvmStatic private external fun nativeSetNoiseProfile(handle: Long, iso: Int, profile: DoubleArray)
         @JvmStatic private external fun nativeProgress(handle: Long): LongArray
         @JvmStatic private external fun nativeCheckpoint(handle: Long, path: String)
         @JvmStatic private external fun nativeStartRecording(handle: Long, path: String)
