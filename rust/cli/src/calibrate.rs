@@ -119,7 +119,7 @@ fn calibrate_dngs(dir: &Path, opts: &CalibrateOptions, quiet: bool) -> anyhow::R
         input::for_each_dng_in_order(&frames, |fr, img| {
             report.frames += 1;
             pb.inc(1);
-            let pushed = FrameView::from_array(&img.pixels.view())
+            let pushed = FrameView::from_array(&img.pixels)
                 .map_err(noisecal_core::error::SessionError::from)
                 .and_then(|v| session.push_frame(&v, &fr.meta));
             if let Err(e) = pushed {

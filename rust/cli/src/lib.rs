@@ -4,7 +4,9 @@
 pub mod calibrate;
 pub mod cmd;
 pub mod dng;
+pub mod eval;
 pub mod input;
 pub mod models;
 pub mod output;
+pub mod report;
 pub mod simulate;

@@ -107,11 +107,7 @@ impl NoiseParams {
     /// Read variance referred to the input in electrons², `b / a²` (the shot slope `a` is the
     /// conversion gain in DN/e⁻). Infinite when `a` is 0.
     pub fn input_read_variance(&self) -> f64 {
-        if self.a > 0.0 {
-            self.b / (self.a * self.a)
-        } else {
-            f64::INFINITY
-        }
+        if self.a > 0.0 { self.b / (self.a * self.a) } else { f64::INFINITY }
     }
 }
 
@@ -163,8 +159,7 @@ pub fn bin_stats(binning: &Binning, model: &IsoModel, pos: usize) -> Vec<BinStat
             let pmf = bm.pmf();
             let lo_level = black + bin as f64 * bw;
             let hi_level = (lo_level + bw).min(white);
-            let clipped = lo_level.round() + pmf.quantile(0.001) < 0.5
-                || hi_level + pmf.quantile(0.999) > white - 0.5;
+            let clipped = lo_level.round() + pmf.quantile(0.001) < 0.5 || hi_level + pmf.quantile(0.999) > white - 0.5;
             BinStat {
                 bin,
                 level_above_black: (bin as f64 + 0.5) * bw,
@@ -203,15 +198,8 @@ pub fn fit_params(binning: &Binning, model: &IsoModel, pos: usize) -> Option<Noi
     }
     let x: Vec<f64> = used.iter().map(|s| s.level_above_black).collect();
     let y: Vec<f64> = used.iter().map(|s| s.var).collect();
-    let w: Vec<f64> = used
-        .iter()
-        .map(|s| s.samples.max(1) as f64 / s.var.max(1e-3).powi(2))
-        .collect();
-    let c = if used.len() >= 2 {
-        nn_poly_fit(&x, &y, &w, 1)
-    } else {
-        vec![y[0], 0.0]
-    };
+    let w: Vec<f64> = used.iter().map(|s| s.samples.max(1) as f64 / s.var.max(1e-3).powi(2)).collect();
+    let c = if used.len() >= 2 { nn_poly_fit(&x, &y, &w, 1) } else { vec![y[0], 0.0] };
     Some(NoiseParams { a: c[1], b: c[0] })
 }
 
@@ -231,10 +219,7 @@ pub fn fit_all(binning: &Binning, model: &IsoModel) -> [NoiseParams; POSITIONS] 
 pub fn profile_params(binning: &Binning, profile: &[[f64; 2]; POSITIONS]) -> [NoiseParams; POSITIONS] {
     std::array::from_fn(|pos| {
         let range = (binning.white as f64 - binning.black[pos] as f64).max(1.0);
-        NoiseParams {
-            a: profile[pos][0] * range,
-            b: profile[pos][1] * range * range,
-        }
+        NoiseParams { a: profile[pos][0] * range, b: profile[pos][1] * range * range }
     })
 }
 
@@ -250,12 +235,7 @@ pub fn fit(pack: &ModelPack, model: &IsoModel, kind: BaselineKind) -> Result<Bas
             (profile_params(&binning, p), BaselineSource::CameraProfile)
         }
     };
-    Ok(Baseline {
-        kind,
-        iso: model.iso,
-        params,
-        source,
-    })
+    Ok(Baseline { kind, iso: model.iso, params, source })
 }
 
 fn no_profile(iso: u32) -> ModelError {
@@ -269,12 +249,7 @@ fn no_profile(iso: u32) -> ModelError {
 /// any conversion-gain switch ([`crate::interp::plan`]). With one such ISO, `a` scales with the
 /// ISO ratio `r` and `b` with `r²`. Outside the calibrated range this is refused unless
 /// `extrapolate`. For NoiseProfile, only calibrated ISOs that carry a profile are used.
-pub fn interpolate(
-    pack: &ModelPack,
-    iso: u32,
-    kind: BaselineKind,
-    extrapolate: bool,
-) -> Result<Baseline, ModelError> {
+pub fn interpolate(pack: &ModelPack, iso: u32, kind: BaselineKind, extrapolate: bool) -> Result<Baseline, ModelError> {
     let plan = crate::interp::plan(pack, iso, extrapolate)?;
     let binning = pack.binning();
     let mut pts: Vec<(f64, [NoiseParams; POSITIONS])> = Vec::new();
@@ -294,10 +269,7 @@ pub fn interpolate(
             BaselineKind::NoiseProfile => ModelError::Unsupported(format!(
                 "no calibrated ISO next to ISO {iso} carries a NoiseProfile; use --model hg or pg instead"
             )),
-            _ => ModelError::IsoMissing {
-                iso,
-                available: pack.iso_summary(),
-            },
+            _ => ModelError::IsoMissing { iso, available: pack.iso_summary() },
         });
     }
     let j = iso as f64;
@@ -305,10 +277,7 @@ pub fn interpolate(
         if pts.len() == 1 {
             let r = j / pts[0].0;
             let p = pts[0].1[pos];
-            return NoiseParams {
-                a: p.a * r,
-                b: p.b * r * r,
-            };
+            return NoiseParams { a: p.a * r, b: p.b * r * r };
         }
         let scale = pts.iter().map(|p| p.0).fold(0.0, f64::max);
         let xs: Vec<f64> = pts.iter().map(|p| p.0 / scale).collect();
@@ -338,12 +307,7 @@ pub fn interpolate(
 
 /// The baseline at an ISO: fitted when the ISO is calibrated in the pack, else interpolated
 /// parametrically ([`interpolate`]).
-pub fn baseline(
-    pack: &ModelPack,
-    iso: u32,
-    kind: BaselineKind,
-    extrapolate: bool,
-) -> Result<Baseline, ModelError> {
+pub fn baseline(pack: &ModelPack, iso: u32, kind: BaselineKind, extrapolate: bool) -> Result<Baseline, ModelError> {
     match pack.iso(iso) {
         Some(m) if m.is_calibrated() => fit(pack, m, kind),
         _ => interpolate(pack, iso, kind, extrapolate),
@@ -380,10 +344,7 @@ impl Baseline {
     /// spread across the bin.
     pub fn bin_pmf(&self, binning: &Binning, pos: usize, bin: usize) -> Pmf {
         let levels = bin_levels(binning, pos, bin);
-        let pmfs: Vec<Pmf> = levels
-            .iter()
-            .map(|&l| self.level_pmf(binning, pos, l))
-            .collect();
+        let pmfs: Vec<Pmf> = levels.iter().map(|&l| self.level_pmf(binning, pos, l)).collect();
         average(&pmfs)
     }
 
@@ -407,10 +368,9 @@ impl Baseline {
             })
             .collect();
         let origin = match &self.source {
-            BaselineSource::Interpolated {
-                from,
-                extrapolated: true,
-            } => ModelOrigin::Extrapolated { from: from.clone() },
+            BaselineSource::Interpolated { from, extrapolated: true } => {
+                ModelOrigin::Extrapolated { from: from.clone() }
+            }
             BaselineSource::Interpolated { from, .. } => ModelOrigin::Interpolated { from: from.clone() },
             _ => src.map_or(ModelOrigin::Calibrated, |m| m.origin.clone()),
         };
@@ -432,28 +392,19 @@ pub fn bin_levels(binning: &Binning, pos: usize, bin: usize) -> Vec<i32> {
     let black = binning.black[pos] as f64;
     let last_bin = binning.bins(pos) - 1;
     let start = (black + bin as f64 * bw).ceil() as i32;
-    let end = if bin >= last_bin {
-        binning.white as i32
-    } else {
-        (black + (bin + 1) as f64 * bw).ceil() as i32 - 1
-    };
+    let end = if bin >= last_bin { binning.white as i32 } else { (black + (bin + 1) as f64 * bw).ceil() as i32 - 1 };
     if end < start {
         return vec![binning.center(pos, bin).round() as i32];
     }
     let count = (end - start + 1) as usize;
     let k = count.min(LEVELS_PER_BIN);
-    (0..k)
-        .map(|i| start + (((i as f64 + 0.5) * count as f64 / k as f64).floor() as i32))
-        .collect()
+    (0..k).map(|i| start + (((i as f64 + 0.5) * count as f64 / k as f64).floor() as i32)).collect()
 }
 
 /// Mean of PMFs on their common grid.
 fn average(pmfs: &[Pmf]) -> Pmf {
     let Some(first) = pmfs.iter().map(|p| p.first).min() else {
-        return Pmf {
-            first: 0,
-            p: vec![1.0],
-        };
+        return Pmf { first: 0, p: vec![1.0] };
     };
     let last = pmfs.iter().map(|p| p.last()).max().unwrap_or(first);
     let mut acc = vec![0.0; (last - first + 1) as usize];
@@ -463,10 +414,7 @@ fn average(pmfs: &[Pmf]) -> Pmf {
             acc[off + i] += x;
         }
     }
-    Pmf::from_weights(first, acc).unwrap_or(Pmf {
-        first: 0,
-        p: vec![1.0],
-    })
+    Pmf::from_weights(first, acc).unwrap_or(Pmf { first: 0, p: vec![1.0] })
 }
 
 /// Folds the mass of `level + n < 0` onto `n = −level` and of `level + n > white` onto
@@ -484,20 +432,14 @@ fn clip(p: &Pmf, level: i32, white: i32) -> Pmf {
         let n = (p.first + i as i32).clamp(lo, hi).clamp(first, last);
         out[(n - first) as usize] += x;
     }
-    Pmf::from_weights(first, out).unwrap_or(Pmf {
-        first,
-        p: vec![1.0],
-    })
+    Pmf::from_weights(first, out).unwrap_or(Pmf { first, p: vec![1.0] })
 }
 
 /// `round(N(mu, sd²))` on the integer grid.
 fn gaussian_cells(mu: f64, sd: f64) -> Pmf {
     let mut acc = Vec::new();
     let first = add_gaussian_cells(&mut acc, None, mu, sd, 1.0);
-    Pmf::from_weights(first, acc).unwrap_or(Pmf {
-        first: mu.round() as i32,
-        p: vec![1.0],
-    })
+    Pmf::from_weights(first, acc).unwrap_or(Pmf { first: mu.round() as i32, p: vec![1.0] })
 }
 
 /// Adds `weight · round(N(mu, sd²))` into `acc` (which starts at `first`, or is created when
@@ -555,10 +497,7 @@ fn pg_cells(gain: f64, read_var: f64, above: f64) -> Pmf {
         }
         first = Some(add_gaussian_cells(&mut acc, first, gain * (k as f64 - lambda), sd, pk));
     }
-    Pmf::from_weights(first.unwrap_or(0), acc).unwrap_or(Pmf {
-        first: 0,
-        p: vec![1.0],
-    })
+    Pmf::from_weights(first.unwrap_or(0), acc).unwrap_or(Pmf { first: 0, p: vec![1.0] })
 }
 
 /// `P(z0 < Z < z1)` for a standard normal `Z`, accurate in both tails.
@@ -582,15 +521,16 @@ pub fn normal_mass(z0: f64, z1: f64) -> f64 {
 pub fn erfc(x: f64) -> f64 {
     let z = x.abs();
     let t = 1.0 / (1.0 + 0.5 * z);
-    let r = t * (-z * z - 1.265_512_23
-        + t * (1.000_023_68
-            + t * (0.374_091_96
-                + t * (0.096_784_18
-                    + t * (-0.186_288_06
-                        + t * (0.278_868_07
-                            + t * (-1.135_203_98
-                                + t * (1.488_515_87 + t * (-0.822_152_23 + t * 0.170_872_77)))))))))
-        .exp();
+    let r = t
+        * (-z * z - 1.265_512_23
+            + t * (1.000_023_68
+                + t * (0.374_091_96
+                    + t * (0.096_784_18
+                        + t * (-0.186_288_06
+                            + t * (0.278_868_07
+                                + t * (-1.135_203_98
+                                    + t * (1.488_515_87 + t * (-0.822_152_23 + t * 0.170_872_77)))))))))
+            .exp();
     if x >= 0.0 { r } else { 2.0 - r }
 }
 

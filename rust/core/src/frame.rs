@@ -2,7 +2,6 @@
 
 use std::borrow::Cow;
 
-use ndarray::ArrayView2;
 
 use crate::error::FrameError;
 
@@ -96,9 +95,9 @@ impl<'a> FrameView<'a> {
     }
 
     /// A view over a standard-layout (row-major, contiguous) ndarray image.
-    pub fn from_array(a: &'a ArrayView2<'a, u16>) -> Result<Self, FrameError> {
+    pub fn from_array<S: ndarray::Data<Elem = u16>>(a: &'a ndarray::ArrayBase<S, ndarray::Ix2>) -> Result<Self, FrameError> {
         let (h, w) = a.dim();
-        let s = a.to_slice().ok_or(FrameError::RowStride {
+        let s = a.as_slice().ok_or(FrameError::RowStride {
             row_stride: 0,
             min: w * 2,
         })?;

@@ -105,10 +105,7 @@ pub struct InterpOptions {
 
 impl Default for InterpOptions {
     fn default() -> Self {
-        Self {
-            shape: ShapeSource::QuantileBlend,
-            max_neighbours: 4,
-        }
+        Self { shape: ShapeSource::QuantileBlend, max_neighbours: 4 }
     }
 }
 
@@ -147,11 +144,7 @@ fn median(mut v: Vec<f64>) -> f64 {
     }
     v.sort_by(f64::total_cmp);
     let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
+    if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) }
 }
 
 /// Fits `b = q + p·a²` (non-negative) over the points and predicts `b` at `a`.
@@ -174,9 +167,7 @@ fn detect(binning: &Binning, models: &[&IsoModel]) -> Vec<GainSwitch> {
     }
     let params: Vec<[Option<NoiseParams>; POSITIONS]> = models
         .iter()
-        .map(|m| {
-            std::array::from_fn(|pos| fit_params(binning, m, pos).filter(|p| p.a > 0.0 && p.b > 0.0))
-        })
+        .map(|m| std::array::from_fn(|pos| fit_params(binning, m, pos).filter(|p| p.a > 0.0 && p.b > 0.0)))
         .collect();
     let mut out = Vec::new();
     let mut seg_start = 0usize;
@@ -188,12 +179,9 @@ fn detect(binning: &Binning, models: &[&IsoModel]) -> Vec<GainSwitch> {
             let (Some(pj), Some(pk)) = (params[j][pos], params[j + 1][pos]) else {
                 continue;
             };
-            let below: Vec<NoiseParams> = (seg_start.max(j.saturating_sub(2))..=j)
-                .filter_map(|i| params[i][pos])
-                .collect();
-            let above: Vec<NoiseParams> = (j + 1..(j + 3).min(n))
-                .filter_map(|i| params[i][pos])
-                .collect();
+            let below: Vec<NoiseParams> =
+                (seg_start.max(j.saturating_sub(2))..=j).filter_map(|i| params[i][pos]).collect();
+            let above: Vec<NoiseParams> = (j + 1..(j + 3).min(n)).filter_map(|i| params[i][pos]).collect();
             let mut r = pk.b / pj.b;
             let mut preds = Vec::new();
             if let Some(pred) = predict_read(&below, pk.a) {
@@ -231,10 +219,7 @@ fn detect(binning: &Binning, models: &[&IsoModel]) -> Vec<GainSwitch> {
 
 /// The calibrated models a plan may stand on: every calibrated ISO except the target.
 fn sources(pack: &ModelPack, iso: u32) -> Vec<&IsoModel> {
-    pack.isos
-        .iter()
-        .filter(|m| m.is_calibrated() && m.iso != iso)
-        .collect()
+    pack.isos.iter().filter(|m| m.is_calibrated() && m.iso != iso).collect()
 }
 
 /// Plans the interpolation of `iso` with the default options.
@@ -255,11 +240,7 @@ pub fn plan_with(
     if models.is_empty() {
         return Err(ModelError::IsoMissing {
             iso,
-            available: if pack.isos.is_empty() {
-                "none".into()
-            } else {
-                format!("none calibrated besides ISO {iso}")
-            },
+            available: if pack.isos.is_empty() { "none".into() } else { format!("none calibrated besides ISO {iso}") },
         });
     }
     let isos: Vec<u32> = models.iter().map(|m| m.iso).collect();
@@ -283,25 +264,15 @@ pub fn plan_with(
         0
     } else if iso > max {
         segments.len() - 1
-    } else if let Some(si) = segments
-        .iter()
-        .position(|&(a, b)| isos[a] <= iso && iso <= isos[b - 1])
-    {
+    } else if let Some(si) = segments.iter().position(|&(a, b)| isos[a] <= iso && iso <= isos[b - 1]) {
         si
     } else {
         // In the gap of a switch: the nearer side in log ISO.
-        let si = segments
-            .iter()
-            .position(|&(a, _)| isos[a] > iso)
-            .unwrap_or(segments.len() - 1);
+        let si = segments.iter().position(|&(a, _)| isos[a] > iso).unwrap_or(segments.len() - 1);
         let below = isos[segments[si - 1].1 - 1] as f64;
         let above = isos[segments[si].0] as f64;
         in_switch_gap = switches.get(si - 1).cloned();
-        if (iso as f64 / below).ln() < (above / iso as f64).ln() {
-            si - 1
-        } else {
-            si
-        }
+        if (iso as f64 / below).ln() < (above / iso as f64).ln() { si - 1 } else { si }
     };
     let (s0, s1) = segments[seg_idx];
     let segment: Vec<u32> = isos[s0..s1].to_vec();
@@ -318,9 +289,7 @@ pub fn plan_with(
         let len = segment.len();
         // One more on each side first (k = 4), then whichever side is nearer in log ISO.
         if k == 4 {
-            if lo > 0 {
-                lo -= 1;
-            }
+            lo = lo.saturating_sub(1);
             if hi + 1 < len {
                 hi += 1;
             }
@@ -337,11 +306,7 @@ pub fn plan_with(
         segment[lo..=hi].to_vec()
     } else {
         let m = k.min(3).min(segment.len());
-        if at == 0 {
-            segment[..m].to_vec()
-        } else {
-            segment[segment.len() - m..].to_vec()
-        }
+        if at == 0 { segment[..m].to_vec() } else { segment[segment.len() - m..].to_vec() }
     };
     let shape_from = if bracketed {
         let (lo, hi) = (segment[at - 1], segment[at]);
@@ -391,11 +356,7 @@ pub fn interpolate_with(
 /// The calibrated model of `iso` when the pack has it, else one interpolated now. The flag is
 /// true when the returned model is not a calibrated one (interpolated now, or materialized
 /// earlier by `noisecal interp`), so callers can say so.
-pub fn model_for(
-    pack: &ModelPack,
-    iso: u32,
-    extrapolate: bool,
-) -> Result<(Cow<'_, IsoModel>, bool), ModelError> {
+pub fn model_for(pack: &ModelPack, iso: u32, extrapolate: bool) -> Result<(Cow<'_, IsoModel>, bool), ModelError> {
     if let Some(m) = pack.iso(iso) {
         return Ok((Cow::Borrowed(m), !m.is_calibrated()));
     }
@@ -415,11 +376,7 @@ struct Point<'a> {
 pub fn interpolate_planned(pack: &ModelPack, plan: &InterpPlan) -> IsoModel {
     let binning = pack.binning();
     let j = plan.iso as f64;
-    let nb: Vec<&IsoModel> = plan
-        .neighbours
-        .iter()
-        .filter_map(|&k| pack.iso(k))
-        .collect();
+    let nb: Vec<&IsoModel> = plan.neighbours.iter().filter_map(|&k| pack.iso(k)).collect();
     let shape_models: Vec<&IsoModel> = plan.shape_from.iter().filter_map(|&k| pack.iso(k)).collect();
     let t = if shape_models.len() == 2 {
         (j / shape_models[0].iso as f64).ln() / (shape_models[1].iso as f64 / shape_models[0].iso as f64).ln()
@@ -428,9 +385,7 @@ pub fn interpolate_planned(pack: &ModelPack, plan: &InterpPlan) -> IsoModel {
     };
     let positions = (0..POSITIONS)
         .map(|pos| {
-            let single_params = (nb.len() == 1)
-                .then(|| fit_params(&binning, nb[0], pos))
-                .flatten();
+            let single_params = (nb.len() == 1).then(|| fit_params(&binning, nb[0], pos)).flatten();
             let bins = (0..binning.bins(pos))
                 .map(|b| {
                     let pts: Vec<Point<'_>> = nb
@@ -439,13 +394,7 @@ pub fn interpolate_planned(pack: &ModelPack, plan: &InterpPlan) -> IsoModel {
                             let bin = &m.positions[pos].bins[b];
                             let (mean, var) = bin.moments();
                             let n = bin.samples.max(1) as f64;
-                            Point {
-                                iso: m.iso as f64,
-                                mean,
-                                var: var.max(1e-6),
-                                weight: n,
-                                bin,
-                            }
+                            Point { iso: m.iso as f64, mean, var: var.max(1e-6), weight: n, bin }
                         })
                         .collect();
                     let level_above = (b as f64 + 0.5) * binning.bin_width as f64;
@@ -475,10 +424,7 @@ pub fn interpolate_planned(pack: &ModelPack, plan: &InterpPlan) -> IsoModel {
     let noise_profile = if nb.iter().all(|m| m.noise_profile.is_some()) {
         Some(std::array::from_fn(|pos| {
             std::array::from_fn(|c| {
-                lin_lerp(&nb, j, &|m: &IsoModel| {
-                    m.noise_profile.map_or(0.0, |p| p[pos][c])
-                })
-                .max(0.0)
+                lin_lerp(&nb, j, &|m: &IsoModel| m.noise_profile.map_or(0.0, |p| p[pos][c])).max(0.0)
             })
         }))
     } else {
@@ -487,11 +433,7 @@ pub fn interpolate_planned(pack: &ModelPack, plan: &InterpPlan) -> IsoModel {
     let from = plan.neighbours.clone();
     IsoModel {
         iso: plan.iso,
-        origin: if plan.extrapolated {
-            ModelOrigin::Extrapolated { from }
-        } else {
-            ModelOrigin::Interpolated { from }
-        },
+        origin: if plan.extrapolated { ModelOrigin::Extrapolated { from } } else { ModelOrigin::Interpolated { from } },
         frames: 0,
         drift_frames: 0,
         gain_ratio,
@@ -541,11 +483,7 @@ fn fit_variance(pts: &[Point<'_>], j: f64, single: Option<NoiseParams>, level_ab
                 Some(hg) => {
                     let shot = hg.a * level_above;
                     let read = hg.b;
-                    if shot + read > 0.0 {
-                        p.var * (shot * r + read * r * r) / (shot + read)
-                    } else {
-                        p.var * r
-                    }
+                    if shot + read > 0.0 { p.var * (shot * r + read * r * r) / (shot + read) } else { p.var * r }
                 }
                 None => p.var * r,
             }
@@ -611,11 +549,7 @@ fn standard_quantile(p: &Pmf) -> Vec<(f64, f64, f64, f64)> {
 /// The value of a standardised quantile function at `u`, linear within the segment `seg`.
 fn eval_seg(seg: &(f64, f64, f64, f64), u: f64) -> f64 {
     let (u0, u1, z0, z1) = *seg;
-    if u1 > u0 {
-        z0 + (z1 - z0) * ((u - u0) / (u1 - u0)).clamp(0.0, 1.0)
-    } else {
-        z0
-    }
+    if u1 > u0 { z0 + (z1 - z0) * ((u - u0) / (u1 - u0)).clamp(0.0, 1.0) } else { z0 }
 }
 
 /// Blends the standardised quantile functions of `a` and `b` (`(1 − t)·Q_a + t·Q_b`), then maps
@@ -650,10 +584,7 @@ pub fn blend_quantiles(a: &Pmf, b: &Pmf, t: f64, mu: f64, var: f64) -> Pmf {
         segs.push((u1 - u0, z0, z1));
     }
     let mean: f64 = segs.iter().map(|(m, z0, z1)| m * 0.5 * (z0 + z1)).sum();
-    let ez2: f64 = segs
-        .iter()
-        .map(|(m, z0, z1)| m * (z0 * z0 + z0 * z1 + z1 * z1) / 3.0)
-        .sum();
+    let ez2: f64 = segs.iter().map(|(m, z0, z1)| m * (z0 * z0 + z0 * z1 + z1 * z1) / 3.0).sum();
     let sd = (ez2 - mean * mean).max(1e-12).sqrt();
     let target = (var - 1.0 / 12.0).max(1e-4).sqrt();
     let k = target / sd;

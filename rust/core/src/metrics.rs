@@ -69,10 +69,7 @@ pub fn align(a_first: i32, a: &[f64], b_first: i32, b: &[f64]) -> (i32, Vec<f64>
         (true, true) => return (0, Vec::new(), Vec::new()),
         (true, false) => (b_first as i64, b_last),
         (false, true) => (a_first as i64, a_last),
-        (false, false) => (
-            (a_first as i64).min(b_first as i64),
-            a_last.max(b_last),
-        ),
+        (false, false) => ((a_first as i64).min(b_first as i64), a_last.max(b_last)),
     };
     let len = (last - first + 1).max(0) as usize;
     let place = |f: i32, w: &[f64]| {
@@ -136,14 +133,8 @@ impl NoiseSamples {
     /// level group (at least 1; [`DEFAULT_GROUP_BINS`] is the documented default).
     pub fn new(binning: &Binning, group_bins: usize) -> Self {
         let group_bins = group_bins.max(1);
-        let groups = std::array::from_fn(|pos| {
-            vec![NoiseHistogram::default(); binning.bins(pos).div_ceil(group_bins)]
-        });
-        Self {
-            binning: binning.clone(),
-            group_bins,
-            groups,
-        }
+        let groups = std::array::from_fn(|pos| vec![NoiseHistogram::default(); binning.bins(pos).div_ceil(group_bins)]);
+        Self { binning: binning.clone(), group_bins, groups }
     }
 
     pub fn binning(&self) -> &Binning {
@@ -294,12 +285,7 @@ pub fn compare(real: &NoiseSamples, synth: &NoiseSamples) -> Scores {
             if nr == 0 {
                 continue;
             }
-            let s = synth
-                .groups
-                .get(pos)
-                .and_then(|v| v.get(g))
-                .cloned()
-                .unwrap_or_default();
+            let s = synth.groups.get(pos).and_then(|v| v.get(g)).cloned().unwrap_or_default();
             let j = jsd_hist(r, &s);
             acc += j * nr as f64;
             groups.push(GroupScore {
@@ -318,10 +304,7 @@ pub fn compare(real: &NoiseSamples, synth: &NoiseSamples) -> Scores {
         if total == 0 {
             return 0.0;
         }
-        (0..POSITIONS)
-            .filter_map(|p| v[p].map(|x| x * samples[p] as f64))
-            .sum::<f64>()
-            / total as f64
+        (0..POSITIONS).filter_map(|p| v[p].map(|x| x * samples[p] as f64)).sum::<f64>() / total as f64
     };
     Scores {
         marginal_overall: overall(&marginal),

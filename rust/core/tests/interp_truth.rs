@@ -13,12 +13,12 @@ use std::sync::OnceLock;
 
 use interp_sim::{sample_iso_with, sim_pack_with, simulator};
 use noisecal_core::baselines::{self, BaselineKind};
+use noisecal_core::error::ModelError;
 use noisecal_core::histogram::NoiseHistogram;
 use noisecal_core::interp::{self, InterpOptions, ShapeSource};
 use noisecal_core::metrics::jsd_pmf;
 use noisecal_core::pack::{IsoModel, ModelOrigin, ModelPack};
 use noisecal_core::pmf::Pmf;
-use noisecal_core::error::ModelError;
 use noisecal_sim::SensorModel;
 
 const CAL: usize = 200_000;
@@ -139,7 +139,9 @@ fn out_of_range_is_refused_unless_extrapolating() {
     let e = interp::interpolate(&s.without, 50, false).expect_err("outside");
     assert!(matches!(e, ModelError::IsoOutOfRange { iso: 50, .. }));
     let m = interp::interpolate(&s.without, 2000, true).expect("extrapolated");
-    assert!(matches!(&m.origin, ModelOrigin::Extrapolated { from } if from == &vec![400, 800, 1600] || from == &vec![200, 800, 1600]));
+    assert!(
+        matches!(&m.origin, ModelOrigin::Extrapolated { from } if from == &vec![400, 800, 1600] || from == &vec![200, 800, 1600])
+    );
     // Extrapolated variance grows past the last calibrated ISO.
     let last = s.without.iso(1600).expect("1600");
     let b = 20;

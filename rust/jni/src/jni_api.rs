@@ -20,18 +20,24 @@ use crate::files::checked_path;
 use crate::registry;
 use crate::session::{CreateParams, NativeSession, PlaneParams};
 
+/// Whether `throw_new` threw: jni-rs reports a thrown exception as `Err(JavaException)`.
+fn thrown(r: jni::errors::Result<()>) -> bool {
+    matches!(r, Ok(()) | Err(jni::errors::Error::JavaException))
+}
+
 /// Throws `NoisecalException(message)`; falls back to `RuntimeException` if that class cannot be
 /// found (a packaging error, named in the message).
 fn throw_noisecal(env: &mut Env<'_>, message: &str) {
     let msg = JNIString::from(message);
-    if env.throw_new(jni_str!("org/noisecal/jni/NoisecalException"), &msg).is_err() {
-        env.exception_clear();
-        let fallback = JNIString::from(format!(
-            "{message} (org.noisecal.jni.NoisecalException is missing from the class path: package NoisecalSession.kt with the library)"
-        ));
-        if env.throw_new(jni_str!("java/lang/RuntimeException"), &fallback).is_err() {
-            log::error!("could not throw an exception for: {message}");
-        }
+    if thrown(env.throw_new(jni_str!("org/noisecal/jni/NoisecalException"), &msg)) {
+        return;
+    }
+    env.exception_clear();
+    let fallback = JNIString::from(format!(
+        "{message} (org.noisecal.jni.NoisecalException is missing from the class path: package NoisecalSession.kt with the library)"
+    ));
+    if !thrown(env.throw_new(jni_str!("java/lang/RuntimeException"), &fallback)) {
+        log::error!("could not throw an exception for: {message}");
     }
 }
 

@@ -79,7 +79,7 @@ impl Synth {
         let gain = self.gain * iso as f64 / self.reference_iso as f64;
         let read = self.read_dn * (iso as f64 / self.reference_iso as f64).sqrt();
         let ms = exposure_ns as f64 / 1e6;
-        let key = splitmix64(self.seed ^ splitmix64(index.wrapping_add(1).wrapping_mul(0x1000_0000_01B3)));
+        let key = splitmix64(self.seed ^ splitmix64(index.wrapping_add(1).wrapping_mul(0x0000_0100_0000_01B3)));
         let mut out = Vec::with_capacity(self.width as usize * self.height as usize);
         for y in 0..self.height {
             for x in 0..self.width {

@@ -79,7 +79,7 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
     clean_session.begin_step(ref_exp)?;
     for k in 0..16 {
         let (px, meta) = sim.capture(plan.reference_iso, ref_exp, HELDOUT_BASE + k)?;
-        clean_session.push_frame(&FrameView::from_array(&px.view())?, &meta)?;
+        clean_session.push_frame(&FrameView::from_array(&px)?, &meta)?;
     }
     clean_session.close_reference_burst()?;
     let clean_raw = clean_session.clean_image().context("clean image")?.to_vec();

@@ -1,8 +1,59 @@
-//! `noisecal eval` (being written).
+//! `noisecal eval --pack p.pack heldout/ [--json out.json] [--seeds N] [--leave-one-out]
+//! [--renoise-from A --to B]`: JSD (and KL) of noisecal and the baselines against held-out
+//! captures, per ISO and CFA position, with the finite-sample floor.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+
+use crate::cmd::inspect::load_pack;
+use crate::eval::{EvalOptions, evaluate, render_text};
+use crate::output::write_atomic;
 
 #[derive(clap::Args, Debug)]
-pub struct Args {}
+pub struct Args {
+    /// The model pack.
+    #[arg(long)]
+    pub pack: PathBuf,
+    /// Held-out captures laid out like a calibration session (a reference burst per EV step,
+    /// a few frames per ISO): a DNG folder or a recording.
+    pub heldout: PathBuf,
+    /// Also write every score (per ISO, position, level group and seed) as JSON.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Synthetic sets per model (seeds 0..N); scores are their mean.
+    #[arg(long, default_value_t = 3)]
+    pub seeds: u32,
+    /// Pack bins per level group of the conditional JSD.
+    #[arg(long, default_value_t = noisecal_core::metrics::DEFAULT_GROUP_BINS)]
+    pub group_bins: usize,
+    /// Remove each inner calibrated ISO, interpolate it from the rest and score it (paper Fig. 4).
+    #[arg(long)]
+    pub leave_one_out: bool,
+    /// Score noise on noise: re-noise the held-out frames at this ISO …
+    #[arg(long, requires = "to")]
+    pub renoise_from: Option<u32>,
+    /// … to this ISO, against the real frames there.
+    #[arg(long, requires = "renoise_from")]
+    pub to: Option<u32>,
+}
 
-pub fn run(_args: Args, _quiet: bool) -> anyhow::Result<()> {
-    anyhow::bail!("noisecal eval is not built yet")
+pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
+    let pack = load_pack(&args.pack)?;
+    let opts = EvalOptions {
+        seeds: args.seeds,
+        group_bins: args.group_bins,
+        leave_one_out: args.leave_one_out,
+        renoise: args.renoise_from.zip(args.to),
+    };
+    let report = evaluate(&pack, &args.pack, &args.heldout, &opts, quiet)?;
+    print!("{}", render_text(&report));
+    if let Some(path) = &args.json {
+        let bytes = serde_json::to_vec_pretty(&report).context("serializing the scores")?;
+        write_atomic(path, &bytes).with_context(|| format!("writing {}", path.display()))?;
+        if !quiet {
+            eprintln!("scores written to {}", path.display());
+        }
+    }
+    Ok(())
 }

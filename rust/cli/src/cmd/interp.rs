@@ -1,8 +1,94 @@
-//! `noisecal interp` (being written).
+//! `noisecal interp`: materialize interpolated (or, with `--extrapolate`, extrapolated) ISOs into
+//! a copy of a model pack. Each new ISO is flagged as such in the pack (its origin lists the
+//! calibrated ISOs it came from); calibrated ISOs are never replaced.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, bail};
+use noisecal_core::ModelPack;
+use noisecal_core::interp::{self, InterpOptions};
 
 #[derive(clap::Args, Debug)]
-pub struct Args {}
+pub struct Args {
+    /// The model pack to read.
+    #[arg(long, value_name = "PACK")]
+    pub pack: PathBuf,
+    /// An ISO to interpolate; repeat for several (`--iso 1000 --iso 2500`).
+    #[arg(long = "iso", value_name = "ISO", required = true)]
+    pub isos: Vec<u32>,
+    /// Where to write the new pack (written atomically; may be the input pack).
+    #[arg(short, long, value_name = "PACK")]
+    pub output: PathBuf,
+    /// Allow ISOs outside the calibrated range (extrapolated from the nearest calibrated ISOs).
+    #[arg(long)]
+    pub extrapolate: bool,
+}
 
-pub fn run(_args: Args, _quiet: bool) -> anyhow::Result<()> {
-    anyhow::bail!("noisecal interp is not built yet")
+pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
+    let bytes =
+        std::fs::read(&args.pack).with_context(|| format!("cannot read the model pack {}", args.pack.display()))?;
+    let pack =
+        ModelPack::from_bytes(&bytes).with_context(|| format!("cannot load the model pack {}", args.pack.display()))?;
+    let mut isos = args.isos.clone();
+    isos.sort_unstable();
+    isos.dedup();
+    if let Some(&0) = isos.first() {
+        bail!("--iso 0 is not an ISO; give the sensitivities to interpolate, e.g. --iso 1000");
+    }
+    let switches = interp::detect_gain_switches(&pack);
+    for s in &switches {
+        println!("detected: {s}");
+    }
+    let mut out = pack.clone();
+    let opts = InterpOptions::default();
+    for &iso in &isos {
+        if pack.iso(iso).is_some_and(|m| m.is_calibrated()) {
+            println!("ISO {iso}: calibrated in the pack; kept as is");
+            continue;
+        }
+        let plan = interp::plan_with(&pack, iso, args.extrapolate, &opts)
+            .with_context(|| format!("cannot interpolate ISO {iso}"))?;
+        let model = interp::interpolate_planned(&pack, &plan);
+        let list = |v: &[u32]| v.iter().map(u32::to_string).collect::<Vec<_>>().join(", ");
+        let how = if plan.extrapolated { "extrapolated" } else { "interpolated" };
+        let shape = match plan.shape_from.as_slice() {
+            [a, b] => format!("shape blended from ISO {a} and {b}"),
+            [a] => format!("shape from ISO {a}"),
+            _ => String::new(),
+        };
+        println!("ISO {iso}: {how} from calibrated ISO {} ({shape})", list(&plan.neighbours));
+        for s in &plan.avoided {
+            let side = if s.above_iso <= plan.neighbours[0] { "below" } else { "above" };
+            println!(
+                "  avoided the conversion-gain switch between ISO {} and {}: calibrated ISOs {side} it were not used",
+                s.below_iso, s.above_iso
+            );
+        }
+        if let Some(s) = &plan.in_switch_gap {
+            let msg = format!(
+                "ISO {iso} lies between ISO {} and {}, where the sensor switches conversion gain; which gain the camera uses at ISO {iso} is unknown, so it was modelled from the nearer side (ISO {}). Calibrate ISO {iso} to be sure.",
+                s.below_iso,
+                s.above_iso,
+                list(&plan.neighbours)
+            );
+            if !quiet {
+                eprintln!("noisecal: warning: {msg}");
+            }
+            out.warnings.push(msg);
+        }
+        out.insert(model);
+    }
+    let bytes = out.to_bytes().context("cannot encode the new model pack")?;
+    crate::output::write_atomic(&args.output, &bytes)?;
+    println!(
+        "wrote {} (ISOs {})",
+        args.output.display(),
+        out.isos
+            .iter()
+            .map(|m| if m.is_calibrated() { m.iso.to_string() } else { format!("{}*", m.iso) })
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    println!("  * interpolated or extrapolated, not calibrated");
+    Ok(())
 }

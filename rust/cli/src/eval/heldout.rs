@@ -93,7 +93,7 @@ fn stream_dngs(dir: &Path, bin_width: u16, quiet: bool, visitor: &mut dyn HeldOu
         session.begin_step(step.reference_exposure_ns)?;
         input::for_each_dng_in_order(&step.reference, |fr, img| {
             pb.inc(1);
-            let pushed = FrameView::from_array(&img.pixels.view())
+            let pushed = FrameView::from_array(&img.pixels)
                 .map_err(noisecal_core::error::SessionError::from)
                 .and_then(|v| session.push_frame(&v, &fr.meta));
             if let Err(e) = pushed {

@@ -85,24 +85,38 @@ fn bench(args: &[String]) -> Fallible<()> {
         Ok(t.elapsed().as_secs_f64() * 1e3)
     };
     let mut index = 0;
-    let mut reference = 0.0;
+    let mut reference = Vec::new();
     for _ in 0..references {
-        reference += push(100, 10_000_000, index)?;
+        reference.push(push(100, 10_000_000, index)?);
         index += 1;
     }
     let close = push(200, 5_000_000, index)?;
     index += 1;
-    let mut target = 0.0;
+    let mut target = Vec::new();
     for _ in 0..targets {
-        target += push(200, 5_000_000, index)?;
+        target.push(push(200, 5_000_000, index)?);
         index += 1;
     }
     println!(
-        "BENCH core {w}x{h} reference_ms={:.1} close_ms={close:.1} target_ms={:.1}",
-        reference / references as f64,
-        target / targets as f64
+        "BENCH core {w}x{h} reference_ms={:.1} close_ms={close:.1} target_ms={:.1} target_min_ms={:.1}",
+        median(&mut reference),
+        median(&mut target),
+        target.iter().cloned().fold(f64::INFINITY, f64::min)
     );
     Ok(())
+}
+
+/// Median (mean of the middle two for an even count).
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n == 0 {
+        f64::NAN
+    } else if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        (v[n / 2 - 1] + v[n / 2]) / 2.0
+    }
 }
 
 fn frame_hash(args: &[String]) -> Fallible<()> {

@@ -21,7 +21,7 @@ import java.nio.ByteBuffer
  * recording file still replays to the resumed session's pack. If the file is gone or shorter, the
  * session resumes without recording (logged).
  */
-class NoisecalSession private constructor(private var handle: Long) : AutoCloseable {
+class NoisecalSession private constructor(@Volatile private var handle: Long) : AutoCloseable {
 
     /** Begins an EV step: the reference burst (at the reference ISO) that follows has this exposure. */
     fun beginStep(referenceExposureNs: Long) = nativeBeginStep(live(), referenceExposureNs)

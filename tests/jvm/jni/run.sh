@@ -1,0 +1,63 @@
+#!/usr/bin/env bash
+# Host JVM tests of the JNI boundary (rust/jni + android/.../org/noisecal/jni/NoisecalSession.kt).
+#
+# Usage: tests/jvm/jni/run.sh [--rec SESSION.rec] [--filter NAME] [--bench-size WxH] [--bench-targets N]
+#   Builds the cdylib and its helper (cargo build --release -p noisecal-jni), installs the Kotlin
+#   compiler (npm kotlin-compiler, pinned) into .tools/ if missing, compiles NoisecalSession.kt with
+#   the harness in tests/jvm/jni/src, and runs it against a recording: by default a synthetic one
+#   written by `noisecal-jni-tool write-recording` (pass --rec to use e.g. one from
+#   `noisecal simulate --rec`). The reference pack is the Rust replay of the same recording (what
+#   `noisecal calibrate session.rec` does). Last line: "N passed, M failed"; non-zero exit on failure.
+#   Needs java (17+), npm and cargo. Outputs go to target/jvm-jni/.
+set -euo pipefail
+
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/../../.." && pwd)"
+KOTLIN_VERSION="2.4.20"
+TOOLS="$ROOT/.tools"
+KC_LIB="$TOOLS/node_modules/kotlin-compiler/lib"
+OUT="$ROOT/target/jvm-jni"
+WORK="$OUT/work"
+
+command -v java >/dev/null || { echo "error: java not found; install a JDK 17+ (apt-get install openjdk-17-jdk-headless)" >&2; exit 2; }
+command -v cargo >/dev/null || { echo "error: cargo not found; install Rust (rustup)" >&2; exit 2; }
+
+echo "building noisecal-jni (release)" >&2
+(cd "$ROOT" && cargo build --release -p noisecal-jni >&2)
+LIB_DIR="$ROOT/target/release"
+TOOL="$LIB_DIR/noisecal-jni-tool"
+[[ -f "$LIB_DIR/libnoisecal_jni.so" || -f "$LIB_DIR/libnoisecal_jni.dylib" ]] || { echo "error: libnoisecal_jni not built in $LIB_DIR" >&2; exit 2; }
+
+if [[ ! -f "$KC_LIB/kotlin-compiler.jar" ]] || ! grep -qx "$KOTLIN_VERSION" "$TOOLS/node_modules/kotlin-compiler/build.txt" 2>/dev/null; then
+  echo "installing kotlin-compiler@$KOTLIN_VERSION into $TOOLS" >&2
+  mkdir -p "$TOOLS"
+  npm install --silent --no-audit --no-fund --prefix "$TOOLS" "kotlin-compiler@$KOTLIN_VERSION" >&2
+fi
+for jar in kotlin-compiler.jar kotlin-stdlib.jar; do
+  [[ -f "$KC_LIB/$jar" ]] || { echo "error: $KC_LIB/$jar missing after npm install; remove $TOOLS/node_modules/kotlin-compiler and retry" >&2; exit 2; }
+done
+
+SOURCES=("$ROOT/android/capture/src/main/kotlin/org/noisecal/jni/NoisecalSession.kt")
+mapfile -t -O 1 SOURCES < <(find "$ROOT/tests/jvm/jni/src" -name '*.kt' | sort)
+STAMP="$OUT/classes/.sources.sha256"
+HASH="$(cat "${SOURCES[@]}" | sha256sum | cut -d' ' -f1)"
+if [[ ! -f "$STAMP" ]] || [[ "$(cat "$STAMP")" != "$HASH" ]]; then
+  rm -rf "$OUT/classes"
+  mkdir -p "$OUT/classes"
+  echo "compiling ${#SOURCES[@]} Kotlin files" >&2
+  java -Xss8m -cp "$KC_LIB/kotlin-compiler.jar" org.jetbrains.kotlin.cli.jvm.K2JVMCompiler \
+    -no-stdlib -no-reflect -classpath "$KC_LIB/kotlin-stdlib.jar" -jvm-target 17 -Werror \
+    -d "$OUT/classes" "${SOURCES[@]}"
+  echo "$HASH" > "$STAMP"
+fi
+
+rm -rf "$WORK"
+mkdir -p "$WORK"
+ARGS=("$@")
+if [[ " ${ARGS[*]-} " != *" --rec "* ]]; then
+  "$TOOL" write-recording "$WORK/session.rec" --size 320x240 --seed 1 --row-stride 656 >&2
+  ARGS+=(--rec "$WORK/session.rec")
+fi
+
+java -Xmx2g -XX:MaxDirectMemorySize=1g -Djava.library.path="$LIB_DIR" \
+  -cp "$OUT/classes:$KC_LIB/kotlin-stdlib.jar" org.noisecal.jni.test.JniTestsKt \
+  --tool "$TOOL" --work "$WORK" "${ARGS[@]}"
