@@ -63,14 +63,22 @@ pub fn progress_bar(len: u64, quiet: bool, what: &str) -> ProgressBar {
 }
 
 /// Calibrates from a DNG folder or a recording.
-pub fn calibrate_path(path: &Path, opts: &CalibrateOptions, quiet: bool) -> anyhow::Result<(ModelPack, CalibrateReport)> {
+pub fn calibrate_path(
+    path: &Path,
+    opts: &CalibrateOptions,
+    quiet: bool,
+) -> anyhow::Result<(ModelPack, CalibrateReport)> {
     match input::input_kind(path)? {
         InputKind::Recording => calibrate_recording(path, opts, quiet),
         InputKind::DngFolder => calibrate_dngs(path, opts, quiet),
     }
 }
 
-fn calibrate_recording(path: &Path, opts: &CalibrateOptions, quiet: bool) -> anyhow::Result<(ModelPack, CalibrateReport)> {
+fn calibrate_recording(
+    path: &Path,
+    opts: &CalibrateOptions,
+    quiet: bool,
+) -> anyhow::Result<(ModelPack, CalibrateReport)> {
     let reader = input::open_recording(path)?;
     let len = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
     let frame_bytes = {

@@ -88,10 +88,7 @@ pub fn scan_dng_set(dir: &Path, reference_iso: Option<u32>) -> anyhow::Result<Dn
     if paths.is_empty() {
         bail!("{} holds no .dng files: point at the folder of a capture session's DNGs", dir.display());
     }
-    let heads: Vec<DngImage> = paths
-        .par_iter()
-        .map(|p| read_meta(p))
-        .collect::<Result<_, _>>()?;
+    let heads: Vec<DngImage> = paths.par_iter().map(|p| read_meta(p)).collect::<Result<_, _>>()?;
     group_dngs(heads, reference_iso, dir)
 }
 
@@ -125,7 +122,9 @@ fn group_dngs(heads: Vec<DngImage>, reference_iso: Option<u32>, dir: &Path) -> a
     let min_iso = heads.iter().map(|h| h.meta.iso).min().unwrap_or(0);
     let reference_iso = reference_iso.unwrap_or(min_iso);
     if min_iso < reference_iso {
-        bail!("frames at ISO {min_iso} are below the reference ISO {reference_iso}: the reference must be the lowest ISO");
+        bail!(
+            "frames at ISO {min_iso} are below the reference ISO {reference_iso}: the reference must be the lowest ISO"
+        );
     }
     let mut noise_profiles = BTreeMap::new();
     for h in &heads {
@@ -150,8 +149,13 @@ fn group_dngs(heads: Vec<DngImage>, reference_iso: Option<u32>, dir: &Path) -> a
     let make = first.make.clone();
     let model = first.model.clone();
 
-    let mut frames: Vec<DngFrame> =
-        heads.into_iter().map(|h| DngFrame { meta: FrameMeta { black: h.meta.black.or(Some(h.layout.black)), ..h.meta }, path: h.source }).collect();
+    let mut frames: Vec<DngFrame> = heads
+        .into_iter()
+        .map(|h| DngFrame {
+            meta: FrameMeta { black: h.meta.black.or(Some(h.layout.black)), ..h.meta },
+            path: h.source,
+        })
+        .collect();
     frames.sort_by(|a, b| a.meta.brightness().total_cmp(&b.meta.brightness()).then(a.path.cmp(&b.path)));
     let mut clusters: Vec<Vec<DngFrame>> = Vec::new();
     for f in frames {
@@ -164,7 +168,8 @@ fn group_dngs(heads: Vec<DngImage>, reference_iso: Option<u32>, dir: &Path) -> a
     let mut warnings = Vec::new();
     for c in clusters {
         let brightness = c[0].meta.brightness();
-        let (mut reference, mut targets): (Vec<DngFrame>, Vec<DngFrame>) = c.into_iter().partition(|f| f.meta.iso == reference_iso);
+        let (mut reference, mut targets): (Vec<DngFrame>, Vec<DngFrame>) =
+            c.into_iter().partition(|f| f.meta.iso == reference_iso);
         if reference.is_empty() {
             warnings.push(format!(
                 "EV step at ISO×exposure {brightness:.4} ISO·s has {} target frames but no reference burst at ISO {reference_iso}: they are skipped",
@@ -242,5 +247,6 @@ pub fn input_kind(path: &Path) -> anyhow::Result<InputKind> {
 /// Opens a recording for reading.
 pub fn open_recording(path: &Path) -> anyhow::Result<RecordingReader<std::io::BufReader<std::fs::File>>> {
     let f = std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
-    RecordingReader::new(std::io::BufReader::with_capacity(1 << 20, f)).with_context(|| format!("{} is not a usable recording", path.display()))
+    RecordingReader::new(std::io::BufReader::with_capacity(1 << 20, f))
+        .with_context(|| format!("{} is not a usable recording", path.display()))
 }

@@ -34,7 +34,12 @@ impl ModelKind {
 }
 
 /// The model for `iso`, and a note for stderr when it was interpolated or is a baseline.
-pub fn resolve_model(pack: &ModelPack, iso: u32, kind: ModelKind, extrapolate: bool) -> anyhow::Result<(IsoModel, Option<String>)> {
+pub fn resolve_model(
+    pack: &ModelPack,
+    iso: u32,
+    kind: ModelKind,
+    extrapolate: bool,
+) -> anyhow::Result<(IsoModel, Option<String>)> {
     match kind.baseline() {
         None => {
             let (m, derived) = interp::model_for(pack, iso, extrapolate)?;
@@ -43,7 +48,9 @@ pub fn resolve_model(pack: &ModelPack, iso: u32, kind: ModelKind, extrapolate: b
                     format!("ISO {iso} is not calibrated: interpolated from ISOs {from:?}")
                 }
                 ModelOrigin::Extrapolated { from } => {
-                    format!("ISO {iso} is outside the calibrated range: extrapolated from ISOs {from:?} (--extrapolate)")
+                    format!(
+                        "ISO {iso} is outside the calibrated range: extrapolated from ISOs {from:?} (--extrapolate)"
+                    )
                 }
                 ModelOrigin::Calibrated => String::new(),
             });

@@ -69,7 +69,13 @@ impl SimSession {
 
     /// Writes the session: DNGs named by capture index into `dngs`, and/or a recording with
     /// `padding` extra bytes per row into `rec`.
-    pub fn write(&self, dngs: Option<&Path>, rec: Option<&Path>, padding: usize, mut tick: impl FnMut()) -> anyhow::Result<()> {
+    pub fn write(
+        &self,
+        dngs: Option<&Path>,
+        rec: Option<&Path>,
+        padding: usize,
+        mut tick: impl FnMut(),
+    ) -> anyhow::Result<()> {
         let layout = self.sim.layout();
         if let Some(d) = dngs {
             std::fs::create_dir_all(d).with_context(|| format!("cannot create {}", d.display()))?;

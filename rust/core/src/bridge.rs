@@ -194,8 +194,7 @@ pub fn build_bridge_with(
         }
     }
 
-    let jobs: Vec<(usize, usize)> =
-        (0..POSITIONS).flat_map(|p| (0..binning.bins(p)).map(move |b| (p, b))).collect();
+    let jobs: Vec<(usize, usize)> = (0..POSITIONS).flat_map(|p| (0..binning.bins(p)).map(move |b| (p, b))).collect();
     let solved: Vec<BridgeBin> = jobs
         .par_iter()
         .map(|&(p, b)| {
@@ -490,10 +489,8 @@ fn solve_bin(pa_full: &Pmf, pb_full: &Pmf, clip: (i32, i32), opts: &BridgeOption
     };
 
     // Back on the integer grid, then the residual at full resolution.
-    let q_fine: Vec<f64> = q
-        .iter()
-        .flat_map(|&x| std::iter::repeat_n(if x < 1e-15 { 0.0 } else { x / s as f64 }, s as usize))
-        .collect();
+    let q_fine: Vec<f64> =
+        q.iter().flat_map(|&x| std::iter::repeat_n(if x < 1e-15 { 0.0 } else { x / s as f64 }, s as usize)).collect();
     let n_fine = pa.p.len() + q_fine.len() - 1;
     let fine_cell = |v: i32| (v - (pa.first + lo)).clamp(0, n_fine as i32 - 1) as usize;
     let fine = Problem {
@@ -553,7 +550,8 @@ fn projected_gradient(prob: &Problem, q: &mut [f64], opts: &BridgeOptions) -> us
     // Largest eigenvalue of AᵀA (with the fold). Without the fold it is exactly 1 (a ≥ 0, Σa = 1).
     let mut v = vec![1.0 / (m as f64).sqrt(); m];
     let mut lip = 1.0f64;
-    for _ in 0..20 {
+    let folds = prob.clip_lo > 0 || prob.clip_hi + 1 < n;
+    for _ in 0..if folds { 20 } else { 0 } {
         prob.forward(&v, &mut y);
         prob.adjoint(&mut y, &mut g);
         let norm = g.iter().map(|x| x * x).sum::<f64>().sqrt();

@@ -18,11 +18,8 @@ pub fn encode<T: Serialize>(
     version: u16,
     value: &T,
 ) -> Result<Vec<u8>, CodecError> {
-    let payload =
-        bincode::serde::encode_to_vec(value, config()).map_err(|e| CodecError::Encode {
-            what,
-            detail: e.to_string(),
-        })?;
+    let payload = bincode::serde::encode_to_vec(value, config())
+        .map_err(|e| CodecError::Encode { what, detail: e.to_string() })?;
     let mut out = Vec::with_capacity(HEADER + payload.len());
     out.extend_from_slice(magic);
     out.extend_from_slice(&version.to_le_bytes());
@@ -44,56 +41,29 @@ pub fn decode<T: DeserializeOwned>(
 ) -> Result<T, CodecError> {
     if bytes.len() < 8 || &bytes[..8] != magic {
         if bytes.len() < 8 && magic.starts_with(bytes) && !bytes.is_empty() {
-            return Err(CodecError::Truncated {
-                what,
-                len: bytes.len(),
-                expected: HEADER,
-            });
+            return Err(CodecError::Truncated { what, len: bytes.len(), expected: HEADER });
         }
-        return Err(CodecError::BadMagic {
-            what,
-            expected: magic_text,
-        });
+        return Err(CodecError::BadMagic { what, expected: magic_text });
     }
     if bytes.len() < HEADER {
-        return Err(CodecError::Truncated {
-            what,
-            len: bytes.len(),
-            expected: HEADER,
-        });
+        return Err(CodecError::Truncated { what, len: bytes.len(), expected: HEADER });
     }
     let found = u16::from_le_bytes([bytes[8], bytes[9]]);
     if found > version {
-        return Err(CodecError::NewerVersion {
-            what,
-            found,
-            supported: version,
-        });
+        return Err(CodecError::NewerVersion { what, found, supported: version });
     }
     if found < version {
-        return Err(CodecError::OlderVersion {
-            what,
-            found,
-            supported: version,
-        });
+        return Err(CodecError::OlderVersion { what, found, supported: version });
     }
-    let len = u64::from_le_bytes(
-        bytes[12..20]
-            .try_into()
-            .map_err(|_| CodecError::Truncated {
-                what,
-                len: bytes.len(),
-                expected: HEADER,
-            })?,
-    ) as usize;
+    let len = u64::from_le_bytes(bytes[12..20].try_into().map_err(|_| CodecError::Truncated {
+        what,
+        len: bytes.len(),
+        expected: HEADER,
+    })?) as usize;
     let crc = u32::from_le_bytes([bytes[20], bytes[21], bytes[22], bytes[23]]);
     let payload = &bytes[HEADER..];
     if payload.len() < len {
-        return Err(CodecError::Truncated {
-            what,
-            len: bytes.len(),
-            expected: HEADER + len,
-        });
+        return Err(CodecError::Truncated { what, len: bytes.len(), expected: HEADER + len });
     }
     if payload.len() > len {
         return Err(CodecError::Invalid {
@@ -103,22 +73,12 @@ pub fn decode<T: DeserializeOwned>(
     }
     let found_crc = crc32fast::hash(payload);
     if found_crc != crc {
-        return Err(CodecError::Checksum {
-            what,
-            found: found_crc,
-            expected: crc,
-        });
+        return Err(CodecError::Checksum { what, found: found_crc, expected: crc });
     }
-    let (value, used) =
-        bincode::serde::decode_from_slice(payload, config()).map_err(|e| CodecError::Decode {
-            what,
-            detail: e.to_string(),
-        })?;
+    let (value, used) = bincode::serde::decode_from_slice(payload, config())
+        .map_err(|e| CodecError::Decode { what, detail: e.to_string() })?;
     if used != len {
-        return Err(CodecError::Invalid {
-            what,
-            detail: format!("payload has {} unread bytes", len - used),
-        });
+        return Err(CodecError::Invalid { what, detail: format!("payload has {} unread bytes", len - used) });
     }
     Ok(value)
 }
@@ -140,25 +100,13 @@ mod tests {
             decode::<Vec<u32>>("t", M, "NCTEST", 3, &b[..b.len() - 1]),
             Err(CodecError::Truncated { .. })
         ));
-        assert!(matches!(
-            decode::<Vec<u32>>("t", M, "NCTEST", 3, &b[..10]),
-            Err(CodecError::Truncated { .. })
-        ));
-        assert!(matches!(
-            decode::<Vec<u32>>("t", M, "NCTEST", 2, &b),
-            Err(CodecError::NewerVersion { .. })
-        ));
-        assert!(matches!(
-            decode::<Vec<u32>>("t", M, "NCTEST", 4, &b),
-            Err(CodecError::OlderVersion { .. })
-        ));
+        assert!(matches!(decode::<Vec<u32>>("t", M, "NCTEST", 3, &b[..10]), Err(CodecError::Truncated { .. })));
+        assert!(matches!(decode::<Vec<u32>>("t", M, "NCTEST", 2, &b), Err(CodecError::NewerVersion { .. })));
+        assert!(matches!(decode::<Vec<u32>>("t", M, "NCTEST", 4, &b), Err(CodecError::OlderVersion { .. })));
         let mut c = b.clone();
         let last = c.len() - 5;
         c[last] ^= 0x40;
-        assert!(matches!(
-            decode::<Vec<u32>>("t", M, "NCTEST", 3, &c),
-            Err(CodecError::Checksum { .. })
-        ));
+        assert!(matches!(decode::<Vec<u32>>("t", M, "NCTEST", 3, &c), Err(CodecError::Checksum { .. })));
         assert!(matches!(
             decode::<Vec<u32>>("t", M, "NCTEST", 3, b"hello world, not a pack"),
             Err(CodecError::BadMagic { .. })

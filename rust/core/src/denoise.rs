@@ -47,8 +47,10 @@ pub fn estimate_clean(
             if hs == 0 || ws == 0 {
                 return (pos, Vec::new(), 0, 0);
             }
-            let sub: Vec<f32> =
-                (0..hs).flat_map(|i| (0..ws).map(move |j| (i, j))).map(|(i, j)| noisy[[r0 + 2 * i, c0 + 2 * j]] as f32).collect();
+            let sub: Vec<f32> = (0..hs)
+                .flat_map(|i| (0..ws).map(move |j| (i, j)))
+                .map(|(i, j)| noisy[[r0 + 2 * i, c0 + 2 * j]] as f32)
+                .collect();
             let sd = sd_lut(model, binning, pos, white, &sub);
             let pilot = median3(&sub, hs, ws);
             let p1 = sigma_filter(&sub, &pilot, hs, ws, &sd, K_PASS1);
@@ -72,7 +74,8 @@ pub fn estimate_clean(
 /// (median absolute difference of horizontal same-position neighbours).
 fn sd_lut(model: &IsoModel, binning: &Binning, pos: usize, white: u16, sub: &[f32]) -> Vec<f32> {
     let bins = model.positions.get(pos).map(|p| &p.bins);
-    let vars: Option<Vec<f64>> = bins.filter(|b| b.len() == binning.bins(pos)).map(|b| b.iter().map(|x| x.moments().1).collect());
+    let vars: Option<Vec<f64>> =
+        bins.filter(|b| b.len() == binning.bins(pos)).map(|b| b.iter().map(|x| x.moments().1).collect());
     match vars {
         Some(v) => binning.lut(pos).iter().map(|&b| (v[b as usize].max(0.25) as f32).sqrt()).collect(),
         None => {

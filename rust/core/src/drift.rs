@@ -17,16 +17,11 @@ pub struct FrameBrightness {
 pub fn brightness_from_bands(frame_sums: &[f64], base_sums: &[f64]) -> Option<FrameBrightness> {
     let f: f64 = frame_sums.iter().sum();
     let b: f64 = base_sums.iter().sum();
-    if !(b > 0.0) {
+    if b.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return None;
     }
     let ratio = f / b;
-    let bands: Vec<f64> = frame_sums
-        .iter()
-        .zip(base_sums)
-        .filter(|(_, b)| **b > 0.0)
-        .map(|(f, b)| f / b)
-        .collect();
+    let bands: Vec<f64> = frame_sums.iter().zip(base_sums).filter(|(_, b)| **b > 0.0).map(|(f, b)| f / b).collect();
     let k = bands.len();
     let sigma = if k >= 2 {
         let m = bands.iter().sum::<f64>() / k as f64;
@@ -71,11 +66,7 @@ impl DriftTracker {
         };
         let threshold = floor.max(z * (b.sigma / med)).max(z * spread);
         let drifted = departure.abs() > threshold;
-        DriftVerdict {
-            departure,
-            drifted,
-            scale: if drifted { med / b.ratio } else { 1.0 },
-        }
+        DriftVerdict { departure, drifted, scale: if drifted { med / b.ratio } else { 1.0 } }
     }
 
     pub fn frames(&self) -> usize {
@@ -95,11 +86,7 @@ fn median(v: &[f64]) -> f64 {
     if n == 0 {
         return f64::NAN;
     }
-    if n % 2 == 1 {
-        s[n / 2]
-    } else {
-        0.5 * (s[n / 2 - 1] + s[n / 2])
-    }
+    if n % 2 == 1 { s[n / 2] } else { 0.5 * (s[n / 2 - 1] + s[n / 2]) }
 }
 
 #[cfg(test)]
@@ -109,10 +96,7 @@ mod tests {
     #[test]
     fn flicker_frame_is_flagged_and_scaled_back() {
         let mut t = DriftTracker::default();
-        let fb = |r: f64| FrameBrightness {
-            ratio: r,
-            sigma: 0.0005,
-        };
+        let fb = |r: f64| FrameBrightness { ratio: r, sigma: 0.0005 };
         for r in [1.0, 1.0004, 0.9997, 1.0002, 0.9999] {
             assert!(!t.assess(fb(r), 5.0, 0.001).drifted);
         }
@@ -127,17 +111,7 @@ mod tests {
         let mut t = DriftTracker::default();
         // 2 % noise on the ratio: a 3 % departure is within 5 σ.
         for r in [1.0, 1.02, 0.98, 1.03, 0.99] {
-            assert!(
-                !t.assess(
-                    FrameBrightness {
-                        ratio: r,
-                        sigma: 0.02
-                    },
-                    5.0,
-                    0.001
-                )
-                .drifted
-            );
+            assert!(!t.assess(FrameBrightness { ratio: r, sigma: 0.02 }, 5.0, 0.001).drifted);
         }
     }
 

@@ -18,31 +18,16 @@ pub enum LayoutError {
 /// A raw buffer that cannot be read as a frame of the expected size.
 #[derive(Debug, Error, Clone, PartialEq)]
 pub enum FrameError {
-    #[error(
-        "pixel stride is {pixel_stride} bytes; RAW_SENSOR frames are 16-bit samples with pixel stride 2"
-    )]
+    #[error("pixel stride is {pixel_stride} bytes; RAW_SENSOR frames are 16-bit samples with pixel stride 2")]
     PixelStride { pixel_stride: usize },
     #[error("row stride {row_stride} bytes is less than width × 2 = {min} bytes")]
     RowStride { row_stride: usize, min: usize },
     #[error(
         "buffer holds {len} bytes but a {width}×{height} frame with row stride {row_stride} needs at least {needed} bytes ((height − 1) · rowStride + 2 · width)"
     )]
-    TooShort {
-        len: usize,
-        needed: usize,
-        width: usize,
-        height: usize,
-        row_stride: usize,
-    },
-    #[error(
-        "frame is {width}×{height} but the session's sensor is {expected_width}×{expected_height}"
-    )]
-    SizeMismatch {
-        width: usize,
-        height: usize,
-        expected_width: usize,
-        expected_height: usize,
-    },
+    TooShort { len: usize, needed: usize, width: usize, height: usize, row_stride: usize },
+    #[error("frame is {width}×{height} but the session's sensor is {expected_width}×{expected_height}")]
+    SizeMismatch { width: usize, height: usize, expected_width: usize, expected_height: usize },
     #[error("frame is empty ({width}×{height})")]
     Empty { width: usize, height: usize },
 }
@@ -54,9 +39,7 @@ pub enum SessionError {
     Frame(#[from] FrameError),
     #[error(transparent)]
     Layout(#[from] LayoutError),
-    #[error(
-        "no EV step has begun: call begin_step (the reference burst's exposure) before pushing frames"
-    )]
+    #[error("no EV step has begun: call begin_step (the reference burst's exposure) before pushing frames")]
     NoStep,
     #[error(
         "frame at ISO {iso} is below the session's reference ISO {reference}: the reference must be the lowest ISO (the sensor's minimum sensitivity)"
@@ -65,21 +48,11 @@ pub enum SessionError {
     #[error(
         "target frame at ISO {iso} with exposure {exposure_ns} ns arrived before any reference frame of this EV step: capture the reference burst (ISO {reference}) first"
     )]
-    NoReference {
-        iso: u32,
-        exposure_ns: u64,
-        reference: u32,
-    },
+    NoReference { iso: u32, exposure_ns: u64, reference: u32 },
     #[error(
         "target frame at ISO {iso}, exposure {exposure_ns} ns has brightness ISO×exposure {got:.4e} but this EV step's reference has {expected:.4e} (off by {off_pct:.1} %): it belongs to another EV step, or its exposure did not apply"
     )]
-    WrongStep {
-        iso: u32,
-        exposure_ns: u64,
-        got: f64,
-        expected: f64,
-        off_pct: f64,
-    },
+    WrongStep { iso: u32, exposure_ns: u64, got: f64, expected: f64, off_pct: f64 },
     #[error(
         "reference frame with exposure {exposure_ns} ns does not match this EV step's reference exposure {expected_ns} ns: begin a new step for it"
     )]
@@ -105,41 +78,16 @@ pub enum SessionError {
 /// Reading or writing a model pack, a checkpoint or a recording.
 #[derive(Debug, Error, Clone, PartialEq)]
 pub enum CodecError {
-    #[error(
-        "{what} is truncated: {len} bytes, expected {expected}; the file was cut short, write it again"
-    )]
-    Truncated {
-        what: &'static str,
-        len: usize,
-        expected: usize,
-    },
+    #[error("{what} is truncated: {len} bytes, expected {expected}; the file was cut short, write it again")]
+    Truncated { what: &'static str, len: usize, expected: usize },
     #[error("{what} does not start with the magic {expected:?}: this is not a {what}")]
-    BadMagic {
-        what: &'static str,
-        expected: &'static str,
-    },
-    #[error(
-        "{what} has format version {found}, newer than this noisecal reads ({supported}): upgrade noisecal"
-    )]
-    NewerVersion {
-        what: &'static str,
-        found: u16,
-        supported: u16,
-    },
-    #[error(
-        "{what} has format version {found}, older than this noisecal reads ({supported}); recreate it"
-    )]
-    OlderVersion {
-        what: &'static str,
-        found: u16,
-        supported: u16,
-    },
+    BadMagic { what: &'static str, expected: &'static str },
+    #[error("{what} has format version {found}, newer than this noisecal reads ({supported}): upgrade noisecal")]
+    NewerVersion { what: &'static str, found: u16, supported: u16 },
+    #[error("{what} has format version {found}, older than this noisecal reads ({supported}); recreate it")]
+    OlderVersion { what: &'static str, found: u16, supported: u16 },
     #[error("{what} is corrupt: checksum {found:08x} does not match {expected:08x}")]
-    Checksum {
-        what: &'static str,
-        found: u32,
-        expected: u32,
-    },
+    Checksum { what: &'static str, found: u32, expected: u32 },
     #[error("{what} could not be decoded: {detail}")]
     Decode { what: &'static str, detail: String },
     #[error("{what} could not be encoded: {detail}")]
@@ -155,20 +103,10 @@ pub enum ModelError {
         "ISO {iso} is outside the pack's calibrated range {min}–{max}; calibrate it, or allow extrapolation (--extrapolate)"
     )]
     IsoOutOfRange { iso: u32, min: u32, max: u32 },
-    #[error(
-        "ISO {iso} is not in the pack (calibrated: {available}); interpolate it or pick one of those"
-    )]
+    #[error("ISO {iso} is not in the pack (calibrated: {available}); interpolate it or pick one of those")]
     IsoMissing { iso: u32, available: String },
-    #[error(
-        "image is {width}×{height} but the pack's sensor is {expected_width}×{expected_height} with CFA {cfa}"
-    )]
-    ImageMismatch {
-        width: usize,
-        height: usize,
-        expected_width: usize,
-        expected_height: usize,
-        cfa: String,
-    },
+    #[error("image is {width}×{height} but the pack's sensor is {expected_width}×{expected_height} with CFA {cfa}")]
+    ImageMismatch { width: usize, height: usize, expected_width: usize, expected_height: usize, cfa: String },
     #[error("{0}")]
     Unsupported(String),
 }

@@ -32,18 +32,9 @@ pub fn fill_position(
         .map(|(b, h)| {
             let (mean, var) = h.moments();
             let t = h.trimmed();
-            let pmf =
-                Pmf::from_weights(t.first, t.counts.iter().map(|&c| c as f64)).unwrap_or(Pmf {
-                    first: 0,
-                    p: vec![1.0],
-                });
-            Anchor {
-                bin: b,
-                level: level_of(b),
-                mean,
-                var,
-                pmf,
-            }
+            let pmf = Pmf::from_weights(t.first, t.counts.iter().map(|&c| c as f64))
+                .unwrap_or(Pmf { first: 0, p: vec![1.0] });
+            Anchor { bin: b, level: level_of(b), mean, var, pmf }
         })
         .collect();
     if anchors.is_empty() {
@@ -58,12 +49,7 @@ pub fn fill_position(
         }
         if next < anchors.len() && anchors[next].bin == b {
             let t = h.trimmed();
-            out.push(BinModel {
-                first: t.first,
-                counts: t.counts,
-                samples: h.total(),
-                filled: false,
-            });
+            out.push(BinModel { first: t.first, counts: t.counts, samples: h.total(), filled: false });
             continue;
         }
         let below = next.checked_sub(1).map(|i| &anchors[i]);
@@ -72,22 +58,10 @@ pub fn fill_position(
         let (mean, var, shape) = match (below, above) {
             (Some(lo), Some(hi)) => {
                 let t = (level - lo.level) / (hi.level - lo.level);
-                let shape = if level - lo.level <= hi.level - level {
-                    &lo.pmf
-                } else {
-                    &hi.pmf
-                };
-                (
-                    lo.mean + t * (hi.mean - lo.mean),
-                    lo.var + t * (hi.var - lo.var),
-                    shape,
-                )
+                let shape = if level - lo.level <= hi.level - level { &lo.pmf } else { &hi.pmf };
+                (lo.mean + t * (hi.mean - lo.mean), lo.var + t * (hi.var - lo.var), shape)
             }
-            (Some(lo), None) => (
-                lo.mean,
-                poly_eval(&var_fit, level).max(lo.var.min(1.0)),
-                &lo.pmf,
-            ),
+            (Some(lo), None) => (lo.mean, poly_eval(&var_fit, level).max(lo.var.min(1.0)), &lo.pmf),
             (None, Some(hi)) => (hi.mean, poly_eval(&var_fit, level).max(0.05), &hi.pmf),
             (None, None) => (anchors[0].mean, anchors[0].var, &anchors[0].pmf),
         };
@@ -121,9 +95,7 @@ mod tests {
         let mut h = NoiseHistogram::default();
         let lo = (mean - 6.0 * sd).floor() as i32;
         let hi = (mean + 6.0 * sd).ceil() as i32;
-        let w: Vec<f64> = (lo..=hi)
-            .map(|k| (-(k as f64 - mean).powi(2) / (2.0 * sd * sd)).exp())
-            .collect();
+        let w: Vec<f64> = (lo..=hi).map(|k| (-(k as f64 - mean).powi(2) / (2.0 * sd * sd)).exp()).collect();
         let t: f64 = w.iter().sum();
         for (i, x) in w.iter().enumerate() {
             h.add_n(lo + i as i32, (x / t * n as f64).round() as u64);
@@ -147,10 +119,7 @@ mod tests {
             let (m, v) = bins[b].moments();
             assert_eq!(bins[b].filled, (3..=6).contains(&b));
             let want = 2.0 + 0.5 * level;
-            assert!(
-                (v - want).abs() / want < 0.06,
-                "bin {b}: var {v} want {want}"
-            );
+            assert!((v - want).abs() / want < 0.06, "bin {b}: var {v} want {want}");
             assert!(m.abs() < 0.1);
         }
         assert_eq!(bins[4].samples, hists[4].total());

@@ -26,11 +26,7 @@ pub fn nn_poly_fit(x: &[f64], y: &[f64], w: &[f64], degree: usize) -> Vec<f64> {
     best.map(|b| b.1).unwrap_or_else(|| {
         // Nothing feasible: a constant at the weighted mean, clamped at 0.
         let sw: f64 = w.iter().sum();
-        let m = if sw > 0.0 {
-            x.iter().zip(y).zip(w).map(|((_, y), w)| y * w).sum::<f64>() / sw
-        } else {
-            0.0
-        };
+        let m = if sw > 0.0 { x.iter().zip(y).zip(w).map(|((_, y), w)| y * w).sum::<f64>() / sw } else { 0.0 };
         let mut c = vec![0.0; k];
         c[0] = m.max(0.0);
         c
@@ -59,11 +55,7 @@ pub fn poly_eval(c: &[f64], x: f64) -> f64 {
 }
 
 fn sse(x: &[f64], y: &[f64], w: &[f64], c: &[f64]) -> f64 {
-    x.iter()
-        .zip(y)
-        .zip(w)
-        .map(|((&x, &y), &w)| w * (poly_eval(c, x) - y).powi(2))
-        .sum()
+    x.iter().zip(y).zip(w).map(|((&x, &y), &w)| w * (poly_eval(c, x) - y).powi(2)).sum()
 }
 
 /// Gaussian elimination with partial pivoting on an augmented matrix.
@@ -71,11 +63,7 @@ fn solve(mut a: Vec<Vec<f64>>) -> Option<Vec<f64>> {
     let n = a.len();
     for col in 0..n {
         let piv = (col..n).max_by(|&i, &j| a[i][col].abs().total_cmp(&a[j][col].abs()))?;
-        let scale = a
-            .iter()
-            .map(|r| r[col].abs())
-            .fold(0.0, f64::max)
-            .max(1e-300);
+        let scale = a.iter().map(|r| r[col].abs()).fold(0.0, f64::max).max(1e-300);
         if a[piv][col].abs() < 1e-12 * scale {
             return None;
         }
@@ -102,10 +90,7 @@ mod tests {
         let y: Vec<f64> = x.iter().map(|&x| 3.0 + 0.5 * x + 0.001 * x * x).collect();
         let w = vec![1.0; x.len()];
         let c = nn_poly_fit(&x, &y, &w, 2);
-        assert!(
-            (c[0] - 3.0).abs() < 1e-6 && (c[1] - 0.5).abs() < 1e-8 && (c[2] - 0.001).abs() < 1e-10,
-            "{c:?}"
-        );
+        assert!((c[0] - 3.0).abs() < 1e-6 && (c[1] - 0.5).abs() < 1e-8 && (c[2] - 0.001).abs() < 1e-10, "{c:?}");
     }
 
     #[test]

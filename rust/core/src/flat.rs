@@ -29,10 +29,7 @@ pub struct Roi {
 impl Roi {
     #[inline]
     pub fn contains(&self, x: usize, y: usize) -> bool {
-        x >= self.x0 as usize
-            && x < self.x1 as usize
-            && y >= self.y0 as usize
-            && y < self.y1 as usize
+        x >= self.x0 as usize && x < self.x1 as usize && y >= self.y0 as usize && y < self.y1 as usize
     }
 }
 
@@ -48,11 +45,7 @@ impl Groups {
     pub fn group(&self, pos: usize, level: f32) -> usize {
         let span = (self.white as f32 - self.black[pos]).max(1.0);
         let g = ((level - self.black[pos]) / span * GROUPS as f32).floor();
-        if g <= 0.0 {
-            0
-        } else {
-            (g as usize).min(GROUPS - 1)
-        }
+        if g <= 0.0 { 0 } else { (g as usize).min(GROUPS - 1) }
     }
 
     pub fn center(&self, pos: usize, g: usize) -> f64 {
@@ -71,9 +64,7 @@ pub struct TemporalStats {
 
 impl Default for TemporalStats {
     fn default() -> Self {
-        Self {
-            acc: vec![[0.0; 3]; POSITIONS * GROUPS],
-        }
+        Self { acc: vec![[0.0; 3]; POSITIONS * GROUPS] }
     }
 }
 
@@ -134,10 +125,7 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
     let (w, h) = (inp.width, inp.height);
     let m = inp.frames.max(1) as f64;
     let mean = |i: usize| inp.sum[i] as f64 / m;
-    let groups = Groups {
-        black: inp.black,
-        white: inp.white,
-    };
+    let groups = Groups { black: inp.black, white: inp.white };
 
     // Variance of the clean image per position: temporal part (noise of the mean) …
     let temporal = inp.temporal.variance_fits(&groups);
@@ -152,11 +140,7 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
     // dominate those; edges are spread thin over many levels).
     let mut diffs: Vec<Vec<f32>> = vec![Vec::new(); POSITIONS * GROUPS];
     let row_step = if h > 512 { 4 } else { 1 };
-    for y in (0..h)
-        .step_by(row_step * 2)
-        .flat_map(|y| [y, y + 1])
-        .filter(|&y| y < h)
-    {
+    for y in (0..h).step_by(row_step * 2).flat_map(|y| [y, y + 1]).filter(|&y| y < h) {
         for x in 0..w.saturating_sub(2) {
             let i = y * w + x;
             let pos = position(y, x);
@@ -191,9 +175,8 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
             c
         };
         let t = temporal[pos].clone().unwrap_or_default();
-        report.clean_variance[pos] = std::array::from_fn(|k| {
-            fit[k] + t.get(k).copied().unwrap_or(0.0) / if inp.frames >= 2 { m } else { 1.0 }
-        });
+        report.clean_variance[pos] =
+            std::array::from_fn(|k| fit[k] + t.get(k).copied().unwrap_or(0.0) / if inp.frames >= 2 { m } else { 1.0 });
         spatial[pos] = fit;
     }
     drop(diffs);
@@ -216,10 +199,8 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
         for x in 0..w {
             let i = y * w + x;
             let pos = position(y, x);
-            if let Some(r) = inp.roi {
-                if !r.contains(x, y) {
-                    continue;
-                }
+            if inp.roi.is_some_and(|r| !r.contains(x, y)) {
+                continue;
             }
             report.considered[pos] += 1;
             let a = mean(i);

@@ -2,7 +2,6 @@
 
 use std::borrow::Cow;
 
-
 use crate::error::FrameError;
 
 /// Where a frame's samples live.
@@ -25,18 +24,10 @@ pub struct FrameView<'a> {
 
 impl<'a> FrameView<'a> {
     /// A view over `u16` samples; `row_stride` counts samples (≥ width).
-    pub fn from_u16(
-        data: &'a [u16],
-        width: usize,
-        height: usize,
-        row_stride: usize,
-    ) -> Result<Self, FrameError> {
+    pub fn from_u16(data: &'a [u16], width: usize, height: usize, row_stride: usize) -> Result<Self, FrameError> {
         check_dims(width, height)?;
         if row_stride < width {
-            return Err(FrameError::RowStride {
-                row_stride: row_stride * 2,
-                min: width * 2,
-            });
+            return Err(FrameError::RowStride { row_stride: row_stride * 2, min: width * 2 });
         }
         let needed = (height - 1) * row_stride + width;
         if data.len() < needed {
@@ -48,12 +39,7 @@ impl<'a> FrameView<'a> {
                 row_stride: row_stride * 2,
             });
         }
-        Ok(Self {
-            samples: Samples::U16(data),
-            width,
-            height,
-            row_stride,
-        })
+        Ok(Self { samples: Samples::U16(data), width, height, row_stride })
     }
 
     /// A view over a Camera2 `RAW_SENSOR` plane: little-endian 16-bit samples, `row_stride` in
@@ -71,36 +57,21 @@ impl<'a> FrameView<'a> {
             return Err(FrameError::PixelStride { pixel_stride });
         }
         if row_stride < width * 2 {
-            return Err(FrameError::RowStride {
-                row_stride,
-                min: width * 2,
-            });
+            return Err(FrameError::RowStride { row_stride, min: width * 2 });
         }
         let needed = (height - 1) * row_stride + 2 * width;
         if data.len() < needed {
-            return Err(FrameError::TooShort {
-                len: data.len(),
-                needed,
-                width,
-                height,
-                row_stride,
-            });
+            return Err(FrameError::TooShort { len: data.len(), needed, width, height, row_stride });
         }
-        Ok(Self {
-            samples: Samples::LeBytes(data),
-            width,
-            height,
-            row_stride,
-        })
+        Ok(Self { samples: Samples::LeBytes(data), width, height, row_stride })
     }
 
     /// A view over a standard-layout (row-major, contiguous) ndarray image.
-    pub fn from_array<S: ndarray::Data<Elem = u16>>(a: &'a ndarray::ArrayBase<S, ndarray::Ix2>) -> Result<Self, FrameError> {
+    pub fn from_array<S: ndarray::Data<Elem = u16>>(
+        a: &'a ndarray::ArrayBase<S, ndarray::Ix2>,
+    ) -> Result<Self, FrameError> {
         let (h, w) = a.dim();
-        let s = a.as_slice().ok_or(FrameError::RowStride {
-            row_stride: 0,
-            min: w * 2,
-        })?;
+        let s = a.as_slice().ok_or(FrameError::RowStride { row_stride: 0, min: w * 2 })?;
         Self::from_u16(s, w, h, w)
     }
 
@@ -137,17 +108,12 @@ impl<'a> FrameView<'a> {
             Samples::LeBytes(d) => {
                 let start = y * self.row_stride;
                 let bytes = &d[start..start + 2 * self.width];
-                if cfg!(target_endian = "little") {
-                    if let Ok(s) = bytemuck::try_cast_slice::<u8, u16>(bytes) {
-                        return Cow::Borrowed(s);
-                    }
+                if cfg!(target_endian = "little")
+                    && let Ok(s) = bytemuck::try_cast_slice::<u8, u16>(bytes)
+                {
+                    return Cow::Borrowed(s);
                 }
-                Cow::Owned(
-                    bytes
-                        .chunks_exact(2)
-                        .map(|c| u16::from_le_bytes([c[0], c[1]]))
-                        .collect(),
-                )
+                Cow::Owned(bytes.chunks_exact(2).map(|c| u16::from_le_bytes([c[0], c[1]])).collect())
             }
         }
     }
@@ -209,20 +175,10 @@ mod tests {
     #[test]
     fn bad_buffers_are_named() {
         let bytes = vec![0u8; 10];
-        assert!(matches!(
-            FrameView::from_le_bytes(&bytes, 4, 2, 8, 1),
-            Err(FrameError::PixelStride { .. })
-        ));
-        assert!(matches!(
-            FrameView::from_le_bytes(&bytes, 4, 2, 6, 2),
-            Err(FrameError::RowStride { .. })
-        ));
+        assert!(matches!(FrameView::from_le_bytes(&bytes, 4, 2, 8, 1), Err(FrameError::PixelStride { .. })));
+        assert!(matches!(FrameView::from_le_bytes(&bytes, 4, 2, 6, 2), Err(FrameError::RowStride { .. })));
         let e = FrameView::from_le_bytes(&bytes, 4, 2, 8, 2).unwrap_err();
-        assert!(
-            e.to_string()
-                .contains("(height − 1) · rowStride + 2 · width"),
-            "{e}"
-        );
+        assert!(e.to_string().contains("(height − 1) · rowStride + 2 · width"), "{e}");
         assert!(FrameView::from_le_bytes(&bytes[..8], 4, 2, 8, 2).is_err());
         assert!(FrameView::from_le_bytes(&vec![0u8; 16], 4, 2, 8, 2).is_ok());
     }

@@ -83,10 +83,7 @@ impl NoiseHistogram {
             return NoiseHistogram::default();
         };
         let hi = self.counts.iter().rposition(|&c| c > 0).unwrap_or(lo);
-        NoiseHistogram {
-            first: self.first + lo as i32,
-            counts: self.counts[lo..=hi].to_vec(),
-        }
+        NoiseHistogram { first: self.first + lo as i32, counts: self.counts[lo..=hi].to_vec() }
     }
 
     /// Mean and (population) variance of the samples.
@@ -152,10 +149,7 @@ mod tests {
         let mean = xs.iter().map(|&x| x as f64).sum::<f64>() / n;
         let var = xs.iter().map(|&x| (x as f64 - mean).powi(2)).sum::<f64>() / n;
         let (m, v) = h.moments();
-        assert!(
-            (m - mean).abs() < 1e-9 && (v - var).abs() < 1e-6,
-            "{m} {v} vs {mean} {var}"
-        );
+        assert!((m - mean).abs() < 1e-9 && (v - var).abs() < 1e-6, "{m} {v} vs {mean} {var}");
         let mut g = NoiseHistogram::default();
         g.merge(&h);
         g.merge(&h);

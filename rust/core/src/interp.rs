@@ -16,9 +16,11 @@
 //! 4. **Shape** (Eq. 5): by default ([`ShapeSource::QuantileBlend`]) the standardised quantile
 //!    functions of the two bracketing calibrated ISOs are blended with weight
 //!    `t = ln(j/lo) / ln(hi/lo)`; [`ShapeSource::Nearest`] takes the nearest calibrated ISO (in
-//!    log ISO) as the paper does. Measured on the simulated heavy-tailed sensor
-//!    (`tests/interp_shape.rs`), the blend is never worse and is closer to the truth when the
-//!    shape changes across ISO (e.g. skew that fades as read noise takes over).
+//!    log ISO) as the paper does. Measured on the simulated heavy-tailed 10-bit sensor
+//!    (`tests/interp_truth.rs`: ISO 400 left out of 100–1600, 200k samples per bin, 1M-sample
+//!    truth), mean per-bin JSD to the truth: blend 1.0·10⁻⁴, nearest 1.7·10⁻⁴, a calibration
+//!    of ISO 400 itself 1.6·10⁻⁴ (the blend averages two calibrations' sampling noise), HG
+//!    interpolated parametrically 5.4·10⁻⁴ (1.9·10⁻³ in the darkest bin).
 //! 5. **Rescale** the shape to the fitted mean and variance on the integer grid (Eq. 6, as
 //!    [`Pmf::rescaled`]: piecewise-uniform cells, Sheppard-corrected).
 //!

@@ -56,11 +56,7 @@ impl CfaPattern {
             CfaColor::Green => {
                 // A green shares its row with red (Gr) or with blue (Gb).
                 let row_mate = colors[(pos & 2) | ((pos & 1) ^ 1)];
-                if row_mate == CfaColor::Red {
-                    "Gr"
-                } else {
-                    "Gb"
-                }
+                if row_mate == CfaColor::Red { "Gr" } else { "Gb" }
             }
         }
     }
@@ -124,21 +120,14 @@ impl SensorLayout {
     /// Checks the layout is usable: non-empty, even-sized, black below white.
     pub fn validate(&self) -> Result<(), LayoutError> {
         if self.width < 2 || self.height < 2 {
-            return Err(LayoutError::TooSmall {
-                width: self.width,
-                height: self.height,
-            });
+            return Err(LayoutError::TooSmall { width: self.width, height: self.height });
         }
         if self.white < 16 {
             return Err(LayoutError::WhiteLevel { white: self.white });
         }
         for (pos, &b) in self.black.iter().enumerate() {
             if !b.is_finite() || b < 0.0 || b >= self.white as f32 - 8.0 {
-                return Err(LayoutError::BlackLevel {
-                    pos,
-                    black: b,
-                    white: self.white,
-                });
+                return Err(LayoutError::BlackLevel { pos, black: b, white: self.white });
             }
         }
         Ok(())
@@ -169,14 +158,7 @@ impl SensorLayout {
     /// A short human description, e.g. `4032×3024 RGGB black 64/64/64/64 white 1023`.
     pub fn describe(&self) -> String {
         let blacks: Vec<String> = self.black.iter().map(|b| format!("{b}")).collect();
-        format!(
-            "{}×{} {} black {} white {}",
-            self.width,
-            self.height,
-            self.cfa,
-            blacks.join("/"),
-            self.white
-        )
+        format!("{}×{} {} black {} white {}", self.width, self.height, self.cfa, blacks.join("/"), self.white)
     }
 }
 
@@ -190,11 +172,7 @@ pub struct Binning {
 
 impl Binning {
     pub fn new(layout: &SensorLayout, bin_width: u16) -> Self {
-        Self {
-            bin_width: bin_width.max(1),
-            black: layout.black,
-            white: layout.white,
-        }
+        Self { bin_width: bin_width.max(1), black: layout.black, white: layout.white }
     }
 
     /// Number of bins at a position: from its black level up to white.
@@ -207,11 +185,7 @@ impl Binning {
     #[inline]
     pub fn bin(&self, pos: usize, level: f32) -> usize {
         let b = ((level - self.black[pos]) / self.bin_width as f32).floor();
-        if b <= 0.0 {
-            0
-        } else {
-            (b as usize).min(self.bins(pos) - 1)
-        }
+        if b <= 0.0 { 0 } else { (b as usize).min(self.bins(pos) - 1) }
     }
 
     /// Centre level (DN) of a bin.
@@ -221,9 +195,7 @@ impl Binning {
 
     /// Lookup table level → bin for one position, for every u16 level up to white.
     pub fn lut(&self, pos: usize) -> Vec<u16> {
-        (0..=self.white as u32)
-            .map(|l| self.bin(pos, l as f32) as u16)
-            .collect()
+        (0..=self.white as u32).map(|l| self.bin(pos, l as f32) as u16).collect()
     }
 }
 
@@ -250,13 +222,7 @@ mod tests {
 
     #[test]
     fn default_bin_widths_follow_bit_depth() {
-        let mut l = SensorLayout {
-            width: 8,
-            height: 8,
-            cfa: CfaPattern::Rggb,
-            black: [64.0; 4],
-            white: 1023,
-        };
+        let mut l = SensorLayout { width: 8, height: 8, cfa: CfaPattern::Rggb, black: [64.0; 4], white: 1023 };
         assert_eq!(l.default_bin_width(), 4);
         assert_eq!(Binning::new(&l, 4).bins(0), 240);
         l.black = [256.0; 4];
@@ -270,13 +236,8 @@ mod tests {
 
     #[test]
     fn binning_clamps_and_handles_fractional_black() {
-        let l = SensorLayout {
-            width: 8,
-            height: 8,
-            cfa: CfaPattern::Rggb,
-            black: [63.5, 64.0, 64.0, 64.0],
-            white: 1023,
-        };
+        let l =
+            SensorLayout { width: 8, height: 8, cfa: CfaPattern::Rggb, black: [63.5, 64.0, 64.0, 64.0], white: 1023 };
         let b = Binning::new(&l, 4);
         assert_eq!(b.bin(0, 0.0), 0);
         assert_eq!(b.bin(0, 67.0), 0);
@@ -287,13 +248,7 @@ mod tests {
 
     #[test]
     fn validate_rejects_bad_levels() {
-        let l = SensorLayout {
-            width: 8,
-            height: 8,
-            cfa: CfaPattern::Rggb,
-            black: [1020.0; 4],
-            white: 1023,
-        };
+        let l = SensorLayout { width: 8, height: 8, cfa: CfaPattern::Rggb, black: [1020.0; 4], white: 1023 };
         assert!(l.validate().is_err());
     }
 }

@@ -19,11 +19,7 @@ pub struct FrameMeta {
 
 impl FrameMeta {
     pub fn new(iso: u32, exposure_ns: u64) -> Self {
-        Self {
-            iso,
-            exposure_ns,
-            black: None,
-        }
+        Self { iso, exposure_ns, black: None }
     }
 
     /// Brightness key of an EV step: `ISO × exposure` (ISO·s).
@@ -38,9 +34,7 @@ impl FrameMeta {
 
     pub fn validate(&self, layout: &SensorLayout) -> Result<(), SessionError> {
         if self.iso == 0 {
-            return Err(SessionError::Metadata(
-                "ISO is 0; pass the sensitivity the capture result reported".into(),
-            ));
+            return Err(SessionError::Metadata("ISO is 0; pass the sensitivity the capture result reported".into()));
         }
         if self.exposure_ns == 0 {
             return Err(SessionError::Metadata(
@@ -50,11 +44,7 @@ impl FrameMeta {
         if let Some(b) = self.black {
             for (pos, &v) in b.iter().enumerate() {
                 if !v.is_finite() || v < 0.0 || v >= layout.white as f32 - 8.0 {
-                    return Err(SessionError::FrameBlack {
-                        pos,
-                        black: v,
-                        white: layout.white,
-                    });
+                    return Err(SessionError::FrameBlack { pos, black: v, white: layout.white });
                 }
             }
         }

@@ -81,10 +81,7 @@ pub struct BinModel {
 
 impl BinModel {
     pub fn pmf(&self) -> Pmf {
-        Pmf::from_weights(self.first, self.counts.iter().map(|&c| c as f64)).unwrap_or(Pmf {
-            first: 0,
-            p: vec![1.0],
-        })
+        Pmf::from_weights(self.first, self.counts.iter().map(|&c| c as f64)).unwrap_or(Pmf { first: 0, p: vec![1.0] })
     }
 
     pub fn moments(&self) -> (f64, f64) {
@@ -95,12 +92,7 @@ impl BinModel {
     pub fn from_pmf(p: &Pmf, samples: u64, filled: bool) -> Self {
         const SCALE: f64 = (1u64 << 24) as f64;
         let counts: Vec<u64> = p.p.iter().map(|&x| (x * SCALE).round() as u64).collect();
-        let mut b = BinModel {
-            first: p.first,
-            counts,
-            samples,
-            filled,
-        };
+        let mut b = BinModel { first: p.first, counts, samples, filled };
         if b.counts.iter().all(|&c| c == 0) {
             b.counts = vec![1];
             b.first = p.first + p.p.len() as i32 / 2;
@@ -135,11 +127,7 @@ impl ModelPack {
     }
 
     pub fn calibrated_isos(&self) -> Vec<u32> {
-        self.isos
-            .iter()
-            .filter(|m| m.is_calibrated())
-            .map(|m| m.iso)
-            .collect()
+        self.isos.iter().filter(|m| m.is_calibrated()).map(|m| m.iso).collect()
     }
 
     /// The model of exactly this ISO.
@@ -149,18 +137,11 @@ impl ModelPack {
 
     /// The model of this ISO or a clear error that lists what the pack holds.
     pub fn require_iso(&self, iso: u32) -> Result<&IsoModel, ModelError> {
-        self.iso(iso).ok_or_else(|| ModelError::IsoMissing {
-            iso,
-            available: self.iso_summary(),
-        })
+        self.iso(iso).ok_or_else(|| ModelError::IsoMissing { iso, available: self.iso_summary() })
     }
 
     pub fn iso_summary(&self) -> String {
-        self.isos
-            .iter()
-            .map(|m| m.iso.to_string())
-            .collect::<Vec<_>>()
-            .join(", ")
+        self.isos.iter().map(|m| m.iso.to_string()).collect::<Vec<_>>().join(", ")
     }
 
     /// Inserts or replaces an ISO model, keeping the list sorted.
@@ -175,23 +156,14 @@ impl ModelPack {
     }
 
     pub fn from_bytes(bytes: &[u8]) -> Result<Self, CodecError> {
-        let p: ModelPack = codec::decode(
-            "model pack",
-            PACK_MAGIC,
-            PACK_MAGIC_TEXT,
-            PACK_VERSION,
-            bytes,
-        )?;
+        let p: ModelPack = codec::decode("model pack", PACK_MAGIC, PACK_MAGIC_TEXT, PACK_VERSION, bytes)?;
         p.check()?;
         Ok(p)
     }
 
     /// Structural checks a decoder cannot make.
     pub fn check(&self) -> Result<(), CodecError> {
-        let bad = |detail: String| CodecError::Invalid {
-            what: "model pack",
-            detail,
-        };
+        let bad = |detail: String| CodecError::Invalid { what: "model pack", detail };
         self.layout.validate().map_err(|e| bad(e.to_string()))?;
         if self.bin_width == 0 {
             return Err(bad("bin width is 0".into()));
@@ -199,19 +171,12 @@ impl ModelPack {
         let binning = self.binning();
         for w in self.isos.windows(2) {
             if w[0].iso >= w[1].iso {
-                return Err(bad(format!(
-                    "ISOs are not sorted and unique ({} then {})",
-                    w[0].iso, w[1].iso
-                )));
+                return Err(bad(format!("ISOs are not sorted and unique ({} then {})", w[0].iso, w[1].iso)));
             }
         }
         for m in &self.isos {
             if m.positions.len() != POSITIONS {
-                return Err(bad(format!(
-                    "ISO {} has {} CFA positions, expected 4",
-                    m.iso,
-                    m.positions.len()
-                )));
+                return Err(bad(format!("ISO {} has {} CFA positions, expected 4", m.iso, m.positions.len())));
             }
             for (pos, pm) in m.positions.iter().enumerate() {
                 if pm.bins.len() != binning.bins(pos) {
@@ -222,16 +187,8 @@ impl ModelPack {
                         binning.bins(pos)
                     )));
                 }
-                if let Some((b, _)) = pm
-                    .bins
-                    .iter()
-                    .enumerate()
-                    .find(|(_, b)| b.counts.iter().all(|&c| c == 0))
-                {
-                    return Err(bad(format!(
-                        "ISO {} position {pos} bin {b} has an empty PMF",
-                        m.iso
-                    )));
+                if let Some((b, _)) = pm.bins.iter().enumerate().find(|(_, b)| b.counts.iter().all(|&c| c == 0)) {
+                    return Err(bad(format!("ISO {} position {pos} bin {b} has an empty PMF", m.iso)));
                 }
             }
         }

@@ -13,16 +13,10 @@ impl Pmf {
     pub fn from_weights(first: i32, w: impl IntoIterator<Item = f64>) -> Option<Self> {
         let p: Vec<f64> = w.into_iter().collect();
         let t: f64 = p.iter().sum();
-        if !(t > 0.0) {
+        if t.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
             return None;
         }
-        Some(
-            Self {
-                first,
-                p: p.into_iter().map(|x| x / t).collect(),
-            }
-            .trimmed(),
-        )
+        Some(Self { first, p: p.into_iter().map(|x| x / t).collect() }.trimmed())
     }
 
     pub fn moments(&self) -> (f64, f64) {
@@ -36,26 +30,16 @@ impl Pmf {
     /// Probability of value `n`.
     pub fn at(&self, n: i32) -> f64 {
         let i = n - self.first;
-        if i < 0 {
-            0.0
-        } else {
-            self.p.get(i as usize).copied().unwrap_or(0.0)
-        }
+        if i < 0 { 0.0 } else { self.p.get(i as usize).copied().unwrap_or(0.0) }
     }
 
     /// Drops zero tails.
     pub fn trimmed(self) -> Self {
         let Some(lo) = self.p.iter().position(|&c| c > 0.0) else {
-            return Self {
-                first: 0,
-                p: vec![1.0],
-            };
+            return Self { first: 0, p: vec![1.0] };
         };
         let hi = self.p.iter().rposition(|&c| c > 0.0).unwrap_or(lo);
-        Self {
-            first: self.first + lo as i32,
-            p: self.p[lo..=hi].to_vec(),
-        }
+        Self { first: self.first + lo as i32, p: self.p[lo..=hi].to_vec() }
     }
 
     /// Rescales this PMF's shape to mean `mu` and variance `var` on the integer grid (Eq. 5–6).
@@ -98,10 +82,7 @@ impl Pmf {
                 }
             }
         }
-        Pmf::from_weights(first, out).unwrap_or(Pmf {
-            first: mu.round() as i32,
-            p: vec![1.0],
-        })
+        Pmf::from_weights(first, out).unwrap_or(Pmf { first: mu.round() as i32, p: vec![1.0] })
     }
 
     /// Cumulative distribution at each support point.
@@ -137,11 +118,7 @@ mod tests {
     fn discrete_gaussian(mu: f64, sd: f64) -> Pmf {
         let lo = (mu - 8.0 * sd).floor() as i32 - 1;
         let hi = (mu + 8.0 * sd).ceil() as i32 + 1;
-        Pmf::from_weights(
-            lo,
-            (lo..=hi).map(|n| (-(n as f64 - mu).powi(2) / (2.0 * sd * sd)).exp()),
-        )
-        .unwrap()
+        Pmf::from_weights(lo, (lo..=hi).map(|n| (-(n as f64 - mu).powi(2) / (2.0 * sd * sd)).exp())).unwrap()
     }
 
     #[test]
@@ -162,19 +139,11 @@ mod tests {
         let src = Pmf::from_weights(0, (0..60).map(|n| (-(n as f64) / 6.0).exp())).unwrap();
         let skew = |p: &Pmf| {
             let (m, v) = p.moments();
-            p.p.iter()
-                .enumerate()
-                .map(|(i, &q)| q * ((p.first + i as i32) as f64 - m).powi(3))
-                .sum::<f64>()
+            p.p.iter().enumerate().map(|(i, &q)| q * ((p.first + i as i32) as f64 - m).powi(3)).sum::<f64>()
                 / v.powf(1.5)
         };
         let r = src.rescaled(0.0, 4.0 * src.moments().1);
-        assert!(
-            (skew(&r) - skew(&src)).abs() < 0.15,
-            "{} vs {}",
-            skew(&r),
-            skew(&src)
-        );
+        assert!((skew(&r) - skew(&src)).abs() < 0.15, "{} vs {}", skew(&r), skew(&src));
         assert!(skew(&r) > 1.5);
     }
 

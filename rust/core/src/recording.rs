@@ -62,17 +62,10 @@ impl RecordedFrame {
 
 #[derive(Debug, Clone, PartialEq)]
 pub enum Record {
-    BeginStep {
-        exposure_ns: u64,
-    },
+    BeginStep { exposure_ns: u64 },
     Frame(RecordedFrame),
-    NoiseProfile {
-        iso: u32,
-        profile: [[f64; 2]; POSITIONS],
-    },
-    End {
-        frames: u64,
-    },
+    NoiseProfile { iso: u32, profile: [[f64; 2]; POSITIONS] },
+    End { frames: u64 },
 }
 
 fn cfa_code(c: CfaPattern) -> u8 {
@@ -197,10 +190,7 @@ struct Cursor<'a> {
 impl<'a> Cursor<'a> {
     fn take(&mut self, n: usize) -> Result<&'a [u8], CodecError> {
         if self.at + n > self.b.len() {
-            return Err(CodecError::Invalid {
-                what: WHAT,
-                detail: "header is shorter than its fields".into(),
-            });
+            return Err(CodecError::Invalid { what: WHAT, detail: "header is shorter than its fields".into() });
         }
         let s = &self.b[self.at..self.at + n];
         self.at += n;
@@ -221,14 +211,10 @@ impl<'a> Cursor<'a> {
 
 fn read_exact_or<R: Read>(r: &mut R, buf: &mut [u8], context: &str) -> Result<(), CodecError> {
     r.read_exact(buf).map_err(|e| match e.kind() {
-        io::ErrorKind::UnexpectedEof => CodecError::Invalid {
-            what: WHAT,
-            detail: format!("cut short inside {context}"),
-        },
-        _ => CodecError::Decode {
-            what: WHAT,
-            detail: e.to_string(),
-        },
+        io::ErrorKind::UnexpectedEof => {
+            CodecError::Invalid { what: WHAT, detail: format!("cut short inside {context}") }
+        }
+        _ => CodecError::Decode { what: WHAT, detail: e.to_string() },
     })
 }
 
@@ -242,47 +228,26 @@ impl<R: Read> RecordingReader<R> {
                 Ok(n) => got += n,
                 Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
                 Err(e) => {
-                    return Err(CodecError::Decode {
-                        what: WHAT,
-                        detail: e.to_string(),
-                    });
+                    return Err(CodecError::Decode { what: WHAT, detail: e.to_string() });
                 }
             }
         }
         if got < 8 || &fixed[..8] != RECORDING_MAGIC {
-            return Err(CodecError::BadMagic {
-                what: WHAT,
-                expected: "NCALREC",
-            });
+            return Err(CodecError::BadMagic { what: WHAT, expected: "NCALREC" });
         }
         if got < fixed.len() {
-            return Err(CodecError::Truncated {
-                what: WHAT,
-                len: got,
-                expected: fixed.len(),
-            });
+            return Err(CodecError::Truncated { what: WHAT, len: got, expected: fixed.len() });
         }
         let version = u16::from_le_bytes([fixed[8], fixed[9]]);
         if version > RECORDING_VERSION {
-            return Err(CodecError::NewerVersion {
-                what: WHAT,
-                found: version,
-                supported: RECORDING_VERSION,
-            });
+            return Err(CodecError::NewerVersion { what: WHAT, found: version, supported: RECORDING_VERSION });
         }
         if version < RECORDING_VERSION {
-            return Err(CodecError::OlderVersion {
-                what: WHAT,
-                found: version,
-                supported: RECORDING_VERSION,
-            });
+            return Err(CodecError::OlderVersion { what: WHAT, found: version, supported: RECORDING_VERSION });
         }
         let len = u32::from_le_bytes([fixed[10], fixed[11], fixed[12], fixed[13]]) as usize;
         if len > 1 << 20 {
-            return Err(CodecError::Invalid {
-                what: WHAT,
-                detail: format!("header length {len} is implausible"),
-            });
+            return Err(CodecError::Invalid { what: WHAT, detail: format!("header length {len} is implausible") });
         }
         let mut h = vec![0u8; len + 4];
         read_exact_or(&mut input, &mut h, "the header")?;
@@ -290,11 +255,7 @@ impl<R: Read> RecordingReader<R> {
         let h = &h[..len];
         let found = crc32fast::hash(h);
         if found != crc {
-            return Err(CodecError::Checksum {
-                what: WHAT,
-                found,
-                expected: crc,
-            });
+            return Err(CodecError::Checksum { what: WHAT, found, expected: crc });
         }
         let mut c = Cursor { b: h, at: 0 };
         let width = c.u32()?;
@@ -305,10 +266,7 @@ impl<R: Read> RecordingReader<R> {
             2 => CfaPattern::Grbg,
             3 => CfaPattern::Gbrg,
             other => {
-                return Err(CodecError::Invalid {
-                    what: WHAT,
-                    detail: format!("unknown CFA code {other}"),
-                });
+                return Err(CodecError::Invalid { what: WHAT, detail: format!("unknown CFA code {other}") });
             }
         };
         let white = c.u16()?;
@@ -317,33 +275,16 @@ impl<R: Read> RecordingReader<R> {
         let bin_width = c.u16()?;
         let mut text = || -> Result<String, CodecError> {
             let n = c.u16()? as usize;
-            String::from_utf8(c.take(n)?.to_vec()).map_err(|_| CodecError::Invalid {
-                what: WHAT,
-                detail: "make/model is not UTF-8".into(),
-            })
+            String::from_utf8(c.take(n)?.to_vec())
+                .map_err(|_| CodecError::Invalid { what: WHAT, detail: "make/model is not UTF-8".into() })
         };
         let make = text()?;
         let model = text()?;
-        let layout = SensorLayout {
-            width,
-            height,
-            cfa,
-            black,
-            white,
-        };
-        layout.validate().map_err(|e| CodecError::Invalid {
-            what: WHAT,
-            detail: e.to_string(),
-        })?;
+        let layout = SensorLayout { width, height, cfa, black, white };
+        layout.validate().map_err(|e| CodecError::Invalid { what: WHAT, detail: e.to_string() })?;
         Ok(Self {
             input,
-            header: RecordingHeader {
-                layout,
-                reference_iso,
-                bin_width,
-                make,
-                model,
-            },
+            header: RecordingHeader { layout, reference_iso, bin_width, make, model },
             records: 0,
             ended: false,
         })
@@ -370,10 +311,7 @@ impl<R: Read> RecordingReader<R> {
                 Ok(_) => break,
                 Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
                 Err(e) => {
-                    return Err(CodecError::Decode {
-                        what: WHAT,
-                        detail: e.to_string(),
-                    });
+                    return Err(CodecError::Decode { what: WHAT, detail: e.to_string() });
                 }
             }
         }
@@ -381,10 +319,7 @@ impl<R: Read> RecordingReader<R> {
         let ctx = format!("record {index}");
         let mut hasher = crc32fast::Hasher::new();
         hasher.update(&tag);
-        let payload = |n: usize,
-                       hasher: &mut crc32fast::Hasher,
-                       input: &mut R|
-         -> Result<Vec<u8>, CodecError> {
+        let payload = |n: usize, hasher: &mut crc32fast::Hasher, input: &mut R| -> Result<Vec<u8>, CodecError> {
             let mut b = vec![0u8; n];
             read_exact_or(input, &mut b, &ctx)?;
             hasher.update(&b);
@@ -393,9 +328,7 @@ impl<R: Read> RecordingReader<R> {
         let record = match tag[0] {
             1 => {
                 let p = payload(8, &mut hasher, &mut self.input)?;
-                Record::BeginStep {
-                    exposure_ns: u64::from_le_bytes(p[..8].try_into().unwrap_or([0; 8])),
-                }
+                Record::BeginStep { exposure_ns: u64::from_le_bytes(p[..8].try_into().unwrap_or([0; 8])) }
             }
             2 => {
                 let p = payload(4 + 8 + 1 + 16 + 20, &mut hasher, &mut self.input)?;
@@ -403,8 +336,7 @@ impl<R: Read> RecordingReader<R> {
                 let iso = u32_at(0);
                 let exposure_ns = u64::from_le_bytes(p[4..12].try_into().unwrap_or([0; 8]));
                 let has_black = p[12] != 0;
-                let black: [f32; POSITIONS] =
-                    std::array::from_fn(|i| f32::from_bits(u32_at(13 + 4 * i)));
+                let black: [f32; POSITIONS] = std::array::from_fn(|i| f32::from_bits(u32_at(13 + 4 * i)));
                 let (width, height, row_stride, pixel_stride, data_len) =
                     (u32_at(29), u32_at(33), u32_at(37), u32_at(41), u32_at(45));
                 if data_len as u64 > 1 << 31 {
@@ -415,11 +347,7 @@ impl<R: Read> RecordingReader<R> {
                 }
                 let data = payload(data_len as usize, &mut hasher, &mut self.input)?;
                 Record::Frame(RecordedFrame {
-                    meta: FrameMeta {
-                        iso,
-                        exposure_ns,
-                        black: has_black.then_some(black),
-                    },
+                    meta: FrameMeta { iso, exposure_ns, black: has_black.then_some(black) },
                     width,
                     height,
                     row_stride,
@@ -431,17 +359,12 @@ impl<R: Read> RecordingReader<R> {
                 let p = payload(4 + 64, &mut hasher, &mut self.input)?;
                 let iso = u32::from_le_bytes([p[0], p[1], p[2], p[3]]);
                 let f = |o: usize| f64::from_le_bytes(p[o..o + 8].try_into().unwrap_or([0; 8]));
-                Record::NoiseProfile {
-                    iso,
-                    profile: std::array::from_fn(|i| [f(4 + 16 * i), f(12 + 16 * i)]),
-                }
+                Record::NoiseProfile { iso, profile: std::array::from_fn(|i| [f(4 + 16 * i), f(12 + 16 * i)]) }
             }
             255 => {
                 let p = payload(8, &mut hasher, &mut self.input)?;
                 self.ended = true;
-                Record::End {
-                    frames: u64::from_le_bytes(p[..8].try_into().unwrap_or([0; 8])),
-                }
+                Record::End { frames: u64::from_le_bytes(p[..8].try_into().unwrap_or([0; 8])) }
             }
             other => {
                 return Err(CodecError::Invalid {
@@ -455,11 +378,7 @@ impl<R: Read> RecordingReader<R> {
         let expected = u32::from_le_bytes(crc);
         let found = hasher.finalize();
         if found != expected {
-            return Err(CodecError::Checksum {
-                what: WHAT,
-                found,
-                expected,
-            });
+            return Err(CodecError::Checksum { what: WHAT, found, expected });
         }
         self.records += 1;
         Ok(Some(record))
@@ -502,9 +421,15 @@ pub fn replay<R: Read>(
             Record::BeginStep { exposure_ns } => session.begin_step(exposure_ns)?,
             Record::Frame(f) => {
                 report.frames += 1;
-                let pushed = f.view().map_err(crate::error::SessionError::from).and_then(|v| session.push_frame(&v, &f.meta));
+                let pushed =
+                    f.view().map_err(crate::error::SessionError::from).and_then(|v| session.push_frame(&v, &f.meta));
                 if let Err(e) = pushed {
-                    report.rejected.push(format!("frame {} (ISO {}, {} ns): {e}", report.frames - 1, f.meta.iso, f.meta.exposure_ns));
+                    report.rejected.push(format!(
+                        "frame {} (ISO {}, {} ns): {e}",
+                        report.frames - 1,
+                        f.meta.iso,
+                        f.meta.exposure_ns
+                    ));
                 }
                 on_frame(report.frames);
             }
@@ -541,33 +466,19 @@ mod tests {
         let mut w = RecordingWriter::new(Vec::new(), &header()).unwrap();
         w.begin_step(1_000_000).unwrap();
         let data: Vec<u8> = (0..20u8).collect();
-        let meta = FrameMeta {
-            iso: 50,
-            exposure_ns: 1_000_000,
-            black: Some([64.0, 64.0, 64.0, 65.0]),
-        };
+        let meta = FrameMeta { iso: 50, exposure_ns: 1_000_000, black: Some([64.0, 64.0, 64.0, 65.0]) };
         w.frame(&meta, 4, 2, 12, 2, &data).unwrap();
         w.noise_profile(50, &[[1e-5, 2e-7]; 4]).unwrap();
         let bytes = w.finish().unwrap();
 
         let mut r = RecordingReader::new(&bytes[..]).unwrap();
         assert_eq!(r.header(), &header());
-        assert_eq!(
-            r.next_record().unwrap(),
-            Some(Record::BeginStep {
-                exposure_ns: 1_000_000
-            })
-        );
-        let Some(Record::Frame(f)) = r.next_record().unwrap() else {
-            panic!("frame expected")
-        };
+        assert_eq!(r.next_record().unwrap(), Some(Record::BeginStep { exposure_ns: 1_000_000 }));
+        let Some(Record::Frame(f)) = r.next_record().unwrap() else { panic!("frame expected") };
         assert_eq!(f.meta, meta);
         assert_eq!(f.data, data);
         assert_eq!(f.view().unwrap().row(1)[0], u16::from_le_bytes([12, 13]));
-        assert!(matches!(
-            r.next_record().unwrap(),
-            Some(Record::NoiseProfile { iso: 50, .. })
-        ));
+        assert!(matches!(r.next_record().unwrap(), Some(Record::NoiseProfile { iso: 50, .. })));
         assert_eq!(r.next_record().unwrap(), Some(Record::End { frames: 1 }));
         assert!(r.ended());
         assert_eq!(r.next_record().unwrap(), None);
@@ -591,9 +502,6 @@ mod tests {
             }
         }
         assert!(matches!(err, Some(CodecError::Checksum { .. })), "{err:?}");
-        assert!(matches!(
-            RecordingReader::new(&b"NCALPACK...."[..]),
-            Err(CodecError::BadMagic { .. })
-        ));
+        assert!(matches!(RecordingReader::new(&b"NCALPACK...."[..]), Err(CodecError::BadMagic { .. })));
     }
 }

@@ -144,8 +144,8 @@ impl Renoiser {
         }
         let binning = pack.binning();
         for m in [source, target] {
-            let ok = m.positions.len() == POSITIONS
-                && (0..POSITIONS).all(|p| m.positions[p].bins.len() == binning.bins(p));
+            let ok =
+                m.positions.len() == POSITIONS && (0..POSITIONS).all(|p| m.positions[p].bins.len() == binning.bins(p));
             if !ok {
                 return Err(BridgeError::Mismatch {
                     from_iso: source.iso,

@@ -28,11 +28,7 @@ impl BinTable {
         let mut acc: u128 = 0;
         for &c in w {
             acc += c as u128;
-            let v = if total == 0 {
-                ONE as u128
-            } else {
-                acc * ONE as u128 / total
-            };
+            let v = (acc * ONE as u128).checked_div(total).unwrap_or(ONE as u128);
             cdf.push(v as u64);
         }
         if cdf.is_empty() {
@@ -52,12 +48,7 @@ impl BinTable {
             }
             guide.push(i as u32);
         }
-        Self {
-            first,
-            cdf,
-            guide,
-            shift: 32 - bits,
-        }
+        Self { first, cdf, guide, shift: 32 - bits }
     }
 
     /// Maps a uniform 32-bit draw to a noise value.
@@ -106,15 +97,8 @@ impl IsoSampler {
     pub fn new(pack: &ModelPack, model: &IsoModel) -> Self {
         let binning = pack.binning();
         let luts = std::array::from_fn(|p| binning.lut(p));
-        let tables =
-            std::array::from_fn(|p| model.positions[p].bins.iter().map(BinTable::new).collect());
-        Self {
-            iso: model.iso,
-            white: pack.layout.white,
-            binning,
-            luts,
-            tables,
-        }
+        let tables = std::array::from_fn(|p| model.positions[p].bins.iter().map(BinTable::new).collect());
+        Self { iso: model.iso, white: pack.layout.white, binning, luts, tables }
     }
 
     /// The table for a clean level at a position.
@@ -162,28 +146,13 @@ mod tests {
             if e > 0.0 {
                 chi2 += (c as f64 - e).powi(2) / e;
             } else {
-                assert_eq!(
-                    c,
-                    0,
-                    "value {} has zero probability but was drawn",
-                    i as i32 - 4
-                );
+                assert_eq!(c, 0, "value {} has zero probability but was drawn", i as i32 - 4);
             }
         }
         assert!(chi2 < 35.6, "chi2 {chi2}");
         // An off-by-one table would shift the mean by 1: check the mean tightly.
-        let mean: f64 = counts
-            .iter()
-            .enumerate()
-            .map(|(i, &c)| (i as f64 - 4.0) * c as f64)
-            .sum::<f64>()
-            / n as f64;
-        let want: f64 = w
-            .iter()
-            .enumerate()
-            .map(|(i, &c)| (i as f64 - 4.0) * c as f64)
-            .sum::<f64>()
-            / total as f64;
+        let mean: f64 = counts.iter().enumerate().map(|(i, &c)| (i as f64 - 4.0) * c as f64).sum::<f64>() / n as f64;
+        let want: f64 = w.iter().enumerate().map(|(i, &c)| (i as f64 - 4.0) * c as f64).sum::<f64>() / total as f64;
         assert!((mean - want).abs() < 0.01, "{mean} vs {want}");
         assert!((t.prob(0) - 2000.0 / total as f64).abs() < 1e-9);
     }

@@ -14,9 +14,7 @@ use crate::codec;
 use crate::drift::{DriftTracker, DriftVerdict, FrameBrightness, brightness_from_bands};
 use crate::error::{CodecError, SessionError};
 use crate::fill::fill_position;
-use crate::flat::{
-    CleanInputs, FlatReport, GROUPS, Groups, NOT_FLAT, Roi, TemporalStats, clean_and_mask,
-};
+use crate::flat::{CleanInputs, FlatReport, GROUPS, Groups, NOT_FLAT, Roi, TemporalStats, clean_and_mask};
 use crate::frame::FrameView;
 use crate::histogram::NoiseHistogram;
 use crate::layout::{Binning, POSITIONS, SensorLayout};
@@ -86,9 +84,7 @@ struct IsoAccumulator {
 impl IsoAccumulator {
     fn new(binning: &Binning) -> Self {
         Self {
-            hists: (0..POSITIONS)
-                .map(|p| vec![NoiseHistogram::default(); binning.bins(p)])
-                .collect(),
+            hists: (0..POSITIONS).map(|p| vec![NoiseHistogram::default(); binning.bins(p)]).collect(),
             frames: 0,
             samples: 0,
             drift_frames: 0,
@@ -208,13 +204,9 @@ impl CalibrationSession {
     pub fn new(layout: SensorLayout, config: SessionConfig) -> Result<Self, SessionError> {
         layout.validate()?;
         if config.reference_iso == 0 {
-            return Err(SessionError::Metadata(
-                "reference ISO is 0; pass the sensor's minimum sensitivity".into(),
-            ));
+            return Err(SessionError::Metadata("reference ISO is 0; pass the sensor's minimum sensitivity".into()));
         }
-        let bin_width = config
-            .bin_width
-            .unwrap_or_else(|| layout.default_bin_width());
+        let bin_width = config.bin_width.unwrap_or_else(|| layout.default_bin_width());
         let binning = Binning::new(&layout, bin_width);
         Ok(Self {
             layout,
@@ -277,11 +269,7 @@ impl CalibrationSession {
     }
 
     /// Folds one frame in. On error the session is unchanged (apart from the rejected count).
-    pub fn push_frame(
-        &mut self,
-        frame: &FrameView<'_>,
-        meta: &FrameMeta,
-    ) -> Result<FrameReport, SessionError> {
+    pub fn push_frame(&mut self, frame: &FrameView<'_>, meta: &FrameMeta) -> Result<FrameReport, SessionError> {
         match self.push_inner(frame, meta) {
             Ok(r) => {
                 self.accepted += 1;
@@ -294,19 +282,12 @@ impl CalibrationSession {
         }
     }
 
-    fn push_inner(
-        &mut self,
-        frame: &FrameView<'_>,
-        meta: &FrameMeta,
-    ) -> Result<FrameReport, SessionError> {
+    fn push_inner(&mut self, frame: &FrameView<'_>, meta: &FrameMeta) -> Result<FrameReport, SessionError> {
         frame.expect_size(self.layout.width as usize, self.layout.height as usize)?;
         meta.validate(&self.layout)?;
         let reference = self.config.reference_iso;
         if meta.iso < reference {
-            return Err(SessionError::BelowReference {
-                iso: meta.iso,
-                reference,
-            });
+            return Err(SessionError::BelowReference { iso: meta.iso, reference });
         }
         let step = self.step.as_ref().ok_or(SessionError::NoStep)?;
         let ref_exposure = step.reference_exposure_ns;
@@ -348,80 +329,40 @@ impl CalibrationSession {
         }
     }
 
-    fn push_reference(
-        &mut self,
-        frame: &FrameView<'_>,
-        meta: &FrameMeta,
-    ) -> Result<FrameReport, SessionError> {
+    fn push_reference(&mut self, frame: &FrameView<'_>, meta: &FrameMeta) -> Result<FrameReport, SessionError> {
         let (w, h) = (self.layout.width as usize, self.layout.height as usize);
         let white = self.layout.white;
-        let groups = Groups {
-            black: self.layout.black,
-            white,
-        };
+        let groups = Groups { black: self.layout.black, white };
         let clip = clip_level(&self.layout);
-        let cfg_drift = (
-            self.config.drift_z,
-            self.config.drift_floor,
-            self.config.normalise_drift,
-        );
+        let cfg_drift = (self.config.drift_z, self.config.drift_floor, self.config.normalise_drift);
         let ident = self.transform(meta, 1.0);
-        let Some(Step {
-            phase: Phase::Reference(burst),
-            ..
-        }) = self.step.as_mut()
-        else {
+        let Some(Step { phase: Phase::Reference(burst), .. }) = self.step.as_mut() else {
             return Err(SessionError::NoStep);
         };
         if burst.frames >= 60_000 {
-            return Err(SessionError::Metadata(
-                "reference burst exceeds 60000 frames".into(),
-            ));
+            return Err(SessionError::Metadata("reference burst exceeds 60000 frames".into()));
         }
         // Brightness against the burst's first frame.
-        let mut verdict = DriftVerdict {
-            departure: 0.0,
-            drifted: false,
-            scale: 1.0,
-        };
+        let mut verdict = DriftVerdict { departure: 0.0, drifted: false, scale: 1.0 };
         if burst.frames > 0 {
             let (f, b) = band_sums(frame, &burst.first, &ident, clip, w, h);
             if let Some(fb) = brightness_from_bands(&f, &b) {
                 verdict = burst.drift.assess(fb, cfg_drift.0, cfg_drift.1);
             }
         } else {
-            burst.drift.assess(
-                FrameBrightness {
-                    ratio: 1.0,
-                    sigma: 0.0,
-                },
-                cfg_drift.0,
-                cfg_drift.1,
-            );
+            burst.drift.assess(FrameBrightness { ratio: 1.0, sigma: 0.0 }, cfg_drift.0, cfg_drift.1);
         }
-        let scale = if verdict.drifted && cfg_drift.2 {
-            verdict.scale
-        } else {
-            1.0
-        };
-        let tf = Transform {
-            scale: scale as f32,
-            ..ident
-        };
+        let scale = if verdict.drifted && cfg_drift.2 { verdict.scale } else { 1.0 };
+        let tf = Transform { scale: scale as f32, ..ident };
         let first_frame = burst.frames == 0;
         let stats_rows = if h > 512 { 4 } else { 1 };
-        let ReferenceBurst {
-            sum,
-            first,
-            temporal,
-            ..
-        } = burst;
-        let mut rows: [Vec<(usize, &mut [u32], &mut [u16])>; 2] = [Vec::new(), Vec::new()];
+        let ReferenceBurst { sum, first, temporal, .. } = burst;
+        let mut rows: [Vec<RowPair<'_>>; 2] = [Vec::new(), Vec::new()];
         for (y, (s, f)) in sum.chunks_mut(w).zip(first.chunks_mut(w)).enumerate() {
             rows[y & 1].push((y, s, f));
         }
         let [even_rows, odd_rows] = rows;
-        let work = |rows: Vec<(usize, &mut [u32], &mut [u16])>| {
+        let work = |rows: Vec<RowPair<'_>>| {
             let mut acc = vec![[0.0f64; 3]; POSITIONS * GROUPS];
             let mut row_buf = vec![0u16; w];
             for (y, sum_row, first_row) in rows {
@@ -518,62 +459,31 @@ impl CalibrationSession {
             100.0 * flat.total_flat() as f64 / considered.max(1) as f64
         ));
         if let Some(step) = self.step.as_mut() {
-            step.phase = Phase::Targets(TargetPhase {
-                clean,
-                reference_frames: frames,
-                flat,
-                drift: BTreeMap::new(),
-            });
+            step.phase = Phase::Targets(TargetPhase { clean, reference_frames: frames, flat, drift: BTreeMap::new() });
         }
         Ok(())
     }
 
-    fn push_target(
-        &mut self,
-        frame: &FrameView<'_>,
-        meta: &FrameMeta,
-    ) -> Result<FrameReport, SessionError> {
+    fn push_target(&mut self, frame: &FrameView<'_>, meta: &FrameMeta) -> Result<FrameReport, SessionError> {
         let (w, h) = (self.layout.width as usize, self.layout.height as usize);
         let white = self.layout.white;
         let clip = clip_level(&self.layout);
         let ident = self.transform(meta, 1.0);
-        let (z, floor, normalise) = (
-            self.config.drift_z,
-            self.config.drift_floor,
-            self.config.normalise_drift,
-        );
+        let (z, floor, normalise) = (self.config.drift_z, self.config.drift_floor, self.config.normalise_drift);
         let binning = self.binning.clone();
-        let Some(Step {
-            phase: Phase::Targets(tp),
-            ..
-        }) = self.step.as_mut()
-        else {
+        let Some(Step { phase: Phase::Targets(tp), .. }) = self.step.as_mut() else {
             return Err(SessionError::NoStep);
         };
         let (fsum, bsum) = band_sums(frame, &tp.clean, &ident, clip, w, h);
         let fb = brightness_from_bands(&fsum, &bsum);
         let verdict = match fb {
             Some(fb) => tp.drift.entry(meta.iso).or_default().assess(fb, z, floor),
-            None => DriftVerdict {
-                departure: 0.0,
-                drifted: false,
-                scale: 1.0,
-            },
+            None => DriftVerdict { departure: 0.0, drifted: false, scale: 1.0 },
         };
-        let scale = if verdict.drifted && normalise {
-            verdict.scale
-        } else {
-            1.0
-        };
-        let tf = Transform {
-            scale: scale as f32,
-            ..ident
-        };
+        let scale = if verdict.drifted && normalise { verdict.scale } else { 1.0 };
+        let tf = Transform { scale: scale as f32, ..ident };
         let luts: [Vec<u16>; POSITIONS] = std::array::from_fn(|p| binning.lut(p));
-        let acc = self
-            .isos
-            .entry(meta.iso)
-            .or_insert_with(|| IsoAccumulator::new(&binning));
+        let acc = self.isos.entry(meta.iso).or_insert_with(|| IsoAccumulator::new(&binning));
         let clean = &tp.clean;
         let (even, odd) = acc.hists.split_at_mut(2);
         let (s0, s1) = rayon::join(
@@ -649,10 +559,7 @@ impl CalibrationSession {
                 let mut total = 0;
                 for hs in &acc.hists {
                     total += hs.len();
-                    under += hs
-                        .iter()
-                        .filter(|h| h.total() < self.config.min_samples)
-                        .count();
+                    under += hs.iter().filter(|h| h.total() < self.config.min_samples).count();
                 }
                 IsoProgress {
                     iso,
@@ -680,30 +587,16 @@ impl CalibrationSession {
 
     /// Resumes a session from [`checkpoint`](Self::checkpoint) bytes.
     pub fn restore(bytes: &[u8]) -> Result<Self, CodecError> {
-        let s: Self = codec::decode(
-            "checkpoint",
-            CHECKPOINT_MAGIC,
-            "NCALCKPT",
-            CHECKPOINT_VERSION,
-            bytes,
-        )?;
+        let s: Self = codec::decode("checkpoint", CHECKPOINT_MAGIC, "NCALCKPT", CHECKPOINT_VERSION, bytes)?;
         if s.layout.validate().is_err() || s.isos.values().any(|a| a.hists.len() != POSITIONS) {
-            return Err(CodecError::Invalid {
-                what: "checkpoint",
-                detail: "inconsistent session state".into(),
-            });
+            return Err(CodecError::Invalid { what: "checkpoint", detail: "inconsistent session state".into() });
         }
         Ok(s)
     }
 
     /// Builds the model pack from everything folded in so far.
     pub fn finish(&self) -> Result<ModelPack, SessionError> {
-        let mut warnings: Vec<String> = self
-            .events
-            .iter()
-            .filter(|e| e.contains("brightness"))
-            .cloned()
-            .collect();
+        let mut warnings: Vec<String> = self.events.iter().filter(|e| e.contains("brightness")).cloned().collect();
         let mut isos = Vec::new();
         for (&iso, acc) in &self.isos {
             let mut positions = Vec::with_capacity(POSITIONS);
@@ -727,11 +620,7 @@ impl CalibrationSession {
                 continue;
             }
             let gain_ratio: [f64; POSITIONS] = std::array::from_fn(|p| {
-                if acc.reference_sum[p] > 0.0 {
-                    acc.target_sum[p] / acc.reference_sum[p]
-                } else {
-                    1.0
-                }
+                if acc.reference_sum[p] > 0.0 { acc.target_sum[p] / acc.reference_sum[p] } else { 1.0 }
             });
             for (p, g) in gain_ratio.iter().enumerate() {
                 if (g - 1.0).abs() > 0.02 {
@@ -777,6 +666,9 @@ impl CalibrationSession {
     }
 }
 
+/// One row of the reference sums and first frame, with its index.
+type RowPair<'a> = (usize, &'a mut [u32], &'a mut [u16]);
+
 /// Levels above this (90 % of the range) are left out of brightness ratios: clipping bends them.
 fn clip_level(l: &SensorLayout) -> f32 {
     let b = l.black.iter().cloned().fold(f32::INFINITY, f32::min);
@@ -797,11 +689,7 @@ fn band_sums(
     let rows_per_band = h.div_ceil(BANDS).max(1);
     let step = if h > 512 { 4 } else { 1 };
     let mut buf = vec![0u16; w];
-    for y in (0..h)
-        .step_by(2 * step)
-        .flat_map(|y| [y, y + 1])
-        .filter(|&y| y < h)
-    {
+    for y in (0..h).step_by(2 * step).flat_map(|y| [y, y + 1]).filter(|&y| y < h) {
         frame.read_row(y, &mut buf);
         let band = (y / rows_per_band).min(BANDS - 1);
         let (mut f, mut b) = (0.0f64, 0.0f64);
@@ -833,11 +721,7 @@ fn position_sums(
     let mut b = [0.0f64; POSITIONS];
     let step = if h > 512 { 4 } else { 1 };
     let mut buf = vec![0u16; w];
-    for y in (0..h)
-        .step_by(2 * step)
-        .flat_map(|y| [y, y + 1])
-        .filter(|&y| y < h)
-    {
+    for y in (0..h).step_by(2 * step).flat_map(|y| [y, y + 1]).filter(|&y| y < h) {
         frame.read_row(y, &mut buf);
         for x in 0..w {
             let c = clean[y * w + x];

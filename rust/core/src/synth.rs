@@ -26,18 +26,16 @@ pub fn synthesize(sampler: &IsoSampler, clean: ArrayView2<'_, u16>, seed: u64) -
     let (h, w) = clean.dim();
     let mut out = vec![0u16; h * w];
     if w > 0 {
-        out.par_chunks_mut(BAND_ROWS * w)
-            .enumerate()
-            .for_each(|(band, chunk)| {
-                let mut rng = band_rng(seed, band);
-                for (r, row) in chunk.chunks_mut(w).enumerate() {
-                    let y = band * BAND_ROWS + r;
-                    let src = clean.row(y);
-                    for (x, (o, &c)) in row.iter_mut().zip(src.iter()).enumerate() {
-                        *o = sampler.noisy(position(y, x), c, rng.next_u32());
-                    }
+        out.par_chunks_mut(BAND_ROWS * w).enumerate().for_each(|(band, chunk)| {
+            let mut rng = band_rng(seed, band);
+            for (r, row) in chunk.chunks_mut(w).enumerate() {
+                let y = band * BAND_ROWS + r;
+                let src = clean.row(y);
+                for (x, (o, &c)) in row.iter_mut().zip(src.iter()).enumerate() {
+                    *o = sampler.noisy(position(y, x), c, rng.next_u32());
                 }
-            });
+            }
+        });
     }
     Array2::from_shape_vec((h, w), out).expect("h × w samples")
 }

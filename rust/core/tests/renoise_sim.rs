@@ -284,18 +284,21 @@ fn bridge_matches_target_moments_with_small_residual() {
             let (ma, va) = a.positions[pos].bins[bin].moments();
             let (mb, vb) = b.positions[pos].bins[bin].moments();
             let level = binning.center(pos, bin);
-            // Away from the few-electron bottom (where p_b is not exactly p_a ∗ q for any q ≥ 0),
-            // q must carry the variance difference (a naive bridge q = p_b would carry all of
-            // vb) and the mean shift.
-            if level >= 100.0 {
+            // Away from the few-electron bottom (where p_b is not exactly p_a ∗ q for any q ≥ 0)
+            // and from the clipped top (where clipped variances do not add), q must carry the
+            // variance difference (a naive bridge q = p_b would carry all of vb) and the mean
+            // shift.
+            if level >= 100.0 && level as f64 + 6.0 * vb.sqrt() < WHITE as f64 {
                 assert!((vq - (vb - va)).abs() / (vb - va) < 0.05, "bin {bin}: var {vq} vs {}", vb - va);
                 assert!((mq - (mb - ma)).abs() < 0.1, "bin {bin}: mean {mq} vs {}", mb - ma);
-                assert!(br.residual(pos, bin) < 0.01, "bin {bin}: tv {}", br.residual(pos, bin));
             }
+            // Everywhere, clipped top included (the fit clamps like the renoise does), the
+            // convolution reproduces the target closely.
+            assert!(br.residual(pos, bin) < 0.01, "bin {bin}: tv {}", br.residual(pos, bin));
         }
     }
-    // No bin of this well-behaved pair is flagged below the clipped top.
-    assert!(br.flags.iter().all(|f| binning.center(f.position, f.bin) > 850.0), "{:?}", br.warnings);
+    // No bin of this well-behaved pair is flagged.
+    assert!(br.flags.is_empty() && br.warnings.is_empty(), "{:?}", br.warnings);
 }
 
 #[test]
@@ -324,7 +327,7 @@ fn default_solver_has_the_lower_residual() {
         }
         res.push((is_default, tv, js));
     }
-    let (def, other): (Vec<_>, Vec<_>) = res.iter().partition(|r| r.0);
+    let (def, other): (Vec<&(bool, f64, f64)>, Vec<_>) = res.iter().partition(|r| r.0);
     assert!(def[0].1 <= other[0].1 && def[0].2 <= other[0].2, "default {def:?} vs other {other:?}");
 }
 
@@ -525,20 +528,4 @@ fn bad_estimates_are_refused_clearly() {
     assert!(e.to_string().contains("row 3, column 5"), "{e}");
     assert_eq!(Method::parse("BRIDGE"), Some(Method::Bridge));
     assert!("wiener".parse::<Method>().unwrap_err().contains("bridge, quantile, denoised or naive"));
-}
-
-#[test]
-fn zz_debug_dump() {
-    let p = fixture();
-    let binning = p.binning();
-    for solver in [Deconvolution::RichardsonLucy, Deconvolution::ProjectedGradient] {
-        for (tol, maxit) in [(0.01, 150), (0.001, 400)] {
-            let opts = BridgeOptions { solver, tolerance: tol, max_iterations: maxit, ..BridgeOptions::default() };
-            let t = std::time::Instant::now();
-            let br = build_bridge_with(p.require_iso(1600).unwrap(), p.require_iso(3200).unwrap(), &binning, &opts).unwrap();
-            let its: usize = br.bins[0].iter().map(|b| b.iterations).sum();
-            let worst = (0..binning.bins(0)).max_by(|&x, &y| br.bins[0][x].tv.total_cmp(&br.bins[0][y].tv)).unwrap();
-            eprintln!("{solver:?} tol {tol} max {maxit}: {:.2?} mean it {} mean TV {:.5} max TV {:.5} (bin {worst}) mean JSD {:.2e}", t.elapsed(), its / 240, br.mean_residual(), br.max_residual(), br.mean_jsd());
-        }
-    }
 }

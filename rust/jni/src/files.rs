@@ -58,7 +58,8 @@ mod tests {
         write_atomically("test file", &p, b"one").expect("first write");
         write_atomically("test file", &p, b"two!").expect("second write");
         assert_eq!(std::fs::read(&p).expect("read back"), b"two!");
-        let names: Vec<_> = std::fs::read_dir(dir.path()).expect("list").map(|e| e.expect("entry").file_name()).collect();
+        let names: Vec<_> =
+            std::fs::read_dir(dir.path()).expect("list").map(|e| e.expect("entry").file_name()).collect();
         assert_eq!(names.len(), 1, "{names:?}");
         let e = write_atomically("test file", &dir.path().join("missing/x.bin"), b"z").expect_err("missing directory");
         assert!(e.to_string().contains("does not exist"), "{e}");

@@ -143,7 +143,9 @@ pub extern "system" fn Java_org_noisecal_jni_NoisecalSession_nativeCreate<'local
                 bin_width,
             })?;
             let handle = registry::insert(session);
-            log::info!("session {handle} created: {width}×{height} {cfa}, reference ISO {reference_iso}, {make} {model}");
+            log::info!(
+                "session {handle} created: {width}×{height} {cfa}, reference ISO {reference_iso}, {make} {model}"
+            );
             Ok(handle)
         })
         .resolve::<ThrowNoisecal>()
@@ -221,15 +223,8 @@ pub extern "system" fn Java_org_noisecal_jni_NoisecalSession_nativePushFrame<'lo
             // (JNI contract). The local reference `buffer` keeps the buffer, and so its memory,
             // alive until this native method returns, which outlives `plane`. We only read.
             let plane: &[u8] = unsafe { std::slice::from_raw_parts(addr.cast_const(), capacity) };
-            let params = PlaneParams {
-                width,
-                height,
-                row_stride,
-                pixel_stride,
-                iso,
-                exposure_ns,
-                black: black.as_deref(),
-            };
+            let params =
+                PlaneParams { width, height, row_stride, pixel_stride, iso, exposure_ns, black: black.as_deref() };
             let report = registry::with(handle, |s| s.push_plane(plane, &params))?;
             Ok(if report.drift_normalised { VERDICT_DRIFT_NORMALISED } else { 0 })
         })

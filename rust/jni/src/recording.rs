@@ -89,7 +89,11 @@ impl RecordingTee {
     fn open(path: &Path, file: File, header: &RecordingHeader, skip: usize, bytes: u64, frames: u64) -> Result<Self> {
         let io_err = |e| BoundaryError::io("cannot write the recording", path, e);
         let written = Arc::new(AtomicU64::new(bytes));
-        let sink = Sink { out: BufWriter::with_capacity(1 << 20, file.try_clone().map_err(io_err)?), skip, written: written.clone() };
+        let sink = Sink {
+            out: BufWriter::with_capacity(1 << 20, file.try_clone().map_err(io_err)?),
+            skip,
+            written: written.clone(),
+        };
         let writer = RecordingWriter::new(sink, header).map_err(io_err)?;
         Ok(Self { path: path.to_path_buf(), writer, file, written, frames, frames_before: frames })
     }
@@ -130,7 +134,11 @@ impl RecordingTee {
     }
 
     fn err(&self, e: io::Error) -> BoundaryError {
-        BoundaryError::io("writing the recording failed; recording stopped (the file holds every record before this one)", &self.path, e)
+        BoundaryError::io(
+            "writing the recording failed; recording stopped (the file holds every record before this one)",
+            &self.path,
+            e,
+        )
     }
 
     pub fn begin_step(&mut self, exposure_ns: u64) -> Result<()> {
@@ -138,7 +146,15 @@ impl RecordingTee {
     }
 
     /// Records a frame exactly as handed over: `plane` from the buffer's start.
-    pub fn frame(&mut self, meta: &FrameMeta, width: u32, height: u32, row_stride: u32, pixel_stride: u32, plane: &[u8]) -> Result<()> {
+    pub fn frame(
+        &mut self,
+        meta: &FrameMeta,
+        width: u32,
+        height: u32,
+        row_stride: u32,
+        pixel_stride: u32,
+        plane: &[u8],
+    ) -> Result<()> {
         if plane.len() > u32::MAX as usize {
             return Err(BoundaryError::Recording(format!(
                 "a plane of {} bytes does not fit a recording frame record (at most 4 GiB)",

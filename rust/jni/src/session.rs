@@ -188,7 +188,13 @@ impl NativeSession {
             p.isos.len() as i64,
         ];
         for i in &p.isos {
-            a.extend([i.iso as i64, clamp(i.frames), clamp(i.samples), i.under_sampled_bins as i64, i.total_bins as i64]);
+            a.extend([
+                i.iso as i64,
+                clamp(i.frames),
+                clamp(i.samples),
+                i.under_sampled_bins as i64,
+                i.total_bins as i64,
+            ]);
         }
         a
     }
@@ -289,7 +295,8 @@ impl NativeSession {
                     a.copy_from_slice(&info[o..o + 8]);
                     u64::from_le_bytes(a)
                 };
-                let path = String::from_utf8(info[17..].to_vec()).map_err(|_| bad("recording path is not UTF-8".into()))?;
+                let path =
+                    String::from_utf8(info[17..].to_vec()).map_err(|_| bad("recording path is not UTF-8".into()))?;
                 Some(RecordingMark { path: path.into(), bytes: u64_at(1), frames: u64_at(9) })
             }
             _ => return Err(bad("its header is malformed".into())),

@@ -90,7 +90,11 @@ fn synthetic_noise_matches_heldout_captures_and_beats_hg() {
         assert!(checked >= 6, "too few well-sampled bins ({checked}) to check moments");
         let bias = mean_diff / checked as f64;
         let var_bias = var_ratio / checked as f64;
-        assert!(var_bias.abs() < 0.05, "ISO {iso}: synthetic variance off by {:+.1} % over {checked} bins", var_bias * 100.0);
+        assert!(
+            var_bias.abs() < 0.05,
+            "ISO {iso}: synthetic variance off by {:+.1} % over {checked} bins",
+            var_bias * 100.0
+        );
         assert!(bias.abs() < 0.3, "ISO {iso}: synthetic noise is biased by {bias:.3} DN over {checked} bins");
         let nc = compare(&real, &syn);
         let hg = compare(&real, &par);
@@ -112,7 +116,8 @@ fn synthetic_noise_matches_heldout_captures_and_beats_hg() {
             "noisecal should beat HG on heavy tails (conditional)"
         );
         assert!(
-            excess(nc.marginal_overall, floor.marginal_overall) < 0.6 * excess(hg.marginal_overall, floor.marginal_overall),
+            excess(nc.marginal_overall, floor.marginal_overall)
+                < 0.6 * excess(hg.marginal_overall, floor.marginal_overall),
             "noisecal should beat HG on heavy tails (marginal)"
         );
         assert!(nc.conditional_overall < 2.0 * floor.conditional_overall + 0.002, "noisecal close to the floor");

@@ -128,7 +128,8 @@ fn sparse_bins_are_pooled_not_trusted() {
     for (i, b) in bins.iter().enumerate() {
         assert_eq!(b.filled, b.samples < 400, "bin {i}");
     }
-    let measured: Vec<(usize, f64)> = bins.iter().enumerate().filter(|(_, b)| !b.filled).map(|(i, b)| (i, b.moments().1)).collect();
+    let measured: Vec<(usize, f64)> =
+        bins.iter().enumerate().filter(|(_, b)| !b.filled).map(|(i, b)| (i, b.moments().1)).collect();
     for w in measured.windows(2) {
         let ((i0, v0), (i1, v1)) = (w[0], w[1]);
         for j in i0 + 1..i1 {
@@ -158,7 +159,10 @@ fn bad_frames_are_refused_and_change_nothing() {
     let e = session.push_frame(&FrameView::from_array(&small).unwrap(), &meta).unwrap_err();
     assert!(e.to_string().contains("64×48"), "{e}");
     // Below the reference ISO.
-    assert!(matches!(session.push_frame(&view, &FrameMeta::new(25, 2_000_000)), Err(SessionError::BelowReference { .. })));
+    assert!(matches!(
+        session.push_frame(&view, &FrameMeta::new(25, 2_000_000)),
+        Err(SessionError::BelowReference { .. })
+    ));
     // A target of another EV step (exposure did not apply).
     let e = session.push_frame(&view, &FrameMeta::new(200, 1_000_000)).unwrap_err();
     assert!(matches!(e, SessionError::WrongStep { .. }), "{e}");

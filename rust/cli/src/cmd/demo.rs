@@ -158,11 +158,23 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn write_example(out: &std::path::Path, pack: &ModelPack, clean: &Array2<u16>, noisy: &Array2<u16>) -> anyhow::Result<()> {
+fn write_example(
+    out: &std::path::Path,
+    pack: &ModelPack,
+    clean: &Array2<u16>,
+    noisy: &Array2<u16>,
+) -> anyhow::Result<()> {
     let meta = noisecal_core::FrameMeta::new(pack.reference_iso, 10_000_000);
     crate::dng::write_dng_from_layout(&out.join("clean_ev0.dng"), &pack.layout, &meta, &pack.make, &pack.model, clean)?;
     let meta = noisecal_core::FrameMeta::new(1600, 10_000_000 * pack.reference_iso as u64 / 1600);
-    crate::dng::write_dng_from_layout(&out.join("synth_iso1600.dng"), &pack.layout, &meta, &pack.make, &pack.model, noisy)?;
+    crate::dng::write_dng_from_layout(
+        &out.join("synth_iso1600.dng"),
+        &pack.layout,
+        &meta,
+        &pack.make,
+        &pack.model,
+        noisy,
+    )?;
     Ok(())
 }
 

@@ -121,7 +121,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     println!("  bins       {} DN wide, filled below {} samples", s.bin_width, s.min_samples);
     println!("  reference  ISO {}", s.reference_iso);
     println!();
-    println!("  {:>6}  {:<26} {:>6} {:>5}  {:<4} {:>12} {:>7} {:>9}", "ISO", "origin", "frames", "drift", "pos", "samples", "filled", "gain");
+    println!(
+        "  {:>6}  {:<26} {:>6} {:>5}  {:<4} {:>12} {:>7} {:>9}",
+        "ISO", "origin", "frames", "drift", "pos", "samples", "filled", "gain"
+    );
     for iso in &s.isos {
         for (i, ps) in iso.positions.iter().enumerate() {
             let (a, b, c, d) = if i == 0 {

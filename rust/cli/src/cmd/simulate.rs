@@ -50,7 +50,16 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
     if let Some(a) = args.flicker {
         model.flicker = Some(noisecal_sim::Flicker { probability: 0.1, amplitude: a });
     }
-    let s = SimSession::new(model, args.preset.name(), args.width, args.height, args.seed, args.isos, args.frames, args.ev)?;
+    let s = SimSession::new(
+        model,
+        args.preset.name(),
+        args.width,
+        args.height,
+        args.seed,
+        args.isos,
+        args.frames,
+        args.ev,
+    )?;
     let pb = progress_bar(s.plan.len() as u64, quiet, "simulating");
     s.write(args.dngs.as_deref(), args.rec.as_deref(), args.padding, || pb.inc(1))?;
     pb.finish_and_clear();

@@ -63,13 +63,26 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         // Each file gets its own seed stream so a folder run equals single-file runs with seed + index.
         synth_file(&pack, &sampler, input, output, args.seed.wrapping_add(i as u64), args.iso)?;
         if !quiet {
-            eprintln!("{} → {} (ISO {}, seed {})", input.display(), output.display(), args.iso, args.seed.wrapping_add(i as u64));
+            eprintln!(
+                "{} → {} (ISO {}, seed {})",
+                input.display(),
+                output.display(),
+                args.iso,
+                args.seed.wrapping_add(i as u64)
+            );
         }
     }
     Ok(())
 }
 
-fn synth_file(pack: &noisecal_core::ModelPack, sampler: &IsoSampler, input: &Path, output: &Path, seed: u64, iso: u32) -> anyhow::Result<()> {
+fn synth_file(
+    pack: &noisecal_core::ModelPack,
+    sampler: &IsoSampler,
+    input: &Path,
+    output: &Path,
+    seed: u64,
+    iso: u32,
+) -> anyhow::Result<()> {
     let img = dng::read_dng(input)?;
     crate::models::check_layout_matches(pack, &img.layout, input)?;
     let noisy = synthesize(sampler, img.pixels.view(), seed);

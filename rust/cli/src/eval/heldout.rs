@@ -59,7 +59,12 @@ pub trait HeldOutVisitor {
 /// Streams a held-out set (DNG folder or recording) into `visitor`. `bin_width` is the pack's
 /// (it only matters for the session's bookkeeping). Returns notes (rejected frames, steps
 /// without a reference burst, …).
-pub fn stream_heldout(path: &Path, bin_width: u16, quiet: bool, visitor: &mut dyn HeldOutVisitor) -> anyhow::Result<Vec<String>> {
+pub fn stream_heldout(
+    path: &Path,
+    bin_width: u16,
+    quiet: bool,
+    visitor: &mut dyn HeldOutVisitor,
+) -> anyhow::Result<Vec<String>> {
     match input::input_kind(path)? {
         InputKind::DngFolder => stream_dngs(path, bin_width, quiet, visitor),
         InputKind::Recording => stream_recording(path, bin_width, visitor),
@@ -72,7 +77,12 @@ fn new_session(layout: &SensorLayout, reference_iso: u32, bin_width: u16) -> any
     CalibrationSession::new(layout.clone(), config).context("setting up the held-out set's clean images")
 }
 
-fn stream_dngs(dir: &Path, bin_width: u16, quiet: bool, visitor: &mut dyn HeldOutVisitor) -> anyhow::Result<Vec<String>> {
+fn stream_dngs(
+    dir: &Path,
+    bin_width: u16,
+    quiet: bool,
+    visitor: &mut dyn HeldOutVisitor,
+) -> anyhow::Result<Vec<String>> {
     let set = input::scan_dng_set(dir, None).with_context(|| format!("reading the held-out set {}", dir.display()))?;
     let mut notes = set.warnings.clone();
     let info = HeldOutInfo {
@@ -102,7 +112,10 @@ fn stream_dngs(dir: &Path, bin_width: u16, quiet: bool, visitor: &mut dyn HeldOu
             Ok(())
         })?;
         if let Err(e) = session.close_reference_burst() {
-            notes.push(format!("EV step {si}: no usable clean image ({e}); its {} target frames are skipped", step.targets.len()));
+            notes.push(format!(
+                "EV step {si}: no usable clean image ({e}); its {} target frames are skipped",
+                step.targets.len()
+            ));
             pb.inc(step.targets.len() as u64);
             continue;
         }
@@ -117,7 +130,12 @@ fn stream_dngs(dir: &Path, bin_width: u16, quiet: bool, visitor: &mut dyn HeldOu
             input::for_each_dng_in_order(&frames, |fr, img| {
                 pb.inc(1);
                 if img.pixels.dim() != (h, w) {
-                    notes.push(format!("{}: {}×{} frame in a {w}×{h} set; skipped", fr.path.display(), img.pixels.ncols(), img.pixels.nrows()));
+                    notes.push(format!(
+                        "{}: {}×{} frame in a {w}×{h} set; skipped",
+                        fr.path.display(),
+                        img.pixels.ncols(),
+                        img.pixels.nrows()
+                    ));
                 } else if (fr.meta.brightness() / expected - 1.0).abs() > STEP_TOLERANCE {
                     notes.push(format!(
                         "{}: ISO × exposure {:.4} does not match its step's {expected:.4}; skipped",
@@ -130,7 +148,15 @@ fn stream_dngs(dir: &Path, bin_width: u16, quiet: bool, visitor: &mut dyn HeldOu
                 Ok(())
             })?;
             if !got.is_empty() {
-                visitor.burst(Burst { step: si, iso, clean: &clean, width: w, height: h, frames: got, black: set.layout.black })?;
+                visitor.burst(Burst {
+                    step: si,
+                    iso,
+                    clean: &clean,
+                    width: w,
+                    height: h,
+                    frames: got,
+                    black: set.layout.black,
+                })?;
             }
         }
         visitor.end_step()?;
@@ -146,7 +172,12 @@ fn stream_recording(path: &Path, bin_width: u16, visitor: &mut dyn HeldOutVisito
     let reference_iso = header.reference_iso;
     let (w, h) = (layout.width as usize, layout.height as usize);
     let mut notes = Vec::new();
-    visitor.start(&HeldOutInfo { layout: layout.clone(), reference_iso, target_isos: Vec::new(), noise_profiles: BTreeMap::new() })?;
+    visitor.start(&HeldOutInfo {
+        layout: layout.clone(),
+        reference_iso,
+        target_isos: Vec::new(),
+        noise_profiles: BTreeMap::new(),
+    })?;
     let mut session = new_session(&layout, reference_iso, bin_width)?;
 
     struct StepState {
@@ -160,7 +191,13 @@ fn stream_recording(path: &Path, bin_width: u16, visitor: &mut dyn HeldOutVisito
     let mut steps = 0usize;
     let mut frame_no = 0u64;
 
-    fn flush(st: &mut StepState, w: usize, h: usize, black: [f32; POSITIONS], visitor: &mut dyn HeldOutVisitor) -> anyhow::Result<()> {
+    fn flush(
+        st: &mut StepState,
+        w: usize,
+        h: usize,
+        black: [f32; POSITIONS],
+        visitor: &mut dyn HeldOutVisitor,
+    ) -> anyhow::Result<()> {
         if st.burst.is_empty() {
             return Ok(());
         }
@@ -209,7 +246,10 @@ fn stream_recording(path: &Path, bin_width: u16, visitor: &mut dyn HeldOutVisito
                         Ok(()) => st.clean = session.clean_image().map(|c| c.to_vec()),
                         Err(e) => {
                             st.failed = true;
-                            notes.push(format!("EV step {}: no usable clean image ({e}); its target frames are skipped", st.index));
+                            notes.push(format!(
+                                "EV step {}: no usable clean image ({e}); its target frames are skipped",
+                                st.index
+                            ));
                         }
                     }
                 }
@@ -218,7 +258,12 @@ fn stream_recording(path: &Path, bin_width: u16, visitor: &mut dyn HeldOutVisito
                 }
                 let expected = reference_iso as f64 * st.exposure_ns as f64 * 1e-9;
                 if view.width() != w || view.height() != h {
-                    notes.push(format!("frame {}: {}×{} in a {w}×{h} recording; skipped", frame_no - 1, view.width(), view.height()));
+                    notes.push(format!(
+                        "frame {}: {}×{} in a {w}×{h} recording; skipped",
+                        frame_no - 1,
+                        view.width(),
+                        view.height()
+                    ));
                     continue;
                 }
                 if (f.meta.brightness() / expected - 1.0).abs() > STEP_TOLERANCE {
@@ -242,10 +287,16 @@ fn stream_recording(path: &Path, bin_width: u16, visitor: &mut dyn HeldOutVisito
         visitor.end_step()?;
     }
     if !reader.ended() {
-        notes.push(format!("{} has no end marker (an interrupted capture): its complete frames were used", path.display()));
+        notes.push(format!(
+            "{} has no end marker (an interrupted capture): its complete frames were used",
+            path.display()
+        ));
     }
     if steps == 0 {
-        bail!("{} holds no EV step: a held-out set needs a reference burst per step and frames per ISO", path.display());
+        bail!(
+            "{} holds no EV step: a held-out set needs a reference burst per step and frames per ISO",
+            path.display()
+        );
     }
     Ok(notes)
 }

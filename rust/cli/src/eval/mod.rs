@@ -310,22 +310,28 @@ impl<'a> Evaluator<'a> {
         NoiseSamples::new(&self.binning, self.opts.group_bins)
     }
 
-    fn renoise_acc(pack: &ModelPack, binning: &Binning, opts: &EvalOptions, a: u32, b: u32) -> anyhow::Result<RenoiseAcc> {
+    fn renoise_acc(
+        pack: &ModelPack,
+        binning: &Binning,
+        opts: &EvalOptions,
+        a: u32,
+        b: u32,
+    ) -> anyhow::Result<RenoiseAcc> {
         if b <= a {
             bail!(
                 "--renoise-from {a} --to {b}: noise on noise only adds noise, so the target ISO must be higher than the source ISO; pick --to above {a}"
             );
         }
         let model = |iso: u32, flag: &str| -> anyhow::Result<IsoModel> {
-            let (m, _) = interp::model_for(pack, iso, false)
-                .map_err(|e| anyhow::anyhow!("{flag} {iso}: {e}"))?;
+            let (m, _) = interp::model_for(pack, iso, false).map_err(|e| anyhow::anyhow!("{flag} {iso}: {e}"))?;
             Ok(m.into_owned())
         };
         let (src, dst) = (model(a, "--renoise-from")?, model(b, "--to")?);
         let mut renoisers = Vec::new();
         let mut warnings = Vec::new();
         for method in Method::ALL {
-            let r = Renoiser::new(pack, &src, &dst, method).with_context(|| format!("preparing the {method} re-noise from ISO {a} to ISO {b}"))?;
+            let r = Renoiser::new(pack, &src, &dst, method)
+                .with_context(|| format!("preparing the {method} re-noise from ISO {a} to ISO {b}"))?;
             for w in r.warnings() {
                 if !warnings.contains(w) {
                     warnings.push(w.clone());
@@ -366,7 +372,8 @@ impl<'a> Evaluator<'a> {
         let model = model.into_owned();
         let origin = if fresh && pack.iso(iso).is_none() {
             let from = interp::plan(pack, iso, false).map(|p| p.neighbours).unwrap_or_default();
-            self.notes.push(format!("ISO {iso} is not in the pack: scored with a model interpolated now from ISOs {from:?}"));
+            self.notes
+                .push(format!("ISO {iso} is not in the pack: scored with a model interpolated now from ISOs {from:?}"));
             format!("interpolated now from {from:?}")
         } else {
             origin_text(&model)
@@ -385,7 +392,10 @@ impl<'a> Evaluator<'a> {
         push("noisecal", "noisecal (non-parametric)".into(), origin.clone(), &model);
         // Baseline PMFs take a while to tabulate (PG sums Poisson terms): build them in parallel.
         let profile = self.profiles.get(&iso).copied();
-        let inner = cal.len() >= 3 && pack.iso(iso).is_some_and(|m| m.is_calibrated()) && iso > cal[0] && iso < cal[cal.len() - 1];
+        let inner = cal.len() >= 3
+            && pack.iso(iso).is_some_and(|m| m.is_calibrated())
+            && iso > cal[0]
+            && iso < cal[cal.len() - 1];
         let loo = self.opts.leave_one_out && inner;
         let without = loo.then(|| {
             let mut p = pack.clone();
@@ -405,7 +415,15 @@ impl<'a> Evaluator<'a> {
                         let kind = if job == "hg" { BaselineKind::Hg } else { BaselineKind::Pg };
                         Some(
                             baselines::baseline(pack, iso, kind, false)
-                                .map(|b| (job.to_string(), kind.label().to_string(), baseline_origin(&b.source), b.to_model(pack), None))
+                                .map(|b| {
+                                    (
+                                        job.to_string(),
+                                        kind.label().to_string(),
+                                        baseline_origin(&b.source),
+                                        b.to_model(pack),
+                                        None,
+                                    )
+                                })
                                 .map_err(|e| format!("ISO {iso}: no {job} baseline: {e}")),
                         )
                     }
@@ -417,12 +435,26 @@ impl<'a> Evaluator<'a> {
                             m.noise_profile = Some(profile?);
                             baselines::fit(pack, &m, BaselineKind::NoiseProfile).ok()
                         })
-                        .map(|b| Ok((job.to_string(), BaselineKind::NoiseProfile.label().to_string(), baseline_origin(&b.source), b.to_model(pack), None))),
+                        .map(|b| {
+                            Ok((
+                                job.to_string(),
+                                BaselineKind::NoiseProfile.label().to_string(),
+                                baseline_origin(&b.source),
+                                b.to_model(pack),
+                                None,
+                            ))
+                        }),
                     "noisecal-loo" => without.as_ref().map(|w| {
                         interp::interpolate_with(w, iso, false, &interp::InterpOptions::default())
                             .map(|(m, plan)| {
                                 let from = format!("interpolated from {:?} (ISO {iso} left out)", plan.neighbours);
-                                (job.to_string(), "noisecal interpolated (leave-one-out)".to_string(), from, m, Some(plan.neighbours))
+                                (
+                                    job.to_string(),
+                                    "noisecal interpolated (leave-one-out)".to_string(),
+                                    from,
+                                    m,
+                                    Some(plan.neighbours),
+                                )
                             })
                             .map_err(|e| format!("leave-one-out at ISO {iso}: {e}"))
                     }),
@@ -430,7 +462,13 @@ impl<'a> Evaluator<'a> {
                         baselines::interpolate(w, iso, BaselineKind::Hg, false)
                             .map(|h| {
                                 let m = h.to_model(pack);
-                                (job.to_string(), "HG interpolated parametrically (leave-one-out)".to_string(), baseline_origin(&h.source), m, None)
+                                (
+                                    job.to_string(),
+                                    "HG interpolated parametrically (leave-one-out)".to_string(),
+                                    baseline_origin(&h.source),
+                                    m,
+                                    None,
+                                )
                             })
                             .map_err(|e| format!("leave-one-out HG at ISO {iso}: {e}"))
                     }),
@@ -557,7 +595,8 @@ impl<'a> Evaluator<'a> {
                         }
                     } else {
                         for j in 0..to_frames.len() {
-                            let out = synthesize(direct, clean_view, synth_seed(s, base + (from_frames.len() + j) as u64));
+                            let out =
+                                synthesize(direct, clean_view, synth_seed(s, base + (from_frames.len() + j) as u64));
                             add_noise(&mut per_seed[s as usize], &flat, &out, [0.0; POSITIONS]);
                         }
                     }
@@ -589,7 +628,11 @@ impl<'a> Evaluator<'a> {
         for acc in self.isos.values() {
             let n_real: u64 = (0..POSITIONS).map(|p| acc.real.total(p)).sum();
             let floor = floor_score(&acc.halves, n_real);
-            let models = acc.candidates.iter().map(|c| model_score(c.name.clone(), c.label.clone(), c.origin.clone(), &acc.real, &c.synth)).collect();
+            let models = acc
+                .candidates
+                .iter()
+                .map(|c| model_score(c.name.clone(), c.label.clone(), c.origin.clone(), &acc.real, &c.synth))
+                .collect();
             isos.push(IsoEval {
                 iso: acc.iso,
                 origin: acc.origin.clone(),
@@ -603,7 +646,9 @@ impl<'a> Evaluator<'a> {
         let leave_one_out = if self.opts.leave_one_out {
             let mut rows = Vec::new();
             for ie in &isos {
-                let (Some(c), Some(i), Some(hc), Some(hi)) = (ie.model("noisecal"), ie.model("noisecal-loo"), ie.model("hg"), ie.model("hg-loo")) else {
+                let (Some(c), Some(i), Some(hc), Some(hi)) =
+                    (ie.model("noisecal"), ie.model("noisecal-loo"), ie.model("hg"), ie.model("hg-loo"))
+                else {
                     continue;
                 };
                 let pair = |m: &ModelScore| [m.conditional_overall, m.marginal_overall];
@@ -652,7 +697,9 @@ impl<'a> Evaluator<'a> {
                 for (mi, per_seed) in r.synth.iter().enumerate() {
                     let (name, label) = match r.renoisers.get(mi) {
                         Some(rn) => (rn.method().name().to_string(), renoise_label(rn.method()).to_string()),
-                        None => ("direct".to_string(), format!("noisecal at ISO {} on the clean image (reference)", r.to)),
+                        None => {
+                            ("direct".to_string(), format!("noisecal at ISO {} on the clean image (reference)", r.to))
+                        }
                     };
                     let origin = match r.renoisers.get(mi) {
                         Some(_) => format!("held-out ISO {} frames re-noised to ISO {}", r.from, r.to),
@@ -857,7 +904,13 @@ fn floor_score(halves: &[NoiseSamples; 2], n_real: u64) -> Option<FloorScore> {
 }
 
 /// Scores a pack against a held-out set (see the module docs).
-pub fn evaluate(pack: &ModelPack, pack_path: &Path, heldout: &Path, opts: &EvalOptions, quiet: bool) -> anyhow::Result<EvalReport> {
+pub fn evaluate(
+    pack: &ModelPack,
+    pack_path: &Path,
+    heldout: &Path,
+    opts: &EvalOptions,
+    quiet: bool,
+) -> anyhow::Result<EvalReport> {
     if opts.seeds == 0 {
         bail!("--seeds 0: use at least one synthetic set per model");
     }
@@ -879,12 +932,20 @@ pub fn render_text(r: &EvalReport) -> String {
     let mut s = String::new();
     let pos = &r.positions;
     let _ = writeln!(s, "pack {}  ({})", r.pack, r.camera);
-    let _ = writeln!(s, "held-out {}  ({} seed(s) per model, {} bins per level group)", r.heldout, r.seeds, r.group_bins);
-    let _ = writeln!(s, "JSD in nats (0 … ln 2 = 0.6931), lower is closer to the real noise; cond = conditional (per level group), marg = marginal.");
+    let _ =
+        writeln!(s, "held-out {}  ({} seed(s) per model, {} bins per level group)", r.heldout, r.seeds, r.group_bins);
+    let _ = writeln!(
+        s,
+        "JSD in nats (0 … ln 2 = 0.6931), lower is closer to the real noise; cond = conditional (per level group), marg = marginal."
+    );
     for ie in &r.isos {
         let total: u64 = ie.samples.iter().sum();
         let _ = writeln!(s);
-        let _ = writeln!(s, "ISO {} — pack model {}; {} frames in {} EV step(s), {} flat-pixel samples", ie.iso, ie.origin, ie.frames, ie.steps, total);
+        let _ = writeln!(
+            s,
+            "ISO {} — pack model {}; {} frames in {} EV step(s), {} flat-pixel samples",
+            ie.iso, ie.origin, ie.frames, ie.steps, total
+        );
         let _ = writeln!(
             s,
             "  {:<14} {:>8} {:>8} {:>8}   cond per position {:<32}",
@@ -918,7 +979,17 @@ pub fn render_text(r: &EvalReport) -> String {
     if let Some(rows) = &r.leave_one_out {
         let _ = writeln!(s);
         let _ = writeln!(s, "Leave-one-out (paper Fig. 4): conditional JSD / marginal JSD");
-        let _ = writeln!(s, "  {:>6}  {:<22} {:>17} {:>17} {:>17} {:>17} {:>17}", "ISO", "interpolated from", "calibrated", "interpolated", "HG calibrated", "HG interpolated", "floor (scaled)");
+        let _ = writeln!(
+            s,
+            "  {:>6}  {:<22} {:>17} {:>17} {:>17} {:>17} {:>17}",
+            "ISO",
+            "interpolated from",
+            "calibrated",
+            "interpolated",
+            "HG calibrated",
+            "HG interpolated",
+            "floor (scaled)"
+        );
         for row in rows {
             let p = |v: [f64; 2]| format!("{:.4} / {:.4}", v[0], v[1]);
             let _ = writeln!(
@@ -946,10 +1017,23 @@ pub fn render_text(r: &EvalReport) -> String {
         );
         let _ = writeln!(s, "  {:<14} {:>8} {:>8} {:>8}", "method", "cond", "marg", "KL");
         for m in &rn.methods {
-            let _ = writeln!(s, "  {:<14} {:>8.4} {:>8.4} {:>8.4}   {}", m.name, m.conditional_overall, m.marginal_overall, m.kl_overall, m.label);
+            let _ = writeln!(
+                s,
+                "  {:<14} {:>8.4} {:>8.4} {:>8.4}   {}",
+                m.name, m.conditional_overall, m.marginal_overall, m.kl_overall, m.label
+            );
         }
         if let Some(f) = &rn.floor {
-            let _ = writeln!(s, "  {:<14} {:>8.4} {:>8.4}            (halves; × {:.2} = {:.4} / {:.4} at full size)", "floor", f.conditional_overall, f.marginal_overall, f.scale, f.conditional_scaled(), f.marginal_scaled());
+            let _ = writeln!(
+                s,
+                "  {:<14} {:>8.4} {:>8.4}            (halves; × {:.2} = {:.4} / {:.4} at full size)",
+                "floor",
+                f.conditional_overall,
+                f.marginal_overall,
+                f.scale,
+                f.conditional_scaled(),
+                f.marginal_scaled()
+            );
         }
         for w in &rn.warnings {
             let _ = writeln!(s, "  warning: {w}");

@@ -55,7 +55,8 @@ fn replay(args: &[String]) -> Fallible<()> {
     let reader = RecordingReader::new(std::io::BufReader::new(file)).map_err(|e| format!("{input}: {e}"))?;
     let pack = replay_recording(reader).map_err(|e: BoundaryError| format!("{input}: {e}"))?;
     let bytes = pack.to_bytes().map_err(|e| e.to_string())?;
-    files::write_atomically("cannot write the model pack", &PathBuf::from(output), &bytes).map_err(|e| e.to_string())?;
+    files::write_atomically("cannot write the model pack", &PathBuf::from(output), &bytes)
+        .map_err(|e| e.to_string())?;
     println!("{output}: ISO {} ({} bytes)", pack.iso_summary(), bytes.len());
     Ok(())
 }
@@ -142,7 +143,10 @@ fn main() -> ExitCode {
         Some("replay") => replay(&args[1..]),
         Some("bench") => bench(&args[1..]),
         Some("frame-hash") => frame_hash(&args[1..]),
-        _ => Err("usage: noisecal-jni-tool write-recording|replay|bench|frame-hash … (see the source's doc comment)".into()),
+        _ => {
+            Err("usage: noisecal-jni-tool write-recording|replay|bench|frame-hash … (see the source's doc comment)"
+                .into())
+        }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,0 +1,115 @@
+//! Throughput on a 4032×3024 (12 MP) frame: reference accumulation, target accumulation,
+//! synthesis on 1 and 2 threads, pack load. Run with `cargo bench -p noisecal-core`.
+
+use std::hint::black_box;
+
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use ndarray::Array2;
+use noisecal_core::sampler::IsoSampler;
+use noisecal_core::synth::synthesize;
+use noisecal_core::{CalibrationSession, CfaPattern, FrameMeta, FrameView, ModelPack, SensorLayout, SessionConfig};
+
+const W: usize = 4032;
+const H: usize = 3024;
+
+fn layout() -> SensorLayout {
+    SensorLayout { width: W as u32, height: H as u32, cfa: CfaPattern::Rggb, black: [64.0; 4], white: 1023 }
+}
+
+/// A chart-like clean image: 12 × 9 flat patches over the 10-bit range.
+fn clean() -> Array2<u16> {
+    Array2::from_shape_fn((H, W), |(y, x)| {
+        let p = (y * 9 / H) * 12 + x * 12 / W;
+        64 + ((p * 37) % 108) as u16 * 8
+    })
+}
+
+/// `clean` plus cheap pseudo-random noise of about ±`amp` DN.
+fn noisy(clean: &Array2<u16>, seed: u64, amp: u32) -> Array2<u16> {
+    let mut s = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+    clean.mapv(|c| {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        let n = (s % (2 * amp as u64 + 1)) as i32 - amp as i32;
+        (c as i32 + n).clamp(0, 1023) as u16
+    })
+}
+
+fn benches(c: &mut Criterion) {
+    let clean = clean();
+    let refs: Vec<Array2<u16>> = (0..4).map(|k| noisy(&clean, k, 2)).collect();
+    let targets: Vec<Array2<u16>> = (0..4).map(|k| noisy(&clean, 100 + k, 12)).collect();
+    let exposure = 10_000_000u64;
+    let ref_meta = FrameMeta::new(50, exposure);
+    let tgt_meta = FrameMeta::new(800, exposure / 16);
+
+    let mut g = c.benchmark_group("12MP");
+    g.throughput(Throughput::Elements((W * H) as u64));
+    g.sample_size(10);
+
+    let mut session = CalibrationSession::new(layout(), SessionConfig::new(50)).expect("session");
+    session.begin_step(exposure).expect("step");
+    let mut k = 0;
+    g.bench_function("reference accumulation", |b| {
+        b.iter(|| {
+            let f = &refs[k % refs.len()];
+            k += 1;
+            session.push_frame(&FrameView::from_array(f).expect("view"), &ref_meta).expect("push")
+        })
+    });
+    // The first target closes the reference burst (clean image and flat mask).
+    session.push_frame(&FrameView::from_array(&targets[0]).expect("view"), &tgt_meta).expect("push");
+    let mut k = 0;
+    g.bench_function("target accumulation", |b| {
+        b.iter(|| {
+            let f = &targets[k % targets.len()];
+            k += 1;
+            session.push_frame(&FrameView::from_array(f).expect("view"), &tgt_meta).expect("push")
+        })
+    });
+    // Camera2-like plane: little-endian bytes with padded rows.
+    let stride = W * 2 + 64;
+    let mut plane = vec![0u8; stride * H];
+    for (y, row) in targets[1].rows().into_iter().enumerate() {
+        for (x, v) in row.iter().enumerate() {
+            plane[y * stride + 2 * x..y * stride + 2 * x + 2].copy_from_slice(&v.to_le_bytes());
+        }
+    }
+    g.bench_function("target accumulation, padded byte plane", |b| {
+        b.iter(|| {
+            let v = FrameView::from_le_bytes(&plane, W, H, stride, 2).expect("view");
+            session.push_frame(&v, &tgt_meta).expect("push")
+        })
+    });
+
+    let pack = session.finish().expect("pack");
+    let bytes = pack.to_bytes().expect("bytes");
+    let sampler = IsoSampler::new(&pack, &pack.isos[0]);
+    for threads in [1usize, 2] {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+        g.bench_function(format!("synthesis, {threads} thread(s)"), |b| {
+            b.iter(|| pool.install(|| synthesize(&sampler, black_box(clean.view()), 7)))
+        });
+    }
+    g.finish();
+
+    let mut g = c.benchmark_group("pack");
+    g.throughput(Throughput::Bytes(bytes.len() as u64));
+    g.bench_function("load + sampler tables", |b| {
+        b.iter(|| {
+            let p = ModelPack::from_bytes(black_box(&bytes)).expect("pack");
+            IsoSampler::new(&p, &p.isos[0])
+        })
+    });
+    g.finish();
+    eprintln!(
+        "pack: {} bytes for {} ISO(s); checkpoint of a 12 MP session in its target phase: {} bytes",
+        bytes.len(),
+        pack.isos.len(),
+        session.checkpoint().map(|c| c.len()).unwrap_or(0)
+    );
+}
+
+criterion_group!(core, benches);
+criterion_main!(core);
