@@ -50,6 +50,9 @@ fn benches(c: &mut Criterion) {
 
     let mut session = CalibrationSession::new(layout(), SessionConfig::new(50)).expect("session");
     session.begin_step(exposure).expect("step");
+    for f in &refs[..2] {
+        session.push_frame(&FrameView::from_array(f).expect("view"), &ref_meta).expect("push");
+    }
     let mut k = 0;
     g.bench_function("reference accumulation", |b| {
         b.iter(|| {

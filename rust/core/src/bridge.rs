@@ -555,7 +555,7 @@ fn projected_gradient(prob: &Problem, q: &mut [f64], opts: &BridgeOptions) -> us
         prob.forward(&v, &mut y);
         prob.adjoint(&mut y, &mut g);
         let norm = g.iter().map(|x| x * x).sum::<f64>().sqrt();
-        if !(norm > 0.0) {
+        if norm.is_nan() || norm <= 0.0 {
             break;
         }
         lip = lip.max(norm);
@@ -613,13 +613,14 @@ mod tests {
     fn gauss(mu: f64, sd: f64) -> Pmf {
         let lo = (mu - 9.0 * sd).floor() as i32 - 1;
         let hi = (mu + 9.0 * sd).ceil() as i32 + 1;
-        Pmf::from_weights(lo, (lo..=hi).map(|n| (-(n as f64 - mu).powi(2) / (2.0 * sd * sd)).exp())).unwrap()
+        Pmf::from_weights(lo, (lo..=hi).map(|n| (-(n as f64 - mu).powi(2) / (2.0 * sd * sd)).exp()))
+            .expect("non-empty PMF")
     }
 
     fn conv(a: &Pmf, q: &Pmf) -> Pmf {
         let mut y = vec![0.0; a.p.len() + q.p.len() - 1];
         convolve(&a.p, &q.p, &mut y);
-        Pmf::from_weights(a.first + q.first, y).unwrap()
+        Pmf::from_weights(a.first + q.first, y).expect("non-empty PMF")
     }
 
     #[test]
@@ -627,7 +628,7 @@ mod tests {
         // p_b = p_a ∗ q_true exactly, with a skewed q_true: both solvers must recover its moments
         // and reach a tiny residual.
         let pa = gauss(0.5, 3.0);
-        let q_true = Pmf::from_weights(-2, (0..30).map(|n| (-(n as f64) / 4.0).exp())).unwrap();
+        let q_true = Pmf::from_weights(-2, (0..30).map(|n| (-(n as f64) / 4.0).exp())).expect("non-empty PMF");
         let pb = conv(&pa, &q_true);
         let (mq, vq) = q_true.moments();
         for solver in [Deconvolution::RichardsonLucy, Deconvolution::ProjectedGradient] {

@@ -103,6 +103,9 @@ pub enum RenoiseError {
     EstimateNotFinite { row: usize, col: usize },
 }
 
+/// Per position, per bin: the source PMF's first value and its CDF `P(n ≤ first + i)`.
+type SourceCdfs = [Vec<(i32, Vec<f64>)>; POSITIONS];
+
 /// Everything needed to renoise captures from one ISO to another with one method, built once
 /// (bridge deconvolution, sampling tables) and applied to any number of images.
 #[derive(Debug, Clone)]
@@ -116,7 +119,7 @@ pub struct Renoiser {
     /// Target PMFs (naive, denoised, quantile).
     target_tables: Option<[Vec<BinTable>; POSITIONS]>,
     /// Source CDFs per bin for the quantile method: (first, P(n ≤ first + i)).
-    source_cdfs: Option<[Vec<(i32, Vec<f64>)>; POSITIONS]>,
+    source_cdfs: Option<SourceCdfs>,
     bridge: Option<Bridge>,
     warnings: Vec<String>,
 }
@@ -330,7 +333,8 @@ impl Renoiser {
 }
 
 /// Renoises `noisy` (a capture at `source_iso`) to `target_iso` with `method`. Models come from
-/// the pack (calibrated or interpolated ISOs it holds). `estimate` is the clean estimate in DN
+/// [`crate::interp::model_for`]: calibrated, or interpolated inside the calibrated range (use
+/// [`Renoiser`] with models of your choice to extrapolate). `estimate` is the clean estimate in DN
 /// (same size); without one the built-in denoiser runs. Same seed, same bytes, whatever the
 /// thread count.
 pub fn renoise(
@@ -345,7 +349,7 @@ pub fn renoise(
     if target_iso <= source_iso {
         return Err(BridgeError::NotHigher { from_iso: source_iso, to_iso: target_iso }.into());
     }
-    let source = pack.require_iso(source_iso)?;
-    let target = pack.require_iso(target_iso)?;
-    Renoiser::new(pack, source, target, method)?.apply(noisy, estimate, seed)
+    let (source, _) = crate::interp::model_for(pack, source_iso, false)?;
+    let (target, _) = crate::interp::model_for(pack, target_iso, false)?;
+    Renoiser::new(pack, &source, &target, method)?.apply(noisy, estimate, seed)
 }

@@ -113,6 +113,12 @@ impl IsoSampler {
         &self.tables[pos]
     }
 
+    /// Level → bin map and bin tables of a position, for row loops.
+    #[inline]
+    pub fn position_tables(&self, pos: usize) -> (&[u16], &[BinTable]) {
+        (&self.luts[pos], &self.tables[pos])
+    }
+
     /// `clamp(level + n, 0, white)` with `n` drawn for (position, bin of level).
     #[inline(always)]
     pub fn noisy(&self, pos: usize, level: u16, u: u32) -> u16 {

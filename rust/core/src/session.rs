@@ -315,6 +315,9 @@ impl CalibrationSession {
             });
         }
         if in_reference {
+            if matches!(&step.phase, Phase::Reference(b) if b.frames == 0) {
+                return Err(SessionError::NoReference { iso: meta.iso, exposure_ns: meta.exposure_ns, reference });
+            }
             self.close_reference()?;
         }
         self.push_target(frame, meta)

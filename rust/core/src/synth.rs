@@ -7,8 +7,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
-use crate::layout::position;
-use crate::sampler::IsoSampler;
+use crate::sampler::{BinTable, IsoSampler};
 
 /// Rows per RNG stream.
 pub const BAND_ROWS: usize = 16;
@@ -28,11 +27,30 @@ pub fn synthesize(sampler: &IsoSampler, clean: ArrayView2<'_, u16>, seed: u64) -
     if w > 0 {
         out.par_chunks_mut(BAND_ROWS * w).enumerate().for_each(|(band, chunk)| {
             let mut rng = band_rng(seed, band);
+            let white = sampler.white as i32;
             for (r, row) in chunk.chunks_mut(w).enumerate() {
                 let y = band * BAND_ROWS + r;
-                let src = clean.row(y);
-                for (x, (o, &c)) in row.iter_mut().zip(src.iter()).enumerate() {
-                    *o = sampler.noisy(position(y, x), c, rng.next_u32());
+                let view = clean.row(y);
+                let src: std::borrow::Cow<'_, [u16]> = match view.as_slice() {
+                    Some(s) => std::borrow::Cow::Borrowed(s),
+                    None => std::borrow::Cow::Owned(view.to_vec()),
+                };
+                let parity = (y & 1) << 1;
+                let (lut0, tab0) = sampler.position_tables(parity);
+                let (lut1, tab1) = sampler.position_tables(parity | 1);
+                let draw = |lut: &[u16], tab: &[BinTable], c: u16, u: u32| -> u16 {
+                    let l = (c as usize).min(lut.len() - 1);
+                    let n = tab[lut[l] as usize].sample_u32(u);
+                    (c as i32 + n).clamp(0, white) as u16
+                };
+                // One 64-bit draw feeds an even and an odd pixel: the stream is fixed by the band.
+                for (o, c) in row.chunks_exact_mut(2).zip(src.chunks_exact(2)) {
+                    let u = rng.next_u64();
+                    o[0] = draw(lut0, tab0, c[0], u as u32);
+                    o[1] = draw(lut1, tab1, c[1], (u >> 32) as u32);
+                }
+                if w % 2 == 1 {
+                    row[w - 1] = draw(lut0, tab0, src[w - 1], rng.next_u32());
                 }
             }
         });

@@ -246,7 +246,7 @@ fn analytic_model_is_poisson_gaussian() {
     let p = fixture();
     let binning = p.binning();
     for iso in [800, 1600, 3200] {
-        let m = p.require_iso(iso).unwrap();
+        let m = p.require_iso(iso).expect("ISO in the fixture");
         for b in [10, 60, 120] {
             let l = binning.center(0, b) as f64;
             let g = gain(iso);
@@ -263,10 +263,10 @@ fn analytic_model_is_poisson_gaussian() {
 fn bridge_matches_target_moments_with_small_residual() {
     let p = fixture();
     let binning = p.binning();
-    let a = p.require_iso(1600).unwrap();
-    let b = p.require_iso(3200).unwrap();
+    let a = p.require_iso(1600).expect("ISO in the fixture");
+    let b = p.require_iso(3200).expect("ISO in the fixture");
     let t = std::time::Instant::now();
-    let br = build_bridge(a, b, &binning).unwrap();
+    let br = build_bridge(a, b, &binning).expect("succeeds");
     eprintln!(
         "bridge 1600→3200: built in {:.2?}, mean TV {:.5}, max TV {:.5}, mean JSD {:.2e}, flags {}",
         t.elapsed(),
@@ -314,7 +314,13 @@ fn default_solver_has_the_lower_residual() {
         let mut js = 0.0;
         for (a, b) in [(800, 1600), (1600, 3200), (800, 3200)] {
             let t = std::time::Instant::now();
-            let br = build_bridge_with(p.require_iso(a).unwrap(), p.require_iso(b).unwrap(), &binning, &opts).unwrap();
+            let br = build_bridge_with(
+                p.require_iso(a).expect("ISO in the fixture"),
+                p.require_iso(b).expect("ISO in the fixture"),
+                &binning,
+                &opts,
+            )
+            .expect("succeeds");
             eprintln!(
                 "{solver:?} {a}→{b}: {:.2?}, mean TV {:.5}, max TV {:.5}, mean JSD {:.3e}",
                 t.elapsed(),
@@ -335,10 +341,10 @@ fn default_solver_has_the_lower_residual() {
 fn refused_pairs_name_both_isos() {
     let p = fixture();
     let binning = p.binning();
-    let lo = p.require_iso(800).unwrap();
-    let hi = p.require_iso(1600).unwrap();
+    let lo = p.require_iso(800).expect("ISO in the fixture");
+    let hi = p.require_iso(1600).expect("ISO in the fixture");
     for (a, b) in [(hi, lo), (hi, hi)] {
-        let e = build_bridge(a, b, &binning).unwrap_err();
+        let e = build_bridge(a, b, &binning).expect_err("must be refused");
         assert_eq!(e, BridgeError::NotHigher { from_iso: a.iso, to_iso: b.iso });
         let msg = e.to_string();
         assert!(msg.contains(&format!("ISO {}", a.iso)) && msg.contains(&format!("ISO {}", b.iso)), "{msg}");
@@ -346,12 +352,12 @@ fn refused_pairs_name_both_isos() {
     }
     let img = Array2::<u16>::from_elem((8, 8), 300);
     for m in Method::ALL {
-        let e = renoise(p, 1600, 800, img.view(), None, m, 1).unwrap_err();
+        let e = renoise(p, 1600, 800, img.view(), None, m, 1).expect_err("must be refused");
         assert!(matches!(e, RenoiseError::Bridge(BridgeError::NotHigher { from_iso: 1600, to_iso: 800 })), "{e}");
     }
-    // An ISO the pack does not hold is a clear model error listing what it holds.
-    let e = renoise(p, 1600, 6400, img.view(), None, Method::Bridge, 1).unwrap_err();
-    assert!(e.to_string().contains("6400") && e.to_string().contains("800, 1600, 3200"), "{e}");
+    // An ISO outside the pack's range is a clear model error naming the range.
+    let e = renoise(p, 1600, 6400, img.view(), None, Method::Bridge, 1).expect_err("must be refused");
+    assert!(e.to_string().contains("6400") && e.to_string().contains("800–3200"), "{e}");
 }
 
 #[test]
@@ -359,14 +365,14 @@ fn narrower_target_bins_are_flagged_by_pair_and_bin() {
     // A target that is narrower than the source in bins 100..=104 of position 2.
     let p = fixture();
     let binning = p.binning();
-    let a = p.require_iso(1600).unwrap().clone();
-    let mut b = p.require_iso(3200).unwrap().clone();
+    let a = p.require_iso(1600).expect("ISO in the fixture").clone();
+    let mut b = p.require_iso(3200).expect("ISO in the fixture").clone();
     for bin in 100..=104 {
         let (first, w) = true_pmf(800, binning.center(2, bin) as f64);
-        let pmf = noisecal_core::pmf::Pmf::from_weights(first, w).unwrap();
+        let pmf = noisecal_core::pmf::Pmf::from_weights(first, w).expect("non-empty PMF");
         b.positions[2].bins[bin] = BinModel::from_pmf(&pmf, 1_000_000, false);
     }
-    let br = build_bridge(&a, &b, &binning).unwrap();
+    let br = build_bridge(&a, &b, &binning).expect("succeeds");
     let narrow: Vec<(usize, usize)> =
         br.flags.iter().filter(|f| f.kind == FlagKind::NotWider).map(|f| (f.position, f.bin)).collect();
     assert_eq!(narrow, (100..=104).map(|b| (2, b)).collect::<Vec<_>>());
@@ -381,7 +387,7 @@ fn bridges_between_interpolated_isos() {
     let binning = p.binning();
     let a = iso_model(1200, ModelOrigin::Interpolated { from: vec![800, 1600] });
     let b = iso_model(2400, ModelOrigin::Interpolated { from: vec![1600, 3200] });
-    let br = build_bridge(&a, &b, &binning).unwrap();
+    let br = build_bridge(&a, &b, &binning).expect("succeeds");
     assert_eq!((br.source_iso, br.target_iso), (1200, 2400));
     assert!(br.mean_residual() < 0.005, "mean TV {}", br.mean_residual());
 }
@@ -390,8 +396,8 @@ fn bridges_between_interpolated_isos() {
 fn bridge_lands_near_direct_synthesis_and_far_below_naive() {
     let p = fixture();
     let (clean, group) = clean_image();
-    let s1600 = IsoSampler::new(p, p.require_iso(1600).unwrap());
-    let s3200 = IsoSampler::new(p, p.require_iso(3200).unwrap());
+    let s1600 = IsoSampler::new(p, p.require_iso(1600).expect("ISO in the fixture"));
+    let s3200 = IsoSampler::new(p, p.require_iso(3200).expect("ISO in the fixture"));
     // "Real" captures: the source at 1600, the target at 3200, and a second real 3200 set for
     // the finite-sample floor; "direct" = synthesizing 3200 on the true clean image.
     let src = synthesize(&s1600, clean.view(), 11);
@@ -405,8 +411,14 @@ fn bridge_lands_near_direct_synthesis_and_far_below_naive() {
 
     let mut got = BTreeMap::new();
     for m in Method::ALL {
-        let r = Renoiser::new(p, p.require_iso(1600).unwrap(), p.require_iso(3200).unwrap(), m).unwrap();
-        let out = r.apply(src.view(), None, 5).unwrap();
+        let r = Renoiser::new(
+            p,
+            p.require_iso(1600).expect("ISO in the fixture"),
+            p.require_iso(3200).expect("ISO in the fixture"),
+            m,
+        )
+        .expect("succeeds");
+        let out = r.apply(src.view(), None, 5).expect("succeeds");
         let s = scores(&out.image, &real, &clean, &group);
         eprintln!("{:<8} marginal {:.5} conditional {:.5}", m.name(), s.0, s.1);
         got.insert(m.name(), s);
@@ -414,7 +426,7 @@ fn bridge_lands_near_direct_synthesis_and_far_below_naive() {
     // With the true clean image as the estimate too.
     let clean_f = clean.mapv(|v| v as f32);
     for m in [Method::Bridge, Method::Quantile, Method::Denoised] {
-        let out = renoise(p, 1600, 3200, src.view(), Some(clean_f.view()), m, 5).unwrap();
+        let out = renoise(p, 1600, 3200, src.view(), Some(clean_f.view()), m, 5).expect("succeeds");
         let s = scores(&out.image, &real, &clean, &group);
         eprintln!("{:<8} (true Î) marginal {:.5} conditional {:.5}", m.name(), s.0, s.1);
         assert!(s.1 < direct_s.1 + 0.004, "{m} with the true clean image: {s:?} vs direct {direct_s:?}");
@@ -437,14 +449,14 @@ fn reproducible_with_a_seed_whatever_the_thread_count() {
     let p = fixture();
     let (clean, _) = clean_image();
     let clean = clean.slice(ndarray::s![..200, ..300]).to_owned();
-    let s1600 = IsoSampler::new(p, p.require_iso(1600).unwrap());
+    let s1600 = IsoSampler::new(p, p.require_iso(1600).expect("ISO in the fixture"));
     let src = synthesize(&s1600, clean.view(), 3);
-    let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+    let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().expect("a 1-thread pool");
     for m in Method::ALL {
-        let a = renoise(p, 1600, 3200, src.view(), None, m, 7).unwrap();
-        let b = one.install(|| renoise(p, 1600, 3200, src.view(), None, m, 7)).unwrap();
+        let a = renoise(p, 1600, 3200, src.view(), None, m, 7).expect("succeeds");
+        let b = one.install(|| renoise(p, 1600, 3200, src.view(), None, m, 7)).expect("succeeds");
         assert_eq!(a.image, b.image, "{m}: 1 thread vs default");
-        let c = renoise(p, 1600, 3200, src.view(), None, m, 8).unwrap();
+        let c = renoise(p, 1600, 3200, src.view(), None, m, 8).expect("succeeds");
         let differ = a.image.iter().zip(c.image.iter()).filter(|(x, y)| x != y).count();
         // (Quantile keeps most of the input's own noise: only the randomised PIT within a cell
         // depends on the seed.)
@@ -460,7 +472,7 @@ fn estimate_is_flat_on_flat_regions_and_sharp_at_edges() {
     // Flat halves at 250 and 610 DN with a vertical step edge at column 101 (odd: the edge falls
     // between positions), noise of ISO 1600.
     let p = fixture();
-    let m = p.require_iso(1600).unwrap();
+    let m = p.require_iso(1600).expect("ISO in the fixture");
     let binning = p.binning();
     let (h, w) = (160, 200);
     let edge = 101;
@@ -496,7 +508,7 @@ fn estimate_never_mixes_cfa_positions() {
     // A flat "coloured" patch: every position at its own level. A filter that mixed positions
     // would pull them together.
     let p = fixture();
-    let m = p.require_iso(1600).unwrap();
+    let m = p.require_iso(1600).expect("ISO in the fixture");
     let levels = [130u16, 610, 402, 210];
     let clean = Array2::from_shape_fn((96, 96), |(y, x)| levels[noisecal_core::layout::position(y, x)]);
     let noisy = synthesize(&IsoSampler::new(p, m), clean.view(), 4);
@@ -520,12 +532,12 @@ fn bad_estimates_are_refused_clearly() {
     let p = fixture();
     let img = Array2::<u16>::from_elem((16, 16), 300);
     let small = Array2::<f32>::zeros((8, 16));
-    let e = renoise(p, 1600, 3200, img.view(), Some(small.view()), Method::Bridge, 1).unwrap_err();
+    let e = renoise(p, 1600, 3200, img.view(), Some(small.view()), Method::Bridge, 1).expect_err("must be refused");
     assert_eq!(e, RenoiseError::EstimateSize { width: 16, height: 16, est_width: 16, est_height: 8 });
     let mut nan = Array2::<f32>::from_elem((16, 16), 300.0);
     nan[[3, 5]] = f32::NAN;
-    let e = renoise(p, 1600, 3200, img.view(), Some(nan.view()), Method::Quantile, 1).unwrap_err();
+    let e = renoise(p, 1600, 3200, img.view(), Some(nan.view()), Method::Quantile, 1).expect_err("must be refused");
     assert!(e.to_string().contains("row 3, column 5"), "{e}");
     assert_eq!(Method::parse("BRIDGE"), Some(Method::Bridge));
-    assert!("wiener".parse::<Method>().unwrap_err().contains("bridge, quantile, denoised or naive"));
+    assert!("wiener".parse::<Method>().expect_err("must be refused").contains("bridge, quantile, denoised or naive"));
 }

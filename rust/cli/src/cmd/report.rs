@@ -1,8 +1,66 @@
-//! `noisecal report` (being written).
+//! `noisecal report --pack p.pack [--eval heldout/ | --eval scores.json] -o report.html`: one
+//! self-contained HTML page with inline SVG plots.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+
+use crate::cmd::inspect::load_pack;
+use crate::eval::{EvalOptions, EvalReport, evaluate};
+use crate::output::write_atomic;
+use crate::report::render_html;
 
 #[derive(clap::Args, Debug)]
-pub struct Args {}
+pub struct Args {
+    /// The model pack.
+    #[arg(long)]
+    pub pack: PathBuf,
+    /// Held-out captures to score the pack on (as `noisecal eval`), or the JSON that
+    /// `noisecal eval --json` wrote.
+    #[arg(long)]
+    pub eval: Option<PathBuf>,
+    /// With --eval on captures: synthetic sets per model.
+    #[arg(long, default_value_t = 3)]
+    pub seeds: u32,
+    /// With --eval on captures: also run the leave-one-out interpolation study.
+    #[arg(long)]
+    pub leave_one_out: bool,
+    /// With --eval on captures: also score noise on noise from this ISO …
+    #[arg(long, requires = "to")]
+    pub renoise_from: Option<u32>,
+    /// … to this ISO.
+    #[arg(long, requires = "renoise_from")]
+    pub to: Option<u32>,
+    /// The HTML file to write.
+    #[arg(short, long)]
+    pub output: PathBuf,
+}
 
-pub fn run(_args: Args, _quiet: bool) -> anyhow::Result<()> {
-    anyhow::bail!("noisecal report is not built yet")
+pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
+    let pack = load_pack(&args.pack)?;
+    let eval: Option<EvalReport> = match &args.eval {
+        None => None,
+        Some(p) if p.is_file() && p.extension().is_some_and(|e| e.eq_ignore_ascii_case("json")) => {
+            let bytes = std::fs::read(p).with_context(|| format!("cannot read {}", p.display()))?;
+            Some(
+                serde_json::from_slice(&bytes)
+                    .with_context(|| format!("{} is not the JSON of `noisecal eval --json`", p.display()))?,
+            )
+        }
+        Some(p) => {
+            let opts = EvalOptions {
+                seeds: args.seeds,
+                leave_one_out: args.leave_one_out,
+                renoise: args.renoise_from.zip(args.to),
+                ..Default::default()
+            };
+            Some(evaluate(&pack, &args.pack, p, &opts, quiet)?)
+        }
+    };
+    let html = render_html(&pack, &args.pack.display().to_string(), eval.as_ref())?;
+    write_atomic(&args.output, html.as_bytes()).with_context(|| format!("writing {}", args.output.display()))?;
+    if !quiet {
+        eprintln!("{}: {} KB", args.output.display(), html.len() / 1024);
+    }
+    Ok(())
 }
