@@ -86,13 +86,13 @@ fn calibrate_recording(
         l.pixels() as u64 * 2 + 64
     };
     let pb = progress_bar(len / frame_bytes.max(1), quiet, "calibrating");
-    if let Some(r) = opts.reference_iso {
-        if r != reader.header().reference_iso {
-            anyhow::bail!(
-                "the recording's reference ISO is {}; --reference-iso {r} cannot change it",
-                reader.header().reference_iso
-            );
-        }
+    if let Some(r) = opts.reference_iso
+        && r != reader.header().reference_iso
+    {
+        anyhow::bail!(
+            "the recording's reference ISO is {}; --reference-iso {r} cannot change it",
+            reader.header().reference_iso
+        );
     }
     let (session, report) = noisecal_core::recording::replay(reader, |c| opts.apply(c), |n| pb.set_position(n))
         .with_context(|| format!("replaying {}", path.display()))?;

@@ -43,7 +43,8 @@ pub struct BridgeOptions {
     /// Stop when the objective improves by less than this fraction of itself over 10 iterations.
     pub tolerance: f64,
     /// Total variation between `p_a ∗ q` and `p_b` above which a bin is flagged, on top of what
-    /// the target histogram's own sampling noise explains (twice its expected total variation).
+    /// the histograms' own sampling noise explains (twice the expected total variation of a
+    /// histogram of that many samples, source and target added).
     pub max_residual: f64,
     /// Tail mass (each side) of `p_a` and `p_b` dropped before solving.
     pub tail_mass: f64,
@@ -235,8 +236,12 @@ pub fn build_bridge_with(
             if bb.var_target <= bb.var_source {
                 flags.push(common(FlagKind::NotWider));
             } else {
-                let tb = &target.positions[p].bins[b];
-                let floor = if tb.filled || tb.samples == 0 { 0.0 } else { sampling_tv(&tb.pmf(), tb.samples) };
+                // What the histograms' own sampling noise explains (both PMFs are estimates).
+                let floor: f64 = [&source.positions[p].bins[b], &target.positions[p].bins[b]]
+                    .iter()
+                    .filter(|m| m.samples > 0)
+                    .map(|m| sampling_tv(&m.pmf(), m.samples))
+                    .sum();
                 if bb.tv > opts.max_residual + 2.0 * floor {
                     flags.push(common(FlagKind::LargeResidual));
                 }
@@ -443,8 +448,13 @@ fn solve_bin(pa_full: &Pmf, pb_full: &Pmf, clip: (i32, i32), opts: &BridgeOption
     let d_sd = d_var.sqrt();
 
     // Support of q: wide enough for the tails p_b needs beyond p_a, and for the moment match.
-    let mut lo = (pb.first - pa.first).min((d_mean - 6.0 * d_sd - 1.0).floor() as i32);
-    let mut hi = (pb.last() - pa.last()).max((d_mean + 6.0 * d_sd + 1.0).ceil() as i32);
+    // The tails are taken at quantiles 10⁻⁴ / 1 − 10⁻⁴, so a few outlying samples in a sparse
+    // calibrated bin do not stretch the support (they stay in the residual).
+    const Q: f64 = 1e-4;
+    let tail_lo = (pb.quantile(Q) - pa.quantile(Q)).floor() as i32;
+    let tail_hi = (pb.quantile(1.0 - Q) - pa.quantile(1.0 - Q)).ceil() as i32;
+    let mut lo = tail_lo.min((d_mean - 6.0 * d_sd - 1.0).floor() as i32);
+    let mut hi = tail_hi.max((d_mean + 6.0 * d_sd + 1.0).ceil() as i32);
     lo = lo.max(pb.first - pa.last());
     hi = hi.min(pb.last() - pa.first);
     if lo > hi {
@@ -504,6 +514,26 @@ fn solve_bin(pa_full: &Pmf, pb_full: &Pmf, clip: (i32, i32), opts: &BridgeOption
     let tv = 0.5 * y.iter().zip(&fine.b).map(|(u, v)| (u - v).abs()).sum::<f64>();
     let jsd = jsd_aligned(&y, &fine.b);
     let q = Pmf::from_weights(lo, q_fine).unwrap_or(Pmf { first: d_mean.round() as i32, p: vec![1.0] });
+    // Variances add under convolution, so a q far from σ_b² − σ_a² fitted the histograms' noise
+    // (sparse calibrated bins), not the noise: use the moment match then.
+    let vq = q.moments().1;
+    if d_var > 1.0 && (vq - d_var).abs() > 0.25 * d_var {
+        let mm = init.clone();
+        let n = pa.p.len() + mm.p.len() - 1;
+        let first = pa.first + mm.first;
+        let cell = |v: i32| (v - first).clamp(0, n as i32 - 1) as usize;
+        let prob = Problem {
+            a: pa.p.clone(),
+            b: pool(pb.first, &pb.p, first, 1, n),
+            clip_lo: cell(clip.0),
+            clip_hi: cell(clip.1),
+        };
+        let mut y = vec![0.0; n];
+        prob.forward(&mm.p, &mut y);
+        let tv = 0.5 * y.iter().zip(&prob.b).map(|(u, v)| (u - v).abs()).sum::<f64>();
+        let jsd = jsd_aligned(&y, &prob.b);
+        return BridgeBin { q: mm, tv, jsd, var_source: var_a, var_target: var_b, iterations };
+    }
     BridgeBin { q, tv, jsd, var_source: var_a, var_target: var_b, iterations }
 }
 

@@ -1,0 +1,250 @@
+package org.noisecal.capture.sweeptest
+
+import java.io.File
+import java.nio.file.Files
+import kotlin.math.roundToInt
+import org.noisecal.capture.controller.CaptureOutcome
+import org.noisecal.capture.controller.CaptureUiState
+import org.noisecal.capture.controller.ControllerConfig
+import org.noisecal.capture.controller.SessionStore
+import org.noisecal.capture.controller.UiStateListener
+import org.noisecal.capture.plan.BurstRole
+import org.noisecal.capture.plan.CameraCapabilities
+import org.noisecal.capture.plan.CapturePlan
+import org.noisecal.capture.plan.CapturePlanner
+import org.noisecal.capture.plan.Metering
+import org.noisecal.capture.plan.PlanOptions
+import org.noisecal.capture.plan.PlanResult
+import org.noisecal.capture.sim.SimBehaviour
+import org.noisecal.capture.sim.SimulatedCameraPort
+import org.noisecal.capture.sim.SimulatedProcessDeath
+import org.noisecal.capture.sim.SimulatedSweep
+import org.noisecal.capture.sim.SyntheticChart
+import org.noisecal.capture.sink.NoisecalSinkFactory
+
+/**
+ * Issue 6, part 5: a whole simulated sweep plan → [org.noisecal.capture.controller.CaptureController]
+ * → real JNI library ([NoisecalSinkFactory]) → pack, compared byte for byte with
+ * `noisecal calibrate` of the recording the same session wrote.
+ */
+class SweepJniTests(private val env: Env) : Suite("sweep-jni") {
+
+    /** A small 10-bit RGGB sensor with base ISO 50, digital gain above 400. */
+    private val capabilities = CameraCapabilities(
+        cameraId = "0", make = "Simulated", model = "Sweep 128x96",
+        sensitivityRange = 50..800, maxAnalogSensitivity = 400,
+        exposureRangeNs = 10_000L..500_000_000L, maxFrameDurationNs = 1_000_000_000L, minFrameDurationNs = 5_000_000L,
+        rawWidth = 128, rawHeight = 96, whiteLevel = 1023, blackLevelPattern = listOf(64, 64, 64, 64), cfaCode = 0,
+        manualSensor = true, raw = true, lensShadingAppliedToRaw = false,
+    )
+    private val targetIsos = listOf(100, 200, 400, 800)
+
+    private val plan: CapturePlan by lazy {
+        when (val r = CapturePlanner.plan(capabilities, PlanOptions(Metering(100, 2_000_000L), targetIsos = targetIsos,
+            evMin = -1.0, evMax = 1.0, framesPerBurst = 6, referenceFramesPerBurst = 6, recording = true))) {
+            is PlanResult.Ok -> r.plan
+            is PlanResult.Refused -> throw Failure("the test plan was refused: $r")
+        }
+    }
+
+    private fun chart(p: CapturePlan) = SyntheticChart(p.sensor.width, p.sensor.height, p.sensor.blackLevels.min().roundToInt(),
+        p.sensor.whiteLevel, p.sensor.referenceIso, p.options.metering.brightness, seed = 7L)
+
+    private val config = ControllerConfig(frameTimeoutMs = 30L)
+
+    /** Row padding of the fault-free run and of the faulty run: different on purpose (the pack must not depend on it). */
+    private val cleanPadding = 32
+    private val faultyPadding = 96
+
+    /** Faults of the run that gets killed ([kill] frames in) and of the run that resumes it ([kill] null). */
+    private fun faults(kill: Long?) = SimBehaviour(
+        settingsLagFrames = 2,
+        dropImage = { it % 19L == 5L },
+        dropResult = { it % 23L == 11L },
+        failCapture = { it % 29L == 13L },
+        dynamicBlackLevels = { if (it % 31L == 7L) FloatArray(4) { 90f } else null },
+        deathAfterFrames = kill,
+    )
+
+    /** Which frames, rendered with the burst's own settings, reach the sink under [b]. */
+    private fun acceptedUnder(b: SimBehaviour): (Long) -> Boolean =
+        { seq -> !b.dropResult(seq) && b.dynamicBlackLevels?.invoke(seq) == null }
+
+    /** The last state a controller published, and the worst counters seen. */
+    private class StateLog : UiStateListener {
+        @Volatile var last: CaptureUiState? = null
+        override fun onState(state: CaptureUiState) { last = state }
+    }
+
+    class SweepOutput(val pack: File, val recording: File, val summary: String, val notes: String)
+
+    private fun fresh(name: String): File {
+        val d = File(env.work, name).absoluteFile
+        d.deleteRecursively()
+        check(d.mkdirs()) { "cannot create $d" }
+        return d
+    }
+
+    private fun checkPortClean(port: SimulatedCameraPort, what: String) {
+        eq(0, port.openImages, "$what: images left open")
+        eq(0L, port.accessAfterClose, "$what: buffer reads after close")
+        eq(port.imagesDelivered, port.imagesClosed, "$what: images delivered vs closed")
+        check(port.maxOpenImages <= port.maxImages) { "$what: ${port.maxOpenImages} images open at once, reader has ${port.maxImages}" }
+    }
+
+    private fun checkFinished(outcome: CaptureOutcome, what: String): CaptureOutcome.Finished {
+        check(outcome is CaptureOutcome.Finished) { "$what: sweep did not finish: $outcome" }
+        return outcome as CaptureOutcome.Finished
+    }
+
+    /** The summary ends with "; recording PATH (N frames)": every planned frame must be in the recording. */
+    private fun checkRecordedFrames(summary: String, rec: File, what: String) {
+        val m = Regex("""; recording (.+) \((\d+) frames\)""").find(summary)
+            ?: throw Failure("$what: the session is no longer recording (summary: $summary)")
+        eq(rec.path, m.groupValues[1], "$what: recording path")
+        eq(plan.totalFrames.toLong(), m.groupValues[2].toLong(), "$what: frames in the recording")
+    }
+
+    private val clean: SweepOutput by lazy {
+        val dir = fresh("clean")
+        val rec = File(dir, "session.rec")
+        val log = StateLog()
+        val run = SimulatedSweep.run(plan, NoisecalSinkFactory(0, rec.path), dir, PlannedFrames(plan, chart(plan)) { true },
+            SimBehaviour(), rowPaddingBytes = cleanPadding, config = config, listener = log)
+        val done = checkFinished(run.outcome, "fault-free run")
+        checkPortClean(run.port, "fault-free run")
+        val s = log.last!!
+        eq(0, s.framesRejected, "fault-free run: frames rejected")
+        eq(0, s.framesLost, "fault-free run: frames lost")
+        eq(plan.totalFrames.toLong(), run.port.imagesDelivered, "fault-free run: images delivered")
+        checkRecordedFrames(done.summary, rec, "fault-free run")
+        SweepOutput(File(done.packPath), rec, done.summary, "${plan.bursts.size} bursts, ${plan.totalFrames} frames")
+    }
+
+    private val faulty: SweepOutput by lazy {
+        val dir = fresh("faulty")
+        val rec = File(dir, "session.rec")
+        val factory = NoisecalSinkFactory(0, rec.path)
+        val store = SessionStore(dir)
+
+        // Run 1: faults, then the OS kills the app in the middle of a burst.
+        val killAt = 70L
+        val log1 = StateLog()
+        val b1 = faults(killAt)
+        val death = try {
+            SimulatedSweep.run(plan, factory, dir, PlannedFrames(plan, chart(plan), acceptedUnder(b1)), b1,
+                rowPaddingBytes = faultyPadding, config = config, listener = log1)
+            null
+        } catch (e: SimulatedProcessDeath) { e }
+        check(death != null) { "the simulated kill after $killAt frames did not happen" }
+        val atKill = log1.last!!
+        val record = store.load() ?: throw Failure("no progress record after the kill")
+        val interrupted = atKill.currentBurst ?: throw Failure("no burst was running at the kill")
+        check(interrupted.index !in record.completedBursts) { "burst ${interrupted.index} was running yet is recorded as done" }
+        check(record.completedBursts.size in 1 until plan.bursts.size) { "kill after ${record.completedBursts.size} bursts: not mid-sweep" }
+        check(atKill.burstFramesAccepted in 1 until interrupted.frames) {
+            "kill after ${atKill.burstFramesAccepted} of ${interrupted.frames} frames of $interrupted: not mid-burst"
+        }
+        check(atKill.framesRejected > 0) { "run 1: no frame was rejected (settings lag, black level)" }
+        check(atKill.framesLost > 0) { "run 1: no frame was lost (dropped image/result, failed capture)" }
+        val recBytesAtKill = rec.length()
+
+        // Run 2: a new controller on the same folder resumes from the checkpoint, still with faults.
+        val log2 = StateLog()
+        val b2 = faults(null)
+        val run2 = SimulatedSweep.run(plan, factory, dir, PlannedFrames(plan, chart(plan), acceptedUnder(b2)), b2,
+            rowPaddingBytes = faultyPadding, config = config, listener = log2)
+        val done = checkFinished(run2.outcome, "resumed run")
+        checkPortClean(run2.port, "resumed run")
+        val s2 = log2.last!!
+        eq(record.completedBursts.size, s2.resumedFromBurst, "resumed run: bursts restored from the checkpoint")
+        check(s2.framesRejected > 0 && s2.framesLost > 0) { "resumed run: faults did not happen (rejected ${s2.framesRejected}, lost ${s2.framesLost})" }
+        checkRecordedFrames(done.summary, rec, "resumed run")
+        SweepOutput(File(done.packPath), rec, done.summary,
+            "killed in $interrupted after ${atKill.burstFramesAccepted} of its frames and ${record.completedBursts.size} bursts " +
+                "(recording $recBytesAtKill bytes); rejected ${atKill.framesRejected}+${s2.framesRejected}, " +
+                "lost ${atKill.framesLost}+${s2.framesLost}, camera frames ${run2.port.sequence} after resume")
+    }
+
+    /** Runs the CLI; returns stdout; fails with its stderr on a non-zero exit. */
+    private fun cli(vararg args: String): String {
+        val err = File.createTempFile("noisecal-", ".err", env.work)
+        try {
+            val p = ProcessBuilder(listOf(env.cli.path) + args).redirectError(err).start()
+            val out = p.inputStream.bufferedReader().readText()
+            val rc = p.waitFor()
+            check(rc == 0) { "noisecal ${args.joinToString(" ")} exited with $rc: ${err.readText().trim()}" }
+            return out
+        } finally {
+            err.delete()
+        }
+    }
+
+    private fun calibrate(rec: File, out: File): File {
+        out.delete()
+        cli("calibrate", rec.path, "-o", out.path, "-q")
+        check(out.isFile) { "noisecal calibrate wrote no $out" }
+        return out
+    }
+
+    private fun assertSameBytes(expected: File, actual: File, what: String) {
+        val a = Files.readAllBytes(expected.toPath())
+        val b = Files.readAllBytes(actual.toPath())
+        check(a.isNotEmpty()) { "$what: $expected is empty" }
+        if (a.contentEquals(b)) return
+        val first = (0 until minOf(a.size, b.size)).firstOrNull { a[it] != b[it] } ?: minOf(a.size, b.size)
+        throw Failure("$what: $expected (${a.size} bytes) and $actual (${b.size} bytes) differ first at byte $first")
+    }
+
+    init {
+        test("plan: base ISO 50, 10-bit 128x96, ISO ${targetIsos.joinToString("/")}, EV -1..+1") {
+            eq(targetIsos, plan.targetIsos, "target ISOs")
+            eq(3, plan.steps.size, "EV steps")
+            eq(15, plan.bursts.size, "bursts")
+            eq(50, plan.referenceIso, "reference ISO")
+            check(plan.bursts.any { it.digitalGain && it.iso == 800 }) { "ISO 800 should be digital gain" }
+        }
+
+        test("fault-free sweep through the JNI sink: pack == noisecal calibrate of its recording") {
+            val c = clean
+            val cliPack = calibrate(c.recording, File(c.pack.parentFile, "cli.pack"))
+            assertSameBytes(c.pack, cliPack, "app pack vs CLI pack")
+            println("    ${c.notes}; pack ${c.pack.length()} bytes, recording ${c.recording.length()} bytes")
+        }
+
+        test("faults + kill mid-burst + resume: pack == calibrate of the final recording == fault-free pack") {
+            val f = faulty
+            val cliPack = calibrate(f.recording, File(f.pack.parentFile, "cli.pack"))
+            assertSameBytes(f.pack, cliPack, "resumed app pack vs CLI pack of the final recording")
+            assertSameBytes(clean.pack, f.pack, "fault-free pack vs faulty/resumed pack")
+            println("    ${f.notes}")
+        }
+
+        test("inspect --json lists the planned target ISOs") {
+            val root = Json.parse(cli("inspect", faulty.pack.path, "--json")) as? Map<*, *>
+                ?: throw Failure("inspect --json did not print an object")
+            val isos = (root["isos"] as? List<*>)?.map { it as Map<*, *> } ?: throw Failure("inspect --json has no \"isos\" array")
+            eq(targetIsos, isos.map { (it["iso"] as Number).toInt() }, "ISOs in the pack (inspect --json)")
+            eq(50, (root["reference_iso"] as Number).toInt(), "reference ISO")
+            eq(listOf(128, 96), listOf((root["width"] as Number).toInt(), (root["height"] as Number).toInt()), "size")
+            eq(10, (root["bit_depth"] as Number).toInt(), "bit depth")
+            eq("RGGB", root["cfa"], "CFA")
+            eq(capabilities.make to capabilities.model, root["make"] to root["model"], "make/model")
+            val framesPerIso = plan.bursts.filter { it.role == BurstRole.TARGET }
+                .groupBy { it.iso }.mapValues { e -> e.value.sumOf { it.frames } }
+            for (m in isos) {
+                val iso = (m["iso"] as Number).toInt()
+                eq("calibrated", m["origin"], "ISO $iso origin")
+                eq(framesPerIso[iso]!!.toLong(), (m["frames"] as Number).toLong(), "ISO $iso frames")
+                val positions = m["positions"] as List<*>
+                eq(4, positions.size, "ISO $iso CFA positions")
+                for (p in positions.map { it as Map<*, *> }) {
+                    val filled = (p["filled_bins"] as Number).toInt()
+                    val samples = (p["samples"] as Number).toLong()
+                    check(filled > 0 && samples > 0) { "ISO $iso ${p["name"]}: $samples samples, $filled filled bins" }
+                }
+            }
+            println("    ISOs ${isos.map { it["iso"] }}, warnings ${root["warnings"]}")
+        }
+    }
+}
