@@ -18,6 +18,9 @@ pub struct SimSession {
     pub plan: SessionPlan,
     pub make: String,
     pub model: String,
+    /// Added to every frame index: a held-out session of the same sensor (same seed) gets fresh
+    /// noise by starting at another index.
+    pub index_offset: u64,
 }
 
 /// Sensor presets by bit depth.
@@ -64,7 +67,7 @@ impl SimSession {
         let sim = Simulator::new(model, chart, seed)?;
         let plan = SessionPlan::for_simulator(&sim, target_isos, frames_per_burst)?.with_ev_steps(ev_steps);
         plan.validate()?;
-        Ok(Self { sim, plan, make: "noisecal".into(), model: name.into() })
+        Ok(Self { sim, plan, make: "noisecal".into(), model: name.into(), index_offset: 0 })
     }
 
     /// Writes the session: DNGs named by capture index into `dngs`, and/or a recording with
@@ -104,7 +107,7 @@ impl SimSession {
         for group in frames.chunks(chunk) {
             let caps: Vec<_> = group
                 .par_iter()
-                .map(|f| self.sim.capture(f.iso, f.exposure_ns, f.index))
+                .map(|f| self.sim.capture(f.iso, f.exposure_ns, f.index + self.index_offset))
                 .collect::<Result<Vec<_>, _>>()?;
             for (f, (pixels, meta)) in group.iter().zip(caps) {
                 if let Some(d) = dngs {

@@ -514,10 +514,11 @@ fn solve_bin(pa_full: &Pmf, pb_full: &Pmf, clip: (i32, i32), opts: &BridgeOption
     let tv = 0.5 * y.iter().zip(&fine.b).map(|(u, v)| (u - v).abs()).sum::<f64>();
     let jsd = jsd_aligned(&y, &fine.b);
     let q = Pmf::from_weights(lo, q_fine).unwrap_or(Pmf { first: d_mean.round() as i32, p: vec![1.0] });
-    // Variances add under convolution, so a q far from σ_b² − σ_a² fitted the histograms' noise
-    // (sparse calibrated bins), not the noise: use the moment match then.
+    // Variances add under convolution (clipping aside), so a q far from σ_b² − σ_a² fitted the
+    // histograms' sampling noise (sparse calibrated bins), not the noise: use the moment match.
     let vq = q.moments().1;
-    if d_var > 1.0 && (vq - d_var).abs() > 0.25 * d_var {
+    let clipped = pb_full.at(clip.0) + pb_full.at(clip.1) + pa_full.at(clip.0) + pa_full.at(clip.1);
+    if d_var > 1.0 && clipped < 0.01 && (vq - d_var).abs() > 0.25 * d_var {
         let mm = init.clone();
         let n = pa.p.len() + mm.p.len() - 1;
         let first = pa.first + mm.first;

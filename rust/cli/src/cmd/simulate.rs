@@ -37,6 +37,9 @@ pub struct Args {
     /// Write a raw recording (the app's format) to this file.
     #[arg(long)]
     pub rec: Option<PathBuf>,
+    /// Start frame indices here: the same sensor (same --seed) with fresh noise, e.g. a held-out set.
+    #[arg(long, default_value_t = 0)]
+    pub index_offset: u64,
     /// Extra bytes of padding per row in the recording (Camera2 row stride).
     #[arg(long, default_value_t = 32)]
     pub padding: usize,
@@ -50,7 +53,7 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
     if let Some(a) = args.flicker {
         model.flicker = Some(noisecal_sim::Flicker { probability: 0.1, amplitude: a });
     }
-    let s = SimSession::new(
+    let mut s = SimSession::new(
         model,
         args.preset.name(),
         args.width,
@@ -60,6 +63,7 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         args.frames,
         args.ev,
     )?;
+    s.index_offset = args.index_offset;
     let pb = progress_bar(s.plan.len() as u64, quiet, "simulating");
     s.write(args.dngs.as_deref(), args.rec.as_deref(), args.padding, || pb.inc(1))?;
     pb.finish_and_clear();

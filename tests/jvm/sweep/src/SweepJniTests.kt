@@ -50,7 +50,18 @@ class SweepJniTests(private val env: Env) : Suite("sweep-jni") {
     private fun chart(p: CapturePlan) = SyntheticChart(p.sensor.width, p.sensor.height, p.sensor.blackLevels.min().roundToInt(),
         p.sensor.whiteLevel, p.sensor.referenceIso, p.options.metering.brightness, seed = 7L)
 
-    private val config = ControllerConfig(frameTimeoutMs = 30L)
+    /**
+     * A request counts as lost [ControllerConfig.frameTimeoutMs] (+ 7 frame times) after it was
+     * submitted. It must be long enough that a frame whose image and result sit in the controller's
+     * queue behind slow pushes (JIT warm-up, the first native calls) is never declared lost: such a
+     * spurious loss would make the run take a different frame than the fault-free one (seen at 30 ms
+     * on a loaded 2-core machine). Only the deliberately dropped frames wait for it, so they are few.
+     */
+    private val config = ControllerConfig(frameTimeoutMs = 1_000L)
+
+    /** Frames [b] loses among the first [n] camera frames: failed captures, dropped images, dropped results. */
+    private fun expectedLost(b: SimBehaviour, n: Long): Int =
+        (0 until n).count { b.failCapture(it) || b.dropImage(it) || b.dropResult(it) }
 
     /** Row padding of the fault-free run and of the faulty run: different on purpose (the pack must not depend on it). */
     private val cleanPadding = 32
@@ -59,8 +70,8 @@ class SweepJniTests(private val env: Env) : Suite("sweep-jni") {
     /** Faults of the run that gets killed ([kill] frames in) and of the run that resumes it ([kill] null). */
     private fun faults(kill: Long?) = SimBehaviour(
         settingsLagFrames = 2,
-        dropImage = { it % 19L == 5L },
-        dropResult = { it % 23L == 11L },
+        dropImage = { it % 37L == 5L },
+        dropResult = { it % 41L == 11L },
         failCapture = { it % 29L == 13L },
         dynamicBlackLevels = { if (it % 31L == 7L) FloatArray(4) { 90f } else null },
         deathAfterFrames = kill,
@@ -115,7 +126,7 @@ class SweepJniTests(private val env: Env) : Suite("sweep-jni") {
         checkPortClean(run.port, "fault-free run")
         val s = log.last!!
         eq(0, s.framesRejected, "fault-free run: frames rejected")
-        eq(0, s.framesLost, "fault-free run: frames lost")
+        eq(0, s.framesLost, "fault-free run: frames lost (timing: frames still queued were given up; is the machine overloaded?)")
         eq(plan.totalFrames.toLong(), run.port.imagesDelivered, "fault-free run: images delivered")
         checkRecordedFrames(done.summary, rec, "fault-free run")
         SweepOutput(File(done.packPath), rec, done.summary, "${plan.bursts.size} bursts, ${plan.totalFrames} frames")
@@ -158,7 +169,9 @@ class SweepJniTests(private val env: Env) : Suite("sweep-jni") {
         checkPortClean(run2.port, "resumed run")
         val s2 = log2.last!!
         eq(record.completedBursts.size, s2.resumedFromBurst, "resumed run: bursts restored from the checkpoint")
-        check(s2.framesRejected > 0 && s2.framesLost > 0) { "resumed run: faults did not happen (rejected ${s2.framesRejected}, lost ${s2.framesLost})" }
+        check(s2.framesRejected > 0) { "resumed run: no frame was rejected (settings lag, black level)" }
+        eq(0L, run2.port.readerOverruns, "resumed run: reader overruns")
+        eq(expectedLost(b2, run2.port.sequence), s2.framesLost, "resumed run: frames lost (only the dropped/failed ones; more means queued frames timed out: machine overloaded?)")
         checkRecordedFrames(done.summary, rec, "resumed run")
         SweepOutput(File(done.packPath), rec, done.summary,
             "killed in $interrupted after ${atKill.burstFramesAccepted} of its frames and ${record.completedBursts.size} bursts " +
@@ -228,6 +241,7 @@ class SweepJniTests(private val env: Env) : Suite("sweep-jni") {
             eq(50, (root["reference_iso"] as Number).toInt(), "reference ISO")
             eq(listOf(128, 96), listOf((root["width"] as Number).toInt(), (root["height"] as Number).toInt()), "size")
             eq(10, (root["bit_depth"] as Number).toInt(), "bit depth")
+            eq(plan.sensor.binWidth, (root["bin_width"] as Number).toInt(), "bin width (core default vs the plan's)")
             eq("RGGB", root["cfa"], "CFA")
             eq(capabilities.make to capabilities.model, root["make"] to root["model"], "make/model")
             val framesPerIso = plan.bursts.filter { it.role == BurstRole.TARGET }
