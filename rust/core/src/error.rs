@@ -88,6 +88,8 @@ pub enum CodecError {
     OlderVersion { what: &'static str, found: u16, supported: u16 },
     #[error("{what} is corrupt: checksum {found:08x} does not match {expected:08x}")]
     Checksum { what: &'static str, found: u32, expected: u32 },
+    #[error("{what} is cut short inside {context}: the capture was interrupted; the records before it are whole")]
+    CutShort { what: &'static str, context: String },
     #[error("{what} could not be decoded: {detail}")]
     Decode { what: &'static str, detail: String },
     #[error("{what} could not be encoded: {detail}")]

@@ -211,9 +211,7 @@ impl<'a> Cursor<'a> {
 
 fn read_exact_or<R: Read>(r: &mut R, buf: &mut [u8], context: &str) -> Result<(), CodecError> {
     r.read_exact(buf).map_err(|e| match e.kind() {
-        io::ErrorKind::UnexpectedEof => {
-            CodecError::Invalid { what: WHAT, detail: format!("cut short inside {context}") }
-        }
+        io::ErrorKind::UnexpectedEof => CodecError::CutShort { what: WHAT, context: context.to_string() },
         _ => CodecError::Decode { what: WHAT, detail: e.to_string() },
     })
 }
@@ -416,7 +414,19 @@ pub fn replay<R: Read>(
     configure(&mut config);
     let mut session = crate::session::CalibrationSession::new(reader.header().layout.clone(), config)?;
     let mut report = ReplayReport::default();
-    while let Some(record) = reader.next_record()? {
+    loop {
+        let record = match reader.next_record() {
+            Ok(Some(r)) => r,
+            Ok(None) => break,
+            // An app killed mid-write leaves a partial last record: replay what is whole.
+            Err(CodecError::CutShort { context, .. }) => {
+                report
+                    .rejected
+                    .push(format!("the recording ends inside {context} (an interrupted capture); replayed up to it"));
+                break;
+            }
+            Err(e) => return Err(e.into()),
+        };
         match record {
             Record::BeginStep { exposure_ns } => session.begin_step(exposure_ns)?,
             Record::Frame(f) => {
