@@ -13,3 +13,6 @@ bash tests/jvm/capture/run.sh
 
 echo "== JVM: JNI boundary (Kotlin NoisecalSession over the host-built library)" >&2
 bash tests/jvm/jni/run.sh
+
+echo "== JVM: full simulated sweep, plan → controller → JNI → pack, against noisecal calibrate" >&2
+bash tests/jvm/sweep/run.sh --build

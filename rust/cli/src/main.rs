@@ -51,6 +51,13 @@ fn main() -> ExitCode {
         eprintln!("noisecal: cannot set {n} threads: {e}");
         return ExitCode::from(2);
     }
+    // A closed stdout (`noisecal inspect --json | head`) ends the program quietly, not as a bug.
+    let default_hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        if !is_broken_pipe(info.payload()) {
+            default_hook(info);
+        }
+    }));
     let quiet = cli.quiet;
     let result = std::panic::catch_unwind(move || match cli.command {
         Command::Demo(a) => cmd::demo::run(a, quiet),
@@ -69,9 +76,20 @@ fn main() -> ExitCode {
             eprintln!("noisecal: error: {e:#}");
             ExitCode::FAILURE
         }
+        Err(payload) if is_broken_pipe(payload.as_ref()) => ExitCode::SUCCESS,
         Err(_) => {
             eprintln!("noisecal: internal error (a bug): please report it with the command line you ran");
             ExitCode::from(3)
         }
     }
+}
+
+/// Whether a panic is `println!` failing on a closed pipe.
+fn is_broken_pipe(payload: &(dyn std::any::Any + Send)) -> bool {
+    let msg = payload
+        .downcast_ref::<String>()
+        .map(String::as_str)
+        .or_else(|| payload.downcast_ref::<&str>().copied())
+        .unwrap_or("");
+    msg.contains("Broken pipe") && msg.contains("failed printing")
 }

@@ -6,6 +6,8 @@ import kotlin.math.roundToInt
 import org.noisecal.capture.controller.CaptureOutcome
 import org.noisecal.capture.controller.CaptureUiState
 import org.noisecal.capture.controller.ControllerConfig
+import org.noisecal.capture.controller.FrameSink
+import org.noisecal.capture.controller.FrameSinkFactory
 import org.noisecal.capture.controller.ProgressRecord
 import org.noisecal.capture.controller.SessionStore
 import org.noisecal.capture.controller.UiStateListener
@@ -16,6 +18,7 @@ import org.noisecal.capture.plan.CapturePlanner
 import org.noisecal.capture.plan.Metering
 import org.noisecal.capture.plan.PlanOptions
 import org.noisecal.capture.plan.PlanResult
+import org.noisecal.capture.plan.SensorSpec
 import org.noisecal.capture.sim.SimBehaviour
 import org.noisecal.capture.sim.SimulatedCameraPort
 import org.noisecal.capture.sim.SimulatedProcessDeath
@@ -82,13 +85,22 @@ class SweepJniTests(private val env: Env) : Suite("sweep-jni") {
     private fun acceptedUnder(b: SimBehaviour): (Long) -> Boolean =
         { seq -> !b.dropResult(seq) && b.dynamicBlackLevels?.invoke(seq) == null }
 
-    /** The last state a controller published, and the worst counters seen. */
+    /** The last state a controller published. */
     private class StateLog : UiStateListener {
         @Volatile var last: CaptureUiState? = null
         override fun onState(state: CaptureUiState) { last = state }
     }
 
-    class SweepOutput(val pack: File, val recording: File, val summary: String, val notes: String)
+    class SweepOutput(val pack: File, val recording: File, val summary: String, val killAt: Long, val notes: String)
+
+    /** Sinks whose close() does nothing: the native session stays open, as when the OS kills the process. */
+    private class AbandoningFactory(private val inner: FrameSinkFactory) : FrameSinkFactory {
+        private fun wrap(s: FrameSink): FrameSink = object : FrameSink by s {
+            override fun close() { /* left open on purpose; freed when the JVM exits */ }
+        }
+        override fun create(sensor: SensorSpec): FrameSink = wrap(inner.create(sensor))
+        override fun restore(checkpointPath: String): FrameSink = wrap(inner.restore(checkpointPath))
+    }
 
     private fun fresh(name: String): File {
         val d = File(env.work, name).absoluteFile
@@ -130,13 +142,25 @@ class SweepJniTests(private val env: Env) : Suite("sweep-jni") {
         eq(0, s.framesLost, "fault-free run: frames lost (timing: frames still queued were given up; is the machine overloaded?)")
         eq(plan.totalFrames.toLong(), run.port.imagesDelivered, "fault-free run: images delivered")
         checkRecordedFrames(done.summary, rec, "fault-free run")
-        SweepOutput(File(done.packPath), rec, done.summary, "${plan.bursts.size} bursts, ${plan.totalFrames} frames")
+        SweepOutput(File(done.packPath), rec, done.summary, -1, "${plan.bursts.size} bursts, ${plan.totalFrames} frames")
     }
 
-    private val faulty: SweepOutput by lazy {
-        val dir = fresh("faulty")
+    private val faulty: SweepOutput by lazy { faultySweep("faulty", closeOnKill = true, 60L..120L step 3) }
+
+    /** The same, but the killed run's session is never closed, as when the OS kills the process: no End record, no flush. */
+    private val abandoned: SweepOutput by lazy { faultySweep("abandoned", closeOnKill = false, faulty.killAt..faulty.killAt) }
+
+    /**
+     * Runs the plan with [faults] in [name]: a first controller killed mid-burst, then a second one
+     * that resumes from the checkpoint. With [closeOnKill] false the killed run's native session is
+     * left open (never closed, so never flushed or ended), as after a real process death; otherwise
+     * the controller's `use` closes it on the way out, writing the recording's End record.
+     */
+    private fun faultySweep(name: String, closeOnKill: Boolean, killCandidates: LongProgression): SweepOutput {
+        val dir = fresh(name)
         val rec = File(dir, "session.rec")
-        val factory = NoisecalSinkFactory(0, rec.path)
+        val realFactory = NoisecalSinkFactory(0, rec.path)
+        val factory = if (closeOnKill) realFactory else AbandoningFactory(realFactory)
         val store = SessionStore(dir)
 
         // Run 1: faults, then the OS kills the app in the middle of a burst. Where a kill after n
@@ -145,7 +169,7 @@ class SweepJniTests(private val env: Env) : Suite("sweep-jni") {
         // after some of that burst's frames already reached the session and its recording.
         var killed: Triple<Long, CaptureUiState, ProgressRecord>? = null
         val tried = mutableListOf<String>()
-        for (killAt in 60L..120L step 3) {
+        for (killAt in killCandidates) {
             dir.deleteRecursively()
             val log1 = StateLog()
             val b1 = faults(killAt)
@@ -174,7 +198,7 @@ class SweepJniTests(private val env: Env) : Suite("sweep-jni") {
         // Run 2: a new controller on the same folder resumes from the checkpoint, still with faults.
         val log2 = StateLog()
         val b2 = faults(null)
-        val run2 = SimulatedSweep.run(plan, factory, dir, PlannedFrames(plan, chart(plan), acceptedUnder(b2)), b2,
+        val run2 = SimulatedSweep.run(plan, realFactory, dir, PlannedFrames(plan, chart(plan), acceptedUnder(b2)), b2,
             rowPaddingBytes = faultyPadding, config = config, listener = log2)
         val done = checkFinished(run2.outcome, "resumed run")
         checkPortClean(run2.port, "resumed run")
@@ -184,7 +208,7 @@ class SweepJniTests(private val env: Env) : Suite("sweep-jni") {
         eq(0L, run2.port.readerOverruns, "resumed run: reader overruns")
         eq(expectedLost(b2, run2.port.sequence), s2.framesLost, "resumed run: frames lost (only the dropped/failed ones; more means queued frames timed out: machine overloaded?)")
         checkRecordedFrames(done.summary, rec, "resumed run")
-        SweepOutput(File(done.packPath), rec, done.summary,
+        return SweepOutput(File(done.packPath), rec, done.summary, killAt,
             "killed after $killAt camera frames in $interrupted after ${atKill.burstFramesAccepted} of its frames and ${record.completedBursts.size} bursts " +
                 "(recording $recBytesAtKill bytes); rejected ${atKill.framesRejected}+${s2.framesRejected}, " +
                 "lost ${atKill.framesLost}+${s2.framesLost}, camera frames ${run2.port.sequence} after resume")
@@ -241,6 +265,14 @@ class SweepJniTests(private val env: Env) : Suite("sweep-jni") {
             val cliPack = calibrate(f.recording, File(f.pack.parentFile, "cli.pack"))
             assertSameBytes(f.pack, cliPack, "resumed app pack vs CLI pack of the final recording")
             assertSameBytes(clean.pack, f.pack, "fault-free pack vs faulty/resumed pack")
+            println("    ${f.notes}")
+        }
+
+        test("kill without closing the session (no End record), resume: pack == calibrate of the recording == fault-free pack") {
+            val f = abandoned
+            val cliPack = calibrate(f.recording, File(f.pack.parentFile, "cli.pack"))
+            assertSameBytes(f.pack, cliPack, "resumed app pack vs CLI pack of the final recording")
+            assertSameBytes(clean.pack, f.pack, "fault-free pack vs abandoned/resumed pack")
             println("    ${f.notes}")
         }
 

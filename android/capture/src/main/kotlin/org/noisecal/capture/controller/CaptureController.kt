@@ -228,41 +228,47 @@ class CaptureController(
                     port.submit(reqs)
                 }
             }
-            when (val ev = events.poll(pollMs, TimeUnit.MILLISECONDS)) {
-                null -> Unit
-                is Event.Image -> {
-                    val old = images.put(ev.image.timestampNs, HeldImage(ev.image, System.nanoTime()))
-                    old?.image?.close()
-                    val r = results[ev.image.timestampNs]
-                    if (r != null) {
-                        when (val verdict = consume(b, r, sink)) {
-                            null -> accepted++
-                            else -> { retakes++; lastReason = verdict }
-                        }
-                    }
-                }
-                is Event.Result -> {
-                    val r = ev.result
-                    if (pending.containsKey(r.tag)) {
-                        results[r.timestampNs] = r
-                        if (images.containsKey(r.timestampNs)) {
+            // Handle everything already queued before expiring requests: a frame whose image and
+            // result have arrived must not be given up because only one event was read.
+            var next: Event? = events.poll(pollMs, TimeUnit.MILLISECONDS)
+            while (next != null) {
+                val ev: Event = next
+                when (ev) {
+                    is Event.Image -> {
+                        val old = images.put(ev.image.timestampNs, HeldImage(ev.image, System.nanoTime()))
+                        old?.image?.close()
+                        val r = results[ev.image.timestampNs]
+                        if (r != null) {
                             when (val verdict = consume(b, r, sink)) {
                                 null -> accepted++
                                 else -> { retakes++; lastReason = verdict }
                             }
                         }
-                    } else {
-                        // A late answer to a request already given up: free its image now.
-                        images.remove(r.timestampNs)?.image?.close()
                     }
-                }
-                is Event.Failure -> {
-                    if (pending.remove(ev.tag) != null) {
-                        retakes++; lastReason = "capture failed: ${ev.reason}"
-                        update { it.copy(framesLost = it.framesLost + 1, lastRejection = lastReason) }
+                    is Event.Result -> {
+                        val r = ev.result
+                        if (pending.containsKey(r.tag)) {
+                            results[r.timestampNs] = r
+                            if (images.containsKey(r.timestampNs)) {
+                                when (val verdict = consume(b, r, sink)) {
+                                    null -> accepted++
+                                    else -> { retakes++; lastReason = verdict }
+                                }
+                            }
+                        } else {
+                            // A late answer to a request already given up: free its image now.
+                            images.remove(r.timestampNs)?.image?.close()
+                        }
                     }
+                    is Event.Failure -> {
+                        if (pending.remove(ev.tag) != null) {
+                            retakes++; lastReason = "capture failed: ${ev.reason}"
+                            update { it.copy(framesLost = it.framesLost + 1, lastRejection = lastReason) }
+                        }
+                    }
+                    is Event.DeviceError -> throw CaptureFailure("camera error: ${ev.message}")
                 }
-                is Event.DeviceError -> throw CaptureFailure("camera error: ${ev.message}")
+                next = if (accepted < b.frames) events.poll() else null
             }
             retakes += expire(timeoutNs)
             if (retakes > maxRetakes) {

@@ -34,9 +34,10 @@ class NoisecalFrameSink(val session: NoisecalSession) : FrameSink {
 
 /**
  * Makes [NoisecalFrameSink]s. [binWidth] 0 lets the core pick the default for the bit depth;
- * [recordingPath], when set, tees every accepted frame of a *fresh* session into a recording for
- * desktop replay (a restored session does not record: frames of the burst the kill interrupted are
- * already in the recording, so it would no longer replay to the same pack).
+ * [recordingPath], when set, tees every accepted frame into a recording for desktop replay. A
+ * session restored from a checkpoint reopens that recording and cuts it back to the length it had at
+ * the checkpoint, so the frames of the burst a kill interrupted are dropped and the whole recording
+ * still replays to the resumed session's pack (tests/jvm/sweep shows it).
  */
 class NoisecalSinkFactory(
     private val binWidth: Int = 0,
