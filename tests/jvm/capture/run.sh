@@ -9,20 +9,11 @@
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/../../.." && pwd)"
-KOTLIN_VERSION="2.4.20"
-TOOLS="$ROOT/.tools"
-KC_LIB="$TOOLS/node_modules/kotlin-compiler/lib"
+# shellcheck source=../kotlin.sh
+source "$ROOT/tests/jvm/kotlin.sh"
 OUT="$ROOT/tests/jvm/build/capture"
 
-if [[ ! -f "$KC_LIB/kotlin-compiler.jar" ]] || ! grep -qx "$KOTLIN_VERSION" "$TOOLS/node_modules/kotlin-compiler/build.txt" 2>/dev/null; then
-  echo "installing kotlin-compiler@$KOTLIN_VERSION into $TOOLS" >&2
-  mkdir -p "$TOOLS"
-  npm install --silent --no-audit --no-fund --prefix "$TOOLS" "kotlin-compiler@$KOTLIN_VERSION" >&2
-fi
-for jar in kotlin-compiler.jar kotlin-stdlib.jar; do
-  [[ -f "$KC_LIB/$jar" ]] || { echo "error: $KC_LIB/$jar missing after npm install; remove $TOOLS/node_modules/kotlin-compiler and retry" >&2; exit 2; }
-done
-command -v java >/dev/null || { echo "error: java not found; install a JDK 17+ (apt-get install openjdk-17-jdk-headless)" >&2; exit 2; }
+ensure_kotlinc
 
 rm -rf "$OUT"
 mkdir -p "$OUT"

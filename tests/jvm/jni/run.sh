@@ -12,13 +12,11 @@
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/../../.." && pwd)"
-KOTLIN_VERSION="2.4.20"
-TOOLS="$ROOT/.tools"
-KC_LIB="$TOOLS/node_modules/kotlin-compiler/lib"
+# shellcheck source=../kotlin.sh
+source "$ROOT/tests/jvm/kotlin.sh"
 OUT="$ROOT/target/jvm-jni"
 WORK="$OUT/work"
 
-command -v java >/dev/null || { echo "error: java not found; install a JDK 17+ (apt-get install openjdk-17-jdk-headless)" >&2; exit 2; }
 command -v cargo >/dev/null || { echo "error: cargo not found; install Rust (rustup)" >&2; exit 2; }
 
 echo "building noisecal-jni (release)" >&2
@@ -27,14 +25,7 @@ LIB_DIR="$ROOT/target/release"
 TOOL="$LIB_DIR/noisecal-jni-tool"
 [[ -f "$LIB_DIR/libnoisecal_jni.so" || -f "$LIB_DIR/libnoisecal_jni.dylib" ]] || { echo "error: libnoisecal_jni not built in $LIB_DIR" >&2; exit 2; }
 
-if [[ ! -f "$KC_LIB/kotlin-compiler.jar" ]] || ! grep -qx "$KOTLIN_VERSION" "$TOOLS/node_modules/kotlin-compiler/build.txt" 2>/dev/null; then
-  echo "installing kotlin-compiler@$KOTLIN_VERSION into $TOOLS" >&2
-  mkdir -p "$TOOLS"
-  npm install --silent --no-audit --no-fund --prefix "$TOOLS" "kotlin-compiler@$KOTLIN_VERSION" >&2
-fi
-for jar in kotlin-compiler.jar kotlin-stdlib.jar; do
-  [[ -f "$KC_LIB/$jar" ]] || { echo "error: $KC_LIB/$jar missing after npm install; remove $TOOLS/node_modules/kotlin-compiler and retry" >&2; exit 2; }
-done
+ensure_kotlinc
 
 SOURCES=("$ROOT/android/capture/src/main/kotlin/org/noisecal/jni/NoisecalSession.kt")
 mapfile -t -O 1 SOURCES < <(find "$ROOT/tests/jvm/jni/src" -name '*.kt' | sort)

@@ -14,9 +14,8 @@
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/../../.." && pwd)"
-KOTLIN_VERSION="2.4.20"
-TOOLS="$ROOT/.tools"
-KC_LIB="$TOOLS/node_modules/kotlin-compiler/lib"
+# shellcheck source=../kotlin.sh
+source "$ROOT/tests/jvm/kotlin.sh"
 OUT="$ROOT/target/jvm-sweep"
 WORK="$OUT/work"
 LIB_DIR="$ROOT/target/release"
@@ -32,7 +31,6 @@ while [[ $# -gt 0 ]]; do
   esac
 done
 
-command -v java >/dev/null || { echo "error: java not found; install a JDK 17+ (apt-get install openjdk-17-jdk-headless)" >&2; exit 2; }
 command -v cargo >/dev/null || { echo "error: cargo not found; install Rust (rustup)" >&2; exit 2; }
 
 have_lib() { [[ -f "$LIB_DIR/libnoisecal_jni.so" || -f "$LIB_DIR/libnoisecal_jni.dylib" ]]; }
@@ -43,14 +41,7 @@ fi
 have_lib || { echo "error: libnoisecal_jni not built in $LIB_DIR" >&2; exit 2; }
 [[ -x "$CLI" ]] || { echo "error: $CLI not built" >&2; exit 2; }
 
-if [[ ! -f "$KC_LIB/kotlin-compiler.jar" ]] || ! grep -qx "$KOTLIN_VERSION" "$TOOLS/node_modules/kotlin-compiler/build.txt" 2>/dev/null; then
-  echo "installing kotlin-compiler@$KOTLIN_VERSION into $TOOLS" >&2
-  mkdir -p "$TOOLS"
-  npm install --silent --no-audit --no-fund --prefix "$TOOLS" "kotlin-compiler@$KOTLIN_VERSION" >&2
-fi
-for jar in kotlin-compiler.jar kotlin-stdlib.jar; do
-  [[ -f "$KC_LIB/$jar" ]] || { echo "error: $KC_LIB/$jar missing after npm install; remove $TOOLS/node_modules/kotlin-compiler and retry" >&2; exit 2; }
-done
+ensure_kotlinc
 
 mapfile -t SOURCES < <(find "$ROOT/android/capture/src/main/kotlin" "$ROOT/tests/jvm/sweep/src" -name '*.kt' | sort)
 STAMP="$OUT/classes/.sources.sha256"

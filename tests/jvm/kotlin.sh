@@ -1,0 +1,19 @@
+# Shared by the JVM harnesses (source it after setting ROOT): the pinned Kotlin compiler from npm,
+# installed into .tools/ when missing, and a Java check.
+KOTLIN_VERSION="2.4.20"
+TOOLS="$ROOT/.tools"
+KC_LIB="$TOOLS/node_modules/kotlin-compiler/lib"
+
+ensure_kotlinc() {
+  command -v java >/dev/null || { echo "error: java not found; install a JDK 17+ (apt-get install openjdk-17-jdk-headless)" >&2; exit 2; }
+  if [[ ! -f "$KC_LIB/kotlin-compiler.jar" ]] || ! grep -qx "$KOTLIN_VERSION" "$TOOLS/node_modules/kotlin-compiler/build.txt" 2>/dev/null; then
+    command -v npm >/dev/null || { echo "error: npm not found; install Node.js and npm (apt-get install nodejs npm)" >&2; exit 2; }
+    echo "installing kotlin-compiler@$KOTLIN_VERSION into $TOOLS" >&2
+    mkdir -p "$TOOLS"
+    npm install --silent --no-audit --no-fund --prefix "$TOOLS" "kotlin-compiler@$KOTLIN_VERSION" >&2
+  fi
+  local jar
+  for jar in kotlin-compiler.jar kotlin-stdlib.jar; do
+    [[ -f "$KC_LIB/$jar" ]] || { echo "error: $KC_LIB/$jar missing after npm install; remove $TOOLS/node_modules/kotlin-compiler and retry" >&2; exit 2; }
+  done
+}
