@@ -29,6 +29,8 @@
 //! non-negative fits over the calibrated ISOs on the same side of any conversion-gain switch
 //! ([`interpolate`]).
 
+use rayon::prelude::*;
+
 use crate::error::ModelError;
 use crate::fit::{nn_poly_fit, poly_eval};
 use crate::layout::{Binning, POSITIONS};
@@ -356,7 +358,9 @@ impl Baseline {
         let src = pack.iso(self.iso);
         let positions = (0..POSITIONS)
             .map(|pos| PositionModel {
+                // PMFs of a Poisson–Gaussian bin are costly; bins are independent (order kept).
                 bins: (0..binning.bins(pos))
+                    .into_par_iter()
                     .map(|bin| {
                         let samples = src
                             .and_then(|m| m.positions.get(pos))
