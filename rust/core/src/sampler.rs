@@ -37,7 +37,10 @@ impl BinTable {
         if let Some(last) = cdf.last_mut() {
             *last = ONE;
         }
-        let bits = (cdf.len().next_power_of_two().trailing_zeros()).clamp(1, 16);
+        // Eight guide cells per entry: the scan after the guide lookup almost never moves, so the
+        // draw costs no unpredictable branch (an inverse CDF maps a draw to the same value whatever
+        // the guide size).
+        let bits = (cdf.len().next_power_of_two().trailing_zeros() + 3).clamp(3, 14);
         let g = 1usize << bits;
         let mut guide = Vec::with_capacity(g);
         let mut i = 0usize;
