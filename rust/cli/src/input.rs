@@ -88,7 +88,7 @@ pub fn scan_dng_set(dir: &Path, reference_iso: Option<u32>) -> anyhow::Result<Dn
     if paths.is_empty() {
         bail!("{} holds no .dng files: point at the folder of a capture session's DNGs", dir.display());
     }
-    let heads: Vec<DngImage> = paths.par_iter().map(|p| read_meta(p)).collect::<Result<_, _>>()?;
+    let heads: Vec<DngImage> = paths.par_iter().map(|p| dng::read_dng_meta(p)).collect::<Result<_, _>>()?;
     group_dngs(heads, reference_iso, dir)
 }
 
@@ -196,13 +196,6 @@ fn group_dngs(heads: Vec<DngImage>, reference_iso: Option<u32>, dir: &Path) -> a
         );
     }
     Ok(DngSet { layout, make, model, reference_iso, steps, noise_profiles, warnings })
-}
-
-/// A DNG's metadata, without keeping its pixels.
-fn read_meta(path: &Path) -> Result<DngImage, dng::DngError> {
-    let mut d = dng::read_dng(path)?;
-    d.pixels = ndarray::Array2::zeros((0, 0));
-    Ok(d)
 }
 
 /// Reads DNGs in parallel, `chunk` at a time, and hands them over in order.

@@ -20,7 +20,7 @@ use ndarray::Array2;
 use noisecal_core::{FrameMeta, SensorLayout};
 
 pub use error::DngError;
-pub use read::read_dng;
+pub use read::{read_dng, read_dng_meta};
 pub use write::{DngSpec, dng_tiff, write_dng, write_dng_from_layout};
 
 /// Colour tags carried from a read DNG to the ones written from it, so other tools still render

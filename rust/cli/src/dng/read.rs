@@ -29,6 +29,16 @@ const COMPRESSION_LOSSY_JPEG: u64 = 34892;
 /// [`DngError::Unsupported`] for non-Bayer (X-Trans, 4-colour), demosaiced (LinearRaw), lossy,
 /// floating-point or < 10-bit data, and levels that make no sense.
 pub fn read_dng(path: &Path) -> Result<DngImage, DngError> {
+    read(path, true)
+}
+
+/// As [`read_dng`] without decoding the pixels (`pixels` is empty): the metadata a capture set is
+/// grouped by, at a fraction of the cost. The same checks apply, but for the data's integrity.
+pub fn read_dng_meta(path: &Path) -> Result<DngImage, DngError> {
+    read(path, false)
+}
+
+fn read(path: &Path, decode_pixels: bool) -> Result<DngImage, DngError> {
     let len = std::fs::metadata(path).map_err(|e| DngError::io(path, e))?.len();
     if len < 8 {
         return Err(DngError::decode(path, format!("the file is only {len} bytes long; a DNG is a TIFF file")));
@@ -117,35 +127,11 @@ pub fn read_dng(path: &Path) -> Result<DngImage, DngError> {
     let black = black_levels(path, raw, aw, ah)?;
 
     // --- Pixels.
-    let data_bytes = check_data_within_file(path, raw, src.buf().len())?;
-    let needed = (width * height * bits as usize).div_ceil(8) as u64;
-    if uint(raw, tag::COMPRESSION).unwrap_or(1) == 1 && data_bytes < needed {
-        return Err(DngError::decode(
-            path,
-            format!(
-                "the uncompressed {width}×{height} {bits}-bit image needs {needed} bytes but the file stores \
-                 {data_bytes}: it is truncated or corrupt"
-            ),
-        ));
-    }
-    let data = guarded(path, "decoding the raw image data", || plain_image_from_ifd(raw, &src))?
-        .map_err(|e| DngError::decode(path, format!("raw image data: {e}")))?;
-    let data = match data {
-        RawImageData::Integer(d) => d,
-        RawImageData::Float(_) => {
-            return Err(DngError::unsupported(path, "floating-point samples; noisecal needs integer sensor data"));
-        }
+    let pixels = if decode_pixels {
+        decode(path, raw, &src, (width, height), (top, left, bottom, right), bits)?
+    } else {
+        Array2::zeros((0, 0))
     };
-    if data.len() < width * height {
-        return Err(DngError::decode(path, format!("decoded {} samples for a {width}×{height} image", data.len())));
-    }
-    let mut cropped = Vec::with_capacity(aw * ah);
-    for row in top..bottom {
-        cropped.extend_from_slice(&data[row * width + left..row * width + right]);
-    }
-    drop(data);
-    let pixels = Array2::from_shape_vec((ah, aw), cropped)
-        .map_err(|e| DngError::decode(path, format!("cannot shape the mosaic: {e}")))?;
 
     let layout = SensorLayout { width: aw as u32, height: ah as u32, cfa, black, white };
     layout.validate().map_err(|e| DngError::unsupported(path, format!("the levels in this DNG are unusable: {e}")))?;
@@ -191,6 +177,49 @@ pub fn read_dng(path: &Path) -> Result<DngImage, DngError> {
 }
 
 /// Runs decoder code that may panic on malformed input, turning a panic into [`DngError::Decode`].
+/// Decodes the raw image data and crops it to the active area.
+fn decode(
+    path: &Path,
+    raw: &IFD,
+    src: &RawSource,
+    (width, height): (usize, usize),
+    (top, left, bottom, right): (usize, usize, usize, usize),
+    bits: u32,
+) -> Result<Array2<u16>, DngError> {
+    let (aw, ah) = (right - left, bottom - top);
+    let data_bytes = check_data_within_file(path, raw, src.buf().len())?;
+    let needed = (width * height * bits as usize).div_ceil(8) as u64;
+    if uint(raw, tag::COMPRESSION).unwrap_or(1) == 1 && data_bytes < needed {
+        return Err(DngError::decode(
+            path,
+            format!(
+                "the uncompressed {width}×{height} {bits}-bit image needs {needed} bytes but the file stores \
+                 {data_bytes}: it is truncated or corrupt"
+            ),
+        ));
+    }
+    let data = guarded(path, "decoding the raw image data", || plain_image_from_ifd(raw, src))?
+        .map_err(|e| DngError::decode(path, format!("raw image data: {e}")))?;
+    let data = match data {
+        RawImageData::Integer(d) => d,
+        RawImageData::Float(_) => {
+            return Err(DngError::unsupported(path, "floating-point samples; noisecal needs integer sensor data"));
+        }
+    };
+    if data.len() < width * height {
+        return Err(DngError::decode(path, format!("decoded {} samples for a {width}×{height} image", data.len())));
+    }
+    let mut cropped = Vec::with_capacity(aw * ah);
+    for row in top..bottom {
+        cropped.extend_from_slice(&data[row * width + left..row * width + right]);
+    }
+    drop(data);
+    let pixels = Array2::from_shape_vec((ah, aw), cropped)
+        .map_err(|e| DngError::decode(path, format!("cannot shape the mosaic: {e}")))?;
+
+    Ok(pixels)
+}
+
 fn guarded<T>(path: &Path, what: &str, f: impl FnOnce() -> T) -> Result<T, DngError> {
     catch_unwind(AssertUnwindSafe(f)).map_err(|payload| {
         let msg = payload
