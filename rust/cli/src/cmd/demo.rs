@@ -6,7 +6,6 @@ use std::path::PathBuf;
 use anyhow::Context;
 use ndarray::Array2;
 use noisecal_core::flat::NOT_FLAT;
-use noisecal_core::layout::position;
 use noisecal_core::metrics::{NoiseSamples, compare};
 use noisecal_core::sampler::IsoSampler;
 use noisecal_core::synth::synthesize;
@@ -84,8 +83,9 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
     clean_session.close_reference_burst()?;
     let clean_raw = clean_session.clean_image().context("clean image")?.to_vec();
     let (h, w) = (layout.height as usize, layout.width as usize);
-    let flat: Vec<bool> = clean_raw.iter().map(|&c| c != NOT_FLAT).collect();
+    let mask = Array2::from_shape_vec((h, w), clean_raw.iter().map(|&c| c != NOT_FLAT).collect())?;
     let clean = Array2::from_shape_vec((h, w), clean_raw.iter().map(|&c| if c == NOT_FLAT { 0 } else { c }).collect())?;
+    let clean_f = clean.mapv(|c| c as f32);
 
     println!();
     println!("Real vs synthetic noise on held-out captures ({}×{}, EV 0, flat pixels):", w, h);
@@ -105,39 +105,25 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         let (m_hg, _) = resolve_model(&pack, iso, ModelKind::Hg, false)?;
         let s_nc = IsoSampler::new(&pack, &m_nc);
         let s_hg = IsoSampler::new(&pack, &m_hg);
-        let (mut rv, mut sv) = (Moments::default(), Moments::default());
         for k in 0..frames {
             let (px, _) = sim.capture(iso, exp, HELDOUT_BASE + 1000 * (i as u64 + 1) + k)?;
-            let synth = synthesize(&s_nc, clean.view(), 1000 + k);
-            let synth_hg = synthesize(&s_hg, clean.view(), 2000 + k);
-            let real = if k % 2 == 0 { &mut real_a } else { &mut real_b };
-            for y in 0..h {
-                for x in 0..w {
-                    if !flat[y * w + x] {
-                        continue;
-                    }
-                    let c = clean[(y, x)];
-                    let pos = position(y, x);
-                    let n_real = px[(y, x)] as i32 - c as i32;
-                    let n_syn = synth[(y, x)] as i32 - c as i32;
-                    real.add(pos, c as f32, n_real);
-                    rv.add(n_real as f64);
-                    if k % 2 == 0 {
-                        syn.add(pos, c as f32, n_syn);
-                        hg.add(pos, c as f32, synth_hg[(y, x)] as i32 - c as i32);
-                        sv.add(n_syn as f64);
-                    }
-                }
+            if k % 2 == 1 {
+                real_b.add_frame(clean_f.view(), px.view(), Some(mask.view()))?;
+                continue;
             }
+            real_a.add_frame(clean_f.view(), px.view(), Some(mask.view()))?;
+            syn.add_frame(clean_f.view(), synthesize(&s_nc, clean.view(), 1000 + k).view(), Some(mask.view()))?;
+            hg.add_frame(clean_f.view(), synthesize(&s_hg, clean.view(), 2000 + k).view(), Some(mask.view()))?;
         }
+        let (rv, sv) = (pooled_variance(&real_a), pooled_variance(&syn));
         let s = compare(&real_a, &syn);
         let s_hg = compare(&real_a, &hg);
         let floor = compare(&real_a, &real_b);
         println!(
             "{iso:>6} {:>11.2} {:>11.2} {:>8.3} {:>6.4}/{:<6.4} {:>6.4}/{:<6.4} {:>6.4}/{:<6.4}",
-            rv.var(),
-            sv.var(),
-            sv.var() / rv.var(),
+            rv,
+            sv,
+            sv / rv,
             s.marginal_overall,
             s.conditional_overall,
             s_hg.marginal_overall,
@@ -178,21 +164,11 @@ fn write_example(
     Ok(())
 }
 
-#[derive(Default)]
-struct Moments {
-    n: f64,
-    s1: f64,
-    s2: f64,
-}
-
-impl Moments {
-    fn add(&mut self, x: f64) {
-        self.n += 1.0;
-        self.s1 += x;
-        self.s2 += x * x;
+/// Variance of the noise samples of all CFA positions together.
+fn pooled_variance(s: &NoiseSamples) -> f64 {
+    let mut h = noisecal_core::histogram::NoiseHistogram::default();
+    for pos in 0..noisecal_core::POSITIONS {
+        h.merge(&s.marginal(pos));
     }
-    fn var(&self) -> f64 {
-        let m = self.s1 / self.n.max(1.0);
-        self.s2 / self.n.max(1.0) - m * m
-    }
+    h.moments().1
 }
