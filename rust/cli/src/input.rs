@@ -92,7 +92,8 @@ pub fn scan_dng_set(dir: &Path, reference_iso: Option<u32>) -> anyhow::Result<Dn
     group_dngs(heads, reference_iso, dir)
 }
 
-fn group_dngs(heads: Vec<DngImage>, reference_iso: Option<u32>, dir: &Path) -> anyhow::Result<DngSet> {
+fn group_dngs(mut heads: Vec<DngImage>, reference_iso: Option<u32>, dir: &Path) -> anyhow::Result<DngSet> {
+    let iso_notes = snap_isos(&mut heads);
     let first = &heads[0];
     let base = first.layout.clone();
     for h in &heads {
@@ -165,7 +166,7 @@ fn group_dngs(heads: Vec<DngImage>, reference_iso: Option<u32>, dir: &Path) -> a
         }
     }
     let mut steps = Vec::new();
-    let mut warnings = Vec::new();
+    let mut warnings = iso_notes;
     for c in clusters {
         let brightness = c[0].meta.brightness();
         let (mut reference, mut targets): (Vec<DngFrame>, Vec<DngFrame>) =
@@ -196,6 +197,43 @@ fn group_dngs(heads: Vec<DngImage>, reference_iso: Option<u32>, dir: &Path) -> a
         );
     }
     Ok(DngSet { layout, make, model, reference_iso, steps, noise_profiles, warnings })
+}
+
+/// ISOs within this factor of each other are one setting reported with rounding (some devices
+/// report 98 or 101 for a requested 100); nominal ISOs are at least 1/3 stop (×1.26) apart.
+const ISO_FACTOR: f64 = 1.04;
+
+/// Gives frames whose reported ISOs differ only by rounding the ISO most of them report, and says
+/// so: one model per real setting, not one per rounding.
+fn snap_isos(heads: &mut [DngImage]) -> Vec<String> {
+    let mut counts: BTreeMap<u32, usize> = BTreeMap::new();
+    for h in heads.iter() {
+        *counts.entry(h.meta.iso).or_default() += 1;
+    }
+    let mut clusters: Vec<Vec<(u32, usize)>> = Vec::new();
+    for (&iso, &n) in &counts {
+        match clusters.last_mut() {
+            Some(c) if iso as f64 <= c[0].0 as f64 * ISO_FACTOR => c.push((iso, n)),
+            _ => clusters.push(vec![(iso, n)]),
+        }
+    }
+    let mut map = BTreeMap::new();
+    let mut notes = Vec::new();
+    for c in clusters.iter().filter(|c| c.len() > 1) {
+        // Most frames wins; a tie goes to the lower ISO.
+        let Some(&(to, _)) = c.iter().max_by(|a, b| a.1.cmp(&b.1).then(b.0.cmp(&a.0))) else { continue };
+        let names: Vec<String> = c.iter().map(|(i, n)| format!("{i} ({n} frames)")).collect();
+        notes.push(format!("ISOs {} are one setting reported with rounding: all used as ISO {to}", names.join(", ")));
+        for &(from, _) in c {
+            map.insert(from, to);
+        }
+    }
+    for h in heads.iter_mut() {
+        if let Some(&to) = map.get(&h.meta.iso) {
+            h.meta.iso = to;
+        }
+    }
+    notes
 }
 
 /// Reads DNGs in parallel, `chunk` at a time, and hands them over in order.
@@ -242,4 +280,55 @@ pub fn open_recording(path: &Path) -> anyhow::Result<RecordingReader<std::io::Bu
     let f = std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
     RecordingReader::new(std::io::BufReader::with_capacity(1 << 20, f))
         .with_context(|| format!("{} is not a usable recording", path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use noisecal_core::{CfaPattern, FrameMeta, SensorLayout};
+
+    fn head(name: &str, iso: u32, exposure_ns: u64) -> DngImage {
+        let layout = SensorLayout { width: 8, height: 8, cfa: CfaPattern::Rggb, black: [64.0; 4], white: 1023 };
+        DngImage {
+            meta: FrameMeta { iso, exposure_ns, black: Some(layout.black) },
+            layout,
+            pixels: ndarray::Array2::zeros((0, 0)),
+            make: "m".into(),
+            model: "p".into(),
+            noise_profile: None,
+            bits_per_sample: 16,
+            color: Default::default(),
+            source: PathBuf::from(name),
+        }
+    }
+
+    #[test]
+    fn rounded_isos_are_one_setting_and_steps_follow_brightness() {
+        let mut heads = Vec::new();
+        for (i, (iso, exp)) in [(50, 8_000_000), (50, 8_000_000), (200, 2_000_000), (201, 2_000_000), (200, 2_000_000)]
+            .into_iter()
+            .enumerate()
+        {
+            heads.push(head(&format!("a{i}.dng"), iso, exp));
+        }
+        // A second EV step, shuffled names, one frame reported at ISO 49.
+        for (i, (iso, exp)) in
+            [(800, 1_000_000), (50, 16_000_000), (49, 16_000_000), (800, 1_000_000)].into_iter().enumerate()
+        {
+            heads.push(head(&format!("z{i}.dng"), iso, exp));
+        }
+        let set = group_dngs(heads, None, Path::new("x")).unwrap();
+        assert_eq!(set.reference_iso, 50);
+        assert_eq!(set.steps.len(), 2);
+        assert_eq!(set.target_isos(), vec![200, 800]);
+        assert_eq!(set.steps[0].reference.len(), 2);
+        assert_eq!(set.steps[0].targets.len(), 3);
+        assert_eq!(set.steps[1].reference.len(), 2);
+        assert!(set.warnings.iter().any(|w| w.contains("used as ISO 200")), "{:?}", set.warnings);
+        assert!(set.warnings.iter().any(|w| w.contains("used as ISO 50")), "{:?}", set.warnings);
+        // 1/3-stop ISOs stay apart.
+        let heads = vec![head("a", 100, 8_000_000), head("b", 125, 6_400_000), head("c", 160, 5_000_000)];
+        let mut h = heads;
+        assert!(snap_isos(&mut h).is_empty());
+    }
 }
