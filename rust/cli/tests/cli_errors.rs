@@ -155,3 +155,42 @@ fn synth_is_reproducible_and_reads_back() {
     ]);
     assert!(ok && err.contains("interpolated"), "{err}");
 }
+
+#[test]
+fn synth_takes_levels_above_black() {
+    let dir = tempfile::tempdir().unwrap();
+    simulate(dir.path());
+    let dngs = dir.path().join("dngs");
+    let pack = dir.path().join("p.pack");
+    assert!(noisecal(&["calibrate", dngs.to_str().unwrap(), "-o", pack.to_str().unwrap(), "--min-samples", "50"]).0);
+    let template = noisecal_cli::dng::read_dng(&dngs.join("f00000.dng")).unwrap();
+    // The same scene written with the pack's black level (64) and with black 60.
+    let scene =
+        ndarray::Array2::from_shape_fn(template.pixels.dim(), |(y, x)| (150 + 3 * ((x / 8 + y / 8) % 20)) as u16);
+    let mut layout = template.layout.clone();
+    let meta = noisecal_core::FrameMeta { black: None, ..template.meta };
+    let a = dir.path().join("a.dng");
+    noisecal_cli::dng::write_dng_from_layout(&a, &layout, &meta, "m", "p", &scene).unwrap();
+    layout.black = [60.0; 4];
+    let b = dir.path().join("b.dng");
+    noisecal_cli::dng::write_dng_from_layout(&b, &layout, &meta, "m", "p", &scene.mapv(|v| v - 4)).unwrap();
+    for (input, out) in [(&a, "na.dng"), (&b, "nb.dng")] {
+        let (ok, err) = noisecal(&[
+            "synth",
+            "--pack",
+            pack.to_str().unwrap(),
+            "--iso",
+            "800",
+            "--seed",
+            "3",
+            input.to_str().unwrap(),
+            "-o",
+            dir.path().join(out).to_str().unwrap(),
+        ]);
+        assert!(ok, "{err}");
+    }
+    let na = noisecal_cli::dng::read_dng(&dir.path().join("na.dng")).unwrap().pixels;
+    let nb = noisecal_cli::dng::read_dng(&dir.path().join("nb.dng")).unwrap().pixels;
+    assert_ne!(na, scene, "noise was added");
+    assert_eq!(nb, na.mapv(|v| v.saturating_sub(4)), "the same noise, 4 DN lower");
+}

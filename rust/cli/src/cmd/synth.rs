@@ -4,6 +4,8 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
+use noisecal_core::POSITIONS;
+use noisecal_core::layout::position;
 use noisecal_core::sampler::IsoSampler;
 use noisecal_core::synth::synthesize;
 
@@ -85,7 +87,28 @@ fn synth_file(
 ) -> anyhow::Result<()> {
     let img = dng::read_dng(input)?;
     crate::models::check_layout_matches(pack, &img.layout, input)?;
-    let noisy = synthesize(sampler, img.pixels.view(), seed);
+    // The model is binned by level above the pack's black level: an image with another black level
+    // is shifted onto the pack's, synthesized, and shifted back.
+    let shift: [i32; POSITIONS] = std::array::from_fn(|p| (pack.layout.black[p] - img.layout.black[p]).round() as i32);
+    let noisy = if shift.iter().all(|&d| d == 0) {
+        synthesize(sampler, img.pixels.view(), seed)
+    } else {
+        eprintln!(
+            "{}: black level {:?} differs from the pack's {:?}; levels are taken above black",
+            input.display(),
+            img.layout.black,
+            pack.layout.black
+        );
+        let white = pack.layout.white as i32;
+        let moved = ndarray::Array2::from_shape_fn(img.pixels.dim(), |(y, x)| {
+            (img.pixels[(y, x)] as i32 + shift[position(y, x)]).clamp(0, white) as u16
+        });
+        let out = synthesize(sampler, moved.view(), seed);
+        let img_white = img.layout.white as i32;
+        ndarray::Array2::from_shape_fn(out.dim(), |(y, x)| {
+            (out[(y, x)] as i32 - shift[position(y, x)]).clamp(0, img_white) as u16
+        })
+    };
     dng::write_dng(output, &img, &noisy, iso)?;
     Ok(())
 }
