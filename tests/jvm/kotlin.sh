@@ -17,3 +17,22 @@ ensure_kotlinc() {
     [[ -f "$KC_LIB/$jar" ]] || { echo "error: $KC_LIB/$jar missing after npm install; remove $TOOLS/node_modules/kotlin-compiler and retry" >&2; exit 2; }
   done
 }
+
+# compile_kotlin CLASSES_DIR SOURCE...: compiles the sources into CLASSES_DIR against the Kotlin
+# stdlib, skipped when neither the file list nor any file changed since the last compile.
+compile_kotlin() {
+  local classes="$1"
+  shift
+  local stamp="$classes/.sources.sha256" hash
+  hash="$( (printf '%s\n' "$@"; cat "$@") | sha256sum | cut -d' ' -f1)"
+  if [[ -f "$stamp" ]] && [[ "$(cat "$stamp")" == "$hash" ]]; then
+    return 0
+  fi
+  rm -rf "$classes"
+  mkdir -p "$classes"
+  echo "compiling $# Kotlin files" >&2
+  java -Xss8m -cp "$KC_LIB/kotlin-compiler.jar" org.jetbrains.kotlin.cli.jvm.K2JVMCompiler \
+    -no-stdlib -no-reflect -classpath "$KC_LIB/kotlin-stdlib.jar" -jvm-target 17 -Werror \
+    -d "$classes" "$@"
+  echo "$hash" > "$stamp"
+}

@@ -348,8 +348,8 @@ impl CalibrationSession {
         // Brightness against the burst's first frame.
         let mut verdict = DriftVerdict { departure: 0.0, drifted: false, scale: 1.0 };
         if burst.frames > 0 {
-            let (f, b) = band_sums(frame, &burst.first, &ident, clip, w, h);
-            if let Some(fb) = brightness_from_bands(&f, &b) {
+            let sums = brightness_sums(frame, &burst.first, &ident, clip, w, h);
+            if let Some(fb) = brightness_from_bands(&sums.frame_bands, &sums.base_bands) {
                 verdict = burst.drift.assess(fb, cfg_drift.0, cfg_drift.1);
             }
         } else {
@@ -477,8 +477,8 @@ impl CalibrationSession {
         let Some(Step { phase: Phase::Targets(tp), .. }) = self.step.as_mut() else {
             return Err(SessionError::NoStep);
         };
-        let (fsum, bsum) = band_sums(frame, &tp.clean, &ident, clip, w, h);
-        let fb = brightness_from_bands(&fsum, &bsum);
+        let sums = brightness_sums(frame, &tp.clean, &ident, clip, w, h);
+        let fb = brightness_from_bands(&sums.frame_bands, &sums.base_bands);
         let verdict = match fb {
             Some(fb) => tp.drift.entry(meta.iso).or_default().assess(fb, z, floor),
             None => DriftVerdict { departure: 0.0, drifted: false, scale: 1.0 },
@@ -495,10 +495,9 @@ impl CalibrationSession {
         );
         let samples = s0 + s1;
         // Brightness sums per position for the gain ratio (after normalisation).
-        let (pf, pb) = position_sums(frame, clean, &ident, clip, w, h);
         for p in 0..POSITIONS {
-            acc.target_sum[p] += pf[p] * scale;
-            acc.reference_sum[p] += pb[p];
+            acc.target_sum[p] += sums.frame_pos[p] * scale;
+            acc.reference_sum[p] += sums.base_pos[p];
         }
         acc.frames += 1;
         acc.samples += samples;
@@ -678,17 +677,30 @@ fn clip_level(l: &SensorLayout) -> f32 {
     b + 0.9 * (l.white as f32 - b)
 }
 
-/// Per-band Σ(frame − black) and Σ(base − black) over pixels where the base is flat and unclipped.
-fn band_sums(
+/// Σ(frame − black) and Σ(base − black) over pixels where the base is flat and unclipped, per row
+/// band (for a frame's brightness and its standard error) and per CFA position (for gain ratios),
+/// in one pass over every fourth row pair of large frames.
+struct BrightnessSums {
+    frame_bands: Vec<f64>,
+    base_bands: Vec<f64>,
+    frame_pos: [f64; POSITIONS],
+    base_pos: [f64; POSITIONS],
+}
+
+fn brightness_sums(
     frame: &FrameView<'_>,
     base: &[u16],
     tf: &Transform,
     clip: f32,
     w: usize,
     h: usize,
-) -> (Vec<f64>, Vec<f64>) {
-    let mut fs = vec![0.0f64; BANDS];
-    let mut bs = vec![0.0f64; BANDS];
+) -> BrightnessSums {
+    let mut out = BrightnessSums {
+        frame_bands: vec![0.0; BANDS],
+        base_bands: vec![0.0; BANDS],
+        frame_pos: [0.0; POSITIONS],
+        base_pos: [0.0; POSITIONS],
+    };
     let rows_per_band = h.div_ceil(BANDS).max(1);
     let step = if h > 512 { 4 } else { 1 };
     let mut buf = vec![0u16; w];
@@ -702,41 +714,17 @@ fn band_sums(
                 continue;
             }
             let pos = ((y & 1) << 1) | (x & 1);
-            f += (tf.apply(pos, buf[x]) - tf.black[pos]) as f64;
-            b += (c as f32 - tf.black[pos]) as f64;
+            let fv = (tf.apply(pos, buf[x]) - tf.black[pos]) as f64;
+            let bv = (c as f32 - tf.black[pos]) as f64;
+            f += fv;
+            b += bv;
+            out.frame_pos[pos] += fv;
+            out.base_pos[pos] += bv;
         }
-        fs[band] += f;
-        bs[band] += b;
+        out.frame_bands[band] += f;
+        out.base_bands[band] += b;
     }
-    (fs, bs)
-}
-
-/// Σ(frame − black) and Σ(clean − black) per position over flat, unclipped pixels.
-fn position_sums(
-    frame: &FrameView<'_>,
-    clean: &[u16],
-    tf: &Transform,
-    clip: f32,
-    w: usize,
-    h: usize,
-) -> ([f64; POSITIONS], [f64; POSITIONS]) {
-    let mut f = [0.0f64; POSITIONS];
-    let mut b = [0.0f64; POSITIONS];
-    let step = if h > 512 { 4 } else { 1 };
-    let mut buf = vec![0u16; w];
-    for y in (0..h).step_by(2 * step).flat_map(|y| [y, y + 1]).filter(|&y| y < h) {
-        frame.read_row(y, &mut buf);
-        for x in 0..w {
-            let c = clean[y * w + x];
-            if c == NOT_FLAT || c as f32 > clip {
-                continue;
-            }
-            let pos = ((y & 1) << 1) | (x & 1);
-            f[pos] += (tf.apply(pos, buf[x]) - tf.black[pos]) as f64;
-            b[pos] += (c as f32 - tf.black[pos]) as f64;
-        }
-    }
-    (f, b)
+    out
 }
 
 /// Folds the rows of one parity into that parity's two positions' histograms.

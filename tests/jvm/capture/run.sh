@@ -15,12 +15,7 @@ OUT="$ROOT/tests/jvm/build/capture"
 
 ensure_kotlinc
 
-rm -rf "$OUT"
-mkdir -p "$OUT"
 mapfile -t SOURCES < <(find "$ROOT/android/capture/src/main/kotlin" "$ROOT/tests/jvm/capture/src" -name '*.kt' | sort)
-echo "compiling ${#SOURCES[@]} Kotlin files" >&2
-java -Xss8m -cp "$KC_LIB/kotlin-compiler.jar" org.jetbrains.kotlin.cli.jvm.K2JVMCompiler \
-  -no-stdlib -no-reflect -classpath "$KC_LIB/kotlin-stdlib.jar" -jvm-target 17 -Werror \
-  -d "$OUT/classes" "${SOURCES[@]}"
+compile_kotlin "$OUT/classes" "${SOURCES[@]}"
 
 java -cp "$OUT/classes:$KC_LIB/kotlin-stdlib.jar" org.noisecal.capture.test.TestRunnerKt "$@"

@@ -29,17 +29,7 @@ ensure_kotlinc
 
 SOURCES=("$ROOT/android/capture/src/main/kotlin/org/noisecal/jni/NoisecalSession.kt")
 mapfile -t -O 1 SOURCES < <(find "$ROOT/tests/jvm/jni/src" -name '*.kt' | sort)
-STAMP="$OUT/classes/.sources.sha256"
-HASH="$(cat "${SOURCES[@]}" | sha256sum | cut -d' ' -f1)"
-if [[ ! -f "$STAMP" ]] || [[ "$(cat "$STAMP")" != "$HASH" ]]; then
-  rm -rf "$OUT/classes"
-  mkdir -p "$OUT/classes"
-  echo "compiling ${#SOURCES[@]} Kotlin files" >&2
-  java -Xss8m -cp "$KC_LIB/kotlin-compiler.jar" org.jetbrains.kotlin.cli.jvm.K2JVMCompiler \
-    -no-stdlib -no-reflect -classpath "$KC_LIB/kotlin-stdlib.jar" -jvm-target 17 -Werror \
-    -d "$OUT/classes" "${SOURCES[@]}"
-  echo "$HASH" > "$STAMP"
-fi
+compile_kotlin "$OUT/classes" "${SOURCES[@]}"
 
 rm -rf "$WORK"
 mkdir -p "$WORK"
