@@ -14,7 +14,7 @@ use crate::input::{self, InputKind};
 pub struct CalibrateOptions {
     pub reference_iso: Option<u32>,
     pub bin_width: Option<u16>,
-    pub min_samples: Option<u64>,
+    pub pooling: Option<u64>,
     pub roi: Option<Roi>,
     pub flat_k: Option<f64>,
     pub no_drift_normalise: bool,
@@ -25,8 +25,8 @@ impl CalibrateOptions {
         if let Some(b) = self.bin_width {
             c.bin_width = Some(b);
         }
-        if let Some(m) = self.min_samples {
-            c.min_samples = m;
+        if let Some(m) = self.pooling {
+            c.pooling = Some(m);
         }
         if self.roi.is_some() {
             c.roi = self.roi;

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use anyhow::Context;
 use noisecal_core::recording::{RecordingHeader, RecordingWriter};
-use noisecal_sim::{Chart, SensorModel, SessionPlan, Simulator};
+use noisecal_sim::{Chart, RandomSensor, SensorModel, SessionPlan, SessionSpec, Simulator};
 use rayon::prelude::*;
 
 use crate::dng;
@@ -22,6 +22,9 @@ pub struct SimSession {
     /// noise by starting at another index.
     pub index_offset: u64,
 }
+
+/// DNG-folder grouping (`input.rs`) merges EV steps closer than this factor in ISO × exposure.
+const DNG_STEP_FACTOR: f64 = 1.12;
 
 /// Sensor presets by bit depth.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -52,7 +55,70 @@ impl Preset {
     }
 }
 
+/// What `--sensor` names: a preset or a sensor of the random family.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SensorChoice {
+    Preset(Preset),
+    /// `random:SEED`: [`noisecal_sim::random_sensor`] and [`noisecal_sim::random_session`] of SEED.
+    Random(u64),
+}
+
+impl std::str::FromStr for SensorChoice {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        use clap::ValueEnum;
+        if let Some(seed) = s.strip_prefix("random:") {
+            return seed
+                .trim()
+                .parse()
+                .map(SensorChoice::Random)
+                .map_err(|_| format!("`{s}`: the random family takes an integer seed, e.g. random:17"));
+        }
+        Preset::from_str(s, true)
+            .map(SensorChoice::Preset)
+            .map_err(|_| format!("`{s}`: use phone10, phone12, phone14 or random:SEED (e.g. random:17)"))
+    }
+}
+
 impl SimSession {
+    /// A session from a simulator and a plan (frame indices start at 0).
+    pub fn from_parts(sim: Simulator, plan: SessionPlan, name: &str) -> anyhow::Result<Self> {
+        plan.validate()?;
+        Ok(Self { sim, plan, make: "noisecal".into(), model: name.into(), index_offset: 0 })
+    }
+
+    /// The session `spec` of a random-family sensor with noise seed `seed`: its calibration
+    /// capture, or with `heldout` its held-out set (same sensor, same base exposure, fewer frames,
+    /// fresh noise from the spec's frame-index offset, possibly another image size).
+    pub fn random(sensor: &RandomSensor, spec: &SessionSpec, seed: u64, heldout: bool) -> anyhow::Result<Self> {
+        let sim = spec.simulator(&sensor.model, seed)?;
+        let plan = spec.plan(&sim)?;
+        let mut s = if heldout {
+            let held = spec.heldout_plan(&plan)?;
+            Self::from_parts(spec.heldout_simulator(&sensor.model, seed)?, held, &sensor.name())?
+        } else {
+            Self::from_parts(sim, plan, &sensor.name())?
+        };
+        if heldout {
+            s.index_offset = spec.heldout.index_offset;
+        }
+        Ok(s)
+    }
+
+    /// The smallest ratio of ISO × exposure between consecutive EV steps (`None` for one step).
+    pub fn min_step_factor(&self) -> Option<f64> {
+        let mut evs: Vec<f64> = self.plan.ev_steps.iter().map(|&s| self.plan.ev(s)).collect();
+        evs.sort_by(f64::total_cmp);
+        evs.windows(2).map(|w| 2f64.powf(w[1] - w[0])).min_by(f64::total_cmp)
+    }
+
+    /// Whether a DNG folder of this session would merge EV steps when grouped (`calibrate` and
+    /// `eval` on a folder group DNGs by ISO × exposure, steps ≥ 12 % apart).
+    pub fn dng_grouping_merges_steps(&self) -> bool {
+        self.min_step_factor().is_some_and(|f| f <= DNG_STEP_FACTOR)
+    }
+
     pub fn new(
         model: SensorModel,
         name: &str,
@@ -129,5 +195,38 @@ impl SimSession {
             w.finish()?;
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sensor_choices_parse() {
+        assert_eq!("random:17".parse::<SensorChoice>(), Ok(SensorChoice::Random(17)));
+        assert_eq!("phone12".parse::<SensorChoice>(), Ok(SensorChoice::Preset(Preset::Phone12)));
+        assert!("random:x".parse::<SensorChoice>().expect_err("bad seed").contains("integer seed"));
+        assert!("phone13".parse::<SensorChoice>().expect_err("bad name").contains("random:SEED"));
+    }
+
+    #[test]
+    fn random_sessions_and_their_held_out_sets() {
+        let mut dense_seen = false;
+        for seed in 0..12 {
+            let sensor = noisecal_sim::random_sensor(seed);
+            let spec = noisecal_sim::random_session(seed, &sensor.model);
+            let cal = SimSession::random(&sensor, &spec, 1, false).expect("calibration session");
+            let held = SimSession::random(&sensor, &spec, 1, true).expect("held-out session");
+            assert_eq!(cal.index_offset, 0);
+            assert_eq!(held.index_offset, spec.heldout.index_offset);
+            assert!(held.index_offset >= cal.plan.len() as u64);
+            assert_eq!(held.plan.base_exposure_ns, cal.plan.base_exposure_ns);
+            assert_eq!((held.sim.width() as u32, held.sim.height() as u32), (spec.heldout.width, spec.heldout.height));
+            assert_eq!(cal.dng_grouping_merges_steps(), spec.dense, "seed {seed}");
+            assert!(!held.dng_grouping_merges_steps(), "seed {seed}: held-out steps must stay apart in a DNG folder");
+            dense_seen |= spec.dense;
+        }
+        assert!(dense_seen);
     }
 }

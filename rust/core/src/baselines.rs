@@ -157,6 +157,8 @@ pub fn bin_stats(binning: &Binning, model: &IsoModel, pos: usize) -> Vec<BinStat
         .iter()
         .enumerate()
         .map(|(bin, bm)| {
+            // The PMF's moments: for calibrated bins the estimator's (own samples, pooled where
+            // held-out frames favoured it), which are steadier than a sparse bin's own moments.
             let (mean, var) = bm.moments();
             let pmf = bm.pmf();
             let lo_level = black + bin as f64 * bw;
@@ -168,7 +170,7 @@ pub fn bin_stats(binning: &Binning, model: &IsoModel, pos: usize) -> Vec<BinStat
                 mean,
                 var,
                 samples: bm.samples,
-                filled: bm.filled,
+                filled: bm.filled(),
                 clipped,
             }
         })
@@ -176,15 +178,18 @@ pub fn bin_stats(binning: &Binning, model: &IsoModel, pos: usize) -> Vec<BinStat
 }
 
 /// Fits `σ² = a·(l − black) + b` (non-negative `a`, `b`) to the per-bin variances of one
-/// position. Bins clipped at 0 or white are left out; measured bins are weighted by
-/// `samples / σ⁴` (the inverse variance of a sample variance), filled bins are used only when
+/// position. Bins whose PMF is clipped at 0 or white are left out; bins with samples of their own
+/// are weighted by
+/// `samples / σ⁴` (the inverse variance of a sample variance), bins without samples only when
 /// fewer than two measured bins remain. Returns `None` when no bin is usable.
 pub fn fit_params(binning: &Binning, model: &IsoModel, pos: usize) -> Option<NoiseParams> {
     let stats = bin_stats(binning, model, pos);
     let pick = |allow_filled: bool, allow_clipped: bool| -> Vec<&BinStat> {
         stats
             .iter()
-            .filter(|s| (allow_filled || !s.filled) && (allow_clipped || !s.clipped))
+            // A bin stands on data when it has samples of its own; a clipped bin whose PMF the
+            // estimator replaced by the unclipped law is usable too (its PMF is not clipped).
+            .filter(|s| (allow_filled || s.samples > 0) && (allow_clipped || !s.clipped))
             .filter(|s| s.samples > 0 || allow_filled)
             .collect()
     };
@@ -357,18 +362,20 @@ impl Baseline {
         let binning = pack.binning();
         let src = pack.iso(self.iso);
         let positions = (0..POSITIONS)
-            .map(|pos| PositionModel {
+            .map(|pos| {
                 // PMFs of a Poisson–Gaussian bin are costly; bins are independent (order kept).
-                bins: (0..binning.bins(pos))
-                    .into_par_iter()
-                    .map(|bin| {
-                        let samples = src
-                            .and_then(|m| m.positions.get(pos))
-                            .and_then(|pm| pm.bins.get(bin))
-                            .map_or(0, |b| b.samples);
-                        BinModel::from_pmf(&self.bin_pmf(&binning, pos, bin), samples, true)
-                    })
-                    .collect(),
+                PositionModel::new(
+                    (0..binning.bins(pos))
+                        .into_par_iter()
+                        .map(|bin| {
+                            let samples = src
+                                .and_then(|m| m.positions.get(pos))
+                                .and_then(|pm| pm.bins.get(bin))
+                                .map_or(0, |b| b.samples);
+                            BinModel::from_pmf(&self.bin_pmf(&binning, pos, bin), samples, true)
+                        })
+                        .collect(),
+                )
             })
             .collect();
         let origin = match &self.source {
@@ -385,6 +392,8 @@ impl Baseline {
             drift_frames: src.map_or(0, |m| m.drift_frames),
             gain_ratio: src.map_or([1.0; POSITIONS], |m| m.gain_ratio),
             noise_profile: src.and_then(|m| m.noise_profile),
+            // A parametric baseline knows nothing of the codes a sensor writes.
+            lattice: [None; POSITIONS],
             positions,
         }
     }

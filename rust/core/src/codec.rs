@@ -39,6 +39,19 @@ pub fn decode<T: DeserializeOwned>(
     version: u16,
     bytes: &[u8],
 ) -> Result<T, CodecError> {
+    let (_, payload) = decode_framing(what, magic, magic_text, version..=version, bytes)?;
+    decode_payload(what, payload)
+}
+
+/// Checks the framing of what [`encode`] wrote and returns its format version (one of
+/// `supported`) and its payload, for readers that migrate older versions.
+pub fn decode_framing<'a>(
+    what: &'static str,
+    magic: &[u8; 8],
+    magic_text: &'static str,
+    supported: std::ops::RangeInclusive<u16>,
+    bytes: &'a [u8],
+) -> Result<(u16, &'a [u8]), CodecError> {
     if bytes.len() < 8 || &bytes[..8] != magic {
         if bytes.len() < 8 && magic.starts_with(bytes) && !bytes.is_empty() {
             return Err(CodecError::Truncated { what, len: bytes.len(), expected: HEADER });
@@ -49,22 +62,25 @@ pub fn decode<T: DeserializeOwned>(
         return Err(CodecError::Truncated { what, len: bytes.len(), expected: HEADER });
     }
     let found = u16::from_le_bytes([bytes[8], bytes[9]]);
-    if found > version {
-        return Err(CodecError::NewerVersion { what, found, supported: version });
+    if found > *supported.end() {
+        return Err(CodecError::NewerVersion { what, found, supported: *supported.end() });
     }
-    if found < version {
-        return Err(CodecError::OlderVersion { what, found, supported: version });
+    if found < *supported.start() {
+        return Err(CodecError::OlderVersion { what, found, supported: *supported.start() });
     }
-    let len = u64::from_le_bytes(bytes[12..20].try_into().map_err(|_| CodecError::Truncated {
-        what,
-        len: bytes.len(),
-        expected: HEADER,
-    })?) as usize;
+    let mut len_bytes = [0u8; 8];
+    len_bytes.copy_from_slice(&bytes[12..20]);
+    let len = u64::from_le_bytes(len_bytes);
     let crc = u32::from_le_bytes([bytes[20], bytes[21], bytes[22], bytes[23]]);
     let payload = &bytes[HEADER..];
-    if payload.len() < len {
-        return Err(CodecError::Truncated { what, len: bytes.len(), expected: HEADER + len });
+    if (payload.len() as u64) < len {
+        return Err(CodecError::Truncated {
+            what,
+            len: bytes.len(),
+            expected: HEADER.saturating_add(usize::try_from(len).unwrap_or(usize::MAX)),
+        });
     }
+    let len = len as usize;
     if payload.len() > len {
         return Err(CodecError::Invalid {
             what,
@@ -75,10 +91,15 @@ pub fn decode<T: DeserializeOwned>(
     if found_crc != crc {
         return Err(CodecError::Checksum { what, found: found_crc, expected: crc });
     }
+    Ok((found, payload))
+}
+
+/// Decodes a payload returned by [`decode_framing`]; every byte must be used.
+pub fn decode_payload<T: DeserializeOwned>(what: &'static str, payload: &[u8]) -> Result<T, CodecError> {
     let (value, used) = bincode::serde::decode_from_slice(payload, config())
         .map_err(|e| CodecError::Decode { what, detail: e.to_string() })?;
-    if used != len {
-        return Err(CodecError::Invalid { what, detail: format!("payload has {} unread bytes", len - used) });
+    if used != payload.len() {
+        return Err(CodecError::Invalid { what, detail: format!("payload has {} unread bytes", payload.len() - used) });
     }
     Ok(value)
 }

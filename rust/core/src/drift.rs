@@ -53,13 +53,21 @@ pub struct DriftTracker {
 impl DriftTracker {
     /// Judges a frame against the running median of the burst (this frame included), with a
     /// threshold of `z` standard errors (from the frame itself and the burst's spread) and at least
-    /// `floor` relative.
+    /// `floor` relative, and records it.
     pub fn assess(&mut self, b: FrameBrightness, z: f64, floor: f64) -> DriftVerdict {
-        self.ratios.push(b.ratio);
-        let med = median(&self.ratios);
+        let v = self.judge(b, z, floor);
+        self.record(b);
+        v
+    }
+
+    /// [`assess`](Self::assess) without recording the frame (for a frame that may be refused).
+    pub fn judge(&self, b: FrameBrightness, z: f64, floor: f64) -> DriftVerdict {
+        let mut ratios = self.ratios.clone();
+        ratios.push(b.ratio);
+        let med = median(&ratios);
         let departure = b.ratio / med - 1.0;
-        let spread = if self.ratios.len() >= 5 {
-            let dev: Vec<f64> = self.ratios.iter().map(|r| (r / med - 1.0).abs()).collect();
+        let spread = if ratios.len() >= 5 {
+            let dev: Vec<f64> = ratios.iter().map(|r| (r / med - 1.0).abs()).collect();
             1.4826 * median(&dev)
         } else {
             0.0
@@ -67,6 +75,11 @@ impl DriftTracker {
         let threshold = floor.max(z * (b.sigma / med)).max(z * spread);
         let drifted = departure.abs() > threshold;
         DriftVerdict { departure, drifted, scale: if drifted { med / b.ratio } else { 1.0 } }
+    }
+
+    /// Adds a frame's brightness to the burst.
+    pub fn record(&mut self, b: FrameBrightness) {
+        self.ratios.push(b.ratio);
     }
 
     pub fn frames(&self) -> usize {

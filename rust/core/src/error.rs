@@ -61,6 +61,10 @@ pub enum SessionError {
         "reference frame arrived after the reference burst of this EV step was closed by a target frame: begin a new step"
     )]
     ReferenceClosed,
+    #[error(
+        "{kind} frame at ISO {iso}, exposure {exposure_ns} ns is {departure_pct:+.1} % off the brightness of its burst: more than flicker (normalised only up to ±{max_pct:.0} %). It belongs to another setting, or the light changed; the frame is refused"
+    )]
+    Drift { kind: &'static str, iso: u32, exposure_ns: u64, departure_pct: f64, max_pct: f64 },
     #[error("frame metadata is invalid: {0}")]
     Metadata(String),
     #[error("per-frame black level {black} at position {pos} is not below white {white}")]

@@ -414,11 +414,11 @@ pub fn interpolate_planned(pack: &ModelPack, plan: &InterpPlan) -> IsoModel {
                         _ => pts[0].bin.pmf().rescaled(mean, var),
                     };
                     let samples = pts.iter().map(|p| p.bin.samples).min().unwrap_or(0);
-                    let filled = pts.iter().any(|p| p.bin.filled);
+                    let filled = pts.iter().any(|p| p.bin.filled());
                     BinModel::from_pmf(&pmf, samples, filled)
                 })
                 .collect();
-            PositionModel { bins }
+            PositionModel::new(bins)
         })
         .collect();
     let lerp = |f: &dyn Fn(&IsoModel) -> f64| -> f64 { log_lerp(&nb, j, f) };
@@ -440,6 +440,8 @@ pub fn interpolate_planned(pack: &ModelPack, plan: &InterpPlan) -> IsoModel {
         drift_frames: 0,
         gain_ratio,
         noise_profile,
+        // The interpolated ISO's digital gain, if any, is unknown: no lattice.
+        lattice: [None; POSITIONS],
         positions,
     }
 }

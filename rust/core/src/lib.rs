@@ -4,6 +4,7 @@
 
 pub mod error;
 pub mod frame;
+pub mod lattice;
 pub mod layout;
 pub mod meta;
 
@@ -11,13 +12,15 @@ pub use error::{Error, Result};
 pub use frame::FrameView;
 pub use layout::{Binning, CfaPattern, POSITIONS, SensorLayout};
 pub use meta::FrameMeta;
+pub mod check;
 pub mod codec;
 pub mod drift;
-pub mod fill;
+pub mod estimate;
 pub mod fit;
 pub mod flat;
 pub mod histogram;
 pub mod pack;
+pub mod pack_v1;
 pub mod pmf;
 pub mod recording;
 pub mod sampler;

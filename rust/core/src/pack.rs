@@ -5,13 +5,19 @@ use serde::{Deserialize, Serialize};
 
 use crate::codec;
 use crate::error::{CodecError, ModelError};
+use crate::estimate::EstimateReport;
+use crate::lattice::CodeLattice;
 use crate::layout::{Binning, POSITIONS, SensorLayout};
 use crate::pmf::Pmf;
 
 pub const PACK_MAGIC: &[u8; 8] = b"NCALPACK";
 pub const PACK_MAGIC_TEXT: &str = "NCALPACK";
-/// Bump on any change to the serialised structs.
-pub const PACK_VERSION: u16 = 1;
+/// Bump on any change to the serialised structs. Version 2 adds, per bin, where its PMF comes
+/// from, its measured moments and whether it is clipped, and per position the estimator's
+/// report; version 1 packs are read and migrated ([`crate::pack_v1`]).
+pub const PACK_VERSION: u16 = 2;
+/// The oldest pack version this noisecal reads.
+pub const PACK_VERSION_MIN: u16 = 1;
 
 /// A calibrated (or interpolated) non-parametric noise model of one camera.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -23,8 +29,9 @@ pub struct ModelPack {
     pub bin_width: u16,
     /// The reference (lowest) ISO of the calibration session.
     pub reference_iso: u32,
-    /// Bins with fewer samples were filled from their neighbours.
-    pub min_samples: u64,
+    /// The pooling threshold the user fixed (`None`: chosen per ISO and position by
+    /// cross-validation; see [`PositionModel::estimate`]).
+    pub pooling: Option<u64>,
     /// One model per ISO, sorted by ISO.
     pub isos: Vec<IsoModel>,
     /// What the calibration noticed (drifting frames, gain ratios off 1, sparse bins …).
@@ -57,6 +64,9 @@ pub struct IsoModel {
     /// The camera's own noise profile `σ² = S·x + O` (x in [0,1]) per CFA position, when the
     /// captures carried one (DNG NoiseProfile / SENSOR_NOISE_PROFILE).
     pub noise_profile: Option<[[f64; 2]; POSITIONS]>,
+    /// Per CFA position, the codes the sensor writes when it does not write every code
+    /// (digital gain; [`crate::lattice`]). Synthesis snaps its output onto them.
+    pub lattice: [Option<CodeLattice>; POSITIONS],
     /// Per CFA position, per bin.
     pub positions: Vec<PositionModel>,
 }
@@ -65,21 +75,71 @@ pub struct IsoModel {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PositionModel {
     pub bins: Vec<BinModel>,
+    /// What the estimator chose for this position (calibrated models of version 2 packs).
+    pub estimate: Option<EstimateReport>,
 }
 
-/// The noise PMF of one (ISO, position, bin): counts (or weights, for filled bins) over
-/// `first ..`.
+impl PositionModel {
+    pub fn new(bins: Vec<BinModel>) -> Self {
+        Self { bins, estimate: None }
+    }
+}
+
+/// Where a bin's PMF comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum BinSource {
+    /// The bin's own samples only.
+    Measured,
+    /// Its own samples pooled with neighbouring bins' (moved onto it by the noise law).
+    Pooled,
+    /// Without samples of its own (or clipped, in law mode): neighbours moved by the law,
+    /// or an interpolated or parametric PMF.
+    Filled,
+}
+
+/// The noise PMF of one (ISO, position, bin): weights over `first ..` (counts for a plain
+/// histogram; for estimated bins, probabilities scaled to a fixed total).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct BinModel {
     pub first: i32,
     pub counts: Vec<u64>,
-    /// Real samples measured in this bin (may be below `min_samples` when filled).
+    /// Real samples measured in this bin.
     pub samples: u64,
-    /// True when the PMF was filled from neighbouring bins rather than measured.
-    pub filled: bool,
+    pub source: BinSource,
+    /// Mean and variance of the bin's own samples, when it has any.
+    pub measured: Option<[f64; 2]>,
+    /// The bin's samples reach 0 or white: its measured moments are shrunk by clipping.
+    pub clipped: bool,
 }
 
 impl BinModel {
+    /// True when the PMF does not stand on the bin's own samples.
+    pub fn filled(&self) -> bool {
+        self.source == BinSource::Filled
+    }
+
+    /// Weights from an estimated PMF (probabilities × 2³⁰, so packs are deterministic).
+    pub fn estimated(p: &Pmf, samples: u64, source: BinSource, measured: Option<[f64; 2]>, clipped: bool) -> Self {
+        const SCALE: f64 = (1u64 << 30) as f64;
+        let mut b = Self::from_scaled(p, SCALE);
+        b.samples = samples;
+        b.source = source;
+        b.measured = measured;
+        b.clipped = clipped;
+        b
+    }
+
+    fn from_scaled(p: &Pmf, scale: f64) -> Self {
+        let counts: Vec<u64> = p.p.iter().map(|&x| (x * scale).round() as u64).collect();
+        let lo = counts.iter().position(|&c| c > 0);
+        let hi = counts.iter().rposition(|&c| c > 0);
+        let (first, counts) = match (lo, hi) {
+            (Some(lo), Some(hi)) => (p.first + lo as i32, counts[lo..=hi].to_vec()),
+            _ => (p.first + p.p.len() as i32 / 2, vec![1]),
+        };
+        Self { first, counts, samples: 0, source: BinSource::Filled, measured: None, clipped: false }
+    }
+
     pub fn pmf(&self) -> Pmf {
         Pmf::from_weights(self.first, self.counts.iter().map(|&c| c as f64)).unwrap_or(Pmf { first: 0, p: vec![1.0] })
     }
@@ -88,16 +148,49 @@ impl BinModel {
         crate::histogram::moments(self.first, self.counts.iter().map(|&c| c as f64))
     }
 
-    /// Weights from a PMF, with a fixed total so filled bins serialise deterministically.
+    /// Weights from a derived PMF (interpolated or parametric), with a fixed total so such bins
+    /// serialise deterministically. `filled` marks a PMF that stands on no measured bin.
     pub fn from_pmf(p: &Pmf, samples: u64, filled: bool) -> Self {
         const SCALE: f64 = (1u64 << 24) as f64;
         let counts: Vec<u64> = p.p.iter().map(|&x| (x * SCALE).round() as u64).collect();
-        let mut b = BinModel { first: p.first, counts, samples, filled };
+        let mut b = BinModel {
+            first: p.first,
+            counts,
+            samples,
+            source: if filled { BinSource::Filled } else { BinSource::Pooled },
+            measured: None,
+            clipped: false,
+        };
         if b.counts.iter().all(|&c| c == 0) {
             b.counts = vec![1];
             b.first = p.first + p.p.len() as i32 / 2;
         }
         b
+    }
+
+    /// A bin that is exactly a measured histogram.
+    pub fn from_histogram(h: &crate::histogram::NoiseHistogram) -> Self {
+        let t = h.trimmed();
+        let samples = t.total();
+        let (m, v) = t.moments();
+        if samples == 0 {
+            return Self {
+                first: 0,
+                counts: vec![1],
+                samples: 0,
+                source: BinSource::Filled,
+                measured: None,
+                clipped: false,
+            };
+        }
+        Self {
+            first: t.first,
+            counts: t.counts,
+            samples,
+            source: BinSource::Measured,
+            measured: Some([m, v]),
+            clipped: false,
+        }
     }
 }
 
@@ -113,7 +206,12 @@ impl IsoModel {
 
     /// Bins filled from neighbours, per position.
     pub fn filled_bins(&self, pos: usize) -> usize {
-        self.positions[pos].bins.iter().filter(|b| b.filled).count()
+        self.positions[pos].bins.iter().filter(|b| b.filled()).count()
+    }
+
+    /// Bins whose PMF pools neighbouring bins with their own samples, per position.
+    pub fn pooled_bins(&self, pos: usize) -> usize {
+        self.positions[pos].bins.iter().filter(|b| b.source == BinSource::Pooled).count()
     }
 }
 
@@ -155,8 +253,15 @@ impl ModelPack {
         codec::encode("model pack", PACK_MAGIC, PACK_VERSION, self)
     }
 
+    /// Reads a pack of this version or an older one (migrated; see [`crate::pack_v1`]).
     pub fn from_bytes(bytes: &[u8]) -> Result<Self, CodecError> {
-        let p: ModelPack = codec::decode("model pack", PACK_MAGIC, PACK_MAGIC_TEXT, PACK_VERSION, bytes)?;
+        const WHAT: &str = "model pack";
+        let (version, payload) =
+            codec::decode_framing(WHAT, PACK_MAGIC, PACK_MAGIC_TEXT, PACK_VERSION_MIN..=PACK_VERSION, bytes)?;
+        let p: ModelPack = match version {
+            1 => codec::decode_payload::<crate::pack_v1::ModelPackV1>(WHAT, payload)?.migrate(),
+            _ => codec::decode_payload(WHAT, payload)?,
+        };
         p.check()?;
         Ok(p)
     }
@@ -186,6 +291,9 @@ impl ModelPack {
                         pm.bins.len(),
                         binning.bins(pos)
                     )));
+                }
+                if m.lattice[pos].is_some_and(|l| !l.is_valid()) {
+                    return Err(bad(format!("ISO {} position {pos} has an impossible code lattice", m.iso)));
                 }
                 if let Some((b, _)) = pm.bins.iter().enumerate().find(|(_, b)| b.counts.iter().all(|&c| c == 0)) {
                     return Err(bad(format!("ISO {} position {pos} bin {b} has an empty PMF", m.iso)));

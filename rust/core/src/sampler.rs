@@ -2,6 +2,7 @@
 
 use rand::Rng;
 
+use crate::lattice::Snap;
 use crate::layout::{Binning, POSITIONS};
 use crate::pack::{BinModel, IsoModel, ModelPack};
 
@@ -94,6 +95,8 @@ pub struct IsoSampler {
     pub binning: Binning,
     luts: [Vec<u16>; POSITIONS],
     tables: [Vec<BinTable>; POSITIONS],
+    /// Per position, the move onto the codes the sensor writes (when it skips codes).
+    snaps: [Option<Snap>; POSITIONS],
 }
 
 impl IsoSampler {
@@ -101,7 +104,32 @@ impl IsoSampler {
         let binning = pack.binning();
         let luts = std::array::from_fn(|p| binning.lut(p));
         let tables = std::array::from_fn(|p| model.positions[p].bins.iter().map(BinTable::new).collect());
-        Self { iso: model.iso, white: pack.layout.white, binning, luts, tables }
+        let white = pack.layout.white;
+        let snaps = std::array::from_fn(|p| model.lattice[p].as_ref().map(|l| Snap::new(l, white)));
+        Self { iso: model.iso, white, binning, luts, tables, snaps }
+    }
+
+    /// The same sampler writing every code (no lattice).
+    pub fn without_lattice(mut self) -> Self {
+        self.snaps = std::array::from_fn(|_| None);
+        self
+    }
+
+    /// Clamps a synthesized value to `[0, white]` and moves it onto the codes the sensor writes
+    /// at this position; `alternate` (alternating between neighbouring pixels of one colour)
+    /// breaks ties between two codes.
+    #[inline(always)]
+    pub fn finish(&self, pos: usize, value: i32, alternate: bool) -> u16 {
+        let v = value.clamp(0, self.white as i32) as u16;
+        match &self.snaps[pos] {
+            Some(s) => s.apply(v, alternate),
+            None => v,
+        }
+    }
+
+    /// Whether a position snaps onto a lattice.
+    pub fn has_lattice(&self, pos: usize) -> bool {
+        self.snaps[pos].is_some()
     }
 
     /// The table for a clean level at a position.
@@ -122,11 +150,12 @@ impl IsoSampler {
         (&self.luts[pos], &self.tables[pos])
     }
 
-    /// `clamp(level + n, 0, white)` with `n` drawn for (position, bin of level).
+    /// `clamp(level + n, 0, white)` with `n` drawn for (position, bin of level), moved onto the
+    /// sensor's codes ([`Self::finish`]).
     #[inline(always)]
-    pub fn noisy(&self, pos: usize, level: u16, u: u32) -> u16 {
+    pub fn noisy(&self, pos: usize, level: u16, u: u32, alternate: bool) -> u16 {
         let n = self.table(pos, level).sample_u32(u);
-        (level as i32 + n).clamp(0, self.white as i32) as u16
+        self.finish(pos, level as i32 + n, alternate)
     }
 }
 

@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 use crate::codec;
 use crate::drift::{DriftTracker, DriftVerdict, FrameBrightness, brightness_from_bands};
 use crate::error::{CodecError, SessionError};
-use crate::fill::fill_position;
+use crate::estimate::{BinLevels, FOLDS, Pooling, estimate_position};
 use crate::flat::{CleanInputs, FlatReport, GROUPS, Groups, NOT_FLAT, Roi, TemporalStats, clean_and_mask};
 use crate::frame::FrameView;
 use crate::histogram::NoiseHistogram;
@@ -22,7 +22,7 @@ use crate::meta::FrameMeta;
 use crate::pack::{IsoModel, ModelOrigin, ModelPack, PositionModel};
 
 pub const CHECKPOINT_MAGIC: &[u8; 8] = b"NCALCKPT";
-pub const CHECKPOINT_VERSION: u16 = 1;
+pub const CHECKPOINT_VERSION: u16 = 2;
 /// Row bands used to measure a frame's brightness and its standard error.
 const BANDS: usize = 16;
 
@@ -35,8 +35,9 @@ pub struct SessionConfig {
     pub model: String,
     /// Levels per bin; `None` picks the default for the sensor's bit depth.
     pub bin_width: Option<u16>,
-    /// Bins with fewer samples are filled from their neighbours.
-    pub min_samples: u64,
+    /// Pool each bin with neighbours until it holds this many samples; `None` chooses the
+    /// pooling per ISO and position by cross-validation (the default; [`crate::estimate`]).
+    pub pooling: Option<u64>,
     /// Only pixels inside this rectangle are used.
     pub roi: Option<Roi>,
     /// Flat-test threshold in standard deviations of a neighbour difference.
@@ -47,9 +48,24 @@ pub struct SessionConfig {
     pub drift_z: f64,
     /// Drift threshold floor (relative).
     pub drift_floor: f64,
+    /// Largest brightness departure from its burst that is normalised as flicker (relative); a
+    /// frame further off is refused: it belongs to another setting, or the light changed.
+    pub max_drift: f64,
     /// A target frame's ISO × exposure must match its step's within this relative tolerance.
     pub step_tolerance: f64,
 }
+
+/// A target frame's ISO × exposure may differ from its EV step's by this much (relative): the
+/// rounding devices show in reported ISO and exposure, well below the 1 % that separates the
+/// settings of a dense sweep from their neighbours' brightness by more than flicker does.
+pub const STEP_TOLERANCE: f64 = 0.03;
+
+/// Largest brightness departure of a frame from its burst that is treated as flicker.
+pub const MAX_DRIFT: f64 = 0.05;
+
+/// Bins with fewer samples than this are reported as under-sampled in [`Progress`] (a hint for
+/// the capture UI; the estimator decides pooling from the data, not from this count).
+pub const WELL_SAMPLED: u64 = 1000;
 
 impl SessionConfig {
     pub fn new(reference_iso: u32) -> Self {
@@ -58,13 +74,14 @@ impl SessionConfig {
             make: String::new(),
             model: String::new(),
             bin_width: None,
-            min_samples: 1000,
+            pooling: None,
             roi: None,
             flat_k: 4.5,
             normalise_drift: true,
             drift_z: 5.0,
             drift_floor: 0.002,
-            step_tolerance: 0.1,
+            max_drift: MAX_DRIFT,
+            step_tolerance: STEP_TOLERANCE,
         }
     }
 }
@@ -72,10 +89,14 @@ impl SessionConfig {
 /// Per-ISO accumulation.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 struct IsoAccumulator {
-    hists: Vec<Vec<NoiseHistogram>>,
+    /// `folds[k][pos][bin]`: target frame `i` of this ISO goes to fold `i mod FOLDS`.
+    folds: Vec<Vec<Vec<NoiseHistogram>>>,
     frames: u64,
     samples: u64,
     drift_frames: u64,
+    /// How often each output code (0 ..= white) occurs in the target frames, per position: the
+    /// codes a sensor never writes ([`crate::lattice`]).
+    codes: Vec<Vec<u64>>,
     /// Σ(target − black) and Σ(clean − black) over flat, unclipped pixels, per position.
     target_sum: [f64; POSITIONS],
     reference_sum: [f64; POSITIONS],
@@ -84,7 +105,10 @@ struct IsoAccumulator {
 impl IsoAccumulator {
     fn new(binning: &Binning) -> Self {
         Self {
-            hists: (0..POSITIONS).map(|p| vec![NoiseHistogram::default(); binning.bins(p)]).collect(),
+            codes: vec![vec![0; binning.white as usize + 1]; POSITIONS],
+            folds: (0..FOLDS)
+                .map(|_| (0..POSITIONS).map(|p| vec![NoiseHistogram::default(); binning.bins(p)]).collect())
+                .collect(),
             frames: 0,
             samples: 0,
             drift_frames: 0,
@@ -147,7 +171,7 @@ pub struct IsoProgress {
     pub iso: u32,
     pub frames: u64,
     pub samples: u64,
-    /// Bins (over all positions) with fewer than `min_samples` samples.
+    /// Bins (over all positions) with fewer than [`WELL_SAMPLED`] samples.
     pub under_sampled_bins: usize,
     pub total_bins: usize,
 }
@@ -338,6 +362,7 @@ impl CalibrationSession {
         let groups = Groups { black: self.layout.black, white };
         let clip = clip_level(&self.layout);
         let cfg_drift = (self.config.drift_z, self.config.drift_floor, self.config.normalise_drift);
+        let max_drift = self.config.max_drift;
         let ident = self.transform(meta, 1.0);
         let Some(Step { phase: Phase::Reference(burst), .. }) = self.step.as_mut() else {
             return Err(SessionError::NoStep);
@@ -347,13 +372,24 @@ impl CalibrationSession {
         }
         // Brightness against the burst's first frame.
         let mut verdict = DriftVerdict { departure: 0.0, drifted: false, scale: 1.0 };
-        if burst.frames > 0 {
+        let fb = if burst.frames > 0 {
             let sums = brightness_sums(frame, &burst.first, &ident, clip, w, h);
-            if let Some(fb) = brightness_from_bands(&sums.frame_bands, &sums.base_bands) {
-                verdict = burst.drift.assess(fb, cfg_drift.0, cfg_drift.1);
-            }
+            brightness_from_bands(&sums.frame_bands, &sums.base_bands)
         } else {
-            burst.drift.assess(FrameBrightness { ratio: 1.0, sigma: 0.0 }, cfg_drift.0, cfg_drift.1);
+            Some(FrameBrightness { ratio: 1.0, sigma: 0.0 })
+        };
+        if let Some(fb) = fb {
+            verdict = burst.drift.judge(fb, cfg_drift.0, cfg_drift.1);
+            if verdict.drifted && verdict.departure.abs() > max_drift {
+                return Err(SessionError::Drift {
+                    kind: "reference",
+                    iso: meta.iso,
+                    exposure_ns: meta.exposure_ns,
+                    departure_pct: verdict.departure * 100.0,
+                    max_pct: max_drift * 100.0,
+                });
+            }
+            burst.drift.record(fb);
         }
         let scale = if verdict.drifted && cfg_drift.2 { verdict.scale } else { 1.0 };
         let tf = Transform { scale: scale as f32, ..ident };
@@ -473,6 +509,7 @@ impl CalibrationSession {
         let clip = clip_level(&self.layout);
         let ident = self.transform(meta, 1.0);
         let (z, floor, normalise) = (self.config.drift_z, self.config.drift_floor, self.config.normalise_drift);
+        let max_drift = self.config.max_drift;
         let binning = self.binning.clone();
         let Some(Step { phase: Phase::Targets(tp), .. }) = self.step.as_mut() else {
             return Err(SessionError::NoStep);
@@ -480,7 +517,21 @@ impl CalibrationSession {
         let sums = brightness_sums(frame, &tp.clean, &ident, clip, w, h);
         let fb = brightness_from_bands(&sums.frame_bands, &sums.base_bands);
         let verdict = match fb {
-            Some(fb) => tp.drift.entry(meta.iso).or_default().assess(fb, z, floor),
+            Some(fb) => {
+                let tracker = tp.drift.entry(meta.iso).or_default();
+                let v = tracker.judge(fb, z, floor);
+                if v.drifted && v.departure.abs() > max_drift {
+                    return Err(SessionError::Drift {
+                        kind: "target",
+                        iso: meta.iso,
+                        exposure_ns: meta.exposure_ns,
+                        departure_pct: v.departure * 100.0,
+                        max_pct: max_drift * 100.0,
+                    });
+                }
+                tracker.record(fb);
+                v
+            }
             None => DriftVerdict { departure: 0.0, drifted: false, scale: 1.0 },
         };
         let scale = if verdict.drifted && normalise { verdict.scale } else { 1.0 };
@@ -488,10 +539,12 @@ impl CalibrationSession {
         let luts: [Vec<u16>; POSITIONS] = std::array::from_fn(|p| binning.lut(p));
         let acc = self.isos.entry(meta.iso).or_insert_with(|| IsoAccumulator::new(&binning));
         let clean = &tp.clean;
-        let (even, odd) = acc.hists.split_at_mut(2);
+        let fold = (acc.frames % FOLDS as u64) as usize;
+        let (even, odd) = acc.folds[fold].split_at_mut(2);
+        let (codes_even, codes_odd) = acc.codes.split_at_mut(2);
         let (s0, s1) = rayon::join(
-            || fold_rows(0, frame, clean, w, h, &luts, even, &tf, white),
-            || fold_rows(1, frame, clean, w, h, &luts, odd, &tf, white),
+            || fold_rows(0, frame, clean, w, h, &luts, even, codes_even, &tf, white),
+            || fold_rows(1, frame, clean, w, h, &luts, odd, codes_odd, &tf, white),
         );
         let samples = s0 + s1;
         // Brightness sums per position for the gain ratio (after normalisation).
@@ -559,9 +612,12 @@ impl CalibrationSession {
             .map(|(&iso, acc)| {
                 let mut under = 0;
                 let mut total = 0;
-                for hs in &acc.hists {
-                    total += hs.len();
-                    under += hs.iter().filter(|h| h.total() < self.config.min_samples).count();
+                for pos in 0..POSITIONS {
+                    let bins = acc.folds[0][pos].len();
+                    total += bins;
+                    under += (0..bins)
+                        .filter(|&b| acc.folds.iter().map(|f| f[pos][b].total()).sum::<u64>() < WELL_SAMPLED)
+                        .count();
                 }
                 IsoProgress {
                     iso,
@@ -590,23 +646,64 @@ impl CalibrationSession {
     /// Resumes a session from [`checkpoint`](Self::checkpoint) bytes.
     pub fn restore(bytes: &[u8]) -> Result<Self, CodecError> {
         let s: Self = codec::decode("checkpoint", CHECKPOINT_MAGIC, "NCALCKPT", CHECKPOINT_VERSION, bytes)?;
-        if s.layout.validate().is_err() || s.isos.values().any(|a| a.hists.len() != POSITIONS) {
+        let bins: Vec<usize> = (0..POSITIONS).map(|p| s.binning.bins(p)).collect();
+        let bad_acc = |a: &IsoAccumulator| {
+            a.folds.len() != FOLDS
+                || a.folds.iter().any(|f| f.len() != POSITIONS || f.iter().zip(&bins).any(|(h, &n)| h.len() != n))
+        };
+        let bad_codes = |a: &IsoAccumulator| {
+            a.codes.len() != POSITIONS || a.codes.iter().any(|c| c.len() != s.layout.white as usize + 1)
+        };
+        if s.layout.validate().is_err() || s.isos.values().any(|a| bad_acc(a) || bad_codes(a)) {
             return Err(CodecError::Invalid { what: "checkpoint", detail: "inconsistent session state".into() });
         }
         Ok(s)
     }
 
-    /// Builds the model pack from everything folded in so far.
+    /// The histograms of one ISO and position summed over folds (`None` for an ISO without
+    /// target frames), e.g. for the plain empirical estimator.
+    pub fn histograms(&self, iso: u32, pos: usize) -> Option<Vec<NoiseHistogram>> {
+        let acc = self.isos.get(&iso)?;
+        let mut out = acc.folds.first()?.get(pos)?.clone();
+        for f in &acc.folds[1..] {
+            for (o, h) in out.iter_mut().zip(&f[pos]) {
+                o.merge(h);
+            }
+        }
+        Some(out.iter().map(|h| h.trimmed()).collect())
+    }
+
+    /// Target ISOs with samples so far.
+    pub fn target_isos(&self) -> Vec<u32> {
+        self.isos.keys().copied().collect()
+    }
+
+    /// Builds the model pack from everything folded in so far: per ISO and position, the
+    /// estimator of [`crate::estimate`] (pooling chosen by cross-validation over the folds unless
+    /// the configuration fixes it), then the pack's self-check ([`crate::check`]).
     pub fn finish(&self) -> Result<ModelPack, SessionError> {
+        use rayon::prelude::*;
         let mut warnings: Vec<String> = self.events.iter().filter(|e| e.contains("brightness")).cloned().collect();
+        let pooling = self.config.pooling.map_or(Pooling::Auto, Pooling::Fixed);
+        let levels: Vec<BinLevels> = (0..POSITIONS).map(|p| BinLevels::new(&self.binning, p)).collect();
+        let jobs: Vec<(u32, usize)> = self.isos.keys().flat_map(|&iso| (0..POSITIONS).map(move |p| (iso, p))).collect();
+        // Every (ISO, position) is estimated on its own: in parallel, collected in order.
+        let estimates: Vec<_> = jobs
+            .par_iter()
+            .map(|&(iso, p)| {
+                let acc = &self.isos[&iso];
+                let folds: Vec<&[NoiseHistogram]> = acc.folds.iter().map(|f| f[p].as_slice()).collect();
+                let empty = folds.iter().all(|f| f.iter().all(|h| h.total() == 0));
+                (!empty).then(|| estimate_position(&folds, &levels[p], pooling))
+            })
+            .collect();
         let mut isos = Vec::new();
-        for (&iso, acc) in &self.isos {
+        for (i, (&iso, acc)) in self.isos.iter().enumerate() {
             let mut positions = Vec::with_capacity(POSITIONS);
             let mut missing = None;
-            for (p, hs) in acc.hists.iter().enumerate() {
-                let binning = &self.binning;
-                match fill_position(hs, self.config.min_samples, |b| binning.center(p, b) as f64) {
-                    Some(bins) => positions.push(PositionModel { bins }),
+            for p in 0..POSITIONS {
+                match &estimates[i * POSITIONS + p] {
+                    Some(e) => positions.push(PositionModel { bins: e.bins.clone(), estimate: Some(e.report.clone()) }),
                     None => {
                         missing = Some(p);
                         break;
@@ -615,9 +712,8 @@ impl CalibrationSession {
             }
             if let Some(p) = missing {
                 warnings.push(format!(
-                    "ISO {iso}: no bin at CFA position {p} ({}) has {} samples; the ISO is left out — capture more frames",
+                    "ISO {iso}: no flat pixel at CFA position {p} ({}) gave a sample; the ISO is left out — capture more frames",
                     self.layout.cfa.position_name(p),
-                    self.config.min_samples
                 ));
                 continue;
             }
@@ -625,48 +721,53 @@ impl CalibrationSession {
                 if acc.reference_sum[p] > 0.0 { acc.target_sum[p] / acc.reference_sum[p] } else { 1.0 }
             });
             for (p, g) in gain_ratio.iter().enumerate() {
-                if (g - 1.0).abs() > 0.02 {
+                let name = self.layout.cfa.position_name(p);
+                if (g - 1.0).abs() > FAR_GAIN_RATIO {
                     warnings.push(format!(
-                        "ISO {iso} {}: measured gain ratio {g:.4} is off 1 by {:+.1} % (gain not proportional to ISO); the model keeps the mean shift",
-                        self.layout.cfa.position_name(p),
+                        "ISO {iso} {name}: GAIN RATIO {g:.3} IS FAR FROM 1 ({:+.0} %): the target bursts are {} than their reference bursts at the same ISO × exposure. Check that the light did not change between bursts and that the exposures applied; if the camera really is this far from nominal, the model keeps the mean shift",
+                        (g - 1.0) * 100.0,
+                        if *g > 1.0 { "brighter" } else { "darker" }
+                    ));
+                } else if (g - 1.0).abs() > 0.02 {
+                    warnings.push(format!(
+                        "ISO {iso} {name}: measured gain ratio {g:.4} is off 1 by {:+.1} % (gain not proportional to ISO); the model keeps the mean shift",
                         (g - 1.0) * 100.0
                     ));
                 }
             }
-            let model = IsoModel {
+            isos.push(IsoModel {
                 iso,
                 origin: ModelOrigin::Calibrated,
                 frames: acc.frames,
                 drift_frames: acc.drift_frames,
                 gain_ratio,
                 noise_profile: self.noise_profiles.get(&iso).copied(),
+                lattice: std::array::from_fn(|p| crate::lattice::detect(&acc.codes[p], self.layout.white)),
                 positions,
-            };
-            let filled: usize = (0..POSITIONS).map(|p| model.filled_bins(p)).sum();
-            let total: usize = model.positions.iter().map(|p| p.bins.len()).sum();
-            if filled * 2 > total {
-                warnings.push(format!(
-                    "ISO {iso}: {filled} of {total} bins had fewer than {} samples and were filled from neighbours",
-                    self.config.min_samples
-                ));
-            }
-            isos.push(model);
+            });
         }
         if isos.is_empty() {
             return Err(SessionError::NothingCalibrated);
         }
-        Ok(ModelPack {
+        let mut pack = ModelPack {
             layout: self.layout.clone(),
             make: self.config.make.clone(),
             model: self.config.model.clone(),
             bin_width: self.binning.bin_width,
             reference_iso: self.config.reference_iso,
-            min_samples: self.config.min_samples,
+            pooling: self.config.pooling,
             isos,
             warnings,
-        })
+        };
+        let checks = crate::check::self_check(&pack);
+        pack.warnings.extend(checks.into_iter().map(|c| c.to_string()));
+        Ok(pack)
     }
 }
+
+/// A gain ratio further than this from 1 is reported prominently: more likely a capture problem
+/// than a sensor property.
+pub const FAR_GAIN_RATIO: f64 = 0.10;
 
 /// One row of the reference sums and first frame, with its index.
 type RowPair<'a> = (usize, &'a mut [u32], &'a mut [u16]);
@@ -737,6 +838,7 @@ fn fold_rows(
     h: usize,
     luts: &[Vec<u16>; POSITIONS],
     hists: &mut [Vec<NoiseHistogram>],
+    codes: &mut [Vec<u64>],
     tf: &Transform,
     white: u16,
 ) -> u64 {
@@ -745,6 +847,9 @@ fn fold_rows(
     let identity = tf.identity();
     let (h0, h1) = hists.split_at_mut(1);
     let (hist0, hist1) = (&mut h0[0], &mut h1[0]);
+    let (c0, c1) = codes.split_at_mut(1);
+    let (codes0, codes1) = (&mut c0[0][..], &mut c1[0][..]);
+    let top = white as usize;
     let (lut0, lut1) = (&luts[parity * 2], &luts[parity * 2 + 1]);
     for y in (parity..h).step_by(2) {
         let row: &[u16] = match frame.row(y) {
@@ -763,8 +868,10 @@ fn fold_rows(
                 let n = v as i32 - c as i32;
                 if x & 1 == 0 {
                     hist0[lut0[c as usize] as usize].add(n);
+                    codes0[(v as usize).min(top)] += 1;
                 } else {
                     hist1[lut1[c as usize] as usize].add(n);
+                    codes1[(v as usize).min(top)] += 1;
                 }
                 samples += 1;
             }
@@ -778,8 +885,10 @@ fn fold_rows(
                 let n = t - c as i32;
                 if x & 1 == 0 {
                     hist0[lut0[c as usize] as usize].add(n);
+                    codes0[(v as usize).min(top)] += 1;
                 } else {
                     hist1[lut1[c as usize] as usize].add(n);
+                    codes1[(v as usize).min(top)] += 1;
                 }
                 samples += 1;
             }

@@ -27,7 +27,6 @@ pub fn synthesize(sampler: &IsoSampler, clean: ArrayView2<'_, u16>, seed: u64) -
     if w > 0 {
         out.par_chunks_mut(BAND_ROWS * w).enumerate().for_each(|(band, chunk)| {
             let mut rng = band_rng(seed, band);
-            let white = sampler.white as i32;
             for (r, row) in chunk.chunks_mut(w).enumerate() {
                 let y = band * BAND_ROWS + r;
                 let view = clean.row(y);
@@ -38,19 +37,30 @@ pub fn synthesize(sampler: &IsoSampler, clean: ArrayView2<'_, u16>, seed: u64) -
                 let parity = (y & 1) << 1;
                 let (lut0, tab0) = sampler.position_tables(parity);
                 let (lut1, tab1) = sampler.position_tables(parity | 1);
-                let draw = |lut: &[u16], tab: &[BinTable], c: u16, u: u32| -> u16 {
+                let lattice = sampler.has_lattice(parity) || sampler.has_lattice(parity | 1);
+                let draw = |lut: &[u16], tab: &[BinTable], c: u16, u: u32| -> i32 {
                     let l = (c as usize).min(lut.len() - 1);
-                    let n = tab[lut[l] as usize].sample_u32(u);
-                    (c as i32 + n).clamp(0, white) as u16
+                    c as i32 + tab[lut[l] as usize].sample_u32(u)
                 };
+                let white = sampler.white as i32;
                 // One 64-bit draw feeds an even and an odd pixel: the stream is fixed by the band.
-                for (o, c) in row.chunks_exact_mut(2).zip(src.chunks_exact(2)) {
-                    let u = rng.next_u64();
-                    o[0] = draw(lut0, tab0, c[0], u as u32);
-                    o[1] = draw(lut1, tab1, c[1], (u >> 32) as u32);
+                if lattice {
+                    for (i, (o, c)) in row.chunks_exact_mut(2).zip(src.chunks_exact(2)).enumerate() {
+                        let u = rng.next_u64();
+                        let alt = (i + (y >> 1)) & 1 == 1;
+                        o[0] = sampler.finish(parity, draw(lut0, tab0, c[0], u as u32), alt);
+                        o[1] = sampler.finish(parity | 1, draw(lut1, tab1, c[1], (u >> 32) as u32), alt);
+                    }
+                } else {
+                    for (o, c) in row.chunks_exact_mut(2).zip(src.chunks_exact(2)) {
+                        let u = rng.next_u64();
+                        o[0] = draw(lut0, tab0, c[0], u as u32).clamp(0, white) as u16;
+                        o[1] = draw(lut1, tab1, c[1], (u >> 32) as u32).clamp(0, white) as u16;
+                    }
                 }
                 if w % 2 == 1 {
-                    row[w - 1] = draw(lut0, tab0, src[w - 1], rng.next_u32());
+                    let alt = ((w >> 1) + (y >> 1)) & 1 == 1;
+                    row[w - 1] = sampler.finish(parity, draw(lut0, tab0, src[w - 1], rng.next_u32()), alt);
                 }
             }
         });

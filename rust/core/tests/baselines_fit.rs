@@ -14,7 +14,7 @@ fn pack() -> ModelPack {
         model: "t".into(),
         bin_width: 16,
         reference_iso: 100,
-        min_samples: 100,
+        pooling: None,
         isos: Vec::new(),
         warnings: Vec::new(),
     }
@@ -26,7 +26,8 @@ fn model_from(pack: &ModelPack, b: &Baseline) -> IsoModel {
     m.origin = ModelOrigin::Calibrated;
     for pm in &mut m.positions {
         for bin in &mut pm.bins {
-            bin.filled = false;
+            bin.source = noisecal_core::pack::BinSource::Measured;
+            bin.measured = Some([bin.moments().0, bin.moments().1]);
             bin.samples = 100_000;
         }
     }

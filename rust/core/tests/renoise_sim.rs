@@ -145,7 +145,8 @@ fn iso_model(iso: u32, origin: ModelOrigin) -> IsoModel {
         drift_frames: 0,
         gain_ratio: [1.0; POSITIONS],
         noise_profile: None,
-        positions: vec![PositionModel { bins }; POSITIONS],
+        lattice: [None; POSITIONS],
+        positions: vec![PositionModel::new(bins); POSITIONS],
     }
 }
 
@@ -156,7 +157,7 @@ fn pack(isos: &[u32]) -> ModelPack {
         model: "analytic".into(),
         bin_width: BIN_WIDTH,
         reference_iso: 100,
-        min_samples: 1000,
+        pooling: None,
         isos: isos.iter().map(|&i| iso_model(i, ModelOrigin::Calibrated)).collect(),
         warnings: Vec::new(),
     }

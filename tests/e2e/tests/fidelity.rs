@@ -20,7 +20,7 @@ fn heavy_tailed_sensor() -> SensorModel {
 #[test]
 fn synthetic_noise_matches_heldout_captures_and_beats_hg() {
     let s = setup(heavy_tailed_sensor(), 192, 144, 11, vec![200, 800], 8, vec![-4, -2, 0, 2]);
-    let (_, pack) = calibrate(&s, |c| c.min_samples = 500);
+    let (_, pack) = calibrate(&s, |c| c.pooling = None);
     let exp0 = s.plan.exposure_ns(-2, s.plan.reference_iso);
     let (clean, flat) = heldout_clean(&s, exp0, 16, 1 << 40, pack.bin_width);
     let (h, w) = clean.dim();

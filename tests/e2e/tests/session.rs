@@ -16,7 +16,7 @@ fn dng_folder_and_recording_give_the_same_pack() {
         let dngs = dir.path().join(format!("dngs{name}"));
         let rec = dir.path().join(format!("s{name}.rec"));
         s.write(Some(&dngs), Some(&rec), 40, || {}).unwrap();
-        let opts = CalibrateOptions { min_samples: Some(200), ..Default::default() };
+        let opts = CalibrateOptions { pooling: Some(200), ..Default::default() };
         let (a, _) = calibrate_path(&dngs, &opts, true).unwrap();
         let (b, _) = calibrate_path(&rec, &opts, true).unwrap();
         assert_eq!(a.to_bytes().unwrap(), b.to_bytes().unwrap(), "{name}-bit: DNG folder and recording differ");
@@ -28,8 +28,8 @@ fn dng_folder_and_recording_give_the_same_pack() {
 fn same_frames_same_bytes_on_any_thread_count() {
     let s = setup(SensorModel::phone_10bit(), 96, 64, 5, vec![400], 4, vec![-1, 1]);
     let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
-    let (_, a) = one.install(|| calibrate(&s, |c| c.min_samples = 100));
-    let (_, b) = calibrate(&s, |c| c.min_samples = 100);
+    let (_, a) = one.install(|| calibrate(&s, |c| c.pooling = Some(100)));
+    let (_, b) = calibrate(&s, |c| c.pooling = Some(100));
     assert_eq!(a.to_bytes().unwrap(), b.to_bytes().unwrap());
     let sampler = noisecal_core::sampler::IsoSampler::new(&a, &a.isos[0]);
     let clean = s.sim.clean_expected(50, s.plan.base_exposure_ns).unwrap().mapv(|v| v.round() as u16);
@@ -43,9 +43,9 @@ fn same_frames_same_bytes_on_any_thread_count() {
 #[test]
 fn checkpoint_and_resume_give_the_same_pack() {
     let s = setup(SensorModel::phone_10bit(), 96, 64, 7, vec![200, 800], 4, vec![-2, 0]);
-    let (_, whole) = calibrate(&s, |c| c.min_samples = 100);
+    let (_, whole) = calibrate(&s, |c| c.pooling = Some(100));
     let mut config = SessionConfig::new(s.plan.reference_iso);
-    config.min_samples = 100;
+    config.pooling = Some(100);
     let mut session = CalibrationSession::new(s.sim.layout(), config).unwrap();
     let frames: Vec<_> = s.plan.frames().collect();
     let mut step = None;
@@ -77,7 +77,7 @@ fn noisy_short_reference_still_finds_the_flat_chart() {
     let mut m = SensorModel::phone_10bit();
     m.read_noise_post_dn = 4.0;
     let s = setup(m, 128, 96, 9, vec![400], 2, vec![0]);
-    let (session, _) = calibrate(&s, |c| c.min_samples = 50);
+    let (session, _) = calibrate(&s, |c| c.pooling = Some(50));
     let report = session.flat_report().expect("step closed");
     let frac = report.total_flat() as f64 / report.considered.iter().sum::<u64>() as f64;
     // The colour checker's patch interiors cover most of the frame; its edges must be excluded.
@@ -93,20 +93,20 @@ fn flicker_is_detected_and_normalised() {
     let mut m = SensorModel::phone_10bit();
     m.flicker = Some(Flicker { probability: 0.3, amplitude: 0.04 });
     let s = setup(m.clone(), 128, 96, 13, vec![200], 8, vec![0, 1]);
-    let (session, with) = calibrate(&s, |c| c.min_samples = 100);
+    let (session, with) = calibrate(&s, |c| c.pooling = Some(100));
     let progress = session.progress();
     assert!(progress.drift_frames >= 2, "flicker frames should be reported ({})", progress.drift_frames);
     let (_, without) = calibrate(&s, |c| {
-        c.min_samples = 100;
+        c.pooling = Some(100);
         c.normalise_drift = false;
     });
     // Steady-light truth: the same sensor without flicker.
     m.flicker = None;
     let steady = setup(m, 128, 96, 13, vec![200], 8, vec![0, 1]);
-    let (_, truth) = calibrate(&steady, |c| c.min_samples = 100);
+    let (_, truth) = calibrate(&steady, |c| c.pooling = Some(100));
     let spread = |p: &ModelPack| -> f64 {
         // Mean variance over well-measured bins of position 0.
-        let bins: Vec<_> = p.isos[0].positions[0].bins.iter().filter(|b| !b.filled && b.samples > 2000).collect();
+        let bins: Vec<_> = p.isos[0].positions[0].bins.iter().filter(|b| !b.filled() && b.samples > 2000).collect();
         bins.iter().map(|b| b.moments().1).sum::<f64>() / bins.len().max(1) as f64
     };
     let (v_with, v_without, v_truth) = (spread(&with), spread(&without), spread(&truth));
@@ -119,24 +119,38 @@ fn flicker_is_detected_and_normalised() {
 #[test]
 fn sparse_bins_are_pooled_not_trusted() {
     let s = setup(SensorModel::phone_10bit(), 96, 64, 17, vec![800], 3, vec![-1, 1]);
-    let (_, pack) = calibrate(&s, |c| c.min_samples = 400);
+    let (session, pack) = calibrate(&s, |c| c.pooling = None);
     let m = &pack.isos[0];
+    let est = m.positions[0].estimate.as_ref().expect("a calibrated position has an estimate report");
+    assert!(matches!(est.choice, noisecal_core::estimate::Choice::CrossValidated { .. }), "{:?}", est.choice);
+    // The chosen pooling is at least as likely on held-out frames as the plain histogram.
+    let (plain, chosen) = est.gain_over_plain().expect("scores");
+    assert!(chosen <= plain, "chosen {chosen} vs plain {plain}");
     let bins = &m.positions[0].bins;
-    let filled = bins.iter().filter(|b| b.filled).count();
-    assert!(filled > 0 && filled < bins.len());
-    // Every sparse bin is marked filled and its variance lies between its measured neighbours'.
-    for (i, b) in bins.iter().enumerate() {
-        assert_eq!(b.filled, b.samples < 400, "bin {i}");
-    }
-    let measured: Vec<(usize, f64)> =
-        bins.iter().enumerate().filter(|(_, b)| !b.filled).map(|(i, b)| (i, b.moments().1)).collect();
-    for w in measured.windows(2) {
-        let ((i0, v0), (i1, v1)) = (w[0], w[1]);
-        for j in i0 + 1..i1 {
-            let v = bins[j].moments().1;
-            let (lo, hi) = (v0.min(v1), v0.max(v1));
-            assert!(v > 0.9 * lo && v < 1.1 * hi, "filled bin {j}: var {v:.2} outside [{lo:.2}, {hi:.2}]");
+    let raw = session.histograms(800, 0).expect("ISO 800 was captured");
+    use noisecal_core::pack::BinSource;
+    for (i, (b, h)) in bins.iter().zip(&raw).enumerate() {
+        // Bins without samples are filled, bins with samples say so and keep their own moments.
+        assert_eq!(b.samples, h.total(), "bin {i}");
+        assert_eq!(
+            b.source == BinSource::Filled,
+            h.total() == 0 || (b.clipped && est.clip_mode == noisecal_core::estimate::ClipMode::Law),
+            "bin {i}"
+        );
+        if h.total() > 0 {
+            let (mm, mv) = h.moments();
+            let [pm, pv] = b.measured.expect("measured moments");
+            assert!((mm - pm).abs() < 1e-9 && (mv - pv).abs() < 1e-9, "bin {i}");
         }
+    }
+    let filled = bins.iter().filter(|b| b.filled()).count();
+    assert!(filled > 0 && filled < bins.len());
+    // Above the last measured unclipped bin the fill follows the variance law: never falling
+    // towards white.
+    let last = bins.iter().rposition(|b| b.measured.is_some() && !b.clipped).expect("a measured bin");
+    let tail: Vec<f64> = bins[last + 1..].iter().filter(|b| b.filled()).map(|b| b.moments().1).collect();
+    for w in tail.windows(2) {
+        assert!(w[1] >= w[0] * 0.98, "fill variance falls towards white: {tail:?}");
     }
 }
 

@@ -2,17 +2,22 @@
 //! statistical tests, benchmarks and `noisecal demo`.
 //!
 //! - [`SensorModel`]: every parameter of the signal chain (shot noise, heavy-tailed read noise
-//!   before and after the gain, row noise, bias, PRNU, non-proportional and digital gain, dual
-//!   conversion gain, clipping, quantisation, flicker, misalignment), with presets.
+//!   before and after the gain (Gaussian, Student-t or Tukey-lambda), row noise, bias, PRNU,
+//!   DSNU, gain non-proportional to ISO, digital gain, dual conversion gain, clipping,
+//!   quantisation, flicker, misalignment), with presets.
 //! - [`Chart`]: the scene, a ColorChecker-like grid of patches with blurred edges.
 //! - [`Simulator`]: deterministic frames, the noiseless mean, the analytic variance and samples
 //!   of the same noise process at a given level.
-//! - [`SessionPlan`]: the capture order of a calibration session.
+//! - [`SessionPlan`]: the capture order of a calibration session (whole-stop or dense
+//!   fractional EV sweeps).
+//! - [`random_sensor`], [`random_session`]: a seeded family of random sensors and sessions
+//!   drawn from wide parameter ranges, for testing on sensors nobody tuned the estimators on.
 //! - [`to_padded_le_bytes`]: a frame as a Camera2 `RAW_SENSOR` plane.
 
 mod bytes;
 mod chart;
 mod error;
+mod family;
 mod model;
 mod noise;
 mod plan;
@@ -21,7 +26,11 @@ mod sim;
 pub use bytes::{to_padded_le_bytes, try_to_padded_le_bytes};
 pub use chart::{Chart, PatchRect};
 pub use error::SimError;
-pub use model::{DualGain, Flicker, IsoSettings, SensorModel};
+pub use family::{
+    FAMILY_MAX_ISO_FACTOR, HeldOutSpec, RandomSensor, SessionScale, SessionSpec, random_sensor, random_session,
+    random_session_scaled,
+};
+pub use model::{DualGain, Flicker, IsoSettings, ReadNoiseShape, SensorModel};
 pub use plan::{PlannedFrame, SessionPlan};
 pub use sim::{FrameEffects, MID_RANGE_FRACTION, Simulator};
 

@@ -4,15 +4,19 @@
 //! Signal chain of one pixel at CFA position `p` (all per frame):
 //! ```text
 //! electrons  e  ~ Poisson(λ),  λ = rate · t · flicker · PRNU        (clipped at the full well)
-//! ADC input  a  = black_p + bias_p + G·(e + n_pre) + n_post + r_row  (G = DN per electron)
+//! ADC input  a  = black_p + bias_p + G·(e + n_pre + f_pre) + n_post + f_post + r_row
+//!                                                           (G = DN per electron)
 //! ADC output q  = clamp(round(a), 0, white)
 //! output        = q                                        (ISO ≤ max_analog_iso)
 //!               = clamp(round(black_p + (q − black_p)·d), 0, white)  (digital gain d > 1)
 //! ```
-//! `n_pre` (electrons) and `n_post` (DN) are Gaussian or unit-variance Student-t scaled by their
-//! sigmas; `r_row` is one Gaussian per row and frame. `G = g(iso) / electrons_per_dn`, where the
-//! analog gain `g = min(iso, max_analog_iso) / base_iso · (1 + gain error)`, and the sensor's
-//! second conversion gain (if any) changes the read noise and the gain error above its ISO.
+//! `n_pre` (electrons) and `n_post` (DN) are Gaussian, unit-variance Student-t or unit-variance
+//! Tukey-lambda ([`ReadNoiseShape`]) scaled by their sigmas; `r_row` is one Gaussian per row and
+//! frame; `f_pre` (electrons) and `f_post` (DN) are the fixed per-pixel dark offsets (DSNU, zero
+//! by default). `G = g(iso) / electrons_per_dn`, where the analog gain
+//! `g = (min(iso, max_analog_iso) / base_iso)^γ · (1 + gain error)` (γ =
+//! [`SensorModel::gain_iso_exponent`], 1 by default), and the sensor's second conversion gain
+//! (if any) changes the read noise and the gain error above its ISO.
 
 use noisecal_core::{CfaPattern, POSITIONS};
 
@@ -35,6 +39,62 @@ pub struct DualGain {
     pub gain_mismatch: f32,
     /// Full-well capacity (electrons) in high conversion gain.
     pub full_well_e: f32,
+}
+
+/// The law of the read noise (both the pre- and the post-gain part), always scaled to unit
+/// variance before the sigmas of [`SensorModel`] multiply it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ReadNoiseShape {
+    /// Gaussian.
+    Gaussian,
+    /// Student-t with `dof` ≥ 3 degrees of freedom (excess kurtosis 6/(dof − 4) for dof > 4).
+    StudentT {
+        /// Degrees of freedom.
+        dof: f32,
+    },
+    /// Tukey-lambda with shape `lambda` in [−0.45, 1]: heavy tails for λ < 0 (infinite kurtosis
+    /// for λ ≤ −1/4), near-Gaussian at λ ≈ 0.14, lighter than Gaussian above, uniform at 1.
+    TukeyLambda {
+        /// Shape λ.
+        lambda: f32,
+    },
+}
+
+impl ReadNoiseShape {
+    /// Excess kurtosis of the law (0 for Gaussian; +∞ where the 4th moment is infinite).
+    pub fn excess_kurtosis(&self) -> f64 {
+        match *self {
+            ReadNoiseShape::Gaussian => 0.0,
+            ReadNoiseShape::StudentT { dof } if dof > 4.0 => 6.0 / (dof as f64 - 4.0),
+            ReadNoiseShape::StudentT { .. } => f64::INFINITY,
+            ReadNoiseShape::TukeyLambda { lambda } => crate::noise::tukey_lambda_excess_kurtosis(lambda as f64),
+        }
+    }
+
+    /// Variance of the law before it is scaled to unit variance (1 for Gaussian, dof/(dof − 2)
+    /// for Student-t, the closed form via the beta function for Tukey-lambda).
+    pub fn raw_variance(&self) -> f64 {
+        match *self {
+            ReadNoiseShape::Gaussian => 1.0,
+            ReadNoiseShape::StudentT { dof } => dof as f64 / (dof as f64 - 2.0),
+            ReadNoiseShape::TukeyLambda { lambda } => crate::noise::tukey_lambda_variance(lambda as f64),
+        }
+    }
+
+    /// Whether the tails are heavier than Gaussian (positive excess kurtosis).
+    pub fn is_heavy_tailed(&self) -> bool {
+        self.excess_kurtosis() > 0.0
+    }
+}
+
+impl std::fmt::Display for ReadNoiseShape {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ReadNoiseShape::Gaussian => write!(f, "Gaussian"),
+            ReadNoiseShape::StudentT { dof } => write!(f, "Student-t({dof:.1} dof)"),
+            ReadNoiseShape::TukeyLambda { lambda } => write!(f, "Tukey-lambda(λ={lambda:.3})"),
+        }
+    }
 }
 
 /// Mains-like flicker: some frames are brighter or darker by a fixed fraction.
@@ -76,8 +136,23 @@ pub struct SensorModel {
     /// Post-gain read noise (DN, RMS at the ADC): independent of the analog gain.
     pub read_noise_post_dn: f32,
     /// Student-t degrees of freedom of both read-noise parts (heavy tails; ≥ 3, excess kurtosis
-    /// 6/(dof−4) for dof > 4); `None` for Gaussian read noise.
+    /// 6/(dof−4) for dof > 4); `None` for Gaussian read noise (or Tukey-lambda, below).
     pub read_noise_dof: Option<f32>,
+    /// Tukey-lambda shape λ of both read-noise parts (unit variance; see
+    /// [`ReadNoiseShape::TukeyLambda`]); `None` (default) for Gaussian or Student-t. Exclusive
+    /// with `read_noise_dof`; [`SensorModel::read_noise_shape`] reads both.
+    pub read_noise_tukey_lambda: Option<f32>,
+    /// Exponent γ of the analog gain in the ISO: `g ∝ (iso / base_iso)^γ`. 1 (default) is gain
+    /// proportional to ISO; otherwise brightness at a constant ISO × exposure changes by
+    /// `(iso / base_iso)^(γ − 1)`.
+    pub gain_iso_exponent: f32,
+    /// Pre-gain dark-signal non-uniformity (electrons, RMS): a fixed per-pixel dark offset
+    /// (seeded like the PRNU map) amplified with the analog gain, so it does not cancel between
+    /// ISOs. 0 (default) for none.
+    pub dsnu_pre_e: f32,
+    /// Post-gain dark-signal non-uniformity (DN at the ADC, RMS): a fixed per-pixel dark offset
+    /// independent of the analog gain. 0 (default) for none.
+    pub dsnu_post_dn: f32,
     /// Row noise before the gain (electrons, RMS): one Gaussian offset per row and frame.
     pub row_noise_pre_e: f32,
     /// Row noise after the gain (DN, RMS at the ADC).
@@ -120,6 +195,10 @@ impl SensorModel {
             read_noise_pre_e: 1.6,
             read_noise_post_dn: 0.7,
             read_noise_dof: Some(6.0),
+            read_noise_tukey_lambda: None,
+            gain_iso_exponent: 1.0,
+            dsnu_pre_e: 0.0,
+            dsnu_post_dn: 0.0,
             row_noise_pre_e: 0.12,
             row_noise_post_dn: 0.15,
             bias_dn: [0.35, -0.2, 0.15, -0.3],
@@ -148,6 +227,10 @@ impl SensorModel {
             read_noise_pre_e: 2.0,
             read_noise_post_dn: 1.1,
             read_noise_dof: Some(6.0),
+            read_noise_tukey_lambda: None,
+            gain_iso_exponent: 1.0,
+            dsnu_pre_e: 0.0,
+            dsnu_post_dn: 0.0,
             row_noise_pre_e: 0.15,
             row_noise_post_dn: 0.3,
             bias_dn: [0.4, -0.3, 0.2, 0.5],
@@ -182,6 +265,10 @@ impl SensorModel {
             read_noise_pre_e: 2.4,
             read_noise_post_dn: 3.0,
             read_noise_dof: Some(6.0),
+            read_noise_tukey_lambda: None,
+            gain_iso_exponent: 1.0,
+            dsnu_pre_e: 0.0,
+            dsnu_post_dn: 0.0,
             row_noise_pre_e: 0.2,
             row_noise_post_dn: 0.6,
             bias_dn: [1.0, -0.8, 0.6, -0.4],
@@ -258,6 +345,36 @@ impl SensorModel {
                 "Student-t read noise needs 3 ≤ dof ≤ 1000 (finite variance); use None for Gaussian",
             ));
         }
+        if let Some(l) = self.read_noise_tukey_lambda {
+            if !(l.is_finite() && (-0.45..=1.0).contains(&l)) {
+                return Err(bad(
+                    "SensorModel::read_noise_tukey_lambda",
+                    l,
+                    "Tukey-lambda read noise needs −0.45 ≤ λ ≤ 1 (finite variance); use None for Gaussian",
+                ));
+            }
+            if self.read_noise_dof.is_some() {
+                return Err(bad(
+                    "SensorModel::read_noise_tukey_lambda",
+                    l,
+                    "set either read_noise_dof (Student-t) or read_noise_tukey_lambda, not both",
+                ));
+            }
+        }
+        if !(self.gain_iso_exponent.is_finite() && (0.5..=2.0).contains(&self.gain_iso_exponent)) {
+            return Err(bad(
+                "SensorModel::gain_iso_exponent",
+                self.gain_iso_exponent,
+                "must be in [0.5, 2] (1 = gain ∝ ISO)",
+            ));
+        }
+        for (what, v) in
+            [("SensorModel::dsnu_pre_e", self.dsnu_pre_e), ("SensorModel::dsnu_post_dn", self.dsnu_post_dn)]
+        {
+            if !(v.is_finite() && (0.0..64.0).contains(&v)) {
+                return Err(bad(what, v, "must be a finite RMS in [0, 64)"));
+            }
+        }
         for &b in &self.bias_dn {
             if !(b.is_finite() && b.abs() < 64.0) {
                 return Err(bad("SensorModel::bias_dn", b, "each bias must be a small finite offset (|bias| < 64 DN)"));
@@ -302,6 +419,24 @@ impl SensorModel {
         Ok(())
     }
 
+    /// The read-noise law, from `read_noise_dof` and `read_noise_tukey_lambda`.
+    pub fn read_noise_shape(&self) -> ReadNoiseShape {
+        match (self.read_noise_dof, self.read_noise_tukey_lambda) {
+            (Some(dof), _) => ReadNoiseShape::StudentT { dof },
+            (None, Some(lambda)) => ReadNoiseShape::TukeyLambda { lambda },
+            (None, None) => ReadNoiseShape::Gaussian,
+        }
+    }
+
+    /// Sets `read_noise_dof` and `read_noise_tukey_lambda` for a read-noise law.
+    pub fn set_read_noise_shape(&mut self, shape: ReadNoiseShape) {
+        (self.read_noise_dof, self.read_noise_tukey_lambda) = match shape {
+            ReadNoiseShape::Gaussian => (None, None),
+            ReadNoiseShape::StudentT { dof } => (Some(dof), None),
+            ReadNoiseShape::TukeyLambda { lambda } => (None, Some(lambda)),
+        };
+    }
+
     /// Relative analog gain error at an ISO (0 at the base ISO).
     pub fn gain_error(&self, iso: u32) -> f32 {
         if let Some(&(_, e)) = self.gain_error_at.iter().find(|(i, _)| *i == iso) {
@@ -319,12 +454,16 @@ impl SensorModel {
         let digital_gain = if iso > self.max_analog_iso { iso as f64 / self.max_analog_iso as f64 } else { 1.0 };
         let hcg = self.dual_gain.as_ref().filter(|d| iso >= d.min_iso);
         let mismatch = hcg.map_or(1.0, |d| d.gain_mismatch as f64);
-        let analog_gain = analog_iso as f64 / self.base_iso as f64 * (1.0 + self.gain_error(iso) as f64) * mismatch;
+        let ratio = analog_iso as f64 / self.base_iso as f64;
+        // γ = 1 keeps the exact arithmetic of a proportional gain.
+        let ratio = if self.gain_iso_exponent == 1.0 { ratio } else { ratio.powf(self.gain_iso_exponent as f64) };
+        let analog_gain = ratio * (1.0 + self.gain_error(iso) as f64) * mismatch;
+        let dn_per_electron = analog_gain / self.electrons_per_dn as f64;
         Ok(IsoSettings {
             iso,
             analog_gain,
             digital_gain,
-            dn_per_electron: analog_gain / self.electrons_per_dn as f64,
+            dn_per_electron,
             high_conversion_gain: hcg.is_some(),
             read_noise_pre_e: hcg.map_or(self.read_noise_pre_e, |d| d.read_noise_pre_e) as f64,
             read_noise_post_dn: hcg.map_or(self.read_noise_post_dn, |d| d.read_noise_post_dn) as f64,
@@ -332,6 +471,7 @@ impl SensorModel {
             row_noise_dn: ((self.row_noise_pre_e as f64 * analog_gain / self.electrons_per_dn as f64).powi(2)
                 + (self.row_noise_post_dn as f64).powi(2))
             .sqrt(),
+            dsnu_dn: ((self.dsnu_pre_e as f64 * dn_per_electron).powi(2) + (self.dsnu_post_dn as f64).powi(2)).sqrt(),
         })
     }
 }
@@ -357,6 +497,9 @@ pub struct IsoSettings {
     pub full_well_e: f64,
     /// Total row-noise RMS at the ADC (DN).
     pub row_noise_dn: f64,
+    /// Total DSNU RMS at the ADC (DN): the spread of the fixed per-pixel dark offsets,
+    /// `√((G·dsnu_pre_e)² + dsnu_post_dn²)`.
+    pub dsnu_dn: f64,
 }
 
 impl IsoSettings {

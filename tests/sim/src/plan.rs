@@ -1,5 +1,10 @@
 //! The capture order of a calibration session: per EV step, the reference burst, then one burst
 //! per target ISO with the same ISO × exposure product.
+//!
+//! EV steps are integers counted in units of `1 / ev_steps_per_stop` EV: with the default
+//! `ev_steps_per_stop = 1` they are whole stops (−4..=4), with 10 they are tenths of a stop
+//! (−10..=10 is ±1 EV in 21 settings), with 18 consecutive settings are 2^(1/18) ≈ 3.9 % apart
+//! (a photon-transfer-style sweep). See [`SessionPlan::with_ev_steps_per_stop`].
 
 use crate::error::SimError;
 use crate::sim::Simulator;
@@ -7,7 +12,8 @@ use crate::sim::Simulator;
 /// One frame of a [`SessionPlan`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct PlannedFrame {
-    /// EV step (0 = base exposure at the reference ISO).
+    /// EV step (0 = base exposure at the reference ISO), in units of
+    /// `1 / SessionPlan::ev_steps_per_stop` EV.
     pub step: i32,
     /// ISO of the frame.
     pub iso: u32,
@@ -30,8 +36,10 @@ pub struct SessionPlan {
     /// ISOs to calibrate; each gets a burst per EV step after the reference burst. An ISO equal
     /// to the reference gets its own burst (fresh noise) too.
     pub target_isos: Vec<u32>,
-    /// EV steps in capture order (default −4..=4).
+    /// EV steps in capture order (default −4..=4), in units of `1 / ev_steps_per_stop` EV.
     pub ev_steps: Vec<i32>,
+    /// Steps per stop (EV): 1 (default) for whole-stop steps, e.g. 10 for tenth-stop steps.
+    pub ev_steps_per_stop: u32,
     /// Frames per burst (M).
     pub frames_per_burst: u32,
     /// Reference exposure at EV 0 (ns).
@@ -41,7 +49,14 @@ pub struct SessionPlan {
 impl SessionPlan {
     /// A plan with the default EV steps −4..=4.
     pub fn new(reference_iso: u32, target_isos: Vec<u32>, frames_per_burst: u32, base_exposure_ns: u64) -> Self {
-        Self { reference_iso, target_isos, ev_steps: (-4..=4).collect(), frames_per_burst, base_exposure_ns }
+        Self {
+            reference_iso,
+            target_isos,
+            ev_steps: (-4..=4).collect(),
+            ev_steps_per_stop: 1,
+            frames_per_burst,
+            base_exposure_ns,
+        }
     }
 
     /// A plan for a simulator: reference at the model's base ISO, EV 0 exposure from
@@ -60,6 +75,26 @@ impl SessionPlan {
         self
     }
 
+    /// The same plan with EV steps counted in `1 / steps_per_stop` EV (the steps themselves are
+    /// kept: set them with [`SessionPlan::with_ev_steps`]). E.g. `.with_ev_steps_per_stop(10)
+    /// .with_ev_steps(-10..=10)` is ±1 EV in tenth-stop steps.
+    pub fn with_ev_steps_per_stop(mut self, steps_per_stop: u32) -> Self {
+        self.ev_steps_per_stop = steps_per_stop;
+        self
+    }
+
+    /// The same plan with a dense sweep: `count` consecutive settings, `steps_per_stop` per
+    /// stop, the first at step `first_step` (e.g. `with_dense_ev_steps(-9, 18, 18)` is 18
+    /// settings from −0.5 EV up, each 2^(1/18) ≈ 3.9 % brighter than the last).
+    pub fn with_dense_ev_steps(self, first_step: i32, count: u32, steps_per_stop: u32) -> Self {
+        self.with_ev_steps_per_stop(steps_per_stop).with_ev_steps((0..count as i32).map(|k| first_step + k))
+    }
+
+    /// EV of a step: `step / ev_steps_per_stop`.
+    pub fn ev(&self, step: i32) -> f64 {
+        step as f64 / self.ev_steps_per_stop.max(1) as f64
+    }
+
     /// Checks the plan; the error names the first bad field.
     pub fn validate(&self) -> Result<(), SimError> {
         let bad = |what: &'static str, value: String, fix: &'static str| Err(SimError::Parameter { what, value, fix });
@@ -76,8 +111,20 @@ impl SessionPlan {
                 "every target ISO must be ≥ the reference ISO (the reference is the lowest)",
             );
         }
-        if self.ev_steps.is_empty() || self.ev_steps.iter().any(|s| !(-16..=16).contains(s)) {
-            return bad("SessionPlan::ev_steps", format!("{:?}", self.ev_steps), "give one or more steps in −16..=16");
+        if !(1..=1000).contains(&self.ev_steps_per_stop) {
+            return bad(
+                "SessionPlan::ev_steps_per_stop",
+                self.ev_steps_per_stop.to_string(),
+                "use 1 (whole stops) up to 1000 steps per stop",
+            );
+        }
+        let max_step = 16 * self.ev_steps_per_stop as i32;
+        if self.ev_steps.is_empty() || self.ev_steps.iter().any(|s| !(-max_step..=max_step).contains(s)) {
+            return bad(
+                "SessionPlan::ev_steps",
+                format!("{:?}", self.ev_steps),
+                "give one or more steps within ±16 EV (±16 × ev_steps_per_stop)",
+            );
         }
         let mut sorted = self.ev_steps.clone();
         sorted.sort_unstable();
@@ -98,9 +145,15 @@ impl SessionPlan {
         Ok(())
     }
 
-    /// Exposure (ns) of `iso` at EV `step`: `base · 2^step · reference_iso / iso`, rounded, ≥ 1.
+    /// Exposure (ns) of `iso` at EV `step`: `base · 2^(step / ev_steps_per_stop) ·
+    /// reference_iso / iso`, rounded, ≥ 1.
     pub fn exposure_ns(&self, step: i32, iso: u32) -> u64 {
-        let e = self.base_exposure_ns as f64 * 2f64.powi(step) * self.reference_iso as f64 / iso.max(1) as f64;
+        let factor = match self.ev_steps_per_stop {
+            // Whole stops: the exact powers of two of the original plans.
+            0 | 1 => 2f64.powi(step),
+            k => 2f64.powf(step as f64 / k as f64),
+        };
+        let e = self.base_exposure_ns as f64 * factor * self.reference_iso as f64 / iso.max(1) as f64;
         (e.round() as u64).max(1)
     }
 
@@ -163,6 +216,41 @@ mod tests {
             let want = 50.0 * 8e6 * 2f64.powi(f.step);
             assert!((bright / want - 1.0).abs() < 1e-6);
         }
+    }
+
+    #[test]
+    fn fractional_steps_are_exact_fractions_of_a_stop() {
+        let whole = SessionPlan::new(50, vec![100, 400], 2, 8_000_000).with_ev_steps([-1, 0, 1]);
+        let tenth = whole.clone().with_ev_steps_per_stop(10).with_ev_steps(-10..=10);
+        tenth.validate().expect("valid");
+        assert_eq!(tenth.len(), 21 * 3 * 2);
+        // Whole-stop settings coincide with the integer plan.
+        for (s10, s1) in [(-10, -1), (0, 0), (10, 1)] {
+            for iso in [50, 100, 400] {
+                assert_eq!(tenth.exposure_ns(s10, iso), whole.exposure_ns(s1, iso));
+            }
+        }
+        assert!((tenth.ev(-3) + 0.3).abs() < 1e-12);
+        for s in -10..10 {
+            let r = tenth.exposure_ns(s + 1, 50) as f64 / tenth.exposure_ns(s, 50) as f64;
+            assert!((r - 2f64.powf(0.1)).abs() < 1e-5, "{s}: {r}");
+        }
+        // A photon-transfer sweep: 18 per stop, settings 3.9 % apart.
+        let ptc = whole.clone().with_dense_ev_steps(-9, 30, 18);
+        assert_eq!((ptc.ev_steps[0], ptc.ev_steps[29], ptc.ev_steps_per_stop), (-9, 20, 18));
+        ptc.validate().expect("valid");
+        let f: Vec<PlannedFrame> = ptc.frames().filter(|f| f.is_reference && f.in_burst == 0).collect();
+        assert_eq!(f.len(), 30);
+        for w in f.windows(2) {
+            let r = w[1].exposure_ns as f64 / w[0].exposure_ns as f64;
+            assert!((r - 1.0393).abs() < 1e-3, "{r}");
+        }
+        // Bounds scale with the unit.
+        assert!(whole.clone().with_ev_steps_per_stop(10).with_ev_steps([160]).validate().is_ok());
+        let e = whole.clone().with_ev_steps_per_stop(10).with_ev_steps([161]).validate().expect_err("out of range");
+        assert!(e.to_string().contains("ev_steps"), "{e}");
+        let e = whole.with_ev_steps_per_stop(0).validate().expect_err("zero unit");
+        assert!(e.to_string().contains("ev_steps_per_stop"), "{e}");
     }
 
     #[test]

@@ -11,8 +11,9 @@ use rayon::prelude::*;
 
 use crate::chart::{Chart, color_index};
 use crate::error::SimError;
+use crate::model::ReadNoiseShape;
 use crate::model::{IsoSettings, SensorModel};
-use crate::noise::{StudentT, hashed_unit, mix64, normal, poisson, round_clamp, uniform_open, unit_noise};
+use crate::noise::{StudentT, TukeyLambda, UnitNoise, hashed_unit, mix64, normal, poisson, round_clamp, uniform_open};
 
 /// Fraction of the black-to-white range at which [`Simulator::mid_range_exposure_ns`] puts the
 /// brightest spot of the chart.
@@ -36,7 +37,7 @@ struct Chain {
     d: f64,
     pre: f64,
     post: f64,
-    tails: Option<StudentT>,
+    tails: UnitNoise,
     fw: f64,
     white: f64,
     gauss_above: f64,
@@ -50,10 +51,10 @@ impl Chain {
         let e = poisson(lambda, self.gauss_above, rng).min(self.fw);
         let mut a = self.offset + extra + row + self.g * e;
         if self.pre > 0.0 {
-            a += self.g * self.pre * unit_noise(self.tails.as_ref(), rng);
+            a += self.g * self.pre * self.tails.sample(rng);
         }
         if self.post > 0.0 {
-            a += self.post * unit_noise(self.tails.as_ref(), rng);
+            a += self.post * self.tails.sample(rng);
         }
         let q = round_clamp(a, self.white);
         let out = if self.d > 1.0 { round_clamp(self.black + (q - self.black) * self.d, self.white) } else { q };
@@ -68,6 +69,7 @@ pub struct Simulator {
     chart: Chart,
     seed: u64,
     prnu_seed: u64,
+    dsnu_seed: u64,
 }
 
 impl Simulator {
@@ -76,7 +78,13 @@ impl Simulator {
     pub fn new(model: SensorModel, chart: Chart, seed: u64) -> Result<Self, SimError> {
         model.validate()?;
         chart.validate()?;
-        Ok(Self { model, chart, seed, prnu_seed: mix64(seed ^ 0x5052_4E55_5F4D_4150) })
+        Ok(Self {
+            model,
+            chart,
+            seed,
+            prnu_seed: mix64(seed ^ 0x5052_4E55_5F4D_4150),
+            dsnu_seed: mix64(seed ^ 0x4453_4E55_5F4D_4150),
+        })
     }
 
     /// The sensor model.
@@ -128,6 +136,36 @@ impl Simulator {
         1.0 + self.model.prnu * hashed_unit(h)
     }
 
+    /// Whether the model has DSNU (a fixed per-pixel dark offset).
+    fn has_dsnu(&self) -> bool {
+        self.model.dsnu_pre_e > 0.0 || self.model.dsnu_post_dn > 0.0
+    }
+
+    /// The two fixed standardised DSNU maps at a pixel (pre-gain, post-gain), each ≈ N(0, 1)
+    /// bounded by ±3.46, independent of each other and of the PRNU map. Keyed by (row, col), not
+    /// by the frame width: a smaller frame of the same seed is a crop of the same map.
+    #[inline]
+    fn dsnu_units(&self, row: usize, col: usize) -> (f64, f64) {
+        let idx = ((row as u64) << 32) | col as u64;
+        let h = mix64(self.dsnu_seed.wrapping_add(idx.wrapping_mul(0x9E37_79B9_7F4A_7C15)));
+        (hashed_unit(h) as f64, hashed_unit(mix64(h ^ 0x2F4A_7C15_9E37_79B9)) as f64)
+    }
+
+    /// The fixed DSNU offset of a pixel at the ADC (DN, before digital gain) with these
+    /// settings: `G·dsnu_pre_e·u_pre + dsnu_post_dn·u_post`.
+    #[inline]
+    fn dsnu_at(&self, s: &IsoSettings, row: usize, col: usize) -> f64 {
+        let (u_pre, u_post) = self.dsnu_units(row, col);
+        s.dn_per_electron * self.model.dsnu_pre_e as f64 * u_pre + self.model.dsnu_post_dn as f64 * u_post
+    }
+
+    /// The fixed dark offset (DSNU) of a pixel at `iso`, in DN at the ADC (multiply by the
+    /// digital gain for output DN); 0 without DSNU. Its pre-gain part grows with the analog gain.
+    pub fn dsnu_offset_dn(&self, iso: u32, row: usize, col: usize) -> Result<f64, SimError> {
+        let s = self.model.at_iso(iso)?;
+        Ok(if self.has_dsnu() { self.dsnu_at(&s, row, col) } else { 0.0 })
+    }
+
     fn frame_key(&self, iso: u32, exposure_ns: u64, frame_index: u64) -> u64 {
         mix64(mix64(mix64(mix64(self.seed) ^ iso as u64) ^ exposure_ns) ^ frame_index)
     }
@@ -159,7 +197,11 @@ impl Simulator {
             d: s.digital_gain,
             pre: s.read_noise_pre_e,
             post: s.read_noise_post_dn,
-            tails: self.model.read_noise_dof.map(|d| StudentT::new(d as f64)),
+            tails: match self.model.read_noise_shape() {
+                ReadNoiseShape::Gaussian => UnitNoise::Gaussian,
+                ReadNoiseShape::StudentT { dof } => UnitNoise::StudentT(StudentT::new(dof as f64)),
+                ReadNoiseShape::TukeyLambda { lambda } => UnitNoise::TukeyLambda(TukeyLambda::new(lambda as f64)),
+            },
             fw: s.full_well_e,
             white: self.model.white as f64,
             gauss_above: self.model.poisson_exact_below as f64,
@@ -196,6 +238,7 @@ impl Simulator {
         let t = exposure_ns as f64 * 1e-9 * fx.flicker as f64;
         let (w, h) = (self.width(), self.height());
         let colors = self.model.cfa.colors().map(color_index);
+        let dsnu = self.has_dsnu();
         let mut data = vec![0u16; w * h];
         data.par_chunks_mut(w).enumerate().for_each_init(
             || vec![0.0f32; w],
@@ -206,7 +249,8 @@ impl Simulator {
                 let row_off = s.row_noise_dn * normal(&mut rng);
                 for (x, out) in row.iter_mut().enumerate() {
                     let lambda = rates[x] as f64 * t * self.prnu_gain(y, x) as f64;
-                    *out = chains[ry + (x & 1)].sample(lambda, 0.0, row_off, &mut rng);
+                    let extra = if dsnu { self.dsnu_at(&s, y, x) } else { 0.0 };
+                    *out = chains[ry + (x & 1)].sample(lambda, extra, row_off, &mut rng);
                 }
             },
         );
@@ -225,20 +269,24 @@ impl Simulator {
         e
     }
 
-    /// The noiseless mean of every pixel in DN, black level and bias included, at `iso` and
-    /// `exposure_ns` (no flicker, no jitter; clamped to [0, white] and the full well).
+    /// The noiseless mean of every pixel in DN, black level, bias and DSNU included, at `iso`
+    /// and `exposure_ns` (no flicker, no jitter; clamped to [0, white] and the full well; the
+    /// clamp is applied to the mean, not to the noise, so it is not the mean of clipped frames).
     pub fn clean_expected(&self, iso: u32, exposure_ns: u64) -> Result<Array2<f32>, SimError> {
         let s = self.check(iso, exposure_ns)?;
         let mut e = self.mean_electrons(exposure_ns);
+        let dsnu = self.has_dsnu();
         for ((y, x), v) in e.indexed_iter_mut() {
-            *v = self.mean_level(&s, layout_pos(y, x), *v as f64) as f32;
+            let extra = if dsnu { self.dsnu_at(&s, y, x) } else { 0.0 };
+            *v = self.mean_level(&s, layout_pos(y, x), *v as f64, extra) as f32;
         }
         Ok(e)
     }
 
-    fn mean_level(&self, s: &IsoSettings, pos: usize, electrons: f64) -> f64 {
+    /// Mean output of a pixel with mean `electrons` and fixed ADC offset `extra` (DSNU).
+    fn mean_level(&self, s: &IsoSettings, pos: usize, electrons: f64, extra: f64) -> f64 {
         let black = self.model.black[pos] as f64;
-        let adc = self.model.bias_dn[pos] as f64 + s.dn_per_electron * electrons.min(s.full_well_e);
+        let adc = (self.model.bias_dn[pos] as f64 + extra) + s.dn_per_electron * electrons.min(s.full_well_e);
         (black + s.digital_gain * adc).clamp(0.0, self.model.white as f64)
     }
 
@@ -260,11 +308,20 @@ impl Simulator {
         Ok(())
     }
 
-    /// Variance (DN²) of the output at clean level `level_dn` and CFA position `pos`, computed
-    /// analytically from the model: `d²·(G²(λ + σ_pre²) + σ_post² + σ_row² + 1/12)` plus the
-    /// rounding after digital gain. Shot noise is Poisson in electrons, Student-t read noise has
-    /// unit-scaled variance, quantisation adds 1/12. Valid away from 0 and white (clipping is
-    /// ignored) and where the analog noise exceeds ≈ 0.5 DN (Sheppard's correction).
+    /// Temporal variance (DN²) of the output at clean level `level_dn` and CFA position `pos`,
+    /// computed analytically from the model: `d²·(G²(λ + σ_pre²) + σ_post² + σ_row² + 1/12)`
+    /// plus the rounding after digital gain. Shot noise is Poisson in electrons, Student-t and
+    /// Tukey-lambda read noise have unit-scaled variance (the shape changes the tails, not the
+    /// variance), quantisation adds 1/12; γ, dual gain and digital gain enter through
+    /// [`SensorModel::at_iso`]. Valid away from 0 and white (clipping at the black floor and at
+    /// white is ignored) and where the analog noise exceeds ≈ 0.5 DN (Sheppard's correction).
+    ///
+    /// DSNU and PRNU are fixed patterns: they add no temporal variance (the level already
+    /// contains a pixel's offset) but spread pixels of one nominal level over space; see
+    /// [`Simulator::fixed_pattern_variance`]. A pixel with a DSNU offset is treated as a pixel
+    /// whose clean level is `level_dn` (its electrons are `λ` of that level), which is exact
+    /// for the post-gain part and shifts `λ` by the offset for the pre-gain part (negligible
+    /// unless the offset is comparable to the signal).
     pub fn predicted_variance(&self, iso: u32, level_dn: f32, pos: usize) -> Result<f64, SimError> {
         let s = self.model.at_iso(iso)?;
         self.check_level(level_dn, pos)?;
@@ -295,9 +352,22 @@ impl Simulator {
         Ok(s.digital_gain.powi(2) * analog + r2)
     }
 
+    /// Spatial variance (DN², output) that the fixed patterns add between pixels of the same
+    /// nominal level `level_dn` at `iso` and `pos`: `d²·((G·λ·prnu)² + (G·dsnu_pre_e)² +
+    /// dsnu_post_dn²)` (PRNU on the signal electrons, DSNU in the dark). Not part of
+    /// [`Simulator::predicted_variance`], which is temporal.
+    pub fn fixed_pattern_variance(&self, iso: u32, level_dn: f32, pos: usize) -> Result<f64, SimError> {
+        let s = self.model.at_iso(iso)?;
+        self.check_level(level_dn, pos)?;
+        let (lambda, _) = self.lambda_for_level(&s, pos, level_dn as f64);
+        let prnu = s.dn_per_electron * lambda * self.model.prnu as f64;
+        Ok(s.digital_gain.powi(2) * (prnu.powi(2) + s.dsnu_dn.powi(2)))
+    }
+
     /// `n` samples of `noisy − round(level_dn)` at `iso` and CFA position `pos`, drawn by the
     /// same per-pixel process as [`Simulator::capture`] for a pixel whose clean level is
-    /// `level_dn` (row noise drawn independently per sample: same marginal, no correlation).
+    /// `level_dn` (row noise drawn independently per sample: same marginal, no correlation; a
+    /// pixel without DSNU offset).
     pub fn sample_noise_at_level<R: Rng + ?Sized>(
         &self,
         iso: u32,

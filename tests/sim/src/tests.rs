@@ -305,3 +305,165 @@ fn full_frame_speed() {
     assert_eq!(f.dim(), (3024, 4032));
     assert!(dt.as_secs_f64() < 1.0, "{dt:?}");
 }
+
+/// Per-pixel temporal mean minus black and bias (DN at the output) over `n` frames.
+fn dark_offsets(sim: &Simulator, iso: u32, n: u64) -> Array2<f64> {
+    let (mean, _) = temporal_stats(sim, iso, 1_000_000, n);
+    let m = sim.model();
+    let mut off = mean;
+    for ((r, c), v) in off.indexed_iter_mut() {
+        let p = position(r, c);
+        *v -= m.black[p] as f64 + sim.iso_settings(iso).expect("iso").digital_gain * m.bias_dn[p] as f64;
+    }
+    off
+}
+
+#[test]
+fn dsnu_is_a_fixed_offset_whose_pre_gain_part_scales_with_the_analog_gain() {
+    let mut model = SensorModel::phone_10bit();
+    model.prnu = 0.0;
+    model.dsnu_pre_e = 1.5;
+    model.dsnu_post_dn = 0.4;
+    let sim = flat_sim(model.clone(), 64, 64, 0.0, 31);
+    let n = 24;
+    let mut spatial = Vec::new();
+    for iso in [100, 800] {
+        let s = sim.iso_settings(iso).expect("iso");
+        let off = dark_offsets(&sim, iso, n);
+        // The measured per-pixel offsets are the model's DSNU map (same pixels, right scale).
+        let truth: Vec<f64> =
+            off.indexed_iter().map(|((r, c), _)| sim.dsnu_offset_dn(iso, r, c).expect("dsnu")).collect();
+        let meas: Vec<f64> = off.iter().copied().collect();
+        let slope = meas.iter().zip(&truth).map(|(m, t)| m * t).sum::<f64>() / truth.iter().map(|t| t * t).sum::<f64>();
+        // Spatial variance of the offsets, minus the temporal noise left in an n-frame mean.
+        let (mean, var, _) = moments(meas.iter().copied());
+        let temporal = (0..4).map(|p| sim.predicted_variance(iso, model.black[p], p).expect("v")).sum::<f64>() / 4.0;
+        let dsnu_var = var - temporal / n as f64;
+        let want = (s.dn_per_electron * 1.5).powi(2) + (model.dsnu_post_dn as f64).powi(2);
+        assert!((s.dsnu_dn.powi(2) / want - 1.0).abs() < 1e-9);
+        let fpv = sim.fixed_pattern_variance(iso, model.black[0], 0).expect("fpv");
+        assert!((fpv / want - 1.0).abs() < 1e-9, "fixed_pattern_variance {fpv} vs {want}");
+        // SE of a variance over 4096 pixels ≈ √(2/4096) ≈ 2.2 %; the hashed map is ~N(0, 1).
+        assert!((dsnu_var / want - 1.0).abs() < 0.1, "ISO {iso}: DSNU variance {dsnu_var} vs {want}");
+        assert!((slope - 1.0).abs() < 0.05, "ISO {iso}: offsets vs the DSNU map, slope {slope}");
+        assert!(mean.abs() < 0.1 + 4.0 * (var / 4096.0).sqrt(), "ISO {iso}: DSNU mean {mean}");
+        spatial.push(dsnu_var);
+    }
+    // ISO 100 → 800 is 8× the analog gain: the pre-gain part grows 8× in DN, the post part not.
+    let g = |iso| sim.iso_settings(iso).expect("iso").dn_per_electron;
+    let post = (model.dsnu_post_dn as f64).powi(2);
+    let want_ratio = ((g(800) * 1.5).powi(2) + post) / ((g(100) * 1.5).powi(2) + post);
+    let ratio = spatial[1] / spatial[0];
+    assert!(want_ratio > 40.0, "{want_ratio}");
+    assert!((ratio / want_ratio - 1.0).abs() < 0.1, "DSNU variance ratio ISO 800/100 {ratio} vs {want_ratio}");
+    // The map is per (row, col): a smaller frame of the same seed is a crop of it.
+    let crop = flat_sim(model.clone(), 32, 16, 0.0, 31);
+    for (r, c) in [(0, 0), (5, 17), (15, 31)] {
+        assert_eq!(crop.dsnu_offset_dn(800, r, c).expect("dsnu"), sim.dsnu_offset_dn(800, r, c).expect("dsnu"));
+    }
+    // Off by default: the preset's dark offsets are only temporal noise.
+    let plain = flat_sim(SensorModel::phone_10bit(), 64, 64, 0.0, 31);
+    assert_eq!(plain.dsnu_offset_dn(800, 3, 5).expect("dsnu"), 0.0);
+    let (_, v, _) = moments(dark_offsets(&plain, 800, n).iter().copied());
+    let temporal = plain.predicted_variance(800, 64.0, 0).expect("v") / n as f64;
+    assert!(v < 1.3 * temporal, "no DSNU: offset variance {v} vs temporal {temporal}");
+    // clean_expected carries the DSNU offset.
+    let clean = sim.clean_expected(800, 1_000_000).expect("clean");
+    let want = 64.0 + model.bias_dn[position(7, 9)] as f64 + sim.dsnu_offset_dn(800, 7, 9).expect("dsnu");
+    assert!((clean[[7, 9]] as f64 - want).abs() < 1e-3, "{} vs {want}", clean[[7, 9]]);
+}
+
+#[test]
+fn gamma_changes_brightness_at_equal_iso_times_exposure() {
+    for gamma in [0.85f32, 1.0, 1.2] {
+        let mut model = SensorModel::phone_10bit();
+        model.gain_error_per_stop = 0.0;
+        model.gain_iso_exponent = gamma;
+        let sim = flat_sim(model, 64, 64, 1.0, 41);
+        // ISO 100 and 800 at the same ISO × exposure: 300 and 37.5 electrons.
+        let e100 = exposure_for_electrons(&sim, 300.0);
+        let means: Vec<f64> = [(100u32, e100), (800, e100 / 8)]
+            .iter()
+            .map(|&(iso, e)| {
+                let (mean, _) = temporal_stats(&sim, iso, e, 4);
+                mean.indexed_iter()
+                    .map(|((r, c), v)| v - 64.0 - sim.model().bias_dn[position(r, c)] as f64)
+                    .sum::<f64>()
+                    / mean.len() as f64
+            })
+            .collect();
+        let ratio = means[1] / means[0];
+        let want = 8f64.powf(gamma as f64 - 1.0);
+        // SE of the ratio ≈ 0.3 % (shot noise of 37.5 e⁻ over 4 × 4096 pixels).
+        assert!((ratio / want - 1.0).abs() < 0.005, "γ {gamma}: brightness ratio {ratio} vs {want}");
+        let s = sim.iso_settings(800).expect("iso");
+        assert!((s.analog_gain - 16f64.powf(gamma as f64)).abs() < 1e-9 * s.analog_gain, "γ {gamma}");
+    }
+    let mut m = SensorModel::phone_12bit();
+    m.gain_iso_exponent = 1.0;
+    assert_eq!(m.at_iso(1600).expect("iso"), SensorModel::phone_12bit().at_iso(1600).expect("iso"));
+    m.gain_iso_exponent = 3.0;
+    assert!(m.validate().expect_err("must be refused").to_string().contains("gain_iso_exponent"));
+}
+
+#[test]
+fn tukey_lambda_read_noise_reaches_the_frames_with_its_tails() {
+    let mut model = SensorModel::phone_10bit();
+    model.set_read_noise_shape(ReadNoiseShape::TukeyLambda { lambda: -0.08 });
+    assert_eq!((model.read_noise_dof, model.read_noise_tukey_lambda), (None, Some(-0.08)));
+    model.validate().expect("valid");
+    let sim = flat_sim(model.clone(), 128, 64, 0.0, 23);
+    let iso = 800;
+    let mut xs = Vec::new();
+    for i in 0..24 {
+        let (f, _) = sim.capture(iso, 1_000_000, i).expect("capture");
+        xs.extend(f.indexed_iter().map(|((r, c), &v)| v as f64 - 64.0 - model.bias_dn[position(r, c)] as f64));
+    }
+    let (m, v, k) = moments(xs.iter().cloned());
+    let s = sim.iso_settings(iso).expect("iso");
+    // Kurtosis of the sum: the read-noise parts carry the Tukey kurtosis, row noise and
+    // quantisation none.
+    let kr = ReadNoiseShape::TukeyLambda { lambda: -0.08 }.excess_kurtosis();
+    let (vpre, vpost) = ((s.dn_per_electron * s.read_noise_pre_e).powi(2), s.read_noise_post_dn.powi(2));
+    let total = sim.predicted_variance(iso, 64.0, 0).expect("v");
+    let want_k = kr * (vpre.powi(2) + vpost.powi(2)) / total.powi(2);
+    assert!(m.abs() < 0.1, "dark mean {m}");
+    assert!((v / total - 1.0).abs() < 0.03, "variance {v} vs predicted {total}");
+    assert!(want_k > 2.0 && (k / want_k - 1.0).abs() < 0.15, "kurtosis {k} vs {want_k}");
+    // Both shapes at once are refused.
+    model.read_noise_dof = Some(5.0);
+    assert!(model.validate().expect_err("must be refused").to_string().contains("not both"));
+}
+
+#[test]
+fn predicted_variance_holds_on_random_family_sensors() {
+    // Temporal variance at mid-range on a flat field for sensors of the family (Tukey-λ and
+    // Student-t tails, γ ≠ 1, DSNU, dual and digital gain): the prediction must hold.
+    let mut checked = 0;
+    for seed in 0..24u64 {
+        let rs = random_sensor(seed);
+        let m = rs.model.clone();
+        let sim = flat_sim(m.clone(), 64, 48, 1.0, 300 + seed);
+        let spec = random_session(seed, &m);
+        let iso = *spec.target_isos.last().expect("targets");
+        let s = sim.iso_settings(iso).expect("iso");
+        // Electrons for ~45 % of the range at this ISO (clear of the black floor and white even
+        // at high gain), below the full well.
+        let span = m.white as f64 - m.black.iter().cloned().fold(0.0f32, f32::max) as f64;
+        let electrons = (0.45 * span / s.total_dn_per_electron()).min(0.5 * s.full_well_e);
+        let e = exposure_for_electrons(&sim, electrons);
+        let n = 24;
+        let (_, var) = temporal_stats(&sim, iso, e, n);
+        let clean = sim.clean_expected(iso, e).expect("clean");
+        let (mut measured, mut predicted) = (0.0, 0.0);
+        for ((r, c), v) in var.indexed_iter() {
+            measured += v;
+            predicted += sim.predicted_variance(iso, clean[[r, c]], position(r, c)).expect("variance");
+        }
+        let ratio = measured / predicted;
+        // SE of the pooled variance over 3072 pixels × 23 dof ≈ 0.5 % (× √(1 + κ/2) tails).
+        assert!((ratio - 1.0).abs() < 0.04, "seed {seed} ISO {iso}: measured/predicted {ratio}\n{}", rs.description);
+        checked += 1;
+    }
+    assert_eq!(checked, 24);
+}

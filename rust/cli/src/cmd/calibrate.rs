@@ -21,9 +21,10 @@ pub struct Args {
     /// Levels per bin in DN (default: ~240 bins between black and white).
     #[arg(long)]
     pub bin_width: Option<u16>,
-    /// Bins with fewer samples are filled from their neighbours.
-    #[arg(long)]
-    pub min_samples: Option<u64>,
+    /// Pool every bin with its neighbours until it holds this many samples (default: chosen per
+    /// ISO and CFA position by cross-validation on held-out frames; 0 = each bin's own histogram).
+    #[arg(long, alias = "min-samples")]
+    pub pooling: Option<u64>,
     /// Only use pixels in this rectangle: x0,y0,x1,y1 (pixels, end exclusive).
     #[arg(long, value_parser = parse_roi)]
     pub roi: Option<Roi>,
@@ -50,7 +51,7 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
     let opts = CalibrateOptions {
         reference_iso: args.reference_iso,
         bin_width: args.bin_width,
-        min_samples: args.min_samples,
+        pooling: args.pooling,
         roi: args.roi,
         flat_k: args.flat_k,
         no_drift_normalise: args.no_drift_normalise,

@@ -22,8 +22,19 @@ struct PositionSummary {
     name: String,
     samples: u64,
     bins: usize,
+    /// Bins without samples of their own (filled by the noise law from neighbours).
     filled_bins: usize,
-    min_samples_in_measured_bin: u64,
+    /// Bins whose own samples were pooled with neighbours'.
+    pooled_bins: usize,
+    /// Bins whose noise reaches 0 or white.
+    clipped_bins: usize,
+    /// Pooling threshold the estimator chose (samples; 0 = each bin's own histogram).
+    pooling: Option<u64>,
+    /// What clipped bins hold: `own` histogram or `law` (unclipped noise, clipped when synthesizing).
+    clip_mode: Option<String>,
+    /// Held-out cross-entropy of the plain per-bin histogram minus the pack's (nats per sample;
+    /// ≥ 0: the pack is at least as likely on held-out frames).
+    heldout_gain: Option<f64>,
     gain_ratio: f64,
 }
 
@@ -49,7 +60,8 @@ struct PackSummary {
     bit_depth: u32,
     bin_width: u16,
     reference_iso: u32,
-    min_samples: u64,
+    /// Pooling fixed by the user at calibration (`null`: cross-validated).
+    pooling: Option<u64>,
     isos: Vec<IsoSummary>,
     warnings: Vec<String>,
 }
@@ -72,7 +84,7 @@ fn summarize(p: &ModelPack) -> PackSummary {
         bit_depth: p.layout.bit_depth(),
         bin_width: p.bin_width,
         reference_iso: p.reference_iso,
-        min_samples: p.min_samples,
+        pooling: p.pooling,
         isos: p
             .isos
             .iter()
@@ -92,19 +104,34 @@ fn summarize(p: &ModelPack) -> PackSummary {
                         samples: m.samples(pos),
                         bins: m.positions[pos].bins.len(),
                         filled_bins: m.filled_bins(pos),
-                        min_samples_in_measured_bin: m.positions[pos]
-                            .bins
-                            .iter()
-                            .filter(|b| !b.filled)
-                            .map(|b| b.samples)
-                            .min()
-                            .unwrap_or(0),
+                        pooled_bins: m.pooled_bins(pos),
+                        clipped_bins: m.positions[pos].bins.iter().filter(|b| b.clipped).count(),
+                        pooling: m.positions[pos].estimate.as_ref().map(|e| e.pooling),
+                        clip_mode: m.positions[pos]
+                            .estimate
+                            .as_ref()
+                            .map(|e| format!("{:?}", e.clip_mode).to_lowercase()),
+                        heldout_gain: m.positions[pos]
+                            .estimate
+                            .as_ref()
+                            .and_then(|e| e.gain_over_plain())
+                            .map(|(plain, chosen)| plain - chosen),
                         gain_ratio: m.gain_ratio[pos],
                     })
                     .collect(),
             })
             .collect(),
-        warnings: p.warnings.clone(),
+        warnings: {
+            // The pack's own warnings, then what the self-check finds now (older packs never ran it).
+            let mut w = p.warnings.clone();
+            for f in noisecal_core::check::self_check(p) {
+                let f = f.to_string();
+                if !w.contains(&f) {
+                    w.push(f);
+                }
+            }
+            w
+        },
     }
 }
 
@@ -118,12 +145,27 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     println!("{}", args.pack.display());
     println!("  camera     {} {}", s.make, s.model);
     println!("  sensor     {} ({}-bit)", pack.layout.describe(), s.bit_depth);
-    println!("  bins       {} DN wide, filled below {} samples", s.bin_width, s.min_samples);
+    let pooling = match s.pooling {
+        Some(m) => format!("pooled to {m} samples (fixed at calibration)"),
+        None => "pooling chosen per ISO and position on held-out frames".to_string(),
+    };
+    println!("  bins       {} DN wide, {pooling}", s.bin_width);
     println!("  reference  ISO {}", s.reference_iso);
     println!();
     println!(
-        "  {:>6}  {:<26} {:>6} {:>5}  {:<4} {:>12} {:>7} {:>9}",
-        "ISO", "origin", "frames", "drift", "pos", "samples", "filled", "gain"
+        "  {:>6}  {:<26} {:>6} {:>5}  {:<4} {:>12} {:>7} {:>7} {:>7} {:>8} {:>9} {:>9}",
+        "ISO",
+        "origin",
+        "frames",
+        "drift",
+        "pos",
+        "samples",
+        "filled",
+        "pooled",
+        "clipped",
+        "pooling",
+        "gain",
+        "held-out"
     );
     for iso in &s.isos {
         for (i, ps) in iso.positions.iter().enumerate() {
@@ -132,12 +174,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             } else {
                 Default::default()
             };
+            let pooling = ps.pooling.map_or("-".to_string(), |m| m.to_string());
+            let heldout = ps.heldout_gain.map_or("-".to_string(), |g| format!("{:+.4}", -g));
             println!(
-                "  {a:>6}  {b:<26} {c:>6} {d:>5}  {:<4} {:>12} {:>3}/{:<3} {:>9.4}",
-                ps.name, ps.samples, ps.filled_bins, ps.bins, ps.gain_ratio
+                "  {a:>6}  {b:<26} {c:>6} {d:>5}  {:<4} {:>12} {:>7} {:>7} {:>7} {:>8} {:>9.4} {:>9}",
+                ps.name, ps.samples, ps.filled_bins, ps.pooled_bins, ps.clipped_bins, pooling, ps.gain_ratio, heldout
             );
         }
     }
+    println!();
+    println!(
+        "  held-out: the pack's held-out cross-entropy minus the plain per-bin histogram's (nats per sample; ≤ 0 is better)"
+    );
     if !s.warnings.is_empty() {
         println!();
         println!("  warnings:");

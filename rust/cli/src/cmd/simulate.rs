@@ -1,36 +1,55 @@
 //! `noisecal simulate --dngs captures/ --rec session.rec`: a simulated phone session, for trying
-//! the tool and for tests.
+//! the tool and for tests. `--sensor random:SEED` draws a sensor and its session from the
+//! random family of `noisecal-sim` instead of a preset.
 
 use std::path::PathBuf;
 
 use anyhow::bail;
 
 use crate::calibrate::progress_bar;
-use crate::simulate::{Preset, SimSession};
+use crate::simulate::{Preset, SensorChoice, SimSession};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// Sensor preset.
     #[arg(long, value_enum, default_value_t = Preset::Phone10)]
     pub preset: Preset,
-    #[arg(long, default_value_t = 320)]
-    pub width: u32,
-    #[arg(long, default_value_t = 240)]
-    pub height: u32,
-    /// Target ISOs (comma-separated).
-    #[arg(long, value_delimiter = ',', default_values_t = [100u32, 200, 400, 800, 1600])]
-    pub isos: Vec<u32>,
-    /// Frames per burst.
-    #[arg(long, default_value_t = 8)]
-    pub frames: u32,
-    /// EV steps (comma-separated).
-    #[arg(long, value_delimiter = ',', allow_negative_numbers = true, default_values_t = [-4i32, -3, -2, -1, 0, 1, 2, 3, 4])]
-    pub ev: Vec<i32>,
+    /// Sensor: a preset (phone10, phone12, phone14) or `random:SEED`, a sensor and session drawn
+    /// from the random family (bit depth, CFA, black, gains, read-noise shape, γ, dual and
+    /// digital gain, row noise, PRNU, DSNU…; printed unless --quiet). With random:SEED the size,
+    /// ISOs, frames and EV steps come from the drawn session unless given. Overrides --preset.
+    #[arg(long, value_name = "SENSOR")]
+    pub sensor: Option<SensorChoice>,
+    /// Image width [default: 320, or the random session's].
+    #[arg(long)]
+    pub width: Option<u32>,
+    /// Image height [default: 240, or the random session's].
+    #[arg(long)]
+    pub height: Option<u32>,
+    /// Target ISOs (comma-separated) [default: 100,200,400,800,1600, or the random session's].
+    #[arg(long, value_delimiter = ',')]
+    pub isos: Option<Vec<u32>>,
+    /// Frames per burst [default: 8, or the random session's].
+    #[arg(long)]
+    pub frames: Option<u32>,
+    /// EV steps (comma-separated), in units of 1/--ev-per-stop EV [default: -4..4, or the random
+    /// session's].
+    #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
+    pub ev: Option<Vec<i32>>,
+    /// EV steps per stop: 1 for whole stops, e.g. 10 for `--ev -10,-9,…,10` = ±1 EV in tenths
+    /// [default: 1, or the random session's].
+    #[arg(long)]
+    pub ev_per_stop: Option<u32>,
+    /// Noise seed (PRNU/DSNU maps and every frame's noise); the sensor's seed is in --sensor.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Some frames flicker by this fraction (e.g. 0.03).
     #[arg(long)]
     pub flicker: Option<f32>,
+    /// With --sensor random:SEED: write the session's held-out set (same sensor and exposures,
+    /// fewer frames, fresh noise, possibly another size) instead of its calibration capture.
+    #[arg(long)]
+    pub heldout: bool,
     /// Write DNGs into this folder.
     #[arg(long)]
     pub dngs: Option<PathBuf>,
@@ -38,6 +57,7 @@ pub struct Args {
     #[arg(long)]
     pub rec: Option<PathBuf>,
     /// Start frame indices here: the same sensor (same --seed) with fresh noise, e.g. a held-out set.
+    /// Added to the held-out offset with --heldout.
     #[arg(long, default_value_t = 0)]
     pub index_offset: u64,
     /// Extra bytes of padding per row in the recording (Camera2 row stride).
@@ -49,26 +69,72 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
     if args.dngs.is_none() && args.rec.is_none() {
         bail!("nothing to write: give --dngs DIR and/or --rec FILE");
     }
-    let mut model = args.preset.model();
-    if let Some(a) = args.flicker {
-        model.flicker = Some(noisecal_sim::Flicker { probability: 0.1, amplitude: a });
+    let choice = args.sensor.unwrap_or(SensorChoice::Preset(args.preset));
+    let mut s = match choice {
+        SensorChoice::Preset(preset) => {
+            if args.heldout {
+                bail!("--heldout needs --sensor random:SEED (for a preset, use --index-offset and fewer --frames)");
+            }
+            let mut model = preset.model();
+            if let Some(a) = args.flicker {
+                model.flicker = Some(noisecal_sim::Flicker { probability: 0.1, amplitude: a });
+            }
+            let mut s = SimSession::new(
+                model,
+                preset.name(),
+                args.width.unwrap_or(320),
+                args.height.unwrap_or(240),
+                args.seed,
+                args.isos.clone().unwrap_or_else(|| vec![100, 200, 400, 800, 1600]),
+                args.frames.unwrap_or(8),
+                args.ev.clone().unwrap_or_else(|| (-4..=4).collect()),
+            )?;
+            if let Some(k) = args.ev_per_stop {
+                s.plan = s.plan.clone().with_ev_steps_per_stop(k);
+                s.plan.validate()?;
+            }
+            s
+        }
+        SensorChoice::Random(family_seed) => {
+            let mut sensor = noisecal_sim::random_sensor(family_seed);
+            if let Some(a) = args.flicker {
+                sensor.model.flicker = Some(noisecal_sim::Flicker { probability: 0.1, amplitude: a });
+            }
+            let mut spec = noisecal_sim::random_session(family_seed, &sensor.model);
+            if args.heldout {
+                let h = &mut spec.heldout;
+                h.width = args.width.unwrap_or(h.width);
+                h.height = args.height.unwrap_or(h.height);
+                h.frames_per_burst = args.frames.unwrap_or(h.frames_per_burst);
+                h.ev_steps = args.ev.clone().unwrap_or_else(|| h.ev_steps.clone());
+            } else {
+                spec.width = args.width.unwrap_or(spec.width);
+                spec.height = args.height.unwrap_or(spec.height);
+                spec.frames_per_burst = args.frames.unwrap_or(spec.frames_per_burst);
+                spec.ev_steps = args.ev.clone().unwrap_or_else(|| spec.ev_steps.clone());
+            }
+            spec.target_isos = args.isos.clone().unwrap_or_else(|| spec.target_isos.clone());
+            spec.ev_steps_per_stop = args.ev_per_stop.unwrap_or(spec.ev_steps_per_stop);
+            if !quiet {
+                eprintln!("sensor random:{family_seed}: {}", sensor.description);
+                eprintln!("session: {}", spec.description);
+            }
+            SimSession::random(&sensor, &spec, args.seed, args.heldout)?
+        }
+    };
+    s.index_offset += args.index_offset;
+    if args.dngs.is_some() && s.dng_grouping_merges_steps() && !quiet {
+        eprintln!(
+            "note: consecutive EV settings are only {:.1} % apart; grouping a DNG folder (calibrate, eval) merges \
+             steps closer than 12 %, so use the recording (--rec) for this dense sweep",
+            (s.min_step_factor().unwrap_or(1.0) - 1.0) * 100.0
+        );
     }
-    let mut s = SimSession::new(
-        model,
-        args.preset.name(),
-        args.width,
-        args.height,
-        args.seed,
-        args.isos,
-        args.frames,
-        args.ev,
-    )?;
-    s.index_offset = args.index_offset;
     let pb = progress_bar(s.plan.len() as u64, quiet, "simulating");
     s.write(args.dngs.as_deref(), args.rec.as_deref(), args.padding, || pb.inc(1))?;
     pb.finish_and_clear();
     if !quiet {
-        eprintln!("{} frames simulated ({}×{}, {})", s.plan.len(), args.width, args.height, args.preset.name());
+        eprintln!("{} frames simulated ({}×{}, {})", s.plan.len(), s.sim.width(), s.sim.height(), s.model);
     }
     Ok(())
 }

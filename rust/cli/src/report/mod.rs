@@ -78,7 +78,7 @@ fn chosen_bins(model: &noisecal_core::pack::IsoModel, pos: usize, k: usize) -> V
         .bins
         .iter()
         .enumerate()
-        .filter(|(_, b)| !b.filled && b.samples > 0)
+        .filter(|(_, b)| !b.filled() && b.samples > 0)
         .map(|(i, _)| i)
         .collect();
     let pool = if measured.is_empty() { (0..model.positions[pos].bins.len()).collect() } else { measured };
@@ -113,11 +113,14 @@ pub fn render_html(pack: &ModelPack, pack_name: &str, eval: Option<&EvalReport>)
     let _ = write!(o, "<h2 id=\"sensor\">Sensor and session</h2>");
     let _ = write!(
         o,
-        "<p>{} ({}-bit), bins {} DN wide, bins with fewer than {} samples filled from neighbours, reference ISO {}.</p>",
+        "<p>{} ({}-bit), bins {} DN wide, {}, reference ISO {}.</p>",
         esc(&pack.layout.describe()),
         pack.layout.bit_depth(),
         pack.bin_width,
-        pack.min_samples,
+        match pack.pooling {
+            Some(m) => format!("every bin pooled with its neighbours up to {m} samples (fixed at calibration)"),
+            None => "pooling of neighbouring bins chosen per ISO and position by held-out likelihood".to_string(),
+        },
         pack.reference_iso
     );
     let names: Vec<&str> = (0..POSITIONS).map(|p| pack.layout.cfa.position_name(p)).collect();
@@ -190,8 +193,7 @@ pub fn render_html(pack: &ModelPack, pack_name: &str, eval: Option<&EvalReport>)
     let _ = write!(o, "<h2 id=\"coverage\">Coverage: samples per bin</h2>");
     let _ = write!(
         o,
-        "<p>Each cell is one (ISO, bin); darker means more flat-pixel samples (log scale). Red marks are bins with fewer than {} samples, filled from their neighbours' normalised shapes: capture more EV steps or frames at those levels to measure them.</p>",
-        pack.min_samples
+        "<p>Each cell is one (ISO, bin); darker means more flat-pixel samples (log scale). Red marks are bins without samples of their own, filled from their neighbours by the noise law: capture more EV steps at those levels to measure them.</p>"
     );
     let _ = write!(o, "<div class=\"grid2\">");
     let rows = pack.isos.len().max(1) as u32;

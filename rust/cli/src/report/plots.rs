@@ -170,7 +170,7 @@ pub fn pmf_chart(
                     model.iso,
                     pack.layout.cfa.position_name(pos),
                     l1 - 1.0,
-                    if bm.filled { ", filled" } else { "" }
+                    if bm.filled() { ", filled" } else { "" }
                 ),
                 (FONT, 13),
             )
@@ -281,7 +281,7 @@ pub fn coverage_chart(pack: &ModelPack, pos: usize, size: (u32, u32)) -> anyhow:
                 }))
                 .map_err(err)?;
             chart
-                .draw_series(m.positions[pos].bins.iter().enumerate().filter(|(_, bm)| bm.filled).map(|(b, _)| {
+                .draw_series(m.positions[pos].bins.iter().enumerate().filter(|(_, bm)| bm.filled()).map(|(b, _)| {
                     Rectangle::new(
                         [(b as f64 + 0.2, SegmentValue::CenterOf(i)), (b as f64 + 0.8, SegmentValue::Exact(i + 1))],
                         RGBColor(220, 30, 30).filled(),

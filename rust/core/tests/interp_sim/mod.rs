@@ -60,14 +60,10 @@ pub fn iso_model(iso: u32, hists: &[Vec<NoiseHistogram>]) -> IsoModel {
         drift_frames: 0,
         gain_ratio: [1.0; POSITIONS],
         noise_profile: None,
+        lattice: [None; POSITIONS],
         positions: hists
             .iter()
-            .map(|bins| PositionModel {
-                bins: bins
-                    .iter()
-                    .map(|h| BinModel { first: h.first, counts: h.counts.clone(), samples: h.total(), filled: false })
-                    .collect(),
-            })
+            .map(|bins| PositionModel::new(bins.iter().map(BinModel::from_histogram).collect()))
             .collect(),
     }
 }
@@ -93,7 +89,7 @@ pub fn sim_pack_with(
         model: "sim".into(),
         bin_width,
         reference_iso: sim.model().base_iso,
-        min_samples: 100,
+        pooling: None,
         isos: Vec::new(),
         warnings: Vec::new(),
     };
