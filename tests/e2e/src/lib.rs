@@ -59,3 +59,133 @@ pub fn heldout_clean(s: &Setup, exposure_ns: u64, m: u64, base: u64, bin_width: 
     .expect("shape");
     (clean, flat)
 }
+
+/// Scores of every model at one held-out ISO.
+#[derive(Debug, Clone)]
+pub struct IsoScores {
+    pub iso: u32,
+    /// Real flat-pixel samples scored.
+    pub samples: u64,
+    /// `(model name, marginal JSD, conditional JSD)`, in the order the models were given.
+    pub models: Vec<(String, f64, f64)>,
+    /// Real half against real half (alternate frames), marginal and conditional.
+    pub floor: (f64, f64),
+}
+
+impl IsoScores {
+    /// Marginal and conditional JSD of a model.
+    pub fn of(&self, name: &str) -> (f64, f64) {
+        self.models.iter().find(|m| m.0 == name).map(|m| (m.1, m.2)).expect("a scored model")
+    }
+}
+
+/// Simulates a held-out set (`plan` on `sim`, frame indices shifted by `index_offset`) and
+/// scores each model on it (method.md, "Measuring fidelity"): per EV step the reference burst
+/// gives the clean image and flat mask, every target frame gives real noise on the flat pixels,
+/// and each model synthesizes the same number of frames on the same clean image. `models` maps
+/// a name to one model per target ISO of the plan (`binning` groups levels for the conditional
+/// JSD, 8 bins per group).
+pub fn score_heldout(
+    sim: &Simulator,
+    plan: &SessionPlan,
+    index_offset: u64,
+    binning: &noisecal_core::Binning,
+    models: &[(&str, Vec<noisecal_core::pack::IsoModel>, &ModelPack)],
+) -> Vec<IsoScores> {
+    use noisecal_core::metrics::{DEFAULT_GROUP_BINS, NoiseSamples, compare};
+    use noisecal_core::sampler::IsoSampler;
+    use noisecal_core::synth::synthesize;
+    use std::collections::BTreeMap;
+
+    let layout = sim.layout();
+    let (w, h) = (layout.width as usize, layout.height as usize);
+    let samplers: Vec<BTreeMap<u32, IsoSampler>> =
+        models.iter().map(|(_, ms, pack)| ms.iter().map(|m| (m.iso, IsoSampler::new(pack, m))).collect()).collect();
+    let new_samples = || NoiseSamples::new(binning, DEFAULT_GROUP_BINS);
+    // Per ISO: real, real halves, and one synthetic accumulator per model.
+    let mut acc: BTreeMap<u32, (NoiseSamples, [NoiseSamples; 2], Vec<NoiseSamples>)> = BTreeMap::new();
+    let mut session: Option<CalibrationSession> = None;
+    let mut clean: Option<(Array2<u16>, Array2<f32>, Array2<bool>)> = None;
+    let mut step = None;
+    let mut count: BTreeMap<u32, u64> = BTreeMap::new();
+    for f in plan.frames() {
+        if step != Some(f.step) {
+            let mut c = SessionConfig::new(plan.reference_iso);
+            c.bin_width = Some(binning.bin_width);
+            let mut s = CalibrationSession::new(layout.clone(), c).expect("session");
+            s.begin_step(plan.exposure_ns(f.step, plan.reference_iso)).expect("step");
+            session = Some(s);
+            clean = None;
+            step = Some(f.step);
+        }
+        let (px, meta) = sim.capture(f.iso, f.exposure_ns, f.index + index_offset).expect("capture");
+        if f.is_reference {
+            if let Some(s) = session.as_mut() {
+                // A refused reference frame (drift) is left out, as calibration would.
+                let _ = s.push_frame(&FrameView::from_array(&px).expect("view"), &meta);
+            }
+            continue;
+        }
+        if clean.is_none() {
+            let Some(s) = session.as_mut() else { continue };
+            if s.close_reference_burst().is_err() {
+                continue;
+            }
+            let raw = s.clean_image().expect("clean image of a closed burst");
+            let c16 = Array2::from_shape_vec((h, w), raw.iter().map(|&c| if c == NOT_FLAT { 0 } else { c }).collect())
+                .expect("shape");
+            let mask = Array2::from_shape_vec((h, w), raw.iter().map(|&c| c != NOT_FLAT).collect()).expect("shape");
+            clean = Some((c16.clone(), c16.mapv(|v| v as f32), mask));
+        }
+        let Some((c16, cf, mask)) = clean.as_ref() else { continue };
+        let e = acc.entry(f.iso).or_insert_with(|| {
+            (new_samples(), [new_samples(), new_samples()], models.iter().map(|_| new_samples()).collect())
+        });
+        let k = count.entry(f.iso).or_default();
+        e.0.add_frame(cf.view(), px.view(), Some(mask.view())).expect("sizes");
+        e.1[(*k % 2) as usize].add_frame(cf.view(), px.view(), Some(mask.view())).expect("sizes");
+        for (mi, s) in samplers.iter().enumerate() {
+            if let Some(sampler) = s.get(&f.iso) {
+                let out = synthesize(sampler, c16.view(), 0x5EED_0000 + f.index * 7 + mi as u64);
+                e.2[mi].add_frame(cf.view(), out.view(), Some(mask.view())).expect("sizes");
+            }
+        }
+        *k += 1;
+    }
+    acc.into_iter()
+        .map(|(iso, (real, halves, syn))| {
+            let floor = compare(&halves[0], &halves[1]);
+            IsoScores {
+                iso,
+                samples: (0..noisecal_core::POSITIONS).map(|p| real.total(p)).sum(),
+                models: models
+                    .iter()
+                    .zip(&syn)
+                    .map(|((name, _, _), s)| {
+                        let sc = compare(&real, s);
+                        (name.to_string(), sc.marginal_overall, sc.conditional_overall)
+                    })
+                    .collect(),
+                floor: (floor.marginal_overall, floor.conditional_overall),
+            }
+        })
+        .collect()
+}
+
+/// The plain empirical estimator's model of every target ISO of a session: each bin its own
+/// histogram, the nearest bin with samples for empty bins.
+pub fn plain_models(session: &CalibrationSession, pack: &ModelPack) -> Vec<noisecal_core::pack::IsoModel> {
+    use noisecal_core::estimate::plain_empirical;
+    use noisecal_core::pack::PositionModel;
+    pack.isos
+        .iter()
+        .map(|m| {
+            let mut p = m.clone();
+            p.lattice = [None; noisecal_core::POSITIONS];
+            p.positions = (0..noisecal_core::POSITIONS)
+                .map(|pos| PositionModel::new(plain_empirical(&session.histograms(m.iso, pos).expect("histograms"))))
+                .collect();
+            p
+        })
+        .collect()
+}
