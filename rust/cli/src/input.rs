@@ -1,20 +1,29 @@
 //! Capture sets: a folder of DNGs (any order, any names) or a raw recording, turned into the
-//! ordered stream a calibration session takes. DNG frames are grouped into EV steps by
-//! `ISO × exposure` from their metadata, never by file name; the lowest ISO is the reference.
+//! ordered stream a calibration session takes. DNG frames are grouped into EV steps by the
+//! settings their metadata reports, never by file name (method.md, "Grouping"): reference frames
+//! (the lowest ISO) whose exposures agree up to the rounding devices show are one step, and each
+//! target frame joins the step whose ISO × exposure matches its own, or is left out with a
+//! warning that names it.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use noisecal_core::recording::RecordingReader;
+use noisecal_core::session::STEP_TOLERANCE;
 use noisecal_core::{CfaPattern, FrameMeta, POSITIONS, SensorLayout};
 use rayon::prelude::*;
 
 use crate::dng::{self, DngImage};
 
-/// Two EV steps closer than this factor in ISO × exposure are one step (steps are usually a
-/// factor 2 apart; reported exposures jitter by a few per cent).
-const STEP_FACTOR: f64 = 1.12;
+/// Reference exposures within this relative distance are one setting: the rounding a device
+/// shows in the exposure it reports for one requested setting (well below the 1 % that
+/// separates neighbouring settings of a dense sweep).
+const EXPOSURE_ROUNDING: f64 = 0.005;
+
+/// A target frame joins its nearest step only when that step is at least this many times
+/// nearer (in ISO × exposure) than the next one; otherwise it is ambiguous and left out.
+const STEP_MARGIN: f64 = 3.0;
 
 /// One DNG frame known by its metadata.
 #[derive(Debug, Clone)]
@@ -150,45 +159,99 @@ fn group_dngs(mut heads: Vec<DngImage>, reference_iso: Option<u32>, dir: &Path) 
     let make = first.make.clone();
     let model = first.model.clone();
 
-    let mut frames: Vec<DngFrame> = heads
+    let frames: Vec<DngFrame> = heads
         .into_iter()
         .map(|h| DngFrame {
             meta: FrameMeta { black: h.meta.black.or(Some(h.layout.black)), ..h.meta },
             path: h.source,
         })
         .collect();
-    frames.sort_by(|a, b| a.meta.brightness().total_cmp(&b.meta.brightness()).then(a.path.cmp(&b.path)));
+    let (mut references, targets): (Vec<DngFrame>, Vec<DngFrame>) =
+        frames.into_iter().partition(|f| f.meta.iso == reference_iso);
+    let mut warnings = iso_notes;
+    // Reference frames: one step per reported exposure (up to the device's rounding).
+    references.sort_by(|a, b| a.meta.exposure_ns.cmp(&b.meta.exposure_ns).then(a.path.cmp(&b.path)));
     let mut clusters: Vec<Vec<DngFrame>> = Vec::new();
-    for f in frames {
+    for f in references {
         match clusters.last_mut() {
-            Some(c) if f.meta.brightness() <= c[0].meta.brightness() * STEP_FACTOR => c.push(f),
+            Some(c) if f.meta.exposure_ns as f64 <= c[0].meta.exposure_ns as f64 * (1.0 + EXPOSURE_ROUNDING) => {
+                c.push(f)
+            }
             _ => clusters.push(vec![f]),
         }
     }
-    let mut steps = Vec::new();
-    let mut warnings = iso_notes;
-    for c in clusters {
-        let brightness = c[0].meta.brightness();
-        let (mut reference, mut targets): (Vec<DngFrame>, Vec<DngFrame>) =
-            c.into_iter().partition(|f| f.meta.iso == reference_iso);
-        if reference.is_empty() {
-            warnings.push(format!(
-                "EV step at ISO×exposure {brightness:.4} ISO·s has {} target frames but no reference burst at ISO {reference_iso}: they are skipped",
-                targets.len()
-            ));
-            continue;
+    let mut steps: Vec<DngStep> = clusters
+        .into_iter()
+        .map(|mut reference| {
+            reference.sort_by(|a, b| a.path.cmp(&b.path));
+            let mut exps: Vec<u64> = reference.iter().map(|f| f.meta.exposure_ns).collect();
+            exps.sort_unstable();
+            let reference_exposure_ns = exps[exps.len() / 2];
+            DngStep {
+                brightness: reference_iso as f64 * reference_exposure_ns as f64 * 1e-9,
+                reference_exposure_ns,
+                reference,
+                targets: Vec::new(),
+            }
+        })
+        .collect();
+    // Target frames: the step whose ISO × exposure matches.
+    let mut unmatched: Vec<String> = Vec::new();
+    let mut ambiguous: Vec<String> = Vec::new();
+    for f in targets {
+        let b = f.meta.brightness();
+        let mut d: Vec<(f64, usize)> =
+            steps.iter().enumerate().map(|(i, s)| ((b / s.brightness - 1.0).abs(), i)).collect();
+        d.sort_by(|x, y| x.0.total_cmp(&y.0));
+        match d.as_slice() {
+            [(r1, i), rest @ ..] if *r1 <= STEP_TOLERANCE => {
+                if rest.first().is_some_and(|(r2, _)| *r1 * STEP_MARGIN > *r2) {
+                    ambiguous.push(format!("{} (ISO {} × {} ns)", f.path.display(), f.meta.iso, f.meta.exposure_ns));
+                } else {
+                    steps[*i].targets.push(f);
+                }
+            }
+            [(r1, i), ..] => unmatched.push(format!(
+                "{} (ISO {} × {} ns = {b:.4} ISO·s; nearest reference step {:.4}, off {:.1} %)",
+                f.path.display(),
+                f.meta.iso,
+                f.meta.exposure_ns,
+                steps[*i].brightness,
+                r1 * 100.0
+            )),
+            [] => unmatched.push(format!("{} (no reference burst at all)", f.path.display())),
         }
-        reference.sort_by(|a, b| a.path.cmp(&b.path));
-        targets.sort_by(|a, b| a.meta.iso.cmp(&b.meta.iso).then(a.path.cmp(&b.path)));
-        let mut exps: Vec<u64> = reference.iter().map(|f| f.meta.exposure_ns).collect();
-        exps.sort_unstable();
-        let reference_exposure_ns = exps[exps.len() / 2];
-        if targets.is_empty() {
+    }
+    let list = |v: &[String]| {
+        let mut s = v.iter().take(8).cloned().collect::<Vec<_>>().join("; ");
+        if v.len() > 8 {
+            s.push_str(&format!("; … and {} more", v.len() - 8));
+        }
+        s
+    };
+    if !unmatched.is_empty() {
+        warnings.push(format!(
+            "{} target frame(s) match no reference burst within {:.0} % in ISO × exposure and are left out (capture a reference burst at ISO {reference_iso} with the same ISO × exposure): {}",
+            unmatched.len(),
+            STEP_TOLERANCE * 100.0,
+            list(&unmatched)
+        ));
+    }
+    if !ambiguous.is_empty() {
+        warnings.push(format!(
+            "{} target frame(s) lie between two reference steps and are left out (their ISO × exposure is not clearly nearer one of them): {}",
+            ambiguous.len(),
+            list(&ambiguous)
+        ));
+    }
+    for s in &mut steps {
+        s.targets.sort_by(|a, b| a.meta.iso.cmp(&b.meta.iso).then(a.path.cmp(&b.path)));
+        if s.targets.is_empty() {
             warnings.push(format!(
-                "EV step with reference exposure {reference_exposure_ns} ns has no target frames: it adds nothing"
+                "EV step with reference exposure {} ns has no target frames: it adds nothing",
+                s.reference_exposure_ns
             ));
         }
-        steps.push(DngStep { brightness, reference_exposure_ns, reference, targets });
     }
     if steps.iter().all(|s| s.targets.is_empty()) {
         bail!(
@@ -330,5 +393,47 @@ mod tests {
         let heads = vec![head("a", 100, 8_000_000), head("b", 125, 6_400_000), head("c", 160, 5_000_000)];
         let mut h = heads;
         assert!(snap_isos(&mut h).is_empty());
+    }
+
+    #[test]
+    fn a_dense_sweep_keeps_settings_one_percent_apart() {
+        // 41 settings 1 % apart, each a 3-frame reference at ISO 100 and one target at ISO 400
+        // (reported with the rounding of a real device: ±0.1 % on the exposure).
+        let mut heads = Vec::new();
+        for k in 0..41u64 {
+            let e = (10_000_000.0 * 1.01f64.powi(k as i32)).round() as u64;
+            for r in 0..3 {
+                heads.push(head(&format!("r{k:02}_{r}.dng"), 100, e + r));
+            }
+            let jitter = if k % 2 == 0 { 1.001 } else { 0.999 };
+            heads.push(head(&format!("t{k:02}.dng"), 400, (e as f64 / 4.0 * jitter).round() as u64));
+        }
+        let set = group_dngs(heads, None, Path::new("x")).unwrap();
+        assert_eq!(set.steps.len(), 41, "{:?}", set.warnings);
+        for (k, s) in set.steps.iter().enumerate() {
+            assert_eq!(s.reference.len(), 3);
+            assert_eq!(s.targets.len(), 1);
+            assert_eq!(s.targets[0].path, PathBuf::from(format!("t{k:02}.dng")));
+        }
+    }
+
+    #[test]
+    fn targets_that_match_no_step_or_two_are_named_and_left_out() {
+        let heads = vec![
+            head("ra.dng", 100, 10_000_000),
+            head("rb.dng", 100, 10_200_000),
+            head("ok.dng", 400, 2_500_000),
+            // 1 % from both reference steps: ambiguous.
+            head("between.dng", 400, 2_525_000),
+            // 20 % off everything: another setting, or the exposure did not apply.
+            head("stray.dng", 400, 3_000_000),
+        ];
+        let set = group_dngs(heads, None, Path::new("x")).unwrap();
+        assert_eq!(set.steps.len(), 2);
+        assert_eq!(set.steps[0].targets.len(), 1);
+        assert!(set.steps[1].targets.is_empty());
+        let w = set.warnings.join("\n");
+        assert!(w.contains("between.dng") && w.contains("lie between two reference steps"), "{w}");
+        assert!(w.contains("stray.dng") && w.contains("match no reference burst"), "{w}");
     }
 }

@@ -24,7 +24,6 @@ pub struct SimSession {
 }
 
 /// DNG-folder grouping (`input.rs`) merges EV steps closer than this factor in ISO × exposure.
-const DNG_STEP_FACTOR: f64 = 1.12;
 
 /// Sensor presets by bit depth.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -104,19 +103,6 @@ impl SimSession {
             s.index_offset = spec.heldout.index_offset;
         }
         Ok(s)
-    }
-
-    /// The smallest ratio of ISO × exposure between consecutive EV steps (`None` for one step).
-    pub fn min_step_factor(&self) -> Option<f64> {
-        let mut evs: Vec<f64> = self.plan.ev_steps.iter().map(|&s| self.plan.ev(s)).collect();
-        evs.sort_by(f64::total_cmp);
-        evs.windows(2).map(|w| 2f64.powf(w[1] - w[0])).min_by(f64::total_cmp)
-    }
-
-    /// Whether a DNG folder of this session would merge EV steps when grouped (`calibrate` and
-    /// `eval` on a folder group DNGs by ISO × exposure, steps ≥ 12 % apart).
-    pub fn dng_grouping_merges_steps(&self) -> bool {
-        self.min_step_factor().is_some_and(|f| f <= DNG_STEP_FACTOR)
     }
 
     pub fn new(
@@ -223,8 +209,6 @@ mod tests {
             assert!(held.index_offset >= cal.plan.len() as u64);
             assert_eq!(held.plan.base_exposure_ns, cal.plan.base_exposure_ns);
             assert_eq!((held.sim.width() as u32, held.sim.height() as u32), (spec.heldout.width, spec.heldout.height));
-            assert_eq!(cal.dng_grouping_merges_steps(), spec.dense, "seed {seed}");
-            assert!(!held.dng_grouping_merges_steps(), "seed {seed}: held-out steps must stay apart in a DNG folder");
             dense_seen |= spec.dense;
         }
         assert!(dense_seen);

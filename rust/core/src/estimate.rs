@@ -235,9 +235,9 @@ fn clip_fraction(h: &NoiseHistogram, lo: i32, hi: i32, white: i32) -> f64 {
 }
 
 /// Bins flagged as clipped, from all samples: more than [`CLIP_FRACTION`] of their samples may
-/// have reached 0 or white, or their levels lie within [`CLIP_SIGMAS`] standard deviations of
-/// 0 or white by the noise law fitted on the bins not flagged so far (which catches bins with
-/// too few samples to show it).
+/// have reached 0 or white, or — for bins with too few samples to show a fraction that small —
+/// their levels lie within [`CLIP_SIGMAS`] standard deviations of 0 or white by the noise law
+/// fitted on the bins not flagged so far.
 fn clip_flags(hists: &[NoiseHistogram], levels: &BinLevels) -> Vec<bool> {
     let mut clipped: Vec<bool> = hists
         .iter()
@@ -247,6 +247,10 @@ fn clip_flags(hists: &[NoiseHistogram], levels: &BinLevels) -> Vec<bool> {
     let stats: Vec<Stat> = hists.iter().map(Stat::of).collect();
     let law = Law::fit(&stats, &clipped, levels);
     for (b, c) in clipped.iter_mut().enumerate() {
+        // A bin with enough samples shows its clipping itself.
+        if stats[b].n as f64 * CLIP_FRACTION >= 1.0 {
+            continue;
+        }
         let sd = law.var[b].sqrt();
         let to_white = (levels.white - levels.hi[b]) as f64 - law.mean[b];
         let to_zero = levels.lo[b] as f64 + law.mean[b];

@@ -123,13 +123,6 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         }
     };
     s.index_offset += args.index_offset;
-    if args.dngs.is_some() && s.dng_grouping_merges_steps() && !quiet {
-        eprintln!(
-            "note: consecutive EV settings are only {:.1} % apart; grouping a DNG folder (calibrate, eval) merges \
-             steps closer than 12 %, so use the recording (--rec) for this dense sweep",
-            (s.min_step_factor().unwrap_or(1.0) - 1.0) * 100.0
-        );
-    }
     let pb = progress_bar(s.plan.len() as u64, quiet, "simulating");
     s.write(args.dngs.as_deref(), args.rec.as_deref(), args.padding, || pb.inc(1))?;
     pb.finish_and_clear();

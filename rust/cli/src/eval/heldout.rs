@@ -9,12 +9,10 @@ use std::path::Path;
 use anyhow::{Context, bail};
 use ndarray::Array2;
 use noisecal_core::recording::Record;
+use noisecal_core::session::STEP_TOLERANCE;
 use noisecal_core::{CalibrationSession, FrameMeta, FrameView, POSITIONS, SensorLayout, SessionConfig};
 
 use crate::input::{self, InputKind};
-
-/// A target frame's ISO × exposure may differ from its step's by this much.
-const STEP_TOLERANCE: f64 = 0.1;
 
 /// What the loader learnt about the held-out set before (or while) streaming it.
 #[derive(Debug, Clone)]

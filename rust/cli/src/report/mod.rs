@@ -149,7 +149,7 @@ pub fn render_html(pack: &ModelPack, pack_name: &str, eval: Option<&EvalReport>)
     let _ = write!(o, "<h2 id=\"levels\">Noise variance and mean vs level</h2>");
     let _ = write!(
         o,
-        "<p>Per bin of clean level, the variance and mean of the calibrated noise PMF, one colour per ISO (filled dots: measured bins; hollow: filled from neighbours). The lines are the heteroscedastic Gaussian fit <code>σ² = a·(l − black) + b</code> of each ISO (paper Fig. 3): where the dots leave the line, a Gaussian model is off. A mean that drifts with level is a gain ratio off 1, kept by the model.</p>"
+        "<p>Per bin of clean level, one colour per ISO: the dots are what each bin's own samples measured (crosses: clipped bins, whose spread is shrunk by 0 or white), the thick line is the pack's noise PMF, which must follow the dots up to clipping and continue along the fitted noise law beyond them; the faint line is the heteroscedastic Gaussian fit <code>σ² = a·(l − black) + b</code> (paper Fig. 3). Where the dots leave the faint line, a Gaussian model is off. A mean that drifts with level is a gain ratio off 1, kept by the model.</p>"
     );
     let _ = write!(o, "<div class=\"grid2\">");
     for pos in 0..POSITIONS {
@@ -242,15 +242,30 @@ pub fn render_html(pack: &ModelPack, pack_name: &str, eval: Option<&EvalReport>)
         }
         let _ = write!(o, "</ul></div>");
     }
-    if pack.warnings.is_empty() {
+    // The pack's own warnings, then what the self-check finds now (older packs never ran it).
+    let mut warnings = pack.warnings.clone();
+    for f in noisecal_core::check::self_check(pack) {
+        let f = f.to_string();
+        if !warnings.contains(&f) {
+            warnings.push(f);
+        }
+    }
+    let self_check: Vec<&String> = warnings.iter().filter(|w| w.starts_with("self-check")).collect();
+    if self_check.is_empty() {
+        let _ = write!(
+            o,
+            "<p class=\"ok\">Self-check: the pack's noise variance stays within 10 % of the measured variance at every checked level, and no fill spans clipped bins.</p>"
+        );
+    }
+    if warnings.is_empty() {
         let _ = write!(o, "<p class=\"ok\">The pack carries no calibration warnings.</p>");
     } else {
         let _ = write!(o, "<div class=\"warn\"><ul>");
-        for w in pack.warnings.iter().take(60) {
+        for w in warnings.iter().take(60) {
             let _ = write!(o, "<li>{}</li>", esc(w));
         }
-        if pack.warnings.len() > 60 {
-            let _ = write!(o, "<li>… and {} more (see <code>noisecal inspect</code>)</li>", pack.warnings.len() - 60);
+        if warnings.len() > 60 {
+            let _ = write!(o, "<li>… and {} more (see <code>noisecal inspect</code>)</li>", warnings.len() - 60);
         }
         let _ = write!(o, "</ul></div>");
     }

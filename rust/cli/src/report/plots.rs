@@ -41,18 +41,36 @@ pub enum Stat {
 }
 
 /// Per-bin variance (or mean) of the noise vs clean level above black at one CFA position, one
-/// colour per ISO; measured bins are filled dots, filled-in bins hollow; the HG fit
-/// `σ² = a·(l − black) + b` is drawn over the variances (paper Fig. 3).
+/// colour per ISO: each bin's own measured samples as dots (crosses where the bin is clipped, so
+/// its moments are shrunk), the pack's PMFs as a line through them — which must follow the dots
+/// up to clipping — and the HG fit `σ² = a·(l − black) + b` as a faint line (paper Fig. 3).
 pub fn level_chart(pack: &ModelPack, pos: usize, stat: Stat, size: (u32, u32)) -> anyhow::Result<String> {
     let binning = pack.binning();
     let models: Vec<&IsoModel> = pack.isos.iter().collect();
     let series: Vec<Vec<baselines::BinStat>> = models.iter().map(|m| baselines::bin_stats(&binning, m, pos)).collect();
     let xmax = (pack.layout.white as f64 - pack.layout.black[pos] as f64).max(1.0);
-    let val = |s: &baselines::BinStat| match stat {
-        Stat::Variance => s.var,
-        Stat::Mean => s.mean,
+    let pick = |v: [f64; 2]| match stat {
+        Stat::Variance => v[1],
+        Stat::Mean => v[0],
     };
-    let vals = series.iter().flatten().filter(|s| s.samples > 0 || s.filled).map(val);
+    let val = |s: &baselines::BinStat| pick([s.mean, s.var]);
+    let measured_of = |m: &IsoModel| -> Vec<(f64, f64, bool)> {
+        m.positions[pos]
+            .bins
+            .iter()
+            .enumerate()
+            .filter_map(|(b, bm)| {
+                bm.measured.map(|mv| ((b as f64 + 0.5) * binning.bin_width as f64, pick(mv), bm.clipped))
+            })
+            .collect()
+    };
+    let points: Vec<Vec<(f64, f64, bool)>> = models.iter().map(|m| measured_of(m)).collect();
+    let vals = series
+        .iter()
+        .flatten()
+        .filter(|s| s.samples > 0 || s.filled)
+        .map(val)
+        .chain(points.iter().flatten().filter(|p| !p.2).map(|p| p.1));
     let (mut lo, mut hi) = vals.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
     if !lo.is_finite() {
         (lo, hi) = (0.0, 1.0);
@@ -98,24 +116,34 @@ pub fn level_chart(pack: &ModelPack, pos: usize, stat: Stat, size: (u32, u32)) -
             .map_err(err)?;
         for (i, (m, st)) in models.iter().zip(&series).enumerate() {
             let c = color(i);
-            let measured: Vec<(f64, f64)> =
-                st.iter().filter(|s| !s.filled).map(|s| (s.level_above_black, val(s))).collect();
-            let filled: Vec<(f64, f64)> =
-                st.iter().filter(|s| s.filled).map(|s| (s.level_above_black, val(s))).collect();
             let label = match m.is_calibrated() {
                 true => format!("ISO {}", m.iso),
                 false => format!("ISO {} (interp.)", m.iso),
             };
+            // The pack: a line over every bin.
+            let line: Vec<(f64, f64)> =
+                st.iter().map(|s| (s.level_above_black, val(s))).filter(|p| p.1 <= yhi).collect();
             chart
-                .draw_series(measured.iter().map(|&p| Circle::new(p, 2, c.filled())))
+                .draw_series(LineSeries::new(line, c.stroke_width(2)))
                 .map_err(err)?
                 .label(label)
-                .legend(move |(x, y)| Circle::new((x + 8, y), 3, c.filled()));
-            chart.draw_series(filled.iter().map(|&p| Circle::new(p, 2, c.stroke_width(1)))).map_err(err)?;
+                .legend(move |(x, y)| PathElement::new([(x, y), (x + 16, y)], c.stroke_width(2)));
+            // What was measured: dots, crosses where clipped.
+            let pts = &points[i];
+            chart
+                .draw_series(
+                    pts.iter().filter(|p| !p.2 && p.1 <= yhi).map(|p| Circle::new((p.0, p.1), 2, c.mix(0.7).filled())),
+                )
+                .map_err(err)?;
+            chart
+                .draw_series(
+                    pts.iter().filter(|p| p.2 && p.1 <= yhi).map(|p| Cross::new((p.0, p.1), 3, c.stroke_width(1))),
+                )
+                .map_err(err)?;
             if stat == Stat::Variance {
                 let hg = baselines::fit_all(&binning, m)[pos];
                 chart
-                    .draw_series(LineSeries::new([(0.0, hg.b), (xmax, hg.variance(xmax))], c.stroke_width(1)))
+                    .draw_series(LineSeries::new([(0.0, hg.b), (xmax, hg.variance(xmax))], c.mix(0.35).stroke_width(1)))
                     .map_err(err)?;
             } else {
                 chart.draw_series(LineSeries::new([(0.0, 0.0), (xmax, 0.0)], BLACK.mix(0.4))).map_err(err)?;
