@@ -23,8 +23,6 @@ pub struct SimSession {
     pub index_offset: u64,
 }
 
-/// DNG-folder grouping (`input.rs`) merges EV steps closer than this factor in ISO × exposure.
-
 /// Sensor presets by bit depth.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Preset {
