@@ -15,6 +15,7 @@ pub struct CalibrateOptions {
     pub reference_iso: Option<u32>,
     pub bin_width: Option<u16>,
     pub pooling: Option<u64>,
+    pub plain: bool,
     pub roi: Option<Roi>,
     pub flat_k: Option<f64>,
     pub no_drift_normalise: bool,
@@ -28,6 +29,7 @@ impl CalibrateOptions {
         if let Some(m) = self.pooling {
             c.pooling = Some(m);
         }
+        c.plain = self.plain;
         if self.roi.is_some() {
             c.roi = self.roi;
         }

@@ -393,6 +393,7 @@ impl Baseline {
             gain_ratio: src.map_or([1.0; POSITIONS], |m| m.gain_ratio),
             noise_profile: src.and_then(|m| m.noise_profile),
             // A parametric baseline knows nothing of the codes a sensor writes.
+            range: [[0, pack.layout.white]; POSITIONS],
             lattice: [None; POSITIONS],
             positions,
         }

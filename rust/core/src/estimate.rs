@@ -71,9 +71,14 @@ pub const OVERRIDE_MIN_HELDOUT: u64 = 200;
 /// Bins without samples of their own, far from data, pool at least this many samples.
 pub const FILL_MIN_SAMPLES: u64 = 256;
 
-/// The local-linear law's window holds at least this many samples and [`LAW_MIN_BINS`] bins.
+/// The local-linear law's variance window holds at least this many samples and
+/// [`LAW_MIN_BINS`] bins …
 const LAW_MIN_SAMPLES: f64 = 8192.0;
 const LAW_MIN_BINS: usize = 4;
+/// … and its mean window four times as many bins: what is left of the clean image's selection
+/// shift ([`crate::deselect`]) swings the mean from bin to bin across a cluster of levels, and a
+/// narrow window would carry one cluster edge's swing into the next gap.
+const LAW_MIN_BINS_MEAN: usize = 16;
 
 /// Smallest variance any PMF is given (DN²): the quantisation of a noiseless pixel.
 const MIN_VAR: f64 = 1.0 / 12.0;
@@ -85,6 +90,9 @@ pub enum Pooling {
     Auto,
     /// A fixed threshold (user override).
     Fixed(u64),
+    /// The plain per-bin histogram, the nearest bin with samples for empty bins: no law, no
+    /// pooling, no prior ([`plain_empirical`]), for comparisons.
+    Plain,
 }
 
 /// What clipped bins hold.
@@ -105,6 +113,8 @@ pub enum Choice {
     Fixed,
     /// Too few folds held samples to cross-validate: defaults used.
     Default,
+    /// The plain per-bin histogram was asked for.
+    Plain,
 }
 
 /// Held-out score of one candidate.
@@ -154,6 +164,9 @@ pub struct BinLevels {
     pub hi: Vec<i32>,
     /// Centre level (DN) of each bin.
     pub center: Vec<f64>,
+    /// The codes the sensor writes: clipped below at `floor`, above from `white` on (where its
+    /// output starts to pile up, [`crate::lattice::output_range`]).
+    pub floor: i32,
     pub white: i32,
 }
 
@@ -174,7 +187,14 @@ impl BinLevels {
             hi.push(h.max(l.min(white)));
         }
         let center = (0..n).map(|b| binning.center(pos, b) as f64).collect();
-        Self { lo, hi, center, white }
+        Self { lo, hi, center, floor: 0, white }
+    }
+
+    /// The same bins for a sensor that writes only codes `range[0] ..= range[1]`.
+    pub fn with_range(mut self, range: [u16; 2]) -> Self {
+        self.floor = range[0] as i32;
+        self.white = range[1] as i32;
+        self
     }
 
     pub fn len(&self) -> usize {
@@ -212,12 +232,17 @@ impl Stat {
 /// Fraction of a histogram's samples (counts over `first ..`) that may have reached 0 or white
 /// for some integer level `lo ..= hi` of the bin: `n ≥ white − hi` or `n ≤ −lo`.
 pub fn clip_fraction_of(first: i32, counts: &[u64], lo: i32, hi: i32, white: i32) -> f64 {
+    clip_fraction_in(first, counts, lo, hi, 0, white)
+}
+
+/// [`clip_fraction_of`] for a sensor clipping at `floor` and `white`.
+pub fn clip_fraction_in(first: i32, counts: &[u64], lo: i32, hi: i32, floor: i32, white: i32) -> f64 {
     let total: u64 = counts.iter().sum();
     if total == 0 {
         return 0.0;
     }
     let top = white - hi;
-    let bottom = -lo;
+    let bottom = floor - lo;
     let c: u64 = counts
         .iter()
         .enumerate()
@@ -230,8 +255,8 @@ pub fn clip_fraction_of(first: i32, counts: &[u64], lo: i32, hi: i32, white: i32
     c as f64 / total as f64
 }
 
-fn clip_fraction(h: &NoiseHistogram, lo: i32, hi: i32, white: i32) -> f64 {
-    clip_fraction_of(h.first, &h.counts, lo, hi, white)
+fn clip_fraction(h: &NoiseHistogram, lo: i32, hi: i32, floor: i32, white: i32) -> f64 {
+    clip_fraction_in(h.first, &h.counts, lo, hi, floor, white)
 }
 
 /// Bins flagged as clipped, from all samples: more than [`CLIP_FRACTION`] of their samples may
@@ -242,7 +267,7 @@ fn clip_flags(hists: &[NoiseHistogram], levels: &BinLevels) -> Vec<bool> {
     let mut clipped: Vec<bool> = hists
         .iter()
         .enumerate()
-        .map(|(b, h)| clip_fraction(h, levels.lo[b], levels.hi[b], levels.white) > CLIP_FRACTION)
+        .map(|(b, h)| clip_fraction(h, levels.lo[b], levels.hi[b], levels.floor, levels.white) > CLIP_FRACTION)
         .collect();
     let stats: Vec<Stat> = hists.iter().map(Stat::of).collect();
     let law = Law::fit(&stats, &clipped, levels);
@@ -253,7 +278,7 @@ fn clip_flags(hists: &[NoiseHistogram], levels: &BinLevels) -> Vec<bool> {
         }
         let sd = law.var[b].sqrt();
         let to_white = (levels.white - levels.hi[b]) as f64 - law.mean[b];
-        let to_zero = levels.lo[b] as f64 + law.mean[b];
+        let to_zero = (levels.lo[b] - levels.floor) as f64 + law.mean[b];
         if to_white < CLIP_SIGMAS * sd || to_zero < CLIP_SIGMAS * sd {
             *c = true;
         }
@@ -293,7 +318,8 @@ impl Law {
         let first_level = pts[0].0;
         let last_level = pts[pts.len() - 1].0;
         let bw = if nbins > 1 { (levels.center[1] - levels.center[0]).abs().max(1.0) } else { 1.0 };
-        let local = |x: f64| local_linear(&pts, x, bw);
+        let local =
+            |x: f64| (local_linear(&pts, x, bw, LAW_MIN_BINS_MEAN).0, local_linear(&pts, x, bw, LAW_MIN_BINS).1);
         // Global trends for extrapolation.
         // Trends for extrapolation: shot noise makes the variance linear in the level, so each
         // end continues along a non-negative line fitted on the half of the measured levels
@@ -303,6 +329,7 @@ impl Law {
         // be near 0 by chance and would take all the weight).
         let smooth_var: Vec<f64> = pts.iter().map(|p| local(p.0).1.max(MIN_VAR)).collect();
         let trend = |upper: bool| -> (Vec<f64>, Vec<f64>) {
+            // (variance line, mean line) of one half
             let sel: Vec<(f64, f64, f64, f64)> = pts
                 .iter()
                 .zip(&smooth_var)
@@ -336,18 +363,27 @@ impl Law {
         for &x in &levels.center {
             // Beyond an end: the trend line, joined to the local law at the end by an offset
             // that fades over a few bins.
-            let (m, v) = if x > last_level {
+            let v = if x > last_level {
                 let fade = (-(x - last_level) / (4.0 * bw)).exp();
                 let tv = poly_eval(&gv_hi, x) + fade * (v_last - poly_eval(&gv_hi, last_level));
-                let tm = poly_eval(&gm_hi, x) + fade * (m_last - poly_eval(&gm_hi, last_level));
-                (tm, tv.max(v_last.min(poly_eval(&gv_hi, last_level))))
+                tv.max(v_last.min(poly_eval(&gv_hi, last_level)))
             } else if x < first_level {
                 let fade = (-(first_level - x) / (4.0 * bw)).exp();
                 let tv = poly_eval(&gv_lo, x) + fade * (v_first - poly_eval(&gv_lo, first_level));
-                let tm = poly_eval(&gm_lo, x) + fade * (m_first - poly_eval(&gm_lo, first_level));
-                (tm, tv.min(v_first.max(poly_eval(&gv_lo, first_level))).max(0.5 * v_first))
+                tv.min(v_first.max(poly_eval(&gv_lo, first_level))).max(0.5 * v_first)
             } else {
-                local(x)
+                local(x).1
+            };
+            // The mean likewise, except that a local slope is never carried past an end: the
+            // trend of the half next to it takes over.
+            let m = if x > last_level {
+                let fade = (-(x - last_level) / (4.0 * bw)).exp();
+                poly_eval(&gm_hi, x) + fade * (m_last - poly_eval(&gm_hi, last_level))
+            } else if x < first_level {
+                let fade = (-(first_level - x) / (4.0 * bw)).exp();
+                poly_eval(&gm_lo, x) + fade * (m_first - poly_eval(&gm_lo, first_level))
+            } else {
+                local(x).0
             };
             mean.push(m);
             var.push(v.max(MIN_VAR));
@@ -358,13 +394,19 @@ impl Law {
 
 /// Local-linear (tricube-weighted) estimate of (mean, variance) at level `x` from
 /// `(level, samples, mean, var)` points sorted by level.
-fn local_linear(pts: &[(f64, f64, f64, f64)], x: f64, bw: f64) -> (f64, f64) {
+fn local_linear(pts: &[(f64, f64, f64, f64)], x: f64, bw: f64, min_bins: usize) -> (f64, f64) {
     // Grow a window around x until it holds enough samples and bins.
     let start = pts.partition_point(|p| p.0 < x);
     let (mut lo, mut hi) = (start, start); // window is pts[lo..hi]
     let mut n = 0.0;
     let mut radius: f64 = 0.0;
-    while (n < LAW_MIN_SAMPLES || hi - lo < LAW_MIN_BINS) && (lo > 0 || hi < pts.len()) {
+    // Inside the measured range the window also reaches the nearest point on each side, so a
+    // gap between measured levels is bridged (shot noise grows steadily across it) instead of
+    // continuing one side's local slope.
+    let inside = start > 0 && start < pts.len();
+    while (n < LAW_MIN_SAMPLES || hi - lo < min_bins || (inside && (lo == start || hi == start)))
+        && (lo > 0 || hi < pts.len())
+    {
         let take_lo = match (lo > 0, hi < pts.len()) {
             (true, true) => (x - pts[lo - 1].0) <= (pts[hi].0 - x),
             (l, _) => l,
@@ -496,6 +538,36 @@ impl<'a> Data<'a> {
         Self { stats, pmfs, law, clipped }
     }
 
+    /// The same data with the clean image's selection undone in every unclipped bin: its mean
+    /// less the shift, its variance plus what the error lost (`select[b]` = (shift, variance to
+    /// add)), and the law refitted. Clipped bins keep theirs: their shape near the clip is tied
+    /// to their own levels.
+    fn deselected(mut self, select: &[(f64, f64)], levels: &BinLevels) -> Self {
+        let mut moved = false;
+        for (b, &(d, add)) in select.iter().enumerate() {
+            if (d.abs() < 0.01 && add.abs() < 0.01) || self.clipped[b] {
+                continue;
+            }
+            if let Some(p) = self.pmfs[b].as_ref() {
+                let s = self.stats[b];
+                // The error cannot have hidden more spread than the samples show unless the
+                // pixels did not vary at all (a saturated reference and target): leave those.
+                if add > 0.5 * s.var {
+                    continue;
+                }
+                let var = (s.var + add).max(MIN_VAR);
+                self.pmfs[b] = Some(p.rescaled(s.mean - d, var));
+                self.stats[b].mean -= d;
+                self.stats[b].var = var;
+                moved = true;
+            }
+        }
+        if moved {
+            self.law = Law::fit(&self.stats, self.clipped, levels);
+        }
+        self
+    }
+
     /// Moves bin `j`'s PMF onto bin `b` by the law (identity for `j == b`).
     fn moved(&self, j: usize, b: usize) -> Option<Pmf> {
         let p = self.pmfs[j].as_ref()?;
@@ -613,7 +685,8 @@ fn loglik(held: &NoiseHistogram, prior: &[f64], acc: &Acc, cum: u64) -> f64 {
 
 /// Log-likelihood of held-out counts of a clipped bin when the pool is unclipped noise and each
 /// pixel's value is clamped to `[0, white]` (integer levels of the bin weighted equally).
-fn loglik_clamped(held: &NoiseHistogram, acc: &Acc, cum: u64, prior: &Pmf, lo: i32, hi: i32, white: i32) -> f64 {
+fn loglik_clamped(held: &NoiseHistogram, acc: &Acc, cum: u64, prior: &Pmf, lo: i32, hi: i32, range: (i32, i32)) -> f64 {
+    let (floor, white) = range;
     let eps = 1.0 / (cum as f64 + 1.0);
     let mut mix = Acc::default();
     if acc.total > 0.0 {
@@ -653,7 +726,7 @@ fn loglik_clamped(held: &NoiseHistogram, acc: &Acc, cum: u64, prior: &Pmf, lo: i
         let n = held.first + i as i32;
         let mut p = 0.0;
         for &l in &levels {
-            let (bottom, top) = (-l, white - l);
+            let (bottom, top) = (floor - l, white - l);
             p += if n < bottom || n > top {
                 0.0
             } else if n == bottom && n == top {
@@ -672,8 +745,16 @@ fn loglik_clamped(held: &NoiseHistogram, acc: &Acc, cum: u64, prior: &Pmf, lo: i
     ll
 }
 
-/// Estimates the bins of one (ISO, position) from its fold histograms (`folds[k][bin]`).
-pub fn estimate_position(folds: &[&[NoiseHistogram]], levels: &BinLevels, pooling: Pooling) -> PositionEstimate {
+/// Estimates the bins of one (ISO, position) from its fold histograms (`folds[k][bin]`) and the
+/// clean image's selection summed over each fold's samples (`shifts[k][bin]` = `[Σδ, Σδ², Σa]`,
+/// [`crate::deselect`]; empty slices for none). The pooling is chosen on the samples as
+/// measured; the PMFs are built from samples with the selection undone.
+pub fn estimate_position(
+    folds: &[&[NoiseHistogram]],
+    shifts: &[&[[f64; 3]]],
+    levels: &BinLevels,
+    pooling: Pooling,
+) -> PositionEstimate {
     let nbins = levels.len();
     let mut total: Vec<NoiseHistogram> = vec![NoiseHistogram::default(); nbins];
     for f in folds {
@@ -683,6 +764,24 @@ pub fn estimate_position(folds: &[&[NoiseHistogram]], levels: &BinLevels, poolin
     }
     let total: Vec<NoiseHistogram> = total.iter().map(|h| h.trimmed()).collect();
     let clipped = clip_flags(&total, levels);
+    if pooling == Pooling::Plain {
+        let mut bins = plain_empirical(&total);
+        for (b, c) in bins.iter_mut().zip(&clipped) {
+            b.clipped = *c;
+        }
+        let law = Law::fit(&total.iter().map(Stat::of).collect::<Vec<_>>(), &clipped, levels);
+        let report = EstimateReport {
+            pooling: 0,
+            clip_mode: ClipMode::Own,
+            choice: Choice::Plain,
+            candidates: Vec::new(),
+            clip_scores: None,
+            law: law.mean.iter().zip(&law.var).map(|(&m, &v)| [m as f32, v as f32]).collect(),
+            clipped: clipped.iter().enumerate().filter(|(_, c)| **c).map(|(b, _)| b as u32).collect(),
+            heldout_samples: 0,
+        };
+        return PositionEstimate { bins, report };
+    }
     let live_folds: Vec<usize> = (0..folds.len()).filter(|&k| folds[k].iter().any(|h| h.total() > 0)).collect();
 
     // Per bin, the pooling it uses: the position's choice, or a smaller one where the bin's own
@@ -693,11 +792,11 @@ pub fn estimate_position(folds: &[&[NoiseHistogram]], levels: &BinLevels, poolin
             per_bin = vec![m; nbins];
             (m, ClipMode::Law, Choice::Fixed, Vec::new(), None, 0)
         }
-        Pooling::Auto if live_folds.len() < 2 => {
+        Pooling::Auto | Pooling::Plain if live_folds.len() < 2 => {
             per_bin = vec![DEFAULT_POOLING; nbins];
             (DEFAULT_POOLING, ClipMode::Law, Choice::Default, Vec::new(), None, 0)
         }
-        Pooling::Auto => {
+        Pooling::Auto | Pooling::Plain => {
             let cv = cross_validate(folds, &total, &clipped, levels, &live_folds);
             let n = cv.heldout.max(1) as f64;
             let best = argmax(&cv.ll);
@@ -737,7 +836,29 @@ pub fn estimate_position(folds: &[&[NoiseHistogram]], levels: &BinLevels, poolin
         }
     };
 
-    let data = Data::new(&total, &clipped, levels);
+    // Each bin's selection over all its samples: mean shift, and the variance to give back
+    // (what the error lost, less the spread of the shift within the bin, which the samples
+    // still carry).
+    let deselect: Vec<(f64, f64)> = (0..nbins)
+        .map(|b| {
+            let mut s = [0.0f64; 3];
+            for f in shifts {
+                if let Some(v) = f.get(b) {
+                    for k in 0..3 {
+                        s[k] += v[k];
+                    }
+                }
+            }
+            let n = total[b].total() as f64;
+            if n > 0.0 {
+                let mean = s[0] / n;
+                (mean, s[2] / n - (s[1] / n - mean * mean).max(0.0))
+            } else {
+                (0.0, 0.0)
+            }
+        })
+        .collect();
+    let data = Data::new(&total, &clipped, levels).deselected(&deselect, levels);
     let bins = (0..nbins)
         .map(|b| {
             let own_only = clipped[b] && clip_mode == ClipMode::Own && data.stats[b].n > 0;
@@ -835,7 +956,15 @@ fn cross_validate(
                 }
                 let prior = laplace_pmf(mu, var);
                 pool_bin(&data, b, false, &POOLING_CANDIDATES, FILL_MIN_SAMPLES, |c, acc, cum| {
-                    clip_law[c] += loglik_clamped(held, acc, cum, &prior, levels.lo[b], levels.hi[b], levels.white);
+                    clip_law[c] += loglik_clamped(
+                        held,
+                        acc,
+                        cum,
+                        &prior,
+                        levels.lo[b],
+                        levels.hi[b],
+                        (levels.floor, levels.white),
+                    );
                 });
                 continue;
             }

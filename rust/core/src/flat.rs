@@ -88,6 +88,45 @@ impl TemporalStats {
     }
 }
 
+impl TemporalStats {
+    /// Per-frame noise variance as a robust line in (level − black) per position, `[c0, c1, 0]`:
+    /// weighted by pixel count and refitted without the level groups that sit far above it.
+    /// Frame-to-frame differences at chart edges (a scene that moves by a fraction of a pixel)
+    /// are large; they dominate sparse level groups, never the patch interiors that fill the
+    /// populated ones. Zero where the burst has no differences.
+    pub fn robust_variance_fits(&self, groups: &Groups) -> [[f64; 3]; POSITIONS] {
+        std::array::from_fn(|pos| {
+            let mut pts: Vec<(f64, f64, f64)> = (0..GROUPS)
+                .filter_map(|g| {
+                    let [n, s1, s2] = self.acc[pos * GROUPS + g];
+                    (n >= 64.0).then(|| {
+                        let m = s1 / n;
+                        (groups.center(pos, g), ((s2 / n - m * m) / 2.0).max(0.0), n)
+                    })
+                })
+                .collect();
+            let mut c = vec![0.0, 0.0];
+            for _ in 0..3 {
+                if pts.is_empty() {
+                    return [0.0; 3];
+                }
+                let x: Vec<f64> = pts.iter().map(|p| p.0).collect();
+                let y: Vec<f64> = pts.iter().map(|p| p.1).collect();
+                let w: Vec<f64> = pts.iter().map(|p| p.2).collect();
+                c = nn_poly_fit(&x, &y, &w, usize::from(pts.len() >= 2));
+                c.resize(2, 0.0);
+                let keep: Vec<(f64, f64, f64)> =
+                    pts.iter().copied().filter(|p| p.1 <= 2.0 * poly_eval(&c, p.0) + 1.0).collect();
+                if keep.len() == pts.len() {
+                    break;
+                }
+                pts = keep;
+            }
+            [c[0], c[1], 0.0]
+        })
+    }
+}
+
 /// What the flat test found.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct FlatReport {
@@ -97,6 +136,25 @@ pub struct FlatReport {
     pub considered: [u64; POSITIONS],
     /// Fitted variance of the clean image per position: `[c0, c1, c2]` in (level − black).
     pub clean_variance: [[f64; 3]; POSITIONS],
+    /// Its temporal part alone, the variance of the mean of the burst's frames (the clean
+    /// image's own error; zero for a one-frame burst): `[c0, c1, c2]` in (level − black).
+    pub mean_noise: [[f64; 3]; POSITIONS],
+    /// The same per level group ([`GROUPS`] per position, [`Groups::group`]) where the group
+    /// had enough differences (NaN elsewhere): near a saturated level it falls to nothing.
+    pub mean_noise_groups: Vec<f32>,
+}
+
+impl FlatReport {
+    /// The variance of the clean image's error at `level` (DN, black included): the robust
+    /// line, or less where the level's own group measured less (a saturated reference).
+    pub fn mean_noise_at(&self, groups: &Groups, pos: usize, level: f64) -> f64 {
+        let line = poly_eval(&self.mean_noise[pos], (level - groups.black[pos] as f64).max(0.0)).max(0.0);
+        let g = groups.group(pos, level as f32);
+        match self.mean_noise_groups.get(pos * GROUPS + g) {
+            Some(&v) if v.is_finite() => line.min(v as f64),
+            _ => line,
+        }
+    }
 }
 
 impl FlatReport {
@@ -129,6 +187,7 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
 
     // Variance of the clean image per position: temporal part (noise of the mean) …
     let temporal = inp.temporal.variance_fits(&groups);
+    let robust = inp.temporal.robust_variance_fits(&groups);
     let temporal_of = |pos: usize, x: f64| -> f64 {
         match &temporal[pos] {
             Some(c) if inp.frames >= 2 => poly_eval(c, x).max(0.0) / m,
@@ -175,6 +234,19 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
             c
         };
         let t = temporal[pos].clone().unwrap_or_default();
+        if inp.frames >= 2 {
+            report.mean_noise[pos] = robust[pos].map(|c| c / m);
+            if report.mean_noise_groups.is_empty() {
+                report.mean_noise_groups = vec![f32::NAN; POSITIONS * GROUPS];
+            }
+            for g in 0..GROUPS {
+                let [n, s1, s2] = inp.temporal.acc[pos * GROUPS + g];
+                if n >= 64.0 {
+                    let mu = s1 / n;
+                    report.mean_noise_groups[pos * GROUPS + g] = (((s2 / n - mu * mu) / 2.0).max(0.0) / m) as f32;
+                }
+            }
+        }
         report.clean_variance[pos] =
             std::array::from_fn(|k| fit[k] + t.get(k).copied().unwrap_or(0.0) / if inp.frames >= 2 { m } else { 1.0 });
         spatial[pos] = fit;

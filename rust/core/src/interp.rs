@@ -440,6 +440,13 @@ pub fn interpolate_planned(pack: &ModelPack, plan: &InterpPlan) -> IsoModel {
         drift_frames: 0,
         gain_ratio,
         noise_profile,
+        // Where the output piles up moves with the gain: interpolated like the gain ratios.
+        range: std::array::from_fn(|pos| {
+            let white = pack.layout.white as f64;
+            let floor = lerp(&|m: &IsoModel| m.range[pos][0] as f64).clamp(0.0, white);
+            let ceiling = lerp(&|m: &IsoModel| m.range[pos][1] as f64).clamp(floor + 1.0, white);
+            [floor.round() as u16, ceiling.round() as u16]
+        }),
         // The interpolated ISO's digital gain, if any, is unknown: no lattice.
         lattice: [None; POSITIONS],
         positions,

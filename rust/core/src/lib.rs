@@ -14,6 +14,7 @@ pub use layout::{Binning, CfaPattern, POSITIONS, SensorLayout};
 pub use meta::FrameMeta;
 pub mod check;
 pub mod codec;
+pub mod deselect;
 pub mod drift;
 pub mod estimate;
 pub mod fit;

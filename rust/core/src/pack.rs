@@ -64,6 +64,10 @@ pub struct IsoModel {
     /// The camera's own noise profile `σ² = S·x + O` (x in [0,1]) per CFA position, when the
     /// captures carried one (DNG NoiseProfile / SENSOR_NOISE_PROFILE).
     pub noise_profile: Option<[[f64; 2]; POSITIONS]>,
+    /// Per CFA position, the codes the sensor writes, `[floor, ceiling]`: its output piles up
+    /// there (a full well below the reported white level, a black clamp;
+    /// [`crate::lattice::output_range`]). Synthesis clamps to it.
+    pub range: [[u16; 2]; POSITIONS],
     /// Per CFA position, the codes the sensor writes when it does not write every code
     /// (digital gain; [`crate::lattice`]). Synthesis snaps its output onto them.
     pub lattice: [Option<CodeLattice>; POSITIONS],
@@ -106,7 +110,9 @@ pub struct BinModel {
     /// Real samples measured in this bin.
     pub samples: u64,
     pub source: BinSource,
-    /// Mean and variance of the bin's own samples, when it has any.
+    /// Mean and variance of the bin's own samples, when it has any, with the clean image's
+    /// selection undone ([`crate::deselect`]; the same as measured where the reference burst
+    /// was long).
     pub measured: Option<[f64; 2]>,
     /// The bin's samples reach 0 or white: its measured moments are shrunk by clipping.
     pub clipped: bool,
@@ -290,6 +296,13 @@ impl ModelPack {
                         m.iso,
                         pm.bins.len(),
                         binning.bins(pos)
+                    )));
+                }
+                let [f, c] = m.range[pos];
+                if f >= c || c > self.layout.white {
+                    return Err(bad(format!(
+                        "ISO {} position {pos} writes codes {f}..={c}, outside 0..={} or empty",
+                        m.iso, self.layout.white
                     )));
                 }
                 if m.lattice[pos].is_some_and(|l| !l.is_valid()) {

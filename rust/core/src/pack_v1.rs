@@ -59,6 +59,7 @@ impl ModelPackV1 {
                 drift_frames: m.drift_frames,
                 gain_ratio: m.gain_ratio,
                 noise_profile: m.noise_profile,
+                range: [[0, self.layout.white]; POSITIONS],
                 lattice: [None; POSITIONS],
                 positions: m
                     .positions

@@ -97,6 +97,8 @@ pub struct IsoSampler {
     tables: [Vec<BinTable>; POSITIONS],
     /// Per position, the move onto the codes the sensor writes (when it skips codes).
     snaps: [Option<Snap>; POSITIONS],
+    /// Per position, the codes the sensor writes `[floor, ceiling]`.
+    range: [[i32; 2]; POSITIONS],
 }
 
 impl IsoSampler {
@@ -106,7 +108,12 @@ impl IsoSampler {
         let tables = std::array::from_fn(|p| model.positions[p].bins.iter().map(BinTable::new).collect());
         let white = pack.layout.white;
         let snaps = std::array::from_fn(|p| model.lattice[p].as_ref().map(|l| Snap::new(l, white)));
-        Self { iso: model.iso, white, binning, luts, tables, snaps }
+        let range = std::array::from_fn(|p| {
+            let [f, c] = model.range[p];
+            let c = c.min(white);
+            [f.min(c) as i32, c as i32]
+        });
+        Self { iso: model.iso, white, binning, luts, tables, snaps, range }
     }
 
     /// The same sampler writing every code (no lattice).
@@ -115,16 +122,28 @@ impl IsoSampler {
         self
     }
 
-    /// Clamps a synthesized value to `[0, white]` and moves it onto the codes the sensor writes
-    /// at this position; `alternate` (alternating between neighbouring pixels of one colour)
-    /// breaks ties between two codes.
+    /// Clamps a synthesized value to the codes the sensor writes at this position (its output
+    /// range, `[0, white]` unless it piles up earlier) and moves it onto its lattice;
+    /// `alternate` (alternating between neighbouring pixels of one colour) breaks ties between
+    /// two codes.
     #[inline(always)]
     pub fn finish(&self, pos: usize, value: i32, alternate: bool) -> u16 {
-        let v = value.clamp(0, self.white as i32) as u16;
-        match &self.snaps[pos] {
-            Some(s) => s.apply(v, alternate),
-            None => v,
+        let [lo, hi] = self.range[pos];
+        if value >= hi {
+            return hi as u16;
         }
+        if value <= lo {
+            return lo as u16;
+        }
+        match &self.snaps[pos] {
+            Some(s) => (s.apply(value as u16, alternate) as i32).clamp(lo, hi) as u16,
+            None => value as u16,
+        }
+    }
+
+    /// Whether synthesis at a position needs more than a clamp to `[0, white]`.
+    pub fn needs_finish(&self, pos: usize) -> bool {
+        self.snaps[pos].is_some() || self.range[pos] != [0, self.white as i32]
     }
 
     /// Whether a position snaps onto a lattice.

@@ -38,6 +38,8 @@ pub struct SessionConfig {
     /// Pool each bin with neighbours until it holds this many samples; `None` chooses the
     /// pooling per ISO and position by cross-validation (the default; [`crate::estimate`]).
     pub pooling: Option<u64>,
+    /// Build the plain per-bin histograms instead (for comparisons; overrides `pooling`).
+    pub plain: bool,
     /// Only pixels inside this rectangle are used.
     pub roi: Option<Roi>,
     /// Flat-test threshold in standard deviations of a neighbour difference.
@@ -75,6 +77,7 @@ impl SessionConfig {
             model: String::new(),
             bin_width: None,
             pooling: None,
+            plain: false,
             roi: None,
             flat_k: 4.5,
             normalise_drift: true,
@@ -94,6 +97,8 @@ struct IsoAccumulator {
     frames: u64,
     samples: u64,
     drift_frames: u64,
+    /// `shift[k][pos][bin]`: `[Σδ, Σδ², Σa]` of the selection over the samples of fold `k`.
+    shift: Vec<Vec<Vec<[f64; 3]>>>,
     /// How often each output code (0 ..= white) occurs in the target frames, per position: the
     /// codes a sensor never writes ([`crate::lattice`]).
     codes: Vec<Vec<u64>>,
@@ -105,6 +110,7 @@ struct IsoAccumulator {
 impl IsoAccumulator {
     fn new(binning: &Binning) -> Self {
         Self {
+            shift: (0..FOLDS).map(|_| (0..POSITIONS).map(|p| vec![[0.0; 3]; binning.bins(p)]).collect()).collect(),
             codes: vec![vec![0; binning.white as usize + 1]; POSITIONS],
             folds: (0..FOLDS)
                 .map(|_| (0..POSITIONS).map(|p| vec![NoiseHistogram::default(); binning.bins(p)]).collect())
@@ -130,6 +136,9 @@ struct ReferenceBurst {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 struct TargetPhase {
     clean: Vec<u16>,
+    /// Per position and bin, `[Σδ, Σδ², Σa]` of the clean image's selection over the flat pixels
+    /// ([`crate::deselect::bin_sums`]): what one target frame adds to [`IsoAccumulator::shift`].
+    shift: [Vec<[f64; 3]>; POSITIONS],
     reference_frames: u32,
     flat: FlatReport,
     drift: BTreeMap<u32, DriftTracker>,
@@ -138,7 +147,7 @@ struct TargetPhase {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 enum Phase {
     Reference(ReferenceBurst),
-    Targets(TargetPhase),
+    Targets(Box<TargetPhase>),
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -490,6 +499,9 @@ impl CalibrationSession {
         if flat.total_flat() == 0 {
             return Err(SessionError::NoFlatPixels);
         }
+        let luts: [Vec<u16>; POSITIONS] = std::array::from_fn(|p| self.binning.lut(p));
+        let groups = Groups { black: self.layout.black, white: self.layout.white };
+        let shift = crate::deselect::bin_sums(&clean, w, NOT_FLAT, |pos, c| flat.mean_noise_at(&groups, pos, c), &luts);
         let frames = burst.frames;
         let index = step.index;
         let considered: u64 = flat.considered.iter().sum();
@@ -498,7 +510,13 @@ impl CalibrationSession {
             100.0 * flat.total_flat() as f64 / considered.max(1) as f64
         ));
         if let Some(step) = self.step.as_mut() {
-            step.phase = Phase::Targets(TargetPhase { clean, reference_frames: frames, flat, drift: BTreeMap::new() });
+            step.phase = Phase::Targets(Box::new(TargetPhase {
+                clean,
+                shift,
+                reference_frames: frames,
+                flat,
+                drift: BTreeMap::new(),
+            }));
         }
         Ok(())
     }
@@ -540,6 +558,13 @@ impl CalibrationSession {
         let acc = self.isos.entry(meta.iso).or_insert_with(|| IsoAccumulator::new(&binning));
         let clean = &tp.clean;
         let fold = (acc.frames % FOLDS as u64) as usize;
+        for (sum, add) in acc.shift[fold].iter_mut().zip(&tp.shift) {
+            for (s, a) in sum.iter_mut().zip(add) {
+                for k in 0..3 {
+                    s[k] += a[k];
+                }
+            }
+        }
         let (even, odd) = acc.folds[fold].split_at_mut(2);
         let (codes_even, codes_odd) = acc.codes.split_at_mut(2);
         let (s0, s1) = rayon::join(
@@ -652,7 +677,10 @@ impl CalibrationSession {
                 || a.folds.iter().any(|f| f.len() != POSITIONS || f.iter().zip(&bins).any(|(h, &n)| h.len() != n))
         };
         let bad_codes = |a: &IsoAccumulator| {
-            a.codes.len() != POSITIONS || a.codes.iter().any(|c| c.len() != s.layout.white as usize + 1)
+            a.codes.len() != POSITIONS
+                || a.codes.iter().any(|c| c.len() != s.layout.white as usize + 1)
+                || a.shift.len() != FOLDS
+                || a.shift.iter().any(|f| f.len() != POSITIONS || f.iter().zip(&bins).any(|(h, &n)| h.len() != n))
         };
         if s.layout.validate().is_err() || s.isos.values().any(|a| bad_acc(a) || bad_codes(a)) {
             return Err(CodecError::Invalid { what: "checkpoint", detail: "inconsistent session state".into() });
@@ -684,7 +712,8 @@ impl CalibrationSession {
     pub fn finish(&self) -> Result<ModelPack, SessionError> {
         use rayon::prelude::*;
         let mut warnings: Vec<String> = self.events.iter().filter(|e| e.contains("brightness")).cloned().collect();
-        let pooling = self.config.pooling.map_or(Pooling::Auto, Pooling::Fixed);
+        let pooling =
+            if self.config.plain { Pooling::Plain } else { self.config.pooling.map_or(Pooling::Auto, Pooling::Fixed) };
         let levels: Vec<BinLevels> = (0..POSITIONS).map(|p| BinLevels::new(&self.binning, p)).collect();
         let jobs: Vec<(u32, usize)> = self.isos.keys().flat_map(|&iso| (0..POSITIONS).map(move |p| (iso, p))).collect();
         // Every (ISO, position) is estimated on its own: in parallel, collected in order.
@@ -693,8 +722,11 @@ impl CalibrationSession {
             .map(|&(iso, p)| {
                 let acc = &self.isos[&iso];
                 let folds: Vec<&[NoiseHistogram]> = acc.folds.iter().map(|f| f[p].as_slice()).collect();
+                let shifts: Vec<&[[f64; 3]]> = acc.shift.iter().map(|f| f[p].as_slice()).collect();
                 let empty = folds.iter().all(|f| f.iter().all(|h| h.total() == 0));
-                (!empty).then(|| estimate_position(&folds, &levels[p], pooling))
+                let range = crate::lattice::output_range(&acc.codes[p], self.layout.white);
+                let levels = levels[p].clone().with_range([range.floor, range.saturation]);
+                (!empty).then(|| estimate_position(&folds, &shifts, &levels, pooling))
             })
             .collect();
         let mut isos = Vec::new();
@@ -742,7 +774,15 @@ impl CalibrationSession {
                 drift_frames: acc.drift_frames,
                 gain_ratio,
                 noise_profile: self.noise_profiles.get(&iso).copied(),
-                lattice: std::array::from_fn(|p| crate::lattice::detect(&acc.codes[p], self.layout.white)),
+                range: std::array::from_fn(|p| {
+                    let r = crate::lattice::output_range(&acc.codes[p], self.layout.white);
+                    [r.floor, r.ceiling]
+                }),
+                lattice: if self.config.plain {
+                    [None; POSITIONS]
+                } else {
+                    std::array::from_fn(|p| crate::lattice::detect(&acc.codes[p], self.layout.white))
+                },
                 positions,
             });
         }

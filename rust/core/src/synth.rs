@@ -37,7 +37,7 @@ pub fn synthesize(sampler: &IsoSampler, clean: ArrayView2<'_, u16>, seed: u64) -
                 let parity = (y & 1) << 1;
                 let (lut0, tab0) = sampler.position_tables(parity);
                 let (lut1, tab1) = sampler.position_tables(parity | 1);
-                let lattice = sampler.has_lattice(parity) || sampler.has_lattice(parity | 1);
+                let lattice = sampler.needs_finish(parity) || sampler.needs_finish(parity | 1);
                 let draw = |lut: &[u16], tab: &[BinTable], c: u16, u: u32| -> i32 {
                     let l = (c as usize).min(lut.len() - 1);
                     c as i32 + tab[lut[l] as usize].sample_u32(u)

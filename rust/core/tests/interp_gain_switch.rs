@@ -33,7 +33,7 @@ fn fires_on_dual_gain_12bit() {
     assert!(matches!(&m.origin, ModelOrigin::Interpolated { from } if !from.contains(&400)));
     let truth = sample_iso(&sim, &pack.binning(), 1200, 200_000, 77);
     // A calibration of ISO 1200 with as many samples as the sources: the sampling floor.
-    let cal = interp_sim::iso_model(1200, &sample_iso(&sim, &pack.binning(), 1200, SAMPLES, 78));
+    let cal = interp_sim::iso_model(1200, pack.layout.white, &sample_iso(&sim, &pack.binning(), 1200, SAMPLES, 78));
     let (mut j_interp, mut j_cal) = (0.0, 0.0);
     for pos in [0, 3] {
         for b in [0, 1, 2, 5, 10, 20] {

@@ -145,6 +145,7 @@ fn iso_model(iso: u32, origin: ModelOrigin) -> IsoModel {
         drift_frames: 0,
         gain_ratio: [1.0; POSITIONS],
         noise_profile: None,
+        range: [[0, WHITE]; POSITIONS],
         lattice: [None; POSITIONS],
         positions: vec![PositionModel::new(bins); POSITIONS],
     }

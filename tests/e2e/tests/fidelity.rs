@@ -90,8 +90,12 @@ fn synthetic_noise_matches_heldout_captures_and_beats_hg() {
         assert!(checked >= 6, "too few well-sampled bins ({checked}) to check moments");
         let bias = mean_diff / checked as f64;
         let var_bias = var_ratio / checked as f64;
+        // The pack's samples carry the calibration reference's error (8 frames) in full, as
+        // the paper's `n = noisy − round(I)` does (method.md, "Selection by the clean image");
+        // the held-out real noise carries the error of a 16-frame mean, shrunk further by the
+        // selection of its bins: the synthetic variance is expected 2–5 % above it here.
         assert!(
-            var_bias.abs() < 0.05,
+            (-0.03..0.07).contains(&var_bias),
             "ISO {iso}: synthetic variance off by {:+.1} % over {checked} bins",
             var_bias * 100.0
         );

@@ -39,6 +39,9 @@ fn run(seed: u64) -> Outcome {
         let _ = session.push_frame(&noisecal_core::FrameView::from_array(&px).expect("view"), &meta);
     }
     let pack = session.finish().expect("a pack");
+    if let Ok(dir) = std::env::var("NOISECAL_DUMP") {
+        let _ = std::fs::write(format!("{dir}/seed{seed}.pack"), pack.to_bytes().expect("bytes"));
+    }
     let plain = plain_models(&session, &pack);
     let hg: Vec<_> = pack.isos.iter().map(|m| fit(&pack, m, BaselineKind::Hg).expect("hg").to_model(&pack)).collect();
     let hsim = spec.heldout_simulator(&sensor.model, seed ^ 0xA5A5).expect("held-out simulator");
@@ -72,7 +75,12 @@ fn overall(scores: &[IsoScores], name: &str) -> (f64, f64) {
 
 #[test]
 fn the_pack_holds_on_random_sensors() {
-    let outcomes: Vec<Outcome> = (0..SENSORS).into_par_iter().map(run).collect();
+    // `NOISECAL_SEEDS=3,13` runs only those sensors (for looking into one).
+    let seeds: Vec<u64> = match std::env::var("NOISECAL_SEEDS") {
+        Ok(s) => s.split(',').filter_map(|x| x.trim().parse().ok()).collect(),
+        Err(_) => (0..SENSORS).collect(),
+    };
+    let outcomes: Vec<Outcome> = seeds.into_par_iter().map(run).collect();
     let mut failures = Vec::new();
     let mut ratios = Vec::new();
     println!("seed  pack marg/cond      plain marg/cond     hg marg/cond        floor marg/cond     sensor");
@@ -89,6 +97,15 @@ fn the_pack_holds_on_random_sensors() {
             if o.non_gaussian { "[non-Gaussian] " } else { "" },
             o.description
         );
+        for s in &o.scores {
+            let (a, b) = s.of("pack");
+            let (c, d) = s.of("plain");
+            let (e, f) = s.of("hg");
+            println!(
+                "      ISO {:>5}: pack {a:.5}/{b:.5} plain {c:.5}/{d:.5} hg {e:.5}/{f:.5} ({} samples)",
+                s.iso, s.samples
+            );
+        }
         if pm > 1.1 * em || pc > 1.1 * ec {
             failures.push(format!("seed {}: pack {pm:.5}/{pc:.5} vs plain {em:.5}/{ec:.5}", o.seed));
         }

@@ -25,6 +25,10 @@ pub struct Args {
     /// ISO and CFA position by cross-validation on held-out frames; 0 = each bin's own histogram).
     #[arg(long, alias = "min-samples")]
     pub pooling: Option<u64>,
+    /// Write the plain per-bin histograms instead of the estimator's PMFs (each bin its own
+    /// samples, the nearest bin with samples for empty ones): a yardstick for `eval`.
+    #[arg(long, conflicts_with = "pooling")]
+    pub plain: bool,
     /// Only use pixels in this rectangle: x0,y0,x1,y1 (pixels, end exclusive).
     #[arg(long, value_parser = parse_roi)]
     pub roi: Option<Roi>,
@@ -52,6 +56,7 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         reference_iso: args.reference_iso,
         bin_width: args.bin_width,
         pooling: args.pooling,
+        plain: args.plain,
         roi: args.roi,
         flat_k: args.flat_k,
         no_drift_normalise: args.no_drift_normalise,

@@ -124,7 +124,7 @@ fn sparse_bins_beat_the_plain_histogram_by_far() {
     let truth: Vec<Pmf> = (0..lv.len()).map(|b| truth_bin(&lv, b, &var_law)).collect();
     // 10–60 samples in every bin up to 150: far too few for a histogram of σ ≈ 5–17 DN.
     let folds = sample_folds(&lv, &var_law, |b| if b < 150 { 10 + (b * 37) % 50 } else { 0 }, 1);
-    let est = estimate_position(&refs(&folds), &lv, Pooling::Auto);
+    let est = estimate_position(&refs(&folds), &[], &lv, Pooling::Auto);
     let plain = plain_empirical(&total(&folds));
     let (je, jp) = (mean_jsd(&est.bins, &truth, 0..150), mean_jsd(&plain, &truth, 0..150));
     assert!(je < 0.25 * jp, "estimate {je:.4} vs plain {jp:.4}");
@@ -147,7 +147,7 @@ fn dense_bins_stay_their_own_histograms() {
     let lv = levels(40, 1023);
     let truth: Vec<Pmf> = (0..lv.len()).map(|b| truth_bin(&lv, b, &var_law)).collect();
     let folds = sample_folds(&lv, &var_law, |b| if b < 40 { 200_000 } else { 0 }, 2);
-    let est = estimate_position(&refs(&folds), &lv, Pooling::Auto);
+    let est = estimate_position(&refs(&folds), &[], &lv, Pooling::Auto);
     let plain = plain_empirical(&total(&folds));
     let (je, jp) = (mean_jsd(&est.bins, &truth, 0..40), mean_jsd(&plain, &truth, 0..40));
     assert!(je <= 1.1 * jp, "estimate {je:.6} vs plain {jp:.6}");
@@ -165,7 +165,7 @@ fn clipped_bins_never_inform_the_fill_and_the_law_continues_to_white() {
     let white = 500;
     let lv = levels(105, white);
     let folds = sample_folds(&lv, &var_law, |b| if b < 95 { 4000 } else { 0 }, 3);
-    let est = estimate_position(&refs(&folds), &lv, Pooling::Auto);
+    let est = estimate_position(&refs(&folds), &[], &lv, Pooling::Auto);
     let clipped = &est.report.clipped;
     // σ at the top ≈ 16 DN: bins within ~2σ of white are clipped, bins 5σ below are not.
     let sigma_top = var_law(white as f64).sqrt();
@@ -206,7 +206,7 @@ fn clipped_bins_never_inform_the_fill_and_the_law_continues_to_white() {
 fn fixed_pooling_and_too_few_folds_are_reported() {
     let lv = levels(20, 1023);
     let folds = sample_folds(&lv, &var_law, |b| if b < 20 { 100 } else { 0 }, 4);
-    let fixed = estimate_position(&refs(&folds), &lv, Pooling::Fixed(0));
+    let fixed = estimate_position(&refs(&folds), &[], &lv, Pooling::Fixed(0));
     assert_eq!((fixed.report.choice, fixed.report.pooling), (Choice::Fixed, 0));
     // Pooling 0: measured bins are exactly their own histograms (plus the 1-sample prior).
     let t = total(&folds);
@@ -217,9 +217,9 @@ fn fixed_pooling_and_too_few_folds_are_reported() {
     for f in one.iter_mut().skip(1) {
         f.iter_mut().for_each(|h| *h = NoiseHistogram::default());
     }
-    let d = estimate_position(&refs(&one), &lv, Pooling::Auto);
+    let d = estimate_position(&refs(&one), &[], &lv, Pooling::Auto);
     assert_eq!((d.report.choice, d.report.pooling), (Choice::Default, DEFAULT_POOLING));
     // Deterministic.
-    let again = estimate_position(&refs(&folds), &lv, Pooling::Auto);
-    assert_eq!(again, estimate_position(&refs(&folds), &lv, Pooling::Auto));
+    let again = estimate_position(&refs(&folds), &[], &lv, Pooling::Auto);
+    assert_eq!(again, estimate_position(&refs(&folds), &[], &lv, Pooling::Auto));
 }

@@ -52,7 +52,7 @@ pub fn sample_iso_with(
         .collect()
 }
 
-pub fn iso_model(iso: u32, hists: &[Vec<NoiseHistogram>]) -> IsoModel {
+pub fn iso_model(iso: u32, white: u16, hists: &[Vec<NoiseHistogram>]) -> IsoModel {
     IsoModel {
         iso,
         origin: ModelOrigin::Calibrated,
@@ -60,6 +60,7 @@ pub fn iso_model(iso: u32, hists: &[Vec<NoiseHistogram>]) -> IsoModel {
         drift_frames: 0,
         gain_ratio: [1.0; POSITIONS],
         noise_profile: None,
+        range: [[0, white]; POSITIONS],
         lattice: [None; POSITIONS],
         positions: hists
             .iter()
@@ -94,7 +95,7 @@ pub fn sim_pack_with(
         warnings: Vec::new(),
     };
     for &iso in isos {
-        pack.insert(iso_model(iso, &sample_iso_with(sim, &binning, iso, samples, seed)));
+        pack.insert(iso_model(iso, pack.layout.white, &sample_iso_with(sim, &binning, iso, samples, seed)));
     }
     pack
 }
