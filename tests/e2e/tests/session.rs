@@ -138,9 +138,17 @@ fn sparse_bins_are_pooled_not_trusted() {
             "bin {i}"
         );
         if h.total() > 0 {
+            // The bin's own moments, with the 3-frame clean image's selection undone in
+            // unclipped bins: the mean moves by a fraction of the spread and the spread grows back what
+            // the error hid (method.md, "Selection by the clean image").
             let (mm, mv) = h.moments();
             let [pm, pv] = b.measured.expect("measured moments");
-            assert!((mm - pm).abs() < 1e-9 && (mv - pv).abs() < 1e-9, "bin {i}");
+            if b.clipped {
+                assert!((mm - pm).abs() < 1e-9 && (mv - pv).abs() < 1e-9, "bin {i}");
+            } else {
+                assert!((mm - pm).abs() <= mv.sqrt() + 1e-9, "bin {i}: mean {mm} → {pm}");
+                assert!(pv >= 0.9 * mv && pv <= 1.5 * mv + 1e-9, "bin {i}: variance {mv} → {pv}");
+            }
         }
     }
     let filled = bins.iter().filter(|b| b.filled()).count();
