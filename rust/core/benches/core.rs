@@ -1,5 +1,5 @@
 //! Throughput on a 4032×3024 (12 MP) frame: reference accumulation, target accumulation,
-//! synthesis on 1 and 2 threads, pack load. Run with `cargo bench -p noisecal-core`.
+//! the estimator (one ISO, and one wide sparse position), synthesis on 1 and 2 threads, pack load. Run with `cargo bench -p noisecal-core`.
 
 use std::hint::black_box;
 
@@ -86,6 +86,52 @@ fn benches(c: &mut Criterion) {
         })
     });
 
+    g.finish();
+
+    // The estimator: cross-validated pooling, law, clip modes, for one ISO's four positions.
+    let mut g = c.benchmark_group("estimate");
+    g.sample_size(10);
+    g.bench_function("finish (1 ISO, 4 positions, 4 folds)", |b| b.iter(|| session.finish().expect("pack")));
+    // A wide noise distribution (σ ≈ 60 DN, 240 bins × ~720 values) with sparse bins.
+    let wide: Vec<Vec<noisecal_core::histogram::NoiseHistogram>> = (0..4)
+        .map(|f| {
+            (0..240)
+                .map(|bin| {
+                    let mut h = noisecal_core::histogram::NoiseHistogram::default();
+                    let n = if bin % 3 == 0 { 4000 } else { 40 };
+                    let mut s = (f * 1000 + bin) as u64 * 0x9E37_79B9_7F4A_7C15 | 1;
+                    for _ in 0..n {
+                        let mut z = 0i32;
+                        for _ in 0..12 {
+                            s ^= s << 13;
+                            s ^= s >> 7;
+                            s ^= s << 17;
+                            z += (s % 41) as i32 - 20;
+                        }
+                        h.add(z);
+                    }
+                    h
+                })
+                .collect()
+        })
+        .collect();
+    let folds: Vec<&[noisecal_core::histogram::NoiseHistogram]> = wide.iter().map(|f| f.as_slice()).collect();
+    let levels = noisecal_core::estimate::BinLevels::new(&noisecal_core::Binning::new(&layout(), 4), 0);
+    g.bench_function("one position, σ ≈ 60 DN, sparse", |b| {
+        b.iter(|| {
+            noisecal_core::estimate::estimate_position(
+                black_box(&folds),
+                &[],
+                &levels,
+                noisecal_core::estimate::Pooling::Auto,
+            )
+        })
+    });
+    g.finish();
+
+    let mut g = c.benchmark_group("12MP");
+    g.throughput(Throughput::Elements((W * H) as u64));
+    g.sample_size(10);
     let pack = session.finish().expect("pack");
     let bytes = pack.to_bytes().expect("bytes");
     let sampler = IsoSampler::new(&pack, &pack.isos[0]);
