@@ -1,8 +1,11 @@
 //! noisecal's file rules, in one place, so the CLI and the JNI boundary cannot drift apart (the
 //! core stays free of I/O and does not depend on this crate).
 //!
-//! * [`write_atomic`] / [`write_bytes_atomic`]: the one way noisecal writes a file. A reader, or a
-//!   restore after a crash or a kill, sees the old file or the whole new one, never a torn one.
+//! * [`write_atomic`] / [`write_bytes_atomic`] / [`AtomicFile`] (streamed): the one way noisecal
+//!   writes a file. A reader, or a restore after a crash or a kill, sees the old file or the whole
+//!   new one, never a torn one; the temporary file a kill leaves
+//!   (`.<name>.noisecal-tmp.<pid>.<n>`) is removed by the next write into its folder
+//!   ([`sweep_stale_temps`]).
 //! * [`same_file`]: whether two paths name one file (device and inode, through symlinks and hard
 //!   links), so a command can refuse an output that would overwrite one of its inputs.
 //! * [`read_regular`]: reads a whole input file after checking it is a regular file of bounded
@@ -23,6 +26,6 @@ mod atomic;
 mod identity;
 mod read;
 
-pub use atomic::{write_atomic, write_bytes_atomic};
+pub use atomic::{AtomicFile, sweep_stale_temps, write_atomic, write_bytes_atomic};
 pub use identity::same_file;
 pub use read::read_regular;
