@@ -22,6 +22,10 @@
 //!   on halves of the real data, it is carried to the sample sizes of the model comparison by
 //!   [`floor_scale`] ([`Floor`]).
 //! - A model with several synthetic sets (seeds) scores their mean ([`score_seeds`]).
+//! - Spatial measures (row and column means, row-offset distribution, frame offsets, noise power
+//!   spectra of flat crops) are in [`spatial`].
+
+pub mod spatial;
 
 use ndarray::ArrayView2;
 

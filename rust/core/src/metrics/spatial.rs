@@ -1,0 +1,736 @@
+//! Spatial measures of noise (issue 11, "Evaluation"): what a pixel-independent model cannot make
+//! and a histogram JSD cannot see. All are measured on the same flat pixels for real and
+//! synthetic noise (`capture − round(clean)`, `synthesized − round(clean)`, one clean image per
+//! EV step):
+//!
+//! - **Row-mean variance**: per frame, the mean of the noise over the flat pixels of each row
+//!   (rows with at least [`MIN_LINE_PIXELS`] flat pixels, both CFA columns together), centred on
+//!   the frame's mean of those row means (which removes the frame's black-level error); the
+//!   variance across rows (divisor `R − 1`), averaged over frames. Reported as the ratio
+//!   synthetic/real: row (banding) noise of RMS `σ_r` adds `σ_r²` to the real value, while
+//!   pixel-independent noise of variance `σ²` gives only `σ²/m` for rows of `m` flat pixels.
+//!   Its standard error is from the spread of the per-frame values. **Column means**: the same
+//!   with columns.
+//! - **Row-offset distribution**: the centred row means of every frame pooled, as a histogram
+//!   with a common binning (bins of ¼ of the real values' standard deviation, centred on 0,
+//!   everything beyond ±8 SD in the outermost bins), JSD (natural log) synthetic against real.
+//!   Its finite-sample floor is two halves of the real frames against each other, scaled like
+//!   the pixel JSD floor ([`super::floor_scale`]).
+//! - **Frame offsets**: per frame and CFA position, the mean noise over the position's flat
+//!   pixels; its variance across the frames of a burst (same EV step and ISO; pooled within
+//!   bursts, divisor `k − 1`), summed over positions. Ratio synthetic/real.
+//! - **Noise power spectrum (NPS)**: square crops of [`NPS_TILE`]×[`NPS_TILE`] same-colour pixels
+//!   (a CFA plane, i.e. 32×32 sensor pixels) that are wholly flat, placed without overlap by a
+//!   row-major scan in steps of a quarter tile. Per crop and frame the noise's mean is removed
+//!   and the periodogram `|DFT|² / T²` taken (white noise of variance σ² has σ² in every bin);
+//!   periodograms are averaged per CFA position. Three curves summarise it: the **row** curve
+//!   `P(f_y, f_x = 0)` (row offsets live at zero horizontal frequency), the **column** curve
+//!   `P(f_y = 0, f_x)`, and the **radial** mean of the other bins by rounded radius. The NPS
+//!   distance is the mean absolute log ratio `|ln(P_synth / P_real)|` over the points of the three
+//!   curves (T/2 + T/2 + 11 = 27 for T = 16), averaged over positions weighted by real crops. It
+//!   is 0 for equal spectra, `ln 2 ≈ 0.69` for a factor 2 everywhere, and robust: no point can
+//!   weigh more than its log ratio. Sampling noise makes each point's log off by about
+//!   `1/√(2·crops·frames)`, so the distance of two independent real sets is not 0: its floor is
+//!   the halves' distance scaled by `√(floor_scale)` (the distance's bias falls as `1/√n`, not
+//!   `1/n` as a JSD's).
+//!
+//! The DFT is a direct separable transform on 16×16 crops with a precomputed twiddle table
+//! (2·16³ complex products per crop): no FFT library is needed at this size.
+
+use serde::{Deserialize, Serialize};
+
+use crate::model::layout::{POSITIONS, position};
+
+/// Side of an NPS crop in same-colour pixels (a crop spans 2·NPS_TILE sensor pixels).
+pub const NPS_TILE: usize = 16;
+
+/// A row (column) joins the row-mean (column-mean) statistics with at least this many flat
+/// pixels.
+pub const MIN_LINE_PIXELS: usize = 16;
+
+/// Bins per real standard deviation of the row-offset histogram.
+const BINS_PER_SD: f64 = 4.0;
+/// The histogram spans ±this many real standard deviations (outer values go to the end bins).
+const SPAN_SD: f64 = 8.0;
+
+/// Where the flat pixels of an image are, fixed per EV step: the pixels the spatial measures
+/// use, their rows and columns, and the NPS crops.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FlatLayout {
+    width: usize,
+    height: usize,
+    /// Row-major indices of the flat pixels.
+    flat: Vec<u32>,
+    /// Flat pixels per row and per column.
+    row_count: Vec<u32>,
+    col_count: Vec<u32>,
+    /// NPS crops per CFA position: top-left corner (plane row, plane column).
+    tiles: [Vec<(u32, u32)>; POSITIONS],
+}
+
+impl FlatLayout {
+    /// The layout of a `width × height` image whose flat pixels are those where `is_flat(index)`
+    /// (row-major index) holds.
+    pub fn new(width: usize, height: usize, is_flat: impl Fn(usize) -> bool) -> Self {
+        let mut flat = Vec::new();
+        let mut row_count = vec![0u32; height];
+        let mut col_count = vec![0u32; width];
+        let mut mask = vec![false; width * height];
+        for y in 0..height {
+            for x in 0..width {
+                let i = y * width + x;
+                if is_flat(i) {
+                    flat.push(i as u32);
+                    row_count[y] += 1;
+                    col_count[x] += 1;
+                    mask[i] = true;
+                }
+            }
+        }
+        let tiles = std::array::from_fn(|p| find_tiles(width, height, &mask, p));
+        Self { width, height, flat, row_count, col_count, tiles }
+    }
+
+    /// Image width.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// Image height.
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    /// Number of flat pixels.
+    pub fn flat_pixels(&self) -> usize {
+        self.flat.len()
+    }
+
+    /// Rows with at least [`MIN_LINE_PIXELS`] flat pixels.
+    pub fn rows(&self) -> usize {
+        self.row_count.iter().filter(|&&c| c as usize >= MIN_LINE_PIXELS).count()
+    }
+
+    /// Columns with at least [`MIN_LINE_PIXELS`] flat pixels.
+    pub fn cols(&self) -> usize {
+        self.col_count.iter().filter(|&&c| c as usize >= MIN_LINE_PIXELS).count()
+    }
+
+    /// NPS crops at a CFA position.
+    pub fn tiles(&self, pos: usize) -> usize {
+        self.tiles[pos].len()
+    }
+}
+
+/// Non-overlapping wholly flat crops of one CFA plane, by a row-major scan in quarter-tile steps.
+fn find_tiles(width: usize, height: usize, mask: &[bool], pos: usize) -> Vec<(u32, u32)> {
+    let (dy, dx) = (pos / 2, pos % 2);
+    let ph = height.saturating_sub(dy).div_ceil(2);
+    let pw = width.saturating_sub(dx).div_ceil(2);
+    let t = NPS_TILE;
+    if ph < t || pw < t {
+        return Vec::new();
+    }
+    // Summed-area table of non-flat plane pixels.
+    let mut sat = vec![0u32; (ph + 1) * (pw + 1)];
+    for py in 0..ph {
+        for px in 0..pw {
+            let (y, x) = (2 * py + dy, 2 * px + dx);
+            let bad = (y >= height || x >= width || !mask[y * width + x]) as u32;
+            sat[(py + 1) * (pw + 1) + px + 1] =
+                bad + sat[py * (pw + 1) + px + 1] + sat[(py + 1) * (pw + 1) + px] - sat[py * (pw + 1) + px];
+        }
+    }
+    let bad_in = |y0: usize, x0: usize| {
+        let (y1, x1) = (y0 + t, x0 + t);
+        sat[y1 * (pw + 1) + x1] + sat[y0 * (pw + 1) + x0] - sat[y0 * (pw + 1) + x1] - sat[y1 * (pw + 1) + x0]
+    };
+    let mut taken = vec![false; ph * pw];
+    let mut tiles = Vec::new();
+    let step = (t / 4).max(1);
+    let mut y0 = 0;
+    while y0 + t <= ph {
+        let mut x0 = 0;
+        while x0 + t <= pw {
+            let free = !taken[y0 * pw + x0]
+                && !taken[y0 * pw + x0 + t - 1]
+                && !taken[(y0 + t - 1) * pw + x0]
+                && !taken[(y0 + t - 1) * pw + x0 + t - 1];
+            if free && bad_in(y0, x0) == 0 {
+                for yy in y0..y0 + t {
+                    taken[yy * pw + x0..yy * pw + x0 + t].fill(true);
+                }
+                tiles.push((y0 as u32, x0 as u32));
+                x0 += t;
+                continue;
+            }
+            x0 += step;
+        }
+        y0 += step;
+    }
+    tiles
+}
+
+/// The 2-D periodogram of `T × T` crops by a direct separable DFT.
+struct Dft {
+    cos: Vec<f64>,
+    sin: Vec<f64>,
+}
+
+impl Dft {
+    fn new() -> Self {
+        let t = NPS_TILE;
+        let ang = |k: usize| 2.0 * std::f64::consts::PI * k as f64 / t as f64;
+        Self { cos: (0..t).map(|k| ang(k).cos()).collect(), sin: (0..t).map(|k| -ang(k).sin()).collect() }
+    }
+
+    /// Adds `|DFT(x − mean)|² / T²` of the crop `x` (row-major `T × T`) to `acc`.
+    fn add_periodogram(&self, x: &mut [f64], acc: &mut [f64]) {
+        let t = NPS_TILE;
+        let mean = x.iter().sum::<f64>() / (t * t) as f64;
+        x.iter_mut().for_each(|v| *v -= mean);
+        // Along rows: (re, im)[y][k].
+        let mut re = vec![0.0f64; t * t];
+        let mut im = vec![0.0f64; t * t];
+        for y in 0..t {
+            let row = &x[y * t..(y + 1) * t];
+            for k in 0..t {
+                let (mut a, mut b) = (0.0, 0.0);
+                for (j, &v) in row.iter().enumerate() {
+                    let w = (k * j) % t;
+                    a += v * self.cos[w];
+                    b += v * self.sin[w];
+                }
+                re[y * t + k] = a;
+                im[y * t + k] = b;
+            }
+        }
+        // Along columns.
+        let norm = 1.0 / (t * t) as f64;
+        for kx in 0..t {
+            for ky in 0..t {
+                let (mut a, mut b) = (0.0, 0.0);
+                for y in 0..t {
+                    let w = (ky * y) % t;
+                    let (c, s) = (self.cos[w], self.sin[w]);
+                    let (r, i) = (re[y * t + kx], im[y * t + kx]);
+                    a += r * c - i * s;
+                    b += r * s + i * c;
+                }
+                acc[ky * t + kx] += (a * a + b * b) * norm;
+            }
+        }
+    }
+}
+
+/// The summary curves of a noise power spectrum at one CFA position (DN² per frequency bin:
+/// white noise of variance σ² is σ² everywhere). Frequencies are in cycles per same-colour pixel
+/// (0.5 is the plane's Nyquist frequency).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NpsCurves {
+    /// Crops × frames averaged.
+    pub periodograms: u64,
+    /// Frequencies of the row and column curves: `k / T` for `k = 1 … T/2`.
+    pub freq: Vec<f64>,
+    /// `P(f_y, f_x = 0)`: row-correlated (banding) power at each vertical frequency.
+    pub row: Vec<f64>,
+    /// `P(f_y = 0, f_x)`: column-correlated power at each horizontal frequency.
+    pub col: Vec<f64>,
+    /// Radial frequencies of the `radial` curve (mean radius of the bins in each ring).
+    pub radial_freq: Vec<f64>,
+    /// Mean power of the bins off both axes, by ring of rounded radius.
+    pub radial: Vec<f64>,
+}
+
+impl NpsCurves {
+    /// The curves of an averaged periodogram `p` (row-major `T × T`, `f_y` major).
+    fn from_periodogram(p: &[f64], periodograms: u64) -> Self {
+        let t = NPS_TILE;
+        let at = |ky: usize, kx: usize| p[(ky % t) * t + (kx % t)];
+        let half = t / 2;
+        let both = |f: &dyn Fn(usize) -> f64, k: usize| if k == half { f(k) } else { 0.5 * (f(k) + f(t - k)) };
+        let freq: Vec<f64> = (1..=half).map(|k| k as f64 / t as f64).collect();
+        let row = (1..=half).map(|k| both(&|j| at(j, 0), k)).collect();
+        let col = (1..=half).map(|k| both(&|j| at(0, j), k)).collect();
+        let rings = (half as f64 * std::f64::consts::SQRT_2).round() as usize;
+        let mut sum = vec![0.0f64; rings + 1];
+        let mut rad = vec![0.0f64; rings + 1];
+        let mut n = vec![0u32; rings + 1];
+        for ky in 1..t {
+            for kx in 1..t {
+                let (a, b) = (ky.min(t - ky) as f64, kx.min(t - kx) as f64);
+                let r = (a * a + b * b).sqrt();
+                let ring = (r.round() as usize).min(rings);
+                sum[ring] += at(ky, kx);
+                rad[ring] += r;
+                n[ring] += 1;
+            }
+        }
+        let mut radial_freq = Vec::new();
+        let mut radial = Vec::new();
+        for i in 0..=rings {
+            if n[i] > 0 {
+                radial_freq.push(rad[i] / n[i] as f64 / t as f64);
+                radial.push(sum[i] / n[i] as f64);
+            }
+        }
+        Self { periodograms, freq, row, col, radial_freq, radial }
+    }
+
+    /// Every point of the three curves, in a fixed order.
+    fn points(&self) -> impl Iterator<Item = f64> + '_ {
+        self.row.iter().chain(&self.col).chain(&self.radial).copied()
+    }
+}
+
+/// Mean `|ln(b / a)|` over the points of two spectra's curves (points where either is not
+/// positive are left out); `None` when no point is left.
+pub fn nps_log_distance(a: &NpsCurves, b: &NpsCurves) -> Option<f64> {
+    let (mut acc, mut n) = (0.0, 0usize);
+    for (x, y) in a.points().zip(b.points()) {
+        if x > 0.0 && y > 0.0 {
+            acc += (y / x).ln().abs();
+            n += 1;
+        }
+    }
+    (n > 0).then(|| acc / n as f64)
+}
+
+/// The spatial statistics of one set of frames (real, a real half, or one synthetic set).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SpatialSamples {
+    /// Per frame: the variance across rows of the centred row means.
+    row_var: Vec<f64>,
+    /// Per frame: the variance across columns of the centred column means.
+    col_var: Vec<f64>,
+    /// Every frame's centred row means.
+    row_offsets: Vec<f64>,
+    /// Per-frame, per-position mean noise of the current burst.
+    burst: Vec<[Option<f64>; POSITIONS]>,
+    /// Within-burst sums of squares of the frame means and their degrees of freedom.
+    frame_ss: [f64; POSITIONS],
+    frame_dof: [u64; POSITIONS],
+    /// Summed periodograms per position and how many.
+    nps: [Vec<f64>; POSITIONS],
+    nps_count: [u64; POSITIONS],
+    frames: u64,
+}
+
+impl Default for SpatialSamples {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Sample variance (divisor n − 1) of values; `None` below two.
+fn variance(v: &[f64]) -> Option<f64> {
+    if v.len() < 2 {
+        return None;
+    }
+    let m = v.iter().sum::<f64>() / v.len() as f64;
+    Some(v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() - 1) as f64)
+}
+
+/// Mean and standard error of per-frame values.
+fn mean_se(v: &[f64]) -> Option<(f64, f64)> {
+    if v.is_empty() {
+        return None;
+    }
+    let m = v.iter().sum::<f64>() / v.len() as f64;
+    let se = variance(v).map_or(f64::NAN, |var| (var / v.len() as f64).sqrt());
+    Some((m, se))
+}
+
+/// Centred line means (lines with enough flat pixels) of one frame.
+fn centred_line_means(sum: &[f64], count: &[u32]) -> Vec<f64> {
+    let means: Vec<f64> =
+        sum.iter().zip(count).filter(|(_, c)| **c as usize >= MIN_LINE_PIXELS).map(|(s, c)| s / *c as f64).collect();
+    if means.is_empty() {
+        return means;
+    }
+    let m = means.iter().sum::<f64>() / means.len() as f64;
+    means.into_iter().map(|v| v - m).collect()
+}
+
+impl SpatialSamples {
+    /// An empty set.
+    pub fn new() -> Self {
+        Self {
+            row_var: Vec::new(),
+            col_var: Vec::new(),
+            row_offsets: Vec::new(),
+            burst: Vec::new(),
+            frame_ss: [0.0; POSITIONS],
+            frame_dof: [0; POSITIONS],
+            nps: std::array::from_fn(|_| vec![0.0; NPS_TILE * NPS_TILE]),
+            nps_count: [0; POSITIONS],
+            frames: 0,
+        }
+    }
+
+    /// Adds one frame's noise: `noise` is row-major, `layout`'s size, read at its flat pixels
+    /// only. Frames of one burst (same EV step and ISO) come between two [`Self::end_burst`].
+    pub fn add_frame(&mut self, layout: &FlatLayout, noise: &[i32]) {
+        debug_assert_eq!(noise.len(), layout.width * layout.height);
+        let w = layout.width;
+        let mut row_sum = vec![0.0f64; layout.height];
+        let mut col_sum = vec![0.0f64; w];
+        let mut pos_sum = [0.0f64; POSITIONS];
+        let mut pos_n = [0u64; POSITIONS];
+        for &i in &layout.flat {
+            let i = i as usize;
+            let (y, x) = (i / w, i % w);
+            let v = noise[i] as f64;
+            row_sum[y] += v;
+            col_sum[x] += v;
+            let p = position(y, x);
+            pos_sum[p] += v;
+            pos_n[p] += 1;
+        }
+        let rows = centred_line_means(&row_sum, &layout.row_count);
+        if let Some(v) = variance(&rows) {
+            self.row_var.push(v);
+            self.row_offsets.extend(rows);
+        }
+        if let Some(v) = variance(&centred_line_means(&col_sum, &layout.col_count)) {
+            self.col_var.push(v);
+        }
+        self.burst.push(std::array::from_fn(|p| (pos_n[p] > 0).then(|| pos_sum[p] / pos_n[p] as f64)));
+        let dft = Dft::new();
+        let t = NPS_TILE;
+        let mut crop = vec![0.0f64; t * t];
+        for p in 0..POSITIONS {
+            let (dy, dx) = (p / 2, p % 2);
+            for &(ty, tx) in &layout.tiles[p] {
+                for yy in 0..t {
+                    for xx in 0..t {
+                        let (y, x) = (2 * (ty as usize + yy) + dy, 2 * (tx as usize + xx) + dx);
+                        crop[yy * t + xx] = noise[y * w + x] as f64;
+                    }
+                }
+                dft.add_periodogram(&mut crop, &mut self.nps[p]);
+                self.nps_count[p] += 1;
+            }
+        }
+        self.frames += 1;
+    }
+
+    /// Ends a burst: the spread of its frames' mean noise joins the frame-offset statistics.
+    pub fn end_burst(&mut self) {
+        for p in 0..POSITIONS {
+            let v: Vec<f64> = self.burst.iter().filter_map(|m| m[p]).collect();
+            if v.len() >= 2 {
+                let m = v.iter().sum::<f64>() / v.len() as f64;
+                self.frame_ss[p] += v.iter().map(|x| (x - m).powi(2)).sum::<f64>();
+                self.frame_dof[p] += v.len() as u64 - 1;
+            }
+        }
+        self.burst.clear();
+    }
+
+    /// Frames added.
+    pub fn frames(&self) -> u64 {
+        self.frames
+    }
+
+    /// Mean over frames of the row-mean variance, and its standard error.
+    pub fn row_var(&self) -> Option<(f64, f64)> {
+        mean_se(&self.row_var)
+    }
+
+    /// Mean over frames of the column-mean variance, and its standard error.
+    pub fn col_var(&self) -> Option<(f64, f64)> {
+        mean_se(&self.col_var)
+    }
+
+    /// Every frame's centred row means.
+    pub fn row_offsets(&self) -> &[f64] {
+        &self.row_offsets
+    }
+
+    /// Within-burst variance of the per-frame mean noise at a position (pooled over bursts).
+    pub fn frame_offset_var(&self, pos: usize) -> Option<f64> {
+        (self.frame_dof[pos] > 0).then(|| self.frame_ss[pos] / self.frame_dof[pos] as f64)
+    }
+
+    /// The NPS curves at a position (`None` without crops).
+    pub fn nps(&self, pos: usize) -> Option<NpsCurves> {
+        let n = self.nps_count[pos];
+        (n > 0).then(|| {
+            let p: Vec<f64> = self.nps[pos].iter().map(|v| v / n as f64).collect();
+            NpsCurves::from_periodogram(&p, n)
+        })
+    }
+
+    /// Periodograms averaged at a position.
+    pub fn periodograms(&self, pos: usize) -> u64 {
+        self.nps_count[pos]
+    }
+
+    /// Adds another set's statistics (e.g. the seeds of one model, for its NPS curves).
+    pub fn merge(&mut self, other: &SpatialSamples) {
+        self.row_var.extend_from_slice(&other.row_var);
+        self.col_var.extend_from_slice(&other.col_var);
+        self.row_offsets.extend_from_slice(&other.row_offsets);
+        for p in 0..POSITIONS {
+            self.frame_ss[p] += other.frame_ss[p];
+            self.frame_dof[p] += other.frame_dof[p];
+            for (a, b) in self.nps[p].iter_mut().zip(&other.nps[p]) {
+                *a += b;
+            }
+            self.nps_count[p] += other.nps_count[p];
+        }
+        self.frames += other.frames;
+    }
+}
+
+/// The common bin width of row-offset histograms: a quarter of the real row offsets' standard
+/// deviation (`None` with fewer than two offsets or no spread).
+pub fn row_offset_bin_width(real: &SpatialSamples) -> Option<f64> {
+    let sd = variance(&real.row_offsets)?.sqrt();
+    (sd > 1e-9).then_some(sd / BINS_PER_SD)
+}
+
+/// Histogram of values on bins of width `h` centred on 0, values beyond ±8 SD in the end bins.
+fn offset_histogram(values: &[f64], h: f64) -> Vec<f64> {
+    let k = (SPAN_SD * BINS_PER_SD) as i64;
+    let mut out = vec![0.0f64; (2 * k + 1) as usize];
+    for &v in values {
+        let b = ((v / h).round() as i64).clamp(-k, k);
+        out[(b + k) as usize] += 1.0;
+    }
+    out
+}
+
+/// JSD (natural log) of two sets of row offsets on bins of width `h`.
+pub fn row_offset_jsd(a: &[f64], b: &[f64], h: f64) -> f64 {
+    super::jsd(&offset_histogram(a, h), &offset_histogram(b, h))
+}
+
+/// The spatial measures of one set of frames against another (synthetic against real; or one
+/// real half against the other).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct SpatialComparison {
+    /// Row-mean variance, other / real, and its standard error.
+    pub row_var_ratio: Option<f64>,
+    pub row_var_ratio_se: Option<f64>,
+    /// Column-mean variance, other / real, and its standard error.
+    pub col_var_ratio: Option<f64>,
+    pub col_var_ratio_se: Option<f64>,
+    /// JSD of the row-offset histograms.
+    pub row_offset_jsd: Option<f64>,
+    /// Within-burst variance of the per-frame mean noise, summed over positions, other / real.
+    pub frame_offset_var_ratio: Option<f64>,
+    /// Mean absolute log ratio of the NPS curves, weighted over positions by real crops.
+    pub nps_distance: Option<f64>,
+}
+
+fn ratio_se(a: Option<(f64, f64)>, b: Option<(f64, f64)>) -> (Option<f64>, Option<f64>) {
+    match (a, b) {
+        (Some((ma, sa)), Some((mb, sb))) if ma > 0.0 => {
+            let r = mb / ma;
+            let se = r * ((sa / ma).powi(2) + if mb > 0.0 { (sb / mb).powi(2) } else { 0.0 }).sqrt();
+            (Some(r), se.is_finite().then_some(se))
+        }
+        _ => (None, None),
+    }
+}
+
+/// `other` against `real` (see the module docs); `bin_width` is the common binning of the
+/// row-offset histograms ([`row_offset_bin_width`] of the full real set).
+pub fn compare_spatial(real: &SpatialSamples, other: &SpatialSamples, bin_width: Option<f64>) -> SpatialComparison {
+    let (row_var_ratio, row_var_ratio_se) = ratio_se(real.row_var(), other.row_var());
+    let (col_var_ratio, col_var_ratio_se) = ratio_se(real.col_var(), other.col_var());
+    let row_offset_jsd = bin_width
+        .filter(|_| !real.row_offsets.is_empty() && !other.row_offsets.is_empty())
+        .map(|h| row_offset_jsd(&real.row_offsets, &other.row_offsets, h));
+    let (mut fr, mut fo) = (0.0, 0.0);
+    let mut any = false;
+    for p in 0..POSITIONS {
+        if let (Some(a), Some(b)) = (real.frame_offset_var(p), other.frame_offset_var(p)) {
+            fr += a;
+            fo += b;
+            any = true;
+        }
+    }
+    let frame_offset_var_ratio = (any && fr > 0.0).then(|| fo / fr);
+    let (mut acc, mut wsum) = (0.0, 0.0);
+    for p in 0..POSITIONS {
+        if let (Some(a), Some(b)) = (real.nps(p), other.nps(p))
+            && let Some(d) = nps_log_distance(&a, &b)
+        {
+            acc += d * a.periodograms as f64;
+            wsum += a.periodograms as f64;
+        }
+    }
+    let nps_distance = (wsum > 0.0).then(|| acc / wsum);
+    SpatialComparison {
+        row_var_ratio,
+        row_var_ratio_se,
+        col_var_ratio,
+        col_var_ratio_se,
+        row_offset_jsd,
+        frame_offset_var_ratio,
+        nps_distance,
+    }
+}
+
+/// The mean of several comparisons (one per synthetic set), field by field over the sets that
+/// have it; standard errors are averaged too (each set is as large as the real one).
+pub fn mean_comparison(v: &[SpatialComparison]) -> SpatialComparison {
+    let mean = |f: &dyn Fn(&SpatialComparison) -> Option<f64>| {
+        let xs: Vec<f64> = v.iter().filter_map(f).collect();
+        (!xs.is_empty()).then(|| xs.iter().sum::<f64>() / xs.len() as f64)
+    };
+    SpatialComparison {
+        row_var_ratio: mean(&|c| c.row_var_ratio),
+        row_var_ratio_se: mean(&|c| c.row_var_ratio_se),
+        col_var_ratio: mean(&|c| c.col_var_ratio),
+        col_var_ratio_se: mean(&|c| c.col_var_ratio_se),
+        row_offset_jsd: mean(&|c| c.row_offset_jsd),
+        frame_offset_var_ratio: mean(&|c| c.frame_offset_var_ratio),
+        nps_distance: mean(&|c| c.nps_distance),
+    }
+}
+
+/// The finite-sample floor of the spatial measures: one real half against the other, with the
+/// factors that carry the JSD and the NPS distance to the comparison's sample sizes.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SpatialFloor {
+    /// The halves' measures as measured (ratios of half B over half A: ≈ 1 within their SE).
+    pub halves: SpatialComparison,
+    /// [`super::floor_scale`] of the row offsets (halves against the full real set).
+    pub row_offset_scale: f64,
+    /// `√(floor_scale)` of the NPS periodograms.
+    pub nps_scale: f64,
+}
+
+impl SpatialFloor {
+    /// The floor of `a` against `b` for a comparison of `real` against as many synthetic frames.
+    pub fn measure(
+        a: &SpatialSamples,
+        b: &SpatialSamples,
+        real: &SpatialSamples,
+        bin_width: Option<f64>,
+    ) -> Option<Self> {
+        if a.frames == 0 || b.frames == 0 {
+            return None;
+        }
+        let halves = compare_spatial(a, b, bin_width);
+        let (na, nb, n) = (a.row_offsets.len() as u64, b.row_offsets.len() as u64, real.row_offsets.len() as u64);
+        let row_offset_scale = if na > 0 && nb > 0 && n > 0 { super::floor_scale(na, nb, n) } else { 1.0 };
+        let sum = |s: &SpatialSamples| s.nps_count.iter().sum::<u64>();
+        let (pa, pb, p) = (sum(a), sum(b), sum(real));
+        let nps_scale = if pa > 0 && pb > 0 && p > 0 { super::floor_scale(pa, pb, p).sqrt() } else { 1.0 };
+        Some(Self { halves, row_offset_scale, nps_scale })
+    }
+
+    /// The row-offset JSD floor at the comparison's sample sizes.
+    pub fn row_offset_jsd_scaled(&self) -> Option<f64> {
+        self.halves.row_offset_jsd.map(|j| j * self.row_offset_scale)
+    }
+
+    /// The NPS distance floor at the comparison's sample sizes.
+    pub fn nps_distance_scaled(&self) -> Option<f64> {
+        self.halves.nps_distance.map(|d| d * self.nps_scale)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    fn gauss(rng: &mut ChaCha8Rng) -> f64 {
+        // Box–Muller from two uniforms.
+        let (u, v): (f64, f64) = (rng.random::<f64>().max(1e-300), rng.random::<f64>());
+        (-2.0 * u.ln()).sqrt() * (2.0 * std::f64::consts::PI * v).cos()
+    }
+
+    /// Frames of white noise (σ) plus row offsets (σ_r) on an all-flat `w × h` image.
+    fn frames(w: usize, h: usize, n: usize, sigma: f64, row_sd: f64, seed: u64) -> (FlatLayout, SpatialSamples) {
+        let layout = FlatLayout::new(w, h, |_| true);
+        let mut s = SpatialSamples::new();
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        for _ in 0..n {
+            let mut img = vec![0i32; w * h];
+            for y in 0..h {
+                let r = row_sd * gauss(&mut rng);
+                for x in 0..w {
+                    img[y * w + x] = (sigma * 64.0 * gauss(&mut rng) + 64.0 * r).round() as i32;
+                }
+            }
+            s.add_frame(&layout, &img);
+        }
+        s.end_burst();
+        (layout, s)
+    }
+
+    #[test]
+    fn white_noise_has_a_flat_spectrum_and_the_row_mean_variance_of_a_mean() {
+        let (layout, s) = frames(96, 64, 12, 1.0, 0.0, 1);
+        assert_eq!((layout.rows(), layout.cols()), (64, 96));
+        // 48×32 planes: two 16×16 crops per row of crops, two rows.
+        assert_eq!(layout.tiles(0), 6);
+        let (rv, se) = s.row_var().expect("row var");
+        let want = 64.0 * 64.0 / 96.0; // σ²/m in DN² (σ = 64 DN)
+        assert!((rv / want - 1.0).abs() < 4.0 * se / want + 0.02, "{rv} vs {want} ± {se}");
+        let nps = s.nps(0).expect("nps");
+        assert_eq!((nps.row.len(), nps.col.len(), nps.radial.len()), (8, 8, 11));
+        let mean = nps.points().sum::<f64>() / 27.0;
+        assert!((mean / 4096.0 - 1.0).abs() < 0.1, "white level {mean}");
+    }
+
+    #[test]
+    fn row_offsets_raise_the_row_curve_and_the_row_mean_variance() {
+        let (_, plain) = frames(96, 64, 12, 1.0, 0.0, 2);
+        let (_, rows) = frames(96, 64, 12, 1.0, 0.3, 3);
+        let c = compare_spatial(&rows, &plain, row_offset_bin_width(&rows));
+        // Real row variance 64²(0.09 + 1/96), synthetic 64²/96: ratio ≈ 0.104.
+        let r = c.row_var_ratio.expect("ratio");
+        assert!((0.07..0.15).contains(&r), "{r}");
+        assert!(c.col_var_ratio.expect("col") > 0.7);
+        let j = c.row_offset_jsd.expect("jsd");
+        assert!(j > 0.1, "{j}");
+        let (a, b) = (rows.nps(0).expect("nps"), plain.nps(0).expect("nps"));
+        // The row curve holds σ² + T·σ_r² (×64²): 1 + 16·0.09 ≈ 2.4 times white.
+        let lift = a.row.iter().sum::<f64>() / b.row.iter().sum::<f64>();
+        assert!((2.0..2.9).contains(&lift), "{lift}");
+        let radial = a.radial.iter().sum::<f64>() / b.radial.iter().sum::<f64>();
+        assert!((0.9..1.1).contains(&radial), "{radial}");
+        assert!(c.nps_distance.expect("nps") > 0.2);
+    }
+
+    #[test]
+    fn frame_offsets_are_the_spread_of_frame_means_within_bursts() {
+        let layout = FlatLayout::new(32, 32, |_| true);
+        let mut s = SpatialSamples::new();
+        for (burst, offs) in [[0, 4, 8], [100, 96, 104]].iter().enumerate() {
+            for &o in offs.iter() {
+                s.add_frame(&layout, &vec![o + burst as i32; 32 * 32]);
+            }
+            s.end_burst();
+        }
+        // Each burst: deviations ±4 → sum of squares 32, dof 2; pooled 64 / 4 = 16.
+        assert_eq!(s.frame_offset_var(0), Some(16.0));
+        assert_eq!(s.frame_offset_var(3), Some(16.0));
+        // Constant frames: no row or column spread.
+        assert_eq!(s.row_var().map(|v| v.0), Some(0.0));
+    }
+
+    #[test]
+    fn crops_stay_inside_flat_regions() {
+        // A flat square of 40×40 sensor pixels in a 100×80 image: one 16×16 crop per plane.
+        let layout = FlatLayout::new(100, 80, |i| {
+            let (y, x) = (i / 100, i % 100);
+            (20..60).contains(&y) && (30..70).contains(&x)
+        });
+        for p in 0..POSITIONS {
+            assert_eq!(layout.tiles(p), 1, "position {p}");
+        }
+        assert_eq!(layout.rows(), 40);
+        assert_eq!(layout.cols(), 40);
+        assert!(FlatLayout::new(20, 20, |_| true).tiles(0) == 0);
+    }
+}
