@@ -38,7 +38,7 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::chart::Chart;
 use crate::error::SimError;
-use crate::model::{DualGain, ReadNoiseShape, SensorModel};
+use crate::model::{DualGain, OffsetShape, ReadNoiseShape, SensorModel};
 use crate::noise::{mix64, uniform_open};
 use crate::plan::SessionPlan;
 use crate::sim::{MID_RANGE_FRACTION, Simulator};
@@ -337,6 +337,13 @@ pub fn random_sensor(seed: u64) -> RandomSensor {
         dsnu_post_dn,
         row_noise_pre_e,
         row_noise_post_dn,
+        row_noise_shape: OffsetShape::Gaussian,
+        frame_offset_pre_e: 0.0,
+        frame_offset_post_dn: 0.0,
+        frame_offset_shape: OffsetShape::Gaussian,
+        frame_offset_shared: 0.0,
+        col_noise_dn: 0.0,
+        col_pattern_dn: 0.0,
         bias_dn,
         prnu,
         dual_gain,
@@ -354,14 +361,70 @@ pub fn random_sensor(seed: u64) -> RandomSensor {
     RandomSensor { seed, model, bits, description, heavy_tails, clips_black, non_gaussian }
 }
 
+const STRUCTURED_SALT: u64 = 0x5354_5255_4354_5552; // "STRUCTUR"
+
+/// A sensor of the random family with structured noise (issue 11): [`random_sensor`]`(seed)`
+/// (same draws, so the same pixel chain) plus, from a separate stream,
+///
+/// | trait | range |
+/// |---|---|
+/// | row noise | always: pre-gain 6–20 % of the read noise, post-gain 6–25 % (log-uniform); law Gaussian (1 in 2), Laplace, Student-t 4–10 dof or a scale mixture (5–20 % at ×2–4) |
+/// | frame offsets | always: pre-gain 10–50 %, post-gain 10–60 % of the read noise; same choice of laws; 0–60 % shared by the positions |
+/// | DSNU | kept if drawn, else pre-gain 0.05–1 e⁻ and post-gain 5–30 % of the post read noise |
+/// | column noise | 1 in 3: 3–15 % of the post read noise per frame; 1 in 4: a fixed pattern 3–15 % |
+///
+/// [`random_sensor`] itself never draws these, so the existing family stays what it was.
+pub fn random_sensor_structured(seed: u64) -> RandomSensor {
+    let base = random_sensor(seed);
+    let mut m = base.model.clone();
+    let mut d = Draw::new(seed, STRUCTURED_SALT);
+    let shape = |d: &mut Draw| match d.int(0, 5) {
+        0..=2 => OffsetShape::Gaussian,
+        3 => OffsetShape::Laplace,
+        4 => OffsetShape::StudentT { dof: round_to(d.uniform(4.0, 10.0), 2) },
+        _ => OffsetShape::ScaleMixture {
+            weight: round_to(d.uniform(0.05, 0.2), 3),
+            ratio: round_to(d.uniform(2.0, 4.0), 2),
+        },
+    };
+    let (pre, post) = (m.read_noise_pre_e as f64, m.read_noise_post_dn as f64);
+    m.row_noise_pre_e = round_to(pre * d.log_uniform(0.06, 0.2), 3);
+    m.row_noise_post_dn = round_to(post * d.log_uniform(0.06, 0.25), 3);
+    m.row_noise_shape = shape(&mut d);
+    m.frame_offset_pre_e = round_to(pre * d.log_uniform(0.1, 0.5), 3);
+    m.frame_offset_post_dn = round_to(post * d.log_uniform(0.1, 0.6), 3);
+    m.frame_offset_shape = shape(&mut d);
+    m.frame_offset_shared = round_to(d.uniform(0.0, 0.6), 2);
+    if m.dsnu_pre_e == 0.0 && m.dsnu_post_dn == 0.0 {
+        m.dsnu_pre_e = round_to(d.log_uniform(0.05, 1.0), 3);
+        m.dsnu_post_dn = round_to(post * d.uniform(0.05, 0.3), 3);
+    }
+    if d.chance(1.0 / 3.0) {
+        m.col_noise_dn = round_to(post * d.uniform(0.03, 0.15), 3);
+    }
+    if d.chance(0.25) {
+        m.col_pattern_dn = round_to(post * d.uniform(0.03, 0.15), 3);
+    }
+    let heavy_tails = base.heavy_tails;
+    let clips_black = black_floor_clips(&m, m.base_iso);
+    let non_gaussian = heavy_tails || clips_black || (m.gain_iso_exponent - 1.0).abs() > GAMMA_TOLERANCE;
+    let low_black = base.description.contains("(low)");
+    let description = describe_sensor(&m, base.bits, low_black, clips_black);
+    RandomSensor { seed, model: m, bits: base.bits, description, heavy_tails, clips_black, non_gaussian }
+}
+
 /// Whether dark pixels at `iso` fall below 0 DN more often than the one-sided 3σ tail:
-/// `min_p(black_p + d·bias_p) < 3·d·σ`, σ² = G²σ_pre² + σ_post² + σ_row² + σ_dsnu².
+/// `min_p(black_p + d·bias_p) < 3·d·σ`, σ² = G²σ_pre² + σ_post² + σ_row² + σ_dsnu² (+ the
+/// structured components of [`random_sensor_structured`]: frame offsets, column noise, pattern).
 fn black_floor_clips(model: &SensorModel, iso: u32) -> bool {
     let Ok(s) = model.at_iso(iso) else { return false };
     let sigma = ((s.dn_per_electron * s.read_noise_pre_e).powi(2)
         + s.read_noise_post_dn.powi(2)
         + s.row_noise_dn.powi(2)
-        + s.dsnu_dn.powi(2))
+        + s.dsnu_dn.powi(2)
+        + s.frame_offset_dn.powi(2)
+        + s.col_noise_dn.powi(2)
+        + s.col_pattern_dn.powi(2))
     .sqrt()
         * s.digital_gain;
     (0..POSITIONS)
@@ -416,6 +479,21 @@ fn describe_sensor(m: &SensorModel, bits: u32, low_black: bool, clips_black: boo
     parts.push(format!("PRNU {:.2} %", m.prnu * 100.0));
     if m.dsnu_pre_e > 0.0 || m.dsnu_post_dn > 0.0 {
         parts.push(format!("DSNU {} e + {} DN", m.dsnu_pre_e, m.dsnu_post_dn));
+    }
+    if m.row_noise_shape != OffsetShape::Gaussian {
+        parts.push(format!("row offsets {}", m.row_noise_shape));
+    }
+    if m.frame_offset_pre_e > 0.0 || m.frame_offset_post_dn > 0.0 {
+        parts.push(format!(
+            "frame offsets {} e + {} DN {} ({:.0} % shared)",
+            m.frame_offset_pre_e,
+            m.frame_offset_post_dn,
+            m.frame_offset_shape,
+            100.0 * m.frame_offset_shared
+        ));
+    }
+    if m.col_noise_dn > 0.0 || m.col_pattern_dn > 0.0 {
+        parts.push(format!("column noise {} DN + pattern {} DN", m.col_noise_dn, m.col_pattern_dn));
     }
     if m.report_dynamic_black {
         parts.push("dynamic black".into());

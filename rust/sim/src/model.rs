@@ -5,15 +5,18 @@
 //! ```text
 //! electrons  e  ~ Poisson(λ),  λ = rate · t · flicker · PRNU        (clipped at the full well)
 //! ADC input  a  = black_p + bias_p + G·(e + n_pre + f_pre) + n_post + f_post + r_row
-//!                                                           (G = DN per electron)
+//!                  + o_frame,p + c_col                      (G = DN per electron)
 //! ADC output q  = clamp(round(a), 0, white)
 //! output        = q                                        (ISO ≤ max_analog_iso)
 //!               = clamp(round(black_p + (q − black_p)·d), 0, white)  (digital gain d > 1)
 //! ```
 //! `n_pre` (electrons) and `n_post` (DN) are Gaussian, unit-variance Student-t or unit-variance
-//! Tukey-lambda ([`ReadNoiseShape`]) scaled by their sigmas; `r_row` is one Gaussian per row and
-//! frame; `f_pre` (electrons) and `f_post` (DN) are the fixed per-pixel dark offsets (DSNU, zero
-//! by default). `G = g(iso) / electrons_per_dn`, where the analog gain
+//! Tukey-lambda ([`ReadNoiseShape`]) scaled by their sigmas; `r_row` is one offset per row and
+//! frame (Gaussian, or any [`OffsetShape`]); `f_pre` (electrons) and `f_post` (DN) are the fixed
+//! per-pixel dark offsets (DSNU, zero by default); `o_frame,p` is the frame's black-level error at
+//! CFA position `p` (one draw per frame and position, zero by default) and `c_col` the column
+//! offset (per-frame column noise plus a fixed column pattern, zero by default). The structured
+//! components' true laws at an ISO are [`crate::Simulator::structured_truth`]. `G = g(iso) / electrons_per_dn`, where the analog gain
 //! `g = (min(iso, max_analog_iso) / base_iso)^γ · (1 + gain error)` (γ =
 //! [`SensorModel::gain_iso_exponent`], 1 by default), and the sensor's second conversion gain
 //! (if any) changes the read noise and the gain error above its ISO.
@@ -97,6 +100,98 @@ impl std::fmt::Display for ReadNoiseShape {
     }
 }
 
+/// The law of a structured offset (row offsets, frame offsets), scaled to unit variance before
+/// its RMS multiplies it. Gaussian by default; the others have heavier tails.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum OffsetShape {
+    /// Gaussian.
+    #[default]
+    Gaussian,
+    /// Laplace (double exponential): excess kurtosis 3.
+    Laplace,
+    /// Student-t with `dof` ≥ 3 degrees of freedom (excess kurtosis 6/(dof − 4) for dof > 4).
+    StudentT {
+        /// Degrees of freedom.
+        dof: f32,
+    },
+    /// A Gaussian scale mixture: with probability `weight` the offset is `ratio` times wider
+    /// (occasional large offsets, e.g. a black-level clamp that sometimes misses).
+    ScaleMixture {
+        /// Probability of the wide component, in (0, 1).
+        weight: f32,
+        /// Width of the wide component over the narrow one, in [1, 50].
+        ratio: f32,
+    },
+}
+
+impl OffsetShape {
+    /// Excess kurtosis of the law (0 for Gaussian; +∞ where the 4th moment is infinite).
+    pub fn excess_kurtosis(&self) -> f64 {
+        match *self {
+            OffsetShape::Gaussian => 0.0,
+            OffsetShape::Laplace => 3.0,
+            OffsetShape::StudentT { dof } if dof > 4.0 => 6.0 / (dof as f64 - 4.0),
+            OffsetShape::StudentT { .. } => f64::INFINITY,
+            OffsetShape::ScaleMixture { weight, ratio } => {
+                let (w, r2) = (weight as f64, (ratio as f64).powi(2));
+                3.0 * (1.0 - w + w * r2 * r2) / (1.0 - w + w * r2).powi(2) - 3.0
+            }
+        }
+    }
+
+    /// Checks the parameters; the message names the valid range.
+    pub(crate) fn check(&self) -> Result<(), &'static str> {
+        match *self {
+            OffsetShape::Gaussian | OffsetShape::Laplace => Ok(()),
+            OffsetShape::StudentT { dof } if dof.is_finite() && (3.0..=1000.0).contains(&dof) => Ok(()),
+            OffsetShape::StudentT { .. } => Err("a Student-t offset needs 3 ≤ dof ≤ 1000"),
+            OffsetShape::ScaleMixture { weight, ratio }
+                if weight.is_finite()
+                    && weight > 0.0
+                    && weight < 1.0
+                    && ratio.is_finite()
+                    && (1.0..=50.0).contains(&ratio) =>
+            {
+                Ok(())
+            }
+            OffsetShape::ScaleMixture { .. } => Err("a scale mixture needs 0 < weight < 1 and 1 ≤ ratio ≤ 50"),
+        }
+    }
+
+    /// One unit-variance draw. Gaussian draws exactly one standard normal (as row noise always did).
+    #[inline]
+    pub fn sample_unit<R: rand::Rng + ?Sized>(&self, rng: &mut R) -> f64 {
+        use crate::noise::{StudentT, normal, uniform_open};
+        match *self {
+            OffsetShape::Gaussian => normal(rng),
+            OffsetShape::Laplace => {
+                let u = uniform_open(rng);
+                let b = std::f64::consts::FRAC_1_SQRT_2;
+                if u < 0.5 { b * (2.0 * u).ln() } else { -b * (2.0 * (1.0 - u)).ln() }
+            }
+            OffsetShape::StudentT { dof } => StudentT::new(dof as f64).sample(rng),
+            OffsetShape::ScaleMixture { weight, ratio } => {
+                let (w, r) = (weight as f64, ratio as f64);
+                let wide = uniform_open(rng) < w;
+                let z = normal(rng);
+                let norm = (1.0 - w + w * r * r).sqrt();
+                if wide { z * r / norm } else { z / norm }
+            }
+        }
+    }
+}
+
+impl std::fmt::Display for OffsetShape {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            OffsetShape::Gaussian => write!(f, "Gaussian"),
+            OffsetShape::Laplace => write!(f, "Laplace"),
+            OffsetShape::StudentT { dof } => write!(f, "Student-t({dof:.1} dof)"),
+            OffsetShape::ScaleMixture { weight, ratio } => write!(f, "scale mixture({weight:.2} at ×{ratio:.1})"),
+        }
+    }
+}
+
 /// Mains-like flicker: some frames are brighter or darker by a fixed fraction.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Flicker {
@@ -157,6 +252,26 @@ pub struct SensorModel {
     pub row_noise_pre_e: f32,
     /// Row noise after the gain (DN, RMS at the ADC).
     pub row_noise_post_dn: f32,
+    /// Law of the row offsets (unit variance; Gaussian by default, which draws exactly what row
+    /// noise always drew). One value per row and frame, shared by both CFA columns of the row.
+    pub row_noise_shape: OffsetShape,
+    /// Per-frame black-level error before the gain (electrons, RMS): one offset per frame and
+    /// CFA position, amplified with the analog gain. 0 (default) for none.
+    pub frame_offset_pre_e: f32,
+    /// Per-frame black-level error after the gain (DN at the ADC, RMS), per frame and CFA
+    /// position. 0 (default) for none.
+    pub frame_offset_post_dn: f32,
+    /// Law of the frame offsets (unit variance; Gaussian by default).
+    pub frame_offset_shape: OffsetShape,
+    /// Fraction of the frame-offset variance shared by the four CFA positions of a frame (0:
+    /// independent per position, 1: one offset for the whole frame).
+    pub frame_offset_shared: f32,
+    /// Column noise (DN at the ADC, RMS): one Gaussian offset per column and frame. 0 (default)
+    /// for none.
+    pub col_noise_dn: f32,
+    /// Fixed column pattern (DN at the ADC, RMS): one fixed offset per column (seeded like the
+    /// DSNU map). 0 (default) for none.
+    pub col_pattern_dn: f32,
     /// Small offset per CFA position (DN at the ADC) between the reported black level and the
     /// true dark level.
     pub bias_dn: [f32; POSITIONS],
@@ -201,6 +316,13 @@ impl SensorModel {
             dsnu_post_dn: 0.0,
             row_noise_pre_e: 0.12,
             row_noise_post_dn: 0.15,
+            row_noise_shape: OffsetShape::Gaussian,
+            frame_offset_pre_e: 0.0,
+            frame_offset_post_dn: 0.0,
+            frame_offset_shape: OffsetShape::Gaussian,
+            frame_offset_shared: 0.0,
+            col_noise_dn: 0.0,
+            col_pattern_dn: 0.0,
             bias_dn: [0.35, -0.2, 0.15, -0.3],
             prnu: 0.005,
             dual_gain: None,
@@ -233,6 +355,13 @@ impl SensorModel {
             dsnu_post_dn: 0.0,
             row_noise_pre_e: 0.15,
             row_noise_post_dn: 0.3,
+            row_noise_shape: OffsetShape::Gaussian,
+            frame_offset_pre_e: 0.0,
+            frame_offset_post_dn: 0.0,
+            frame_offset_shape: OffsetShape::Gaussian,
+            frame_offset_shared: 0.0,
+            col_noise_dn: 0.0,
+            col_pattern_dn: 0.0,
             bias_dn: [0.4, -0.3, 0.2, 0.5],
             prnu: 0.005,
             dual_gain: Some(DualGain {
@@ -271,6 +400,13 @@ impl SensorModel {
             dsnu_post_dn: 0.0,
             row_noise_pre_e: 0.2,
             row_noise_post_dn: 0.6,
+            row_noise_shape: OffsetShape::Gaussian,
+            frame_offset_pre_e: 0.0,
+            frame_offset_post_dn: 0.0,
+            frame_offset_shape: OffsetShape::Gaussian,
+            frame_offset_shared: 0.0,
+            col_noise_dn: 0.0,
+            col_pattern_dn: 0.0,
             bias_dn: [1.0, -0.8, 0.6, -0.4],
             prnu: 0.005,
             dual_gain: Some(DualGain {
@@ -285,6 +421,41 @@ impl SensorModel {
             poisson_exact_below: 1000.0,
             report_dynamic_black: false,
         }
+    }
+
+    /// This sensor with phone-like structured noise (issue 11): row noise at about an eighth
+    /// of the read noise (RMS, pre- and post-gain), a per-frame black-level error per CFA
+    /// position with Laplace tails (a third of it shared by the four positions), and DSNU (a
+    /// fifth of the read noise, pre- and post-gain). No column noise. Scaled on this sensor's
+    /// read noise, so it suits every preset.
+    pub fn with_structured_noise(mut self) -> Self {
+        self.row_noise_pre_e = (0.125 * self.read_noise_pre_e * 1000.0).round() / 1000.0;
+        self.row_noise_post_dn = (0.125 * self.read_noise_post_dn * 1000.0).round() / 1000.0;
+        self.row_noise_shape = OffsetShape::Gaussian;
+        self.frame_offset_pre_e = (0.25 * self.read_noise_pre_e * 1000.0).round() / 1000.0;
+        self.frame_offset_post_dn = (0.4 * self.read_noise_post_dn * 1000.0).round() / 1000.0;
+        self.frame_offset_shape = OffsetShape::Laplace;
+        self.frame_offset_shared = 1.0 / 3.0;
+        self.dsnu_pre_e = (0.2 * self.read_noise_pre_e * 1000.0).round() / 1000.0;
+        self.dsnu_post_dn = (0.2 * self.read_noise_post_dn * 1000.0).round() / 1000.0;
+        self
+    }
+
+    /// Whether any structured component beyond the per-pixel chain is on: row noise, frame
+    /// offsets, column noise or pattern, DSNU.
+    pub fn has_structured_noise(&self) -> bool {
+        [
+            self.row_noise_pre_e,
+            self.row_noise_post_dn,
+            self.frame_offset_pre_e,
+            self.frame_offset_post_dn,
+            self.col_noise_dn,
+            self.col_pattern_dn,
+            self.dsnu_pre_e,
+            self.dsnu_post_dn,
+        ]
+        .iter()
+        .any(|&v| v > 0.0)
     }
 
     /// Checks every parameter; the error names the first bad one and its valid range.
@@ -334,6 +505,31 @@ impl SensorModel {
         ] {
             if !fin_nonneg(v) {
                 return Err(bad(what, v, "must be a finite number ≥ 0"));
+            }
+        }
+        for (what, v) in [
+            ("SensorModel::frame_offset_pre_e", self.frame_offset_pre_e),
+            ("SensorModel::frame_offset_post_dn", self.frame_offset_post_dn),
+            ("SensorModel::col_noise_dn", self.col_noise_dn),
+            ("SensorModel::col_pattern_dn", self.col_pattern_dn),
+        ] {
+            if !(v.is_finite() && (0.0..64.0).contains(&v)) {
+                return Err(bad(what, v, "must be a finite RMS in [0, 64)"));
+            }
+        }
+        if !(self.frame_offset_shared.is_finite() && (0.0..=1.0).contains(&self.frame_offset_shared)) {
+            return Err(bad(
+                "SensorModel::frame_offset_shared",
+                self.frame_offset_shared,
+                "must be a fraction of the variance in [0, 1]",
+            ));
+        }
+        for (what, shape) in [
+            ("SensorModel::row_noise_shape", self.row_noise_shape),
+            ("SensorModel::frame_offset_shape", self.frame_offset_shape),
+        ] {
+            if let Err(e) = shape.check() {
+                return Err(SimError::Parameter { what, value: shape.to_string(), fix: e });
             }
         }
         if let Some(d) = self.read_noise_dof
@@ -472,6 +668,11 @@ impl SensorModel {
                 + (self.row_noise_post_dn as f64).powi(2))
             .sqrt(),
             dsnu_dn: ((self.dsnu_pre_e as f64 * dn_per_electron).powi(2) + (self.dsnu_post_dn as f64).powi(2)).sqrt(),
+            frame_offset_dn: ((self.frame_offset_pre_e as f64 * dn_per_electron).powi(2)
+                + (self.frame_offset_post_dn as f64).powi(2))
+            .sqrt(),
+            col_noise_dn: self.col_noise_dn as f64,
+            col_pattern_dn: self.col_pattern_dn as f64,
         })
     }
 }
@@ -500,6 +701,13 @@ pub struct IsoSettings {
     /// Total DSNU RMS at the ADC (DN): the spread of the fixed per-pixel dark offsets,
     /// `√((G·dsnu_pre_e)² + dsnu_post_dn²)`.
     pub dsnu_dn: f64,
+    /// RMS of the per-frame black-level error of each CFA position at the ADC (DN):
+    /// `√((G·frame_offset_pre_e)² + frame_offset_post_dn²)`.
+    pub frame_offset_dn: f64,
+    /// RMS of the per-frame column offsets at the ADC (DN).
+    pub col_noise_dn: f64,
+    /// RMS of the fixed column pattern at the ADC (DN).
+    pub col_pattern_dn: f64,
 }
 
 impl IsoSettings {

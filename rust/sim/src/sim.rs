@@ -14,6 +14,7 @@ use crate::error::SimError;
 use crate::model::ReadNoiseShape;
 use crate::model::{IsoSettings, SensorModel};
 use crate::noise::{StudentT, TukeyLambda, UnitNoise, hashed_unit, mix64, normal, poisson, round_clamp, uniform_open};
+use crate::truth::StructuredTruth;
 
 /// Fraction of the black-to-white range at which [`Simulator::mid_range_exposure_ns`] puts the
 /// brightest spot of the chart.
@@ -70,7 +71,13 @@ pub struct Simulator {
     seed: u64,
     prnu_seed: u64,
     dsnu_seed: u64,
+    col_seed: u64,
 }
+
+/// Stream of a frame's black-level errors (far from the row streams `1 + y`).
+const FRAME_OFFSET_STREAM: u64 = u64::MAX;
+/// Stream of a frame's column noise.
+const COLUMN_STREAM: u64 = u64::MAX - 1;
 
 impl Simulator {
     /// A simulator for `model` looking at `chart` (the chart's size is the frame size). `seed`
@@ -84,6 +91,7 @@ impl Simulator {
             seed,
             prnu_seed: mix64(seed ^ 0x5052_4E55_5F4D_4150),
             dsnu_seed: mix64(seed ^ 0x4453_4E55_5F4D_4150),
+            col_seed: mix64(seed ^ 0x434F_4C5F_5041_5454),
         })
     }
 
@@ -166,6 +174,101 @@ impl Simulator {
         Ok(if self.has_dsnu() { self.dsnu_at(&s, row, col) } else { 0.0 })
     }
 
+    /// Whether frames carry a black-level error.
+    fn has_frame_offsets(&self) -> bool {
+        self.model.frame_offset_pre_e > 0.0 || self.model.frame_offset_post_dn > 0.0
+    }
+
+    /// Whether frames carry column offsets (noise or pattern).
+    fn has_columns(&self) -> bool {
+        self.model.col_noise_dn > 0.0 || self.model.col_pattern_dn > 0.0
+    }
+
+    /// The fixed column-pattern offset of column `col` at the ADC (DN, any ISO): ≈ N(0,
+    /// `col_pattern_dn`²) bounded by ±3.46 RMS, keyed by the column (a crop keeps its pattern).
+    #[inline]
+    fn column_pattern_at(&self, col: usize) -> f64 {
+        let h = mix64(self.col_seed.wrapping_add((col as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)));
+        self.model.col_pattern_dn as f64 * hashed_unit(h) as f64
+    }
+
+    /// The true laws of the structured components at these settings.
+    fn truth_at(&self, s: &IsoSettings) -> StructuredTruth {
+        let m = &self.model;
+        let d = s.digital_gain;
+        StructuredTruth {
+            iso: s.iso,
+            digital_gain: d,
+            row_sd_dn: d * s.row_noise_dn,
+            row_shape: m.row_noise_shape,
+            col_sd_dn: d * s.col_noise_dn,
+            col_pattern_sd_dn: d * s.col_pattern_dn,
+            frame_offset_sd_dn: [d * s.frame_offset_dn; POSITIONS],
+            frame_offset_shape: m.frame_offset_shape,
+            frame_offset_shared: m.frame_offset_shared as f64,
+            dsnu_sd_dn: d * s.dsnu_dn,
+        }
+    }
+
+    /// The frame's black-level error per CFA position at the ADC (DN), from its own stream.
+    fn frame_offsets_adc(&self, s: &IsoSettings, key: u64) -> [f64; POSITIONS] {
+        let mut rng = Self::stream(key, FRAME_OFFSET_STREAM);
+        self.truth_at(s).sample_frame_offsets_adc(&mut rng)
+    }
+
+    /// The frame's column offsets at the ADC (DN): column noise from its own stream plus the
+    /// fixed pattern.
+    fn column_offsets_adc(&self, s: &IsoSettings, key: u64, width: usize) -> Vec<f64> {
+        let mut rng = Self::stream(key, COLUMN_STREAM);
+        (0..width)
+            .map(|x| {
+                let noise = if s.col_noise_dn > 0.0 { s.col_noise_dn * normal(&mut rng) } else { 0.0 };
+                let pattern = if s.col_pattern_dn > 0.0 { self.column_pattern_at(x) } else { 0.0 };
+                noise + pattern
+            })
+            .collect()
+    }
+
+    /// The true laws of the structured components at `iso`, in output DN (digital gain
+    /// included): row, column and frame-offset RMS and shapes, the column pattern and DSNU
+    /// spread, and samplers of the row- and frame-offset distributions
+    /// ([`StructuredTruth::sample_row_offset`], [`StructuredTruth::sample_frame_offsets`]).
+    pub fn structured_truth(&self, iso: u32) -> Result<StructuredTruth, SimError> {
+        Ok(self.truth_at(&self.model.at_iso(iso)?))
+    }
+
+    /// The black-level error of each CFA position that [`Simulator::capture`] adds to this
+    /// frame, in output DN (`digital_gain ×` the ADC offset; before rounding). Zeros without
+    /// frame offsets.
+    pub fn frame_offsets(&self, iso: u32, exposure_ns: u64, frame_index: u64) -> Result<[f64; POSITIONS], SimError> {
+        let s = self.check(iso, exposure_ns)?;
+        if !self.has_frame_offsets() {
+            return Ok([0.0; POSITIONS]);
+        }
+        Ok(self.frame_offsets_adc(&s, self.frame_key(iso, exposure_ns, frame_index)).map(|v| v * s.digital_gain))
+    }
+
+    /// The row offsets that [`Simulator::capture`] adds to the rows of this frame, in output DN
+    /// (`digital_gain ×` the ADC offset; before rounding), one per row.
+    pub fn row_offsets(&self, iso: u32, exposure_ns: u64, frame_index: u64) -> Result<Vec<f64>, SimError> {
+        let s = self.check(iso, exposure_ns)?;
+        let key = self.frame_key(iso, exposure_ns, frame_index);
+        Ok((0..self.height())
+            .map(|y| {
+                let mut rng = Self::stream(key, y as u64 + 1);
+                s.digital_gain * s.row_noise_dn * self.model.row_noise_shape.sample_unit(&mut rng)
+            })
+            .collect())
+    }
+
+    /// The column offsets (column noise plus the fixed pattern) that [`Simulator::capture`] adds
+    /// to the columns of this frame, in output DN (before rounding), one per column.
+    pub fn column_offsets(&self, iso: u32, exposure_ns: u64, frame_index: u64) -> Result<Vec<f64>, SimError> {
+        let s = self.check(iso, exposure_ns)?;
+        let key = self.frame_key(iso, exposure_ns, frame_index);
+        Ok(self.column_offsets_adc(&s, key, self.width()).into_iter().map(|v| v * s.digital_gain).collect())
+    }
+
     fn frame_key(&self, iso: u32, exposure_ns: u64, frame_index: u64) -> u64 {
         mix64(mix64(mix64(mix64(self.seed) ^ iso as u64) ^ exposure_ns) ^ frame_index)
     }
@@ -239,6 +342,11 @@ impl Simulator {
         let (w, h) = (self.width(), self.height());
         let colors = self.model.cfa.colors().map(color_index);
         let dsnu = self.has_dsnu();
+        // Structured offsets at the ADC; absent components draw nothing, so frames without them
+        // are what they always were.
+        let frame_off = self.has_frame_offsets().then(|| self.frame_offsets_adc(&s, key));
+        let cols = self.has_columns().then(|| self.column_offsets_adc(&s, key, w));
+        let row_shape = self.model.row_noise_shape;
         let mut data = vec![0u16; w * h];
         data.par_chunks_mut(w).enumerate().for_each_init(
             || vec![0.0f32; w],
@@ -246,10 +354,16 @@ impl Simulator {
                 let mut rng = Self::stream(key, y as u64 + 1);
                 let ry = (y & 1) * 2;
                 prepared.row_rates(y, [colors[ry], colors[ry + 1]], rates);
-                let row_off = s.row_noise_dn * normal(&mut rng);
+                let row_off = s.row_noise_dn * row_shape.sample_unit(&mut rng);
                 for (x, out) in row.iter_mut().enumerate() {
                     let lambda = rates[x] as f64 * t * self.prnu_gain(y, x) as f64;
-                    let extra = if dsnu { self.dsnu_at(&s, y, x) } else { 0.0 };
+                    let mut extra = if dsnu { self.dsnu_at(&s, y, x) } else { 0.0 };
+                    if let Some(f) = &frame_off {
+                        extra += f[ry + (x & 1)];
+                    }
+                    if let Some(c) = &cols {
+                        extra += c[x];
+                    }
                     *out = chains[ry + (x & 1)].sample(lambda, extra, row_off, &mut rng);
                 }
             },
@@ -269,15 +383,20 @@ impl Simulator {
         e
     }
 
-    /// The noiseless mean of every pixel in DN, black level, bias and DSNU included, at `iso`
+    /// The noiseless mean of every pixel in DN, black level, bias, DSNU and the fixed column
+    /// pattern included, at `iso`
     /// and `exposure_ns` (no flicker, no jitter; clamped to [0, white] and the full well; the
     /// clamp is applied to the mean, not to the noise, so it is not the mean of clipped frames).
     pub fn clean_expected(&self, iso: u32, exposure_ns: u64) -> Result<Array2<f32>, SimError> {
         let s = self.check(iso, exposure_ns)?;
         let mut e = self.mean_electrons(exposure_ns);
         let dsnu = self.has_dsnu();
+        let pattern = self.model.col_pattern_dn > 0.0;
         for ((y, x), v) in e.indexed_iter_mut() {
-            let extra = if dsnu { self.dsnu_at(&s, y, x) } else { 0.0 };
+            let mut extra = if dsnu { self.dsnu_at(&s, y, x) } else { 0.0 };
+            if pattern {
+                extra += self.column_pattern_at(x);
+            }
             *v = self.mean_level(&s, layout_pos(y, x), *v as f64, extra) as f32;
         }
         Ok(e)
@@ -309,7 +428,8 @@ impl Simulator {
     }
 
     /// Temporal variance (DN²) of the output at clean level `level_dn` and CFA position `pos`,
-    /// computed analytically from the model: `d²·(G²(λ + σ_pre²) + σ_post² + σ_row² + 1/12)`
+    /// computed analytically from the model: `d²·(G²(λ + σ_pre²) + σ_post² + σ_row² + σ_frame² +
+    /// σ_col² + 1/12)` (frame offsets and column noise are temporal too)
     /// plus the rounding after digital gain. Shot noise is Poisson in electrons, Student-t and
     /// Tukey-lambda read noise have unit-scaled variance (the shape changes the tails, not the
     /// variance), quantisation adds 1/12; γ, dual gain and digital gain enter through
@@ -334,6 +454,8 @@ impl Simulator {
         let analog = g * g * (shot + s.read_noise_pre_e.powi(2))
             + s.read_noise_post_dn.powi(2)
             + s.row_noise_dn.powi(2)
+            + s.frame_offset_dn.powi(2)
+            + s.col_noise_dn.powi(2)
             + 1.0 / 12.0;
         if s.digital_gain <= 1.0 {
             return Ok(analog);
@@ -354,20 +476,21 @@ impl Simulator {
 
     /// Spatial variance (DN², output) that the fixed patterns add between pixels of the same
     /// nominal level `level_dn` at `iso` and `pos`: `d²·((G·λ·prnu)² + (G·dsnu_pre_e)² +
-    /// dsnu_post_dn²)` (PRNU on the signal electrons, DSNU in the dark). Not part of
+    /// dsnu_post_dn² + col_pattern_dn²)` (PRNU on the signal electrons, DSNU and the column
+    /// pattern in the dark). Not part of
     /// [`Simulator::predicted_variance`], which is temporal.
     pub fn fixed_pattern_variance(&self, iso: u32, level_dn: f32, pos: usize) -> Result<f64, SimError> {
         let s = self.model.at_iso(iso)?;
         self.check_level(level_dn, pos)?;
         let (lambda, _) = self.lambda_for_level(&s, pos, level_dn as f64);
         let prnu = s.dn_per_electron * lambda * self.model.prnu as f64;
-        Ok(s.digital_gain.powi(2) * (prnu.powi(2) + s.dsnu_dn.powi(2)))
+        Ok(s.digital_gain.powi(2) * (prnu.powi(2) + s.dsnu_dn.powi(2) + s.col_pattern_dn.powi(2)))
     }
 
     /// `n` samples of `noisy − round(level_dn)` at `iso` and CFA position `pos`, drawn by the
     /// same per-pixel process as [`Simulator::capture`] for a pixel whose clean level is
-    /// `level_dn` (row noise drawn independently per sample: same marginal, no correlation; a
-    /// pixel without DSNU offset).
+    /// `level_dn` (row noise, frame offsets and column noise drawn independently per sample:
+    /// same marginal, no correlation; a pixel without DSNU offset or column pattern).
     pub fn sample_noise_at_level<R: Rng + ?Sized>(
         &self,
         iso: u32,
@@ -381,9 +504,18 @@ impl Simulator {
         let chain = self.chains(&s)[pos];
         let (lambda, extra) = self.lambda_for_level(&s, pos, level_dn as f64);
         let clean = level_dn.round() as i32;
+        let truth = self.truth_at(&s);
+        let (frame, col) = (self.has_frame_offsets(), s.col_noise_dn > 0.0);
         Ok((0..n)
             .map(|_| {
-                let row = s.row_noise_dn * normal(rng);
+                let row = s.row_noise_dn * self.model.row_noise_shape.sample_unit(rng);
+                let mut extra = extra;
+                if frame {
+                    extra += truth.sample_frame_offsets_adc(rng)[pos];
+                }
+                if col {
+                    extra += s.col_noise_dn * normal(rng);
+                }
                 chain.sample(lambda, extra, row, rng) as i32 - clean
             })
             .collect())
