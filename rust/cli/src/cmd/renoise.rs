@@ -71,9 +71,11 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
     let jobs = plan_jobs(&args)?;
     let mut renoisers: BTreeMap<u32, Renoiser> = BTreeMap::new();
     let mut target_note_shown = false;
+    let mut target_model: Option<noisecal_core::model::pack::IsoModel> = None;
     for (i, job) in jobs.iter().enumerate() {
         let seed = args.seed.wrapping_add(i as u64);
-        let img = dng::read_dng(&job.input)?;
+        let file = dng::read_dng_file(&job.input)?;
+        let img = &file.image;
         check_layout_matches(&pack, &img.layout, &job.input)?;
         // Levels are taken above black: an input with another black level is shifted onto the
         // pack's, re-noised, and shifted back.
@@ -114,7 +116,13 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
                 eprintln!("noisecal: warning: {}: {w}", job.input.display());
             }
         }
-        dng::write_dng(&job.output, &img, &out.image, args.to_iso)?;
+        // The written NoiseProfile is the target model's fit (resolved once, after `prepare` checked the ISOs).
+        let target = match &target_model {
+            Some(m) => m,
+            None => target_model.insert(resolve_model(&pack, args.to_iso, ModelKind::Noisecal, args.extrapolate)?.0),
+        };
+        let profile = dng::fitted_noise_profile(&pack, target, &img.layout);
+        dng::write_derived(&job.output, &file, &out.image, args.to_iso, profile.as_ref())?;
         if !quiet {
             eprintln!(
                 "{} → {} (ISO {from} → {}, {}, seed {seed}{})",

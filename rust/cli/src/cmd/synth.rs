@@ -4,6 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
+use noisecal_core::model::pack::IsoModel;
 use noisecal_core::synth::sampler::IsoSampler;
 use noisecal_core::synth::synthesize;
 
@@ -43,7 +44,8 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         eprintln!("{n}");
     }
     let sampler = IsoSampler::new(&pack, &model);
-    let jobs: Vec<(PathBuf, PathBuf)> = if args.input.is_dir() {
+    let folder = args.input.is_dir();
+    let jobs: Vec<(PathBuf, PathBuf)> = if folder {
         let files = dng::scan_folder(&args.input)?;
         if files.is_empty() {
             bail!("{} holds no .dng files", args.input.display());
@@ -60,42 +62,68 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
     } else {
         vec![(args.input.clone(), args.output.clone())]
     };
+    let job = Job { pack: &pack, sampler: &sampler, model: &model, iso: args.iso, quiet };
     for (i, (input, output)) in jobs.iter().enumerate() {
         // Each file gets its own seed stream so a folder run equals single-file runs with seed + index.
-        synth_file(&pack, &sampler, input, output, args.seed.wrapping_add(i as u64), args.iso, quiet)?;
-        if !quiet {
-            eprintln!(
-                "{} → {} (ISO {}, seed {})",
+        let seed = args.seed.wrapping_add(i as u64);
+        let done = job.file(input, output, seed);
+        if let Err(e) = done {
+            if !folder {
+                return Err(e);
+            }
+            let kept = match i {
+                0 => "no output was written".to_string(),
+                1 => format!("the 1 output written before it is kept in {}", args.output.display()),
+                n => format!("the {n} outputs written before it are kept in {}", args.output.display()),
+            };
+            return Err(e.context(format!(
+                "{} failed (file {} of {} in {}); {kept}; fix or remove it and run again",
                 input.display(),
-                output.display(),
-                args.iso,
-                args.seed.wrapping_add(i as u64)
-            );
+                i + 1,
+                jobs.len(),
+                args.input.display()
+            )));
+        }
+        if !quiet {
+            eprintln!("{} → {} (ISO {}, seed {seed})", input.display(), output.display(), args.iso);
         }
     }
     Ok(())
 }
 
-fn synth_file(
-    pack: &noisecal_core::ModelPack,
-    sampler: &IsoSampler,
-    input: &Path,
-    output: &Path,
-    seed: u64,
+/// What every file of a run shares.
+struct Job<'a> {
+    pack: &'a noisecal_core::ModelPack,
+    sampler: &'a IsoSampler,
+    model: &'a IsoModel,
     iso: u32,
     quiet: bool,
-) -> anyhow::Result<()> {
-    let img = dng::read_dng(input)?;
-    check_layout_matches(pack, &img.layout, input)?;
-    // The model is binned by level above the pack's black level: an image with another black level
-    // is shifted onto the pack's, synthesized, and shifted back.
-    let align = align_input(pack, &img.layout, input, quiet);
-    let noisy = if align.is_identity() {
-        synthesize(sampler, img.pixels.view(), seed)
-    } else {
-        let moved = align.apply(img.pixels.view(), pack.layout.white);
-        align.undo(synthesize(sampler, moved.view(), seed).view(), img.layout.white)
-    };
-    dng::write_dng(output, &img, &noisy, iso)?;
-    Ok(())
+}
+
+impl Job<'_> {
+    fn file(&self, input: &Path, output: &Path, seed: u64) -> anyhow::Result<()> {
+        let pack = self.pack;
+        if noisecal_io::same_file(input, output) {
+            bail!(
+                "{} is also an input ({}): write to another path; noisecal never writes over what it reads",
+                output.display(),
+                input.display()
+            );
+        }
+        let file = dng::read_dng_file(input)?;
+        let img = &file.image;
+        check_layout_matches(pack, &img.layout, input)?;
+        // The model is binned by level above the pack's black level: an image with another black level
+        // is shifted onto the pack's, synthesized, and shifted back.
+        let align = align_input(pack, &img.layout, input, self.quiet);
+        let noisy = if align.is_identity() {
+            synthesize(self.sampler, img.pixels.view(), seed)
+        } else {
+            let moved = align.apply(img.pixels.view(), pack.layout.white);
+            align.undo(synthesize(self.sampler, moved.view(), seed).view(), img.layout.white)
+        };
+        let profile = dng::fitted_noise_profile(pack, self.model, &img.layout);
+        dng::write_derived(output, &file, &noisy, self.iso, profile.as_ref())?;
+        Ok(())
+    }
 }

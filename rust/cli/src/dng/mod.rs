@@ -6,26 +6,40 @@
 //!   to [`decode_dng`], the entry point for callers (and fuzzers) that hold the bytes. The returned layout describes position (0,0) of the
 //!   returned array: DNG gives `CFAPattern` and `BlackLevel` relative to the `ActiveArea`, which is
 //!   exactly what is returned.
-//! * [`write_dng`] / [`write_dng_from_layout`] write an uncompressed 16-bit CFA DNG (one IFD, the
-//!   way Android's `DngCreator` lays it out) through the small TIFF writer in [`tiff`], atomically.
+//! * [`write_derived`] writes a DNG derived from a read one ([`read_dng_file`]): the input file
+//!   with only its raw pixels, its ISO and its `NoiseProfile` changed, every other tag, sub-IFD,
+//!   preview and maker note kept byte for byte (the editor in `edit`). [`write_dng`] does the same
+//!   from a [`DngImage`] (re-reading its file).
+//! * [`write_dng_from_layout`] writes a fresh uncompressed 16-bit CFA DNG (one IFD, the way
+//!   Android's `DngCreator` lays it out) through the small TIFF writer in [`tiff`], atomically,
+//!   for the simulator, which has no input file.
+//! * [`fitted_noise_profile`] is the DNG `NoiseProfile` of the noise a pack's model synthesizes.
 //! * [`Tag`] names every TIFF/DNG tag the reader and the writer use.
 //! * [`scan_folder`] lists the DNGs of a folder.
 
+mod edit;
 mod error;
+mod profile;
 mod read;
 mod tags;
 pub mod tiff;
 mod write;
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use ndarray::Array2;
 use noisecal_core::{FrameMeta, SensorLayout};
 
+pub use edit::PixelMode;
 pub use error::DngError;
-pub use read::{MAX_DNG_BYTES, decode_dng, decode_dng_meta, read_dng, read_dng_meta};
+pub use profile::fitted_noise_profile;
+pub use read::{
+    MAX_DNG_BYTES, decode_dng, decode_dng_meta, decode_dng_template, read_dng, read_dng_file, read_dng_meta,
+    read_dng_template,
+};
 pub use tags::Tag;
-pub use write::{DngSpec, dng_tiff, write_dng, write_dng_from_layout};
+pub use write::{DngSpec, derived_bytes, dng_tiff, write_derived, write_dng, write_dng_from_layout};
 
 /// Colour tags carried from a read DNG to the ones written from it, so other tools still render
 /// them. They play no part in the noise model.
@@ -62,6 +76,21 @@ pub struct DngImage {
     pub color: ColorTags,
     /// The file this was read from.
     pub source: PathBuf,
+}
+
+/// A DNG as read, with its file's bytes: the template of the DNGs derived from it.
+#[derive(Debug, Clone)]
+pub struct DngFile {
+    /// The decoded image (`pixels` is empty when read with [`read_dng_template`]).
+    pub image: DngImage,
+    bytes: Arc<Vec<u8>>,
+}
+
+impl DngFile {
+    /// The file's bytes.
+    pub fn bytes(&self) -> &[u8] {
+        &self.bytes
+    }
 }
 
 /// Every `*.dng` (any case) directly in `dir`, sorted by file name. Sub-folders are not searched.

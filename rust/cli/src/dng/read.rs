@@ -15,11 +15,12 @@ use rawler::formats::tiff::{GenericTiffReader, IFD, Value};
 use rawler::rawsource::RawSource;
 
 use super::tags::Tag;
-use super::{ColorTags, DngError, DngImage};
+use super::{ColorTags, DngError, DngFile, DngImage};
 
 const PHOTOMETRIC_CFA: u64 = 32803;
 const PHOTOMETRIC_LINEAR_RAW: u64 = 34892;
 const COMPRESSION_LOSSY_JPEG: u64 = 34892;
+const COMPRESSION_LOSSLESS_JPEG: u64 = 7;
 
 /// The largest file [`read_dng`] reads: 1 GiB. The largest raw image accepted (256 MP of 16-bit
 /// samples) takes 512 MiB; the rest leaves room for previews and metadata.
@@ -58,10 +59,58 @@ pub fn decode_dng_meta(bytes: &[u8], source: &Path) -> Result<DngImage, DngError
     parse(RawSource::new_from_slice(bytes), source, false)
 }
 
+/// As [`read_dng`], keeping the file's bytes: the template [`super::write_derived`] writes a
+/// derived DNG from (the input with only its pixels and ISO-dependent tags changed).
+pub fn read_dng_file(path: &Path) -> Result<DngFile, DngError> {
+    let bytes = file_bytes(path)?;
+    let image = parse(RawSource::new_from_shared_vec(bytes.clone()), path, true)?;
+    Ok(DngFile { image, bytes })
+}
+
+/// As [`read_dng_file`] without decoding the pixels (`image.pixels` is empty): a template only.
+pub fn read_dng_template(path: &Path) -> Result<DngFile, DngError> {
+    let bytes = file_bytes(path)?;
+    let image = parse(RawSource::new_from_shared_vec(bytes.clone()), path, false)?;
+    Ok(DngFile { image, bytes })
+}
+
+/// A template from bytes already in memory (`source` names it in errors).
+pub fn decode_dng_template(bytes: Vec<u8>, source: &Path) -> Result<DngFile, DngError> {
+    let bytes = Arc::new(bytes);
+    let image = parse(RawSource::new_from_shared_vec(bytes.clone()), source, false)?;
+    Ok(DngFile { image, bytes })
+}
+
+/// The whole raw image of a DNG (masked areas included, `ImageWidth × ImageLength` samples, as
+/// the decoder gives them: linearized, de-interleaved).
+pub(crate) fn decode_full_raw(bytes: &[u8], path: &Path) -> Result<Vec<u16>, DngError> {
+    let src = RawSource::new_from_slice(bytes);
+    check_structure(src.buf()).map_err(|d| DngError::decode(path, d))?;
+    let tiff =
+        guarded(path, "parsing the TIFF structure", || GenericTiffReader::new(&mut src.reader(), 0, 0, None, &[]))?
+            .map_err(|e| DngError::decode(path, format!("invalid TIFF structure: {e}")))?;
+    let chain: Vec<&IFD> = tiff.chains().iter().collect();
+    let raw = find_raw_ifd(path, &chain)?;
+    let data = guarded(path, "decoding the raw image data", || plain_image_from_ifd(raw, &src))
+        .map_err(|e| panic_error(path, raw, e))?
+        .map_err(|e| decode_error(path, raw, e))?;
+    match data {
+        RawImageData::Integer(d) => Ok(d),
+        RawImageData::Float(_) => {
+            Err(DngError::unsupported(path, "floating-point samples; noisecal needs integer sensor data"))
+        }
+    }
+}
+
+/// The file's bytes, read whole after checking it is a regular file of a sane size.
+fn file_bytes(path: &Path) -> Result<Arc<Vec<u8>>, DngError> {
+    let bytes = noisecal_io::read_regular(path, MAX_DNG_BYTES).map_err(|e| DngError::io(path, e))?;
+    Ok(Arc::new(bytes))
+}
+
 /// The file's bytes, read whole after checking it is a regular file of a sane size.
 fn source_of(path: &Path) -> Result<RawSource, DngError> {
-    let bytes = noisecal_io::read_regular(path, MAX_DNG_BYTES).map_err(|e| DngError::io(path, e))?;
-    Ok(RawSource::new_from_shared_vec(Arc::new(bytes)))
+    Ok(RawSource::new_from_shared_vec(file_bytes(path)?))
 }
 
 fn parse(src: RawSource, path: &Path, decode_pixels: bool) -> Result<DngImage, DngError> {
@@ -230,8 +279,9 @@ fn decode(
             ),
         ));
     }
-    let data = guarded(path, "decoding the raw image data", || plain_image_from_ifd(raw, src))?
-        .map_err(|e| DngError::decode(path, format!("raw image data: {e}")))?;
+    let data = guarded(path, "decoding the raw image data", || plain_image_from_ifd(raw, src))
+        .map_err(|e| panic_error(path, raw, e))?
+        .map_err(|e| decode_error(path, raw, e))?;
     let data = match data {
         RawImageData::Integer(d) => d,
         RawImageData::Float(_) => {
@@ -250,6 +300,36 @@ fn decode(
         .map_err(|e| DngError::decode(path, format!("cannot shape the mosaic: {e}")))?;
 
     Ok(pixels)
+}
+
+/// The error for raw data the decoder refused. Lossless-JPEG data that rawler cannot read (it
+/// reads the common ITU T.81 predictors only; some cameras, e.g. Blackmagic, write JPEG streams
+/// it rejects) is named as such: the file is usually fine and other readers (LibRaw, Adobe)
+/// decode it.
+fn decode_error(path: &Path, raw: &IFD, e: impl std::fmt::Display) -> DngError {
+    let detail = e.to_string();
+    if uint(raw, Tag::Compression) == Some(COMPRESSION_LOSSLESS_JPEG) {
+        return DngError::unsupported(
+            path,
+            format!(
+                "its raw data is lossless-JPEG compressed in a form the DNG decoder (rawler) cannot read ({detail}); \
+                 the file is probably not damaged (LibRaw and Adobe read such files): convert it to an \
+                 uncompressed DNG, e.g. with Adobe DNG Converter (Preferences → Compatibility → Custom, \
+                 Uncompressed) or `dnglab convert --compression none`"
+            ),
+        );
+    }
+    DngError::decode(path, format!("raw image data: {detail}"))
+}
+
+/// A decoder panic on lossless-JPEG data is that data's error too.
+fn panic_error(path: &Path, raw: &IFD, e: DngError) -> DngError {
+    match e {
+        DngError::Decode { detail, .. } if uint(raw, Tag::Compression) == Some(COMPRESSION_LOSSLESS_JPEG) => {
+            decode_error(path, raw, detail)
+        }
+        other => other,
+    }
 }
 
 /// Runs decoder code that may panic on malformed input, turning a panic into [`DngError::Decode`].

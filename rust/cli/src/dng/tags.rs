@@ -80,6 +80,7 @@ tags! {
     StripByteCounts = 279, "StripByteCounts", STRIP_BYTE_COUNTS;
     PlanarConfiguration = 284, "PlanarConfiguration", PLANAR_CONFIGURATION;
     Software = 305, "Software", SOFTWARE;
+    Predictor = 317, "Predictor", PREDICTOR;
     TileWidth = 322, "TileWidth", TILE_WIDTH;
     TileLength = 323, "TileLength", TILE_LENGTH;
     TileOffsets = 324, "TileOffsets", TILE_OFFSETS;
@@ -87,6 +88,7 @@ tags! {
     /// Pointer to child IFDs (the raw image of a DNG whose IFD0 is a preview).
     SubIfds = 330, "SubIFDs", SUB_IFDS;
     SampleFormat = 339, "SampleFormat", SAMPLE_FORMAT;
+    JpegTables = 347, "JPEGTables", JPEG_TABLES;
     CfaRepeatPatternDim = 33421, "CFARepeatPatternDim", CFA_REPEAT_PATTERN_DIM;
     CfaPattern = 33422, "CFAPattern", CFA_PATTERN;
     ExposureTime = 33434, "ExposureTime", EXPOSURE_TIME;
@@ -95,6 +97,7 @@ tags! {
     /// `PhotographicSensitivity` in EXIF 2.3; 65535 means "65535 or more".
     IsoSpeedRatings = 34855, "ISOSpeedRatings", ISO_SPEED_RATINGS;
     SensitivityType = 34864, "SensitivityType", SENSITIVITY_TYPE;
+    StandardOutputSensitivity = 34865, "StandardOutputSensitivity", STANDARD_OUTPUT_SENSITIVITY;
     RecommendedExposureIndex = 34866, "RecommendedExposureIndex", RECOMMENDED_EXPOSURE_INDEX;
     IsoSpeed = 34867, "ISOSpeed", ISO_SPEED;
     ExifVersion = 36864, "ExifVersion", EXIF_VERSION;
@@ -103,6 +106,8 @@ tags! {
     UniqueCameraModel = 50708, "UniqueCameraModel", UNIQUE_CAMERA_MODEL;
     CfaPlaneColor = 50710, "CFAPlaneColor", CFA_PLANE_COLOR;
     CfaLayout = 50711, "CFALayout", CFA_LAYOUT;
+    /// Maps stored values to linear ones; decoders apply it, so a rewritten raw image drops it.
+    LinearizationTable = 50712, "LinearizationTable", LINEARIZATION_TABLE;
     BlackLevelRepeatDim = 50713, "BlackLevelRepeatDim", BLACK_LEVEL_REPEAT_DIM;
     BlackLevel = 50714, "BlackLevel", BLACK_LEVEL;
     BlackLevelDeltaH = 50715, "BlackLevelDeltaH", BLACK_LEVEL_DELTA_H;
@@ -111,9 +116,20 @@ tags! {
     ColorMatrix1 = 50721, "ColorMatrix1", COLOR_MATRIX_1;
     AsShotNeutral = 50728, "AsShotNeutral", AS_SHOT_NEUTRAL;
     CalibrationIlluminant1 = 50778, "CalibrationIlluminant1", CALIBRATION_ILLUMINANT_1;
+    /// 16 bytes naming the raw data (raw converters key their caches on it).
+    RawDataUniqueId = 50781, "RawDataUniqueID", RAW_DATA_UNIQUE_ID;
     ActiveArea = 50829, "ActiveArea", ACTIVE_AREA;
+    /// MD5 of the raw image data (DNG 1.2); a file with other pixels must not carry it.
+    RawImageDigest = 50972, "RawImageDigest", RAW_IMAGE_DIGEST;
+    RowInterleaveFactor = 50975, "RowInterleaveFactor", ROW_INTERLEAVE_FACTOR;
     /// `(S, O)` pairs per colour plane: variance = S·signal + O.
     NoiseProfile = 51041, "NoiseProfile", NOISE_PROFILE;
+    /// MD5 of the raw image data (DNG 1.4); a file with other pixels must not carry it.
+    NewRawImageDigest = 51111, "NewRawImageDigest", NEW_RAW_IMAGE_DIGEST;
+    ColumnInterleaveFactor = 52547, "ColumnInterleaveFactor", COLUMN_INTERLEAVE_FACTOR;
+    JxlDistance = 52553, "JXLDistance", JXL_DISTANCE;
+    JxlEffort = 52554, "JXLEffort", JXL_EFFORT;
+    JxlDecodeSpeed = 52555, "JXLDecodeSpeed", JXL_DECODE_SPEED;
 }
 
 impl Tag {
@@ -187,7 +203,7 @@ mod tests {
             assert_eq!(u16::from(Tag::from(n)), n);
         }
         assert!(Tag::ALL.windows(2).all(|w| w[0] < w[1]), "ALL is in ascending number");
-        assert_eq!(Tag::ALL.len(), 45);
+        assert_eq!(Tag::ALL.len(), 57);
         assert_eq!(Tag::CfaPattern.to_u16(), 33422);
         assert_eq!(Tag::SubIfds.to_u16(), 330);
         assert_eq!(tag::EXIF_IFD.to_u16(), 34665);

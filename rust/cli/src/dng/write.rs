@@ -1,4 +1,5 @@
-//! Writing CFA DNGs.
+//! Writing CFA DNGs: derived from a read one ([`write_derived`], through the editor in
+//! `super::edit`), or fresh (below).
 //!
 //! rawler's `DngWriter` converts a whole `RawImage` (camera definition, colour matrices, crop
 //! modes) and asserts on anything it does not expect; writing a bare mosaic through it means
@@ -14,9 +15,12 @@ use ndarray::Array2;
 use noisecal_core::model::layout::CfaColor;
 use noisecal_core::{FrameMeta, SensorLayout};
 
+use noisecal_core::model::pack::NoiseProfile;
+
+use super::edit::{self, PixelMode};
 use super::tags::Tag;
 use super::tiff::{Ifd, ImageData, TagValue, TiffBuilder, u16_bytes};
-use super::{ColorTags, DngError, DngImage};
+use super::{ColorTags, DngError, DngFile, DngImage};
 
 /// Everything a written DNG says besides its pixels.
 #[derive(Debug, Clone, PartialEq)]
@@ -29,10 +33,56 @@ pub struct DngSpec {
     pub color: ColorTags,
 }
 
-/// Writes `pixels` as a DNG with `template`'s metadata (make, model, CFA, `layout.black`, white,
-/// exposure, colour tags) and the ISO `iso`. `pixels` must have the template's size. The template's
-/// `NoiseProfile` is not copied: it would not describe the new pixels.
+/// Writes `pixels` (the active area, as read) as a DNG derived from `template`: the template's
+/// file with only its raw pixels, its ISO (`iso`) and its `NoiseProfile` (`noise_profile`, per CFA
+/// position normalised to the template's levels, see [`super::fitted_noise_profile`]; `None`
+/// drops the template's, which would not describe the new pixels) changed. Every other tag,
+/// sub-IFD, preview, EXIF/GPS/maker-note data is kept byte for byte. An uncompressed raw image is
+/// written over in place; a compressed (or linearized, interleaved) one is replaced by
+/// uncompressed 16-bit strips. Written atomically.
+pub fn write_derived(
+    path: &Path,
+    template: &DngFile,
+    pixels: &Array2<u16>,
+    iso: u32,
+    noise_profile: Option<&NoiseProfile>,
+) -> Result<(), DngError> {
+    let (bytes, _) = derived_bytes(path, template, pixels, iso, noise_profile)?;
+    // A failure leaves any existing file untouched and never a half-written DNG under `path`;
+    // permissions follow noisecal_io's policy.
+    noisecal_io::write_bytes_atomic(path, &bytes).map_err(|e| DngError::io(path, e))
+}
+
+/// The bytes [`write_derived`] writes (`path` names the output in errors), and how the pixels
+/// got in.
+pub fn derived_bytes(
+    path: &Path,
+    template: &DngFile,
+    pixels: &Array2<u16>,
+    iso: u32,
+    noise_profile: Option<&NoiseProfile>,
+) -> Result<(Vec<u8>, PixelMode), DngError> {
+    if iso == 0 {
+        return Err(DngError::invalid(path, "ISO is 0; pass the sensitivity of the frame"));
+    }
+    let source = &template.image.source;
+    let decode_full = || super::read::decode_full_raw(template.bytes(), source).map_err(|e| e.to_string());
+    edit::derive(template.bytes(), &template.image.layout, pixels.view(), iso, noise_profile, decode_full)
+        .map_err(|what| DngError::invalid(path, format!("from the template {}: {what}", source.display())))
+}
+
+/// Writes `pixels` as a DNG derived from the file `template` was read from, as [`write_derived`]
+/// with no `NoiseProfile`. `pixels` must have the template's size. If that file is gone, or no
+/// longer holds the image `template` describes, a fresh DNG is written from `template`'s metadata
+/// (make, model, CFA, levels, exposure, colour tags) instead.
 pub fn write_dng(path: &Path, template: &DngImage, pixels: &Array2<u16>, iso: u32) -> Result<(), DngError> {
+    let file = noisecal_io::read_regular(&template.source, super::MAX_DNG_BYTES)
+        .ok()
+        .and_then(|b| super::decode_dng_template(b, &template.source).ok())
+        .filter(|f| f.image.layout == template.layout);
+    if let Some(file) = file {
+        return write_derived(path, &file, pixels, iso, None);
+    }
     let spec = DngSpec {
         layout: template.layout.clone(),
         // The template's layout is authoritative (read_dng sets meta.black to the same values).

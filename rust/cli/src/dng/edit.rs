@@ -1,0 +1,738 @@
+//! DNGs derived from another DNG: the input file, byte for byte, with only its raw pixels and its
+//! ISO-dependent tags changed.
+//!
+//! Nothing of the input moves. The output starts as a copy of the input's bytes; then
+//!
+//! * the raw pixels are written over the stored ones when the raw image is stored uncompressed
+//!   (16-bit samples in the file's byte order, or 10–15-bit MSB-packed rows), so masked areas,
+//!   previews and every offset stay as they were; a compressed, linearized or interleaved raw
+//!   image is instead appended as uncompressed 16-bit strips and its IFD points there;
+//! * a tag whose new value has the old type and size is patched where it is; an IFD that gains,
+//!   loses or resizes a tag is written again at the end of the file (its other entries copied as
+//!   they are, so out-of-line values, maker notes and sub-IFDs are shared with the original) and
+//!   the pointer to it (the header, the previous IFD's link, a SubIFDs or ExifIFD entry) is
+//!   patched. Offsets inside maker notes therefore stay right.
+//!
+//! What changes: the raw pixels; the ISO (`ISOSpeedRatings`/`PhotographicSensitivity` wherever
+//! the input has it, and `StandardOutputSensitivity`, `RecommendedExposureIndex`, `ISOSpeed`;
+//! added to the EXIF IFD, else IFD0, when the input has none); `NoiseProfile` (the one given, in
+//! the raw IFD, or none: the input's would not describe the new pixels); `RawImageDigest` and
+//! `NewRawImageDigest` are dropped (they hash the old pixels) and `RawDataUniqueID` is changed (raw
+//! converters key their caches on it).
+
+use std::collections::{BTreeMap, HashSet};
+
+use ndarray::ArrayView2;
+use noisecal_core::SensorLayout;
+use noisecal_core::model::layout::{CfaColor, POSITIONS};
+use noisecal_core::model::pack::NoiseProfile;
+
+use super::tags::Tag;
+use super::tiff::pack_msb;
+
+const PHOTOMETRIC_CFA: u64 = 32803;
+
+/// Bytes per element of a TIFF field type (`None` for types TIFF does not define).
+fn type_size(ty: u16) -> Option<usize> {
+    match ty {
+        1 | 2 | 6 | 7 => Some(1),
+        3 | 8 => Some(2),
+        4 | 9 | 11 | 13 => Some(4),
+        5 | 10 | 12 => Some(8),
+        _ => None,
+    }
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Entry {
+    tag: u16,
+    ty: u16,
+    count: u32,
+    /// The value/offset field as stored (file byte order).
+    field: [u8; 4],
+}
+
+#[derive(Debug)]
+struct Dir {
+    offset: usize,
+    entries: Vec<Entry>,
+    /// File position of the u32 that points to this directory.
+    pointer_at: usize,
+    /// Directories this one points to, with the pointer tag (SubIFDs or ExifIFD).
+    children: Vec<(u16, usize)>,
+}
+
+/// Byte order of the file.
+#[derive(Debug, Clone, Copy)]
+struct Order {
+    big: bool,
+}
+
+impl Order {
+    fn u16(self, b: &[u8], at: usize) -> Option<u16> {
+        let x: [u8; 2] = b.get(at..at.checked_add(2)?)?.try_into().ok()?;
+        Some(if self.big { u16::from_be_bytes(x) } else { u16::from_le_bytes(x) })
+    }
+
+    fn u32(self, b: &[u8], at: usize) -> Option<u32> {
+        let x: [u8; 4] = b.get(at..at.checked_add(4)?)?.try_into().ok()?;
+        Some(if self.big { u32::from_be_bytes(x) } else { u32::from_le_bytes(x) })
+    }
+
+    fn b16(self, v: u16) -> [u8; 2] {
+        if self.big { v.to_be_bytes() } else { v.to_le_bytes() }
+    }
+
+    fn b32(self, v: u32) -> [u8; 4] {
+        if self.big { v.to_be_bytes() } else { v.to_le_bytes() }
+    }
+}
+
+/// The IFD structure of a TIFF file: every directory of the IFD chain and, below them, of their
+/// SubIFDs and ExifIFD pointers (in pre-order: a directory comes before the ones it points to).
+#[derive(Debug)]
+struct Structure {
+    order: Order,
+    dirs: Vec<Dir>,
+    chain: Vec<usize>,
+}
+
+impl Structure {
+    fn parse(buf: &[u8]) -> Result<Self, String> {
+        let big = match buf.get(..4) {
+            Some(b"II\x2a\0") => false,
+            Some(b"MM\0\x2a") => true,
+            _ => return Err("the template is not a TIFF/DNG file".into()),
+        };
+        let mut s = Structure { order: Order { big }, dirs: Vec::new(), chain: Vec::new() };
+        let mut visited = HashSet::new();
+        let mut pointer_at = 4usize;
+        while let Some(off) = s.order.u32(buf, pointer_at) {
+            if off == 0 || s.chain.len() >= 64 {
+                break;
+            }
+            let idx = s.dir(buf, off as usize, pointer_at, 0, &mut visited)?;
+            s.chain.push(idx);
+            pointer_at = s.dirs[idx].offset + 2 + 12 * s.dirs[idx].entries.len();
+        }
+        if s.chain.is_empty() {
+            return Err("the template has no IFD".into());
+        }
+        Ok(s)
+    }
+
+    fn dir(
+        &mut self,
+        buf: &[u8],
+        off: usize,
+        pointer_at: usize,
+        depth: u32,
+        visited: &mut HashSet<usize>,
+    ) -> Result<usize, String> {
+        if !visited.insert(off) || visited.len() > 512 {
+            return Err(format!("the template's IFD at offset {off} is referenced twice (corrupt IFD links)"));
+        }
+        let o = self.order;
+        let n = o.u16(buf, off).ok_or_else(|| format!("the template's IFD at {off} lies past its end"))? as usize;
+        if off + 2 + 12 * n + 4 > buf.len() {
+            return Err(format!("the template's IFD at {off} runs past its end"));
+        }
+        let entries: Vec<Entry> = (0..n)
+            .map(|i| {
+                let e = off + 2 + 12 * i;
+                Entry {
+                    tag: o.u16(buf, e).unwrap_or(0),
+                    ty: o.u16(buf, e + 2).unwrap_or(0),
+                    count: o.u32(buf, e + 4).unwrap_or(0),
+                    field: buf[e + 8..e + 12].try_into().unwrap_or([0; 4]),
+                }
+            })
+            .collect();
+        let idx = self.dirs.len();
+        self.dirs.push(Dir { offset: off, entries: entries.clone(), pointer_at, children: Vec::new() });
+        if depth < 4 {
+            for (i, e) in entries.iter().enumerate() {
+                let pointer_tag = e.tag == Tag::SubIfds.to_u16() || e.tag == Tag::ExifIfd.to_u16();
+                if !pointer_tag || !(e.ty == 4 || e.ty == 13) {
+                    continue;
+                }
+                let count = e.count as usize;
+                let base = if count <= 1 { off + 2 + 12 * i + 8 } else { o.u32(&e.field, 0).unwrap_or(0) as usize };
+                for k in 0..count.min(64) {
+                    let at = base + 4 * k;
+                    match o.u32(buf, at) {
+                        Some(child) if child != 0 && (child as usize) < buf.len() => {
+                            let c = self.dir(buf, child as usize, at, depth + 1, visited)?;
+                            self.dirs[idx].children.push((e.tag, c));
+                        }
+                        _ => {}
+                    }
+                }
+            }
+        }
+        Ok(idx)
+    }
+
+    fn entry(&self, dir: usize, t: Tag) -> Option<&Entry> {
+        self.dirs[dir].entries.iter().find(|e| e.tag == t.to_u16())
+    }
+
+    /// The bytes of an entry's value (`None` when it lies outside the file or its type is unknown).
+    fn bytes<'a>(&self, buf: &'a [u8], e: &'a Entry) -> Option<&'a [u8]> {
+        let size = type_size(e.ty)?.checked_mul(e.count as usize)?;
+        if size <= 4 {
+            Some(&e.field[..size])
+        } else {
+            let off = self.order.u32(&e.field, 0)? as usize;
+            buf.get(off..off.checked_add(size)?)
+        }
+    }
+
+    /// An unsigned integer value (BYTE, SHORT, LONG, IFD) as u64s.
+    fn uints(&self, buf: &[u8], dir: usize, t: Tag) -> Option<Vec<u64>> {
+        let e = self.entry(dir, t)?;
+        let b = self.bytes(buf, e)?;
+        let o = self.order;
+        match e.ty {
+            1 | 7 => Some(b.iter().map(|&x| x as u64).collect()),
+            3 => Some((0..b.len() / 2).map(|i| o.u16(b, 2 * i).unwrap_or(0) as u64).collect()),
+            4 | 13 => Some((0..b.len() / 4).map(|i| o.u32(b, 4 * i).unwrap_or(0) as u64).collect()),
+            _ => None,
+        }
+    }
+
+    fn uint(&self, buf: &[u8], dir: usize, t: Tag) -> Option<u64> {
+        self.uints(buf, dir, t)?.first().copied()
+    }
+
+    /// The full-resolution CFA raw image, found as the reader finds it: NewSubfileType 0 with
+    /// image data and CFA photometry, in the chain and its SubIFDs, in file order.
+    fn raw_dir(&self, buf: &[u8]) -> Option<usize> {
+        fn collect(s: &Structure, d: usize, out: &mut Vec<usize>) {
+            out.push(d);
+            for &(t, c) in &s.dirs[d].children {
+                if t == Tag::SubIfds.to_u16() {
+                    collect(s, c, out);
+                }
+            }
+        }
+        let mut all = Vec::new();
+        for &d in &self.chain {
+            collect(self, d, &mut all);
+        }
+        all.into_iter().find(|&d| {
+            self.uint(buf, d, Tag::NewSubfileType).unwrap_or(0) == 0
+                && (self.entry(d, Tag::StripOffsets).is_some() || self.entry(d, Tag::TileOffsets).is_some())
+                && self.uint(buf, d, Tag::PhotometricInterpretation) == Some(PHOTOMETRIC_CFA)
+        })
+    }
+}
+
+/// A change to one tag of one directory.
+#[derive(Debug, Clone)]
+enum Edit {
+    Set { ty: u16, count: u32, bytes: Vec<u8> },
+    Remove,
+}
+
+#[derive(Default)]
+struct Edits(BTreeMap<usize, BTreeMap<u16, Edit>>);
+
+impl Edits {
+    fn set(&mut self, dir: usize, t: Tag, ty: u16, count: u32, bytes: Vec<u8>) {
+        self.0.entry(dir).or_default().insert(t.to_u16(), Edit::Set { ty, count, bytes });
+    }
+
+    fn remove(&mut self, dir: usize, t: Tag) {
+        self.0.entry(dir).or_default().insert(t.to_u16(), Edit::Remove);
+    }
+}
+
+fn shorts(o: Order, v: &[u16]) -> Vec<u8> {
+    v.iter().flat_map(|&x| o.b16(x)).collect()
+}
+
+fn longs(o: Order, v: &[u32]) -> Vec<u8> {
+    v.iter().flat_map(|&x| o.b32(x)).collect()
+}
+
+fn doubles(o: Order, v: &[f64]) -> Vec<u8> {
+    v.iter().flat_map(|&x| if o.big { x.to_be_bytes() } else { x.to_le_bytes() }).collect()
+}
+
+/// How the new pixels get into the file.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PixelMode {
+    /// Over the stored 16-bit samples.
+    InPlace16,
+    /// Over the stored MSB-packed rows of this many bits.
+    InPlacePacked(u32),
+    /// As new uncompressed 16-bit strips at the end of the file.
+    Appended,
+}
+
+/// Where the raw image's data lies.
+struct RawGeometry {
+    width: usize,
+    height: usize,
+    bits: u32,
+    /// (top, left) of the active area.
+    origin: (usize, usize),
+    /// Strips: (rows per strip, offsets, byte counts); tiles: (tile width, tile length, offsets,
+    /// byte counts).
+    data: DataLayout,
+}
+
+enum DataLayout {
+    Strips { rows: usize, offsets: Vec<u64>, counts: Vec<u64> },
+    Tiles { width: usize, length: usize, offsets: Vec<u64>, counts: Vec<u64> },
+}
+
+/// The input DNG with `pixels` (the active area, as [`super::read_dng`] returns it) as its raw
+/// image, `iso` as its ISO and `profile` (per CFA position of `layout`, normalised to its levels)
+/// as its NoiseProfile. `decode_full` decodes the input's whole raw image (masked areas
+/// included); it is called only when the pixels cannot be written over the stored ones and the
+/// active area is not the whole image.
+pub(crate) fn derive(
+    input: &[u8],
+    layout: &SensorLayout,
+    pixels: ArrayView2<'_, u16>,
+    iso: u32,
+    profile: Option<&NoiseProfile>,
+    decode_full: impl FnOnce() -> Result<Vec<u16>, String>,
+) -> Result<(Vec<u8>, PixelMode), String> {
+    let s = Structure::parse(input)?;
+    let o = s.order;
+    let raw = s.raw_dir(input).ok_or("the template has no full-resolution CFA raw image")?;
+    let geo = geometry(&s, input, raw)?;
+    let (ah, aw) = pixels.dim();
+    if (aw as u32, ah as u32) != (layout.width, layout.height) {
+        return Err(format!(
+            "the pixel array is {aw}×{ah} but the template's active area is {}×{}",
+            layout.width, layout.height
+        ));
+    }
+    if geo.origin.0 + ah > geo.height || geo.origin.1 + aw > geo.width {
+        return Err(format!("the template's active area does not fit its {}×{} raw image", geo.width, geo.height));
+    }
+
+    let mut edits = Edits::default();
+    let mut out = Vec::with_capacity(input.len() + 4096);
+    out.extend_from_slice(input);
+
+    // --- Pixels.
+    let mode = pixel_mode(&s, input, raw, &geo, pixels);
+    match mode {
+        PixelMode::InPlace16 => write_16(&mut out, o, &geo, pixels),
+        PixelMode::InPlacePacked(bits) => write_packed(&mut out, &geo, bits, pixels),
+        PixelMode::Appended => {
+            let (w, h) = (geo.width, geo.height);
+            let full: Vec<u16> = if geo.origin == (0, 0) && (aw, ah) == (w, h) {
+                pixels.iter().copied().collect()
+            } else {
+                let mut full = decode_full()?;
+                if full.len() < w * h {
+                    return Err(format!("the template's raw image decodes to {} samples, not {w}×{h}", full.len()));
+                }
+                full.truncate(w * h);
+                for (y, row) in pixels.rows().into_iter().enumerate() {
+                    let at = (geo.origin.0 + y) * w + geo.origin.1;
+                    for (d, &v) in full[at..at + aw].iter_mut().zip(row.iter()) {
+                        *d = v;
+                    }
+                }
+                full
+            };
+            let rows = ((1 << 20) / (2 * w)).clamp(1, h);
+            let mut offsets = Vec::new();
+            let mut counts = Vec::new();
+            for chunk in full.chunks(rows * w) {
+                align(&mut out);
+                offsets.push(pos(&out)?);
+                counts.push((chunk.len() * 2) as u32);
+                out.reserve(chunk.len() * 2);
+                for &v in chunk {
+                    out.extend_from_slice(&o.b16(v));
+                }
+            }
+            edits.set(raw, Tag::Compression, 3, 1, shorts(o, &[1]));
+            edits.set(raw, Tag::BitsPerSample, 3, 1, shorts(o, &[16]));
+            edits.set(raw, Tag::StripOffsets, 4, offsets.len() as u32, longs(o, &offsets));
+            edits.set(raw, Tag::StripByteCounts, 4, counts.len() as u32, longs(o, &counts));
+            edits.set(raw, Tag::RowsPerStrip, 4, 1, longs(o, &[rows as u32]));
+            for t in [
+                Tag::TileWidth,
+                Tag::TileLength,
+                Tag::TileOffsets,
+                Tag::TileByteCounts,
+                Tag::Predictor,
+                Tag::JpegTables,
+                Tag::LinearizationTable,
+                Tag::RowInterleaveFactor,
+                Tag::ColumnInterleaveFactor,
+                Tag::JxlDistance,
+                Tag::JxlEffort,
+                Tag::JxlDecodeSpeed,
+            ] {
+                edits.remove(raw, t);
+            }
+        }
+    }
+
+    // --- ISO.
+    let iso_tags = [Tag::IsoSpeedRatings, Tag::StandardOutputSensitivity, Tag::RecommendedExposureIndex, Tag::IsoSpeed];
+    let mut has_iso = false;
+    for d in 0..s.dirs.len() {
+        for t in iso_tags {
+            let Some(e) = s.entry(d, t) else { continue };
+            has_iso |= t == Tag::IsoSpeedRatings;
+            let n = e.count.max(1) as usize;
+            match e.ty {
+                3 => edits.set(d, t, 3, n as u32, shorts(o, &vec![iso.min(65535) as u16; n])),
+                _ => edits.set(d, t, 4, n as u32, longs(o, &vec![iso; n])),
+            }
+        }
+        if iso > 65535 && s.entry(d, Tag::IsoSpeedRatings).is_some() {
+            if s.entry(d, Tag::IsoSpeed).is_none() {
+                edits.set(d, Tag::IsoSpeed, 4, 1, longs(o, &[iso]));
+            }
+            if s.entry(d, Tag::SensitivityType).is_none() {
+                edits.set(d, Tag::SensitivityType, 3, 1, shorts(o, &[3]));
+            }
+        }
+    }
+    if !has_iso {
+        let exif = s.dirs.iter().flat_map(|d| &d.children).find(|(t, _)| *t == Tag::ExifIfd.to_u16()).map(|&(_, c)| c);
+        let d = exif.unwrap_or(s.chain[0]);
+        edits.set(d, Tag::IsoSpeedRatings, 3, 1, shorts(o, &[iso.min(65535) as u16]));
+        if iso > 65535 {
+            edits.set(d, Tag::IsoSpeed, 4, 1, longs(o, &[iso]));
+            edits.set(d, Tag::SensitivityType, 3, 1, shorts(o, &[3]));
+        }
+    }
+
+    // --- NoiseProfile, digests, raw data ID.
+    let planes: Vec<u64> =
+        s.uints(input, raw, Tag::CfaPlaneColor).filter(|p| !p.is_empty() && p.len() <= 4).unwrap_or(vec![0, 1, 2]);
+    let profile_pairs = profile.map(|p| plane_pairs(p, layout, &planes));
+    let id = new_unique_id(&s, input, iso, pixels);
+    for d in 0..s.dirs.len() {
+        if d == raw
+            && let Some(pairs) = &profile_pairs
+        {
+            edits.set(d, Tag::NoiseProfile, 12, pairs.len() as u32, doubles(o, pairs));
+        } else if s.entry(d, Tag::NoiseProfile).is_some() {
+            edits.remove(d, Tag::NoiseProfile);
+        }
+        for t in [Tag::RawImageDigest, Tag::NewRawImageDigest] {
+            if s.entry(d, t).is_some() {
+                edits.remove(d, t);
+            }
+        }
+        if let Some(e) = s.entry(d, Tag::RawDataUniqueId)
+            && e.count == 16
+            && (e.ty == 1 || e.ty == 7)
+        {
+            edits.set(d, Tag::RawDataUniqueId, e.ty, 16, id.to_vec());
+        }
+    }
+
+    apply(&s, &mut out, &edits)?;
+    Ok((out, mode))
+}
+
+/// NoiseProfile pairs `[S₀, O₀, S₁, O₁, …]` per colour plane (CFAPlaneColor order): the mean of the
+/// positions of that colour.
+fn plane_pairs(p: &NoiseProfile, layout: &SensorLayout, planes: &[u64]) -> Vec<f64> {
+    let colors = layout.cfa.colors();
+    let code = |c: CfaColor| match c {
+        CfaColor::Red => 0u64,
+        CfaColor::Green => 1,
+        CfaColor::Blue => 2,
+    };
+    let mut out = Vec::with_capacity(2 * planes.len());
+    for &plane in planes {
+        let mut pos: Vec<usize> = (0..POSITIONS).filter(|&q| code(colors[q]) == plane).collect();
+        if pos.is_empty() {
+            pos = (0..POSITIONS).collect();
+        }
+        let n = pos.len() as f64;
+        out.push(pos.iter().map(|&q| p.scale(q)).sum::<f64>() / n);
+        out.push(pos.iter().map(|&q| p.offset(q)).sum::<f64>() / n);
+    }
+    out
+}
+
+/// A new `RawDataUniqueID`: a hash of the old one, the ISO and a sample of the new pixels.
+fn new_unique_id(s: &Structure, input: &[u8], iso: u32, pixels: ArrayView2<'_, u16>) -> [u8; 16] {
+    let old = s.dirs.iter().enumerate().find_map(|(d, _)| {
+        let e = s.entry(d, Tag::RawDataUniqueId)?;
+        s.bytes(input, e).map(<[u8]>::to_vec)
+    });
+    let mut h1: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut h2: u64 = 0x6c62_272e_07bb_0142;
+    let mut feed = |b: u8| {
+        h1 = (h1 ^ b as u64).wrapping_mul(0x0000_0100_0000_01b3);
+        h2 = (h2 ^ b as u64).wrapping_mul(0x0000_0100_0000_01b3).rotate_left(7);
+    };
+    old.unwrap_or_default().into_iter().chain(iso.to_le_bytes()).for_each(&mut feed);
+    if let Some(sl) = pixels.as_slice() {
+        sl.iter().step_by(997).flat_map(|v| v.to_le_bytes()).for_each(&mut feed);
+    } else {
+        pixels.iter().step_by(997).flat_map(|v| v.to_le_bytes()).for_each(&mut feed);
+    }
+    let mut id = [0u8; 16];
+    id[..8].copy_from_slice(&h1.to_be_bytes());
+    id[8..].copy_from_slice(&h2.to_be_bytes());
+    id
+}
+
+fn geometry(s: &Structure, buf: &[u8], raw: usize) -> Result<RawGeometry, String> {
+    let width = s.uint(buf, raw, Tag::ImageWidth).ok_or("the raw image has no ImageWidth")? as usize;
+    let height = s.uint(buf, raw, Tag::ImageLength).ok_or("the raw image has no ImageLength")? as usize;
+    let bits = s.uint(buf, raw, Tag::BitsPerSample).unwrap_or(1) as u32;
+    let origin = match s.uints(buf, raw, Tag::ActiveArea) {
+        Some(a) if a.len() == 4 => (a[0] as usize, a[1] as usize),
+        _ => match s.entry(raw, Tag::ActiveArea) {
+            // ActiveArea stored as something else than SHORT/LONG: the reader's numbers.
+            Some(_) => return Err("the template's ActiveArea is not a list of 4 integers".into()),
+            None => (0, 0),
+        },
+    };
+    let data = if s.entry(raw, Tag::StripOffsets).is_some() {
+        DataLayout::Strips {
+            rows: s.uint(buf, raw, Tag::RowsPerStrip).map_or(height, |r| (r as usize).clamp(1, height.max(1))),
+            offsets: s.uints(buf, raw, Tag::StripOffsets).unwrap_or_default(),
+            counts: s.uints(buf, raw, Tag::StripByteCounts).unwrap_or_default(),
+        }
+    } else {
+        DataLayout::Tiles {
+            width: s.uint(buf, raw, Tag::TileWidth).unwrap_or(0) as usize,
+            length: s.uint(buf, raw, Tag::TileLength).unwrap_or(0) as usize,
+            offsets: s.uints(buf, raw, Tag::TileOffsets).unwrap_or_default(),
+            counts: s.uints(buf, raw, Tag::TileByteCounts).unwrap_or_default(),
+        }
+    };
+    Ok(RawGeometry { width, height, bits, origin, data })
+}
+
+/// Whether the new pixels can be written over the stored ones.
+fn pixel_mode(s: &Structure, buf: &[u8], raw: usize, g: &RawGeometry, pixels: ArrayView2<'_, u16>) -> PixelMode {
+    let plain = s.uint(buf, raw, Tag::Compression).unwrap_or(1) == 1
+        && s.uint(buf, raw, Tag::SamplesPerPixel).unwrap_or(1) == 1
+        && s.uint(buf, raw, Tag::SampleFormat).unwrap_or(1) == 1
+        && s.entry(raw, Tag::LinearizationTable).is_none()
+        && s.uint(buf, raw, Tag::RowInterleaveFactor).unwrap_or(1) == 1
+        && s.uint(buf, raw, Tag::ColumnInterleaveFactor).unwrap_or(1) == 1;
+    if !plain || g.width == 0 || g.height == 0 {
+        return PixelMode::Appended;
+    }
+    let fits = |offsets: &[u64], counts: &[u64], n: usize, need: &dyn Fn(usize) -> u64| {
+        offsets.len() == n
+            && counts.len() == n
+            && (0..n).all(|i| counts[i] >= need(i) && offsets[i].saturating_add(need(i)) <= buf.len() as u64)
+    };
+    match (&g.data, g.bits) {
+        (DataLayout::Strips { rows, offsets, counts }, 16) => {
+            let n = g.height.div_ceil(*rows);
+            let need = |i: usize| ((*rows).min(g.height - i * rows) * g.width * 2) as u64;
+            if fits(offsets, counts, n, &need) { PixelMode::InPlace16 } else { PixelMode::Appended }
+        }
+        (DataLayout::Tiles { width, length, offsets, counts }, 16) if *width > 0 && *length > 0 => {
+            let n = g.width.div_ceil(*width) * g.height.div_ceil(*length);
+            let need = |_: usize| (width * length * 2) as u64;
+            if fits(offsets, counts, n, &need) { PixelMode::InPlace16 } else { PixelMode::Appended }
+        }
+        (DataLayout::Strips { rows, offsets, counts }, bits) if (10..16).contains(&bits) => {
+            let max = (1u32 << bits) - 1;
+            let row_bytes = g.width * bits as usize / 8;
+            let n = g.height.div_ceil(*rows);
+            let need = |i: usize| ((*rows).min(g.height - i * rows) * row_bytes) as u64;
+            if (g.width * bits as usize).is_multiple_of(8)
+                && fits(offsets, counts, n, &need)
+                && pixels.iter().all(|&v| u32::from(v) <= max)
+            {
+                PixelMode::InPlacePacked(bits)
+            } else {
+                PixelMode::Appended
+            }
+        }
+        _ => PixelMode::Appended,
+    }
+}
+
+fn write_16(out: &mut [u8], o: Order, g: &RawGeometry, pixels: ArrayView2<'_, u16>) {
+    let (top, left) = g.origin;
+    let put = |dst: &mut [u8], src: &[u16]| {
+        for (d, &v) in dst.chunks_exact_mut(2).zip(src) {
+            d.copy_from_slice(&o.b16(v));
+        }
+    };
+    let mut scratch = Vec::new();
+    for (y, row) in pixels.rows().into_iter().enumerate() {
+        let src: &[u16] = match row.as_slice() {
+            Some(s) => s,
+            None => {
+                scratch.clear();
+                scratch.extend(row.iter().copied());
+                &scratch
+            }
+        };
+        let fy = top + y;
+        match &g.data {
+            DataLayout::Strips { rows, offsets, .. } => {
+                let at = offsets[fy / rows] as usize + ((fy % rows) * g.width + left) * 2;
+                put(&mut out[at..at + 2 * src.len()], src);
+            }
+            DataLayout::Tiles { width: tw, length: tl, offsets, .. } => {
+                let across = g.width.div_ceil(*tw);
+                let mut x = left;
+                let end = left + src.len();
+                while x < end {
+                    let tx = x / tw;
+                    let stop = ((tx + 1) * tw).min(end);
+                    let at = offsets[(fy / tl) * across + tx] as usize + ((fy % tl) * tw + (x - tx * tw)) * 2;
+                    put(&mut out[at..at + 2 * (stop - x)], &src[x - left..stop - left]);
+                    x = stop;
+                }
+            }
+        }
+    }
+}
+
+fn write_packed(out: &mut [u8], g: &RawGeometry, bits: u32, pixels: ArrayView2<'_, u16>) {
+    let DataLayout::Strips { rows, offsets, .. } = &g.data else { return };
+    let (top, left) = g.origin;
+    let row_bytes = g.width * bits as usize / 8;
+    for (y, row) in pixels.rows().into_iter().enumerate() {
+        let fy = top + y;
+        let at = offsets[fy / rows] as usize + (fy % rows) * row_bytes;
+        let dst = &mut out[at..at + row_bytes];
+        let mut full = unpack_msb(dst, bits, g.width);
+        for (d, &v) in full[left..left + row.len()].iter_mut().zip(row.iter()) {
+            *d = v;
+        }
+        dst.copy_from_slice(&pack_msb(&full, bits));
+    }
+}
+
+/// `n` samples of `bits` bits, MSB first.
+fn unpack_msb(b: &[u8], bits: u32, n: usize) -> Vec<u16> {
+    let mut out = Vec::with_capacity(n);
+    let mut acc: u64 = 0;
+    let mut have = 0u32;
+    let mask = (1u64 << bits) - 1;
+    let mut bytes = b.iter();
+    while out.len() < n {
+        while have < bits {
+            acc = (acc << 8) | u64::from(*bytes.next().unwrap_or(&0));
+            have += 8;
+        }
+        have -= bits;
+        out.push(((acc >> have) & mask) as u16);
+    }
+    out
+}
+
+fn align(out: &mut Vec<u8>) {
+    while !out.len().is_multiple_of(4) {
+        out.push(0);
+    }
+}
+
+fn pos(out: &[u8]) -> Result<u32, String> {
+    u32::try_from(out.len()).map_err(|_| "the DNG would exceed 4 GiB".to_string())
+}
+
+/// Applies the edits: in place where every changed tag keeps its type and size, else by writing
+/// the directory again at the end and patching the pointer to it. Directories are visited from
+/// the last found to the first, so a directory is rewritten after the ones it points to have
+/// patched their pointers inside it.
+fn apply(s: &Structure, out: &mut Vec<u8>, edits: &Edits) -> Result<(), String> {
+    let o = s.order;
+    for (&d, changes) in edits.0.iter().rev() {
+        let dir = &s.dirs[d];
+        let n = dir.entries.len();
+        // Entries as they are now (pointers inside may have been patched).
+        let current: Vec<Entry> = (0..n)
+            .map(|i| {
+                let e = dir.offset + 2 + 12 * i;
+                Entry { field: out[e + 8..e + 12].try_into().unwrap_or([0; 4]), ..dir.entries[i] }
+            })
+            .collect();
+        let find = |tag: u16| current.iter().position(|e| e.tag == tag);
+        let in_place = changes.iter().all(|(&tag, edit)| match (edit, find(tag)) {
+            (Edit::Remove, None) => true,
+            (Edit::Remove, Some(_)) => false,
+            (Edit::Set { .. }, None) => false,
+            (Edit::Set { ty, count, bytes }, Some(i)) => {
+                let e = &current[i];
+                e.ty == *ty
+                    && e.count == *count
+                    && (bytes.len() <= 4
+                        || o.u32(&e.field, 0)
+                            .is_some_and(|off| (off as usize).saturating_add(bytes.len()) <= out.len()))
+            }
+        });
+        if in_place {
+            for (&tag, edit) in changes {
+                let (Edit::Set { bytes, .. }, Some(i)) = (edit, find(tag)) else { continue };
+                let at = if bytes.len() <= 4 {
+                    dir.offset + 2 + 12 * i + 8
+                } else {
+                    o.u32(&current[i].field, 0).unwrap_or(0) as usize
+                };
+                out[at..at + bytes.len()].copy_from_slice(bytes);
+                if bytes.len() < 4 {
+                    out[at + bytes.len()..at + 4].fill(0);
+                }
+            }
+            continue;
+        }
+        let next = o.u32(out, dir.offset + 2 + 12 * n).unwrap_or(0);
+        let mut entries: BTreeMap<u16, Entry> = current.iter().map(|e| (e.tag, *e)).collect();
+        for (&tag, edit) in changes {
+            match edit {
+                Edit::Remove => {
+                    entries.remove(&tag);
+                }
+                Edit::Set { ty, count, bytes } => {
+                    let mut field = [0u8; 4];
+                    if bytes.len() <= 4 {
+                        field[..bytes.len()].copy_from_slice(bytes);
+                    } else {
+                        align(out);
+                        field = o.b32(pos(out)?);
+                        out.extend_from_slice(bytes);
+                    }
+                    entries.insert(tag, Entry { tag, ty: *ty, count: *count, field });
+                }
+            }
+        }
+        align(out);
+        let at = pos(out)?;
+        out.extend_from_slice(&o.b16(u16::try_from(entries.len()).map_err(|_| "too many tags in one IFD")?));
+        for e in entries.values() {
+            out.extend_from_slice(&o.b16(e.tag));
+            out.extend_from_slice(&o.b16(e.ty));
+            out.extend_from_slice(&o.b32(e.count));
+            out.extend_from_slice(&e.field);
+        }
+        out.extend_from_slice(&o.b32(next));
+        out[dir.pointer_at..dir.pointer_at + 4].copy_from_slice(&o.b32(at));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn packing_round_trips() {
+        for bits in 10..16u32 {
+            let v: Vec<u16> = (0..64).map(|i| ((i * 2654435761u64 as usize) as u32 % (1 << bits)) as u16).collect();
+            assert_eq!(unpack_msb(&pack_msb(&v, bits), bits, v.len()), v, "{bits} bits");
+        }
+    }
+}
