@@ -4,14 +4,19 @@
 //! EV step):
 //!
 //! - **Row-mean variance**: per frame, the mean of the noise over the flat pixels of each row
-//!   (rows with at least [`MIN_LINE_PIXELS`] flat pixels, both CFA columns together), centred on
-//!   the frame's mean of those row means (which removes the frame's black-level error); the
-//!   variance across rows (divisor `R − 1`), averaged over frames. Reported as the ratio
-//!   synthetic/real: row (banding) noise of RMS `σ_r` adds `σ_r²` to the real value, while
-//!   pixel-independent noise of variance `σ²` gives only `σ²/m` for rows of `m` flat pixels.
-//!   Its standard error is from the spread of the per-frame values. **Column means**: the same
-//!   with columns.
-//! - **Row-offset distribution**: the centred row means of every frame pooled, as a histogram
+//!   (rows with at least [`MIN_LINE_PIXELS`] flat pixels, both CFA columns together). What is
+//!   the same in every frame of a burst (same EV step and ISO) is not row noise but a fixed
+//!   pattern — the clean image's own error, DSNU, and above all the noise's mean at each level,
+//!   which differs between the patches a row crosses — so each row's mean is taken relative to
+//!   its mean over the burst's `k` frames, the frame's values are centred on their mean over
+//!   rows (which removes the frame's black-level error) and scaled by `√(k/(k − 1))` (which
+//!   restores the variance the burst mean took). The variance across rows (divisor `R − 1`),
+//!   averaged over frames, is reported as the ratio synthetic/real: row (banding) noise of RMS
+//!   `σ_r` adds `σ_r²` to the real value, while pixel-independent noise of variance `σ²` gives
+//!   only `σ²/m` for rows of `m` flat pixels. Its standard error is from the spread of the
+//!   per-frame values. Bursts of one frame do not count. **Column means**: the same with
+//!   columns.
+//! - **Row-offset distribution**: those row values of every frame pooled, as a histogram
 //!   with a common binning (bins of ¼ of the real values' standard deviation, centred on 0,
 //!   everything beyond ±8 SD in the outermost bins), JSD (natural log) synthetic against real.
 //!   Its finite-sample floor is two halves of the real frames against each other, scaled like
@@ -303,10 +308,13 @@ pub struct SpatialSamples {
     row_var: Vec<f64>,
     /// Per frame: the variance across columns of the centred column means.
     col_var: Vec<f64>,
-    /// Every frame's centred row means.
+    /// Every frame's temporal row offsets (see [`temporal_lines`]).
     row_offsets: Vec<f64>,
     /// Per-frame, per-position mean noise of the current burst.
     burst: Vec<[Option<f64>; POSITIONS]>,
+    /// Per-frame row and column means of the current burst.
+    burst_rows: Vec<Vec<f64>>,
+    burst_cols: Vec<Vec<f64>>,
     /// Within-burst sums of squares of the frame means and their degrees of freedom.
     frame_ss: [f64; POSITIONS],
     frame_dof: [u64; POSITIONS],
@@ -341,15 +349,34 @@ fn mean_se(v: &[f64]) -> Option<(f64, f64)> {
     Some((m, se))
 }
 
-/// Centred line means (lines with enough flat pixels) of one frame.
-fn centred_line_means(sum: &[f64], count: &[u32]) -> Vec<f64> {
-    let means: Vec<f64> =
-        sum.iter().zip(count).filter(|(_, c)| **c as usize >= MIN_LINE_PIXELS).map(|(s, c)| s / *c as f64).collect();
-    if means.is_empty() {
-        return means;
+/// Line means of one frame: `NaN` for lines with too few flat pixels.
+fn line_means(sum: &[f64], count: &[u32]) -> Vec<f64> {
+    sum.iter().zip(count).map(|(s, c)| if *c as usize >= MIN_LINE_PIXELS { s / *c as f64 } else { f64::NAN }).collect()
+}
+
+/// The temporal part of a burst's line means: each line's mean minus its mean over the burst's
+/// frames, then each frame's values centred on their mean over lines, scaled by `√(k/(k − 1))`
+/// (so that their variance estimates the variance of one frame's line offsets). One vector of
+/// valid lines per frame; nothing for bursts of fewer than two frames.
+fn temporal_lines(frames: &[Vec<f64>]) -> Vec<Vec<f64>> {
+    let k = frames.len();
+    if k < 2 {
+        return Vec::new();
     }
-    let m = means.iter().sum::<f64>() / means.len() as f64;
-    means.into_iter().map(|v| v - m).collect()
+    let n = frames[0].len();
+    let burst_mean: Vec<f64> = (0..n).map(|i| frames.iter().map(|f| f[i]).sum::<f64>() / k as f64).collect();
+    let scale = (k as f64 / (k as f64 - 1.0)).sqrt();
+    frames
+        .iter()
+        .map(|f| {
+            let d: Vec<f64> = f.iter().zip(&burst_mean).filter(|(v, _)| v.is_finite()).map(|(v, m)| v - m).collect();
+            if d.is_empty() {
+                return d;
+            }
+            let m = d.iter().sum::<f64>() / d.len() as f64;
+            d.into_iter().map(|v| (v - m) * scale).collect()
+        })
+        .collect()
 }
 
 impl SpatialSamples {
@@ -360,6 +387,8 @@ impl SpatialSamples {
             col_var: Vec::new(),
             row_offsets: Vec::new(),
             burst: Vec::new(),
+            burst_rows: Vec::new(),
+            burst_cols: Vec::new(),
             frame_ss: [0.0; POSITIONS],
             frame_dof: [0; POSITIONS],
             nps: std::array::from_fn(|_| vec![0.0; NPS_TILE * NPS_TILE]),
@@ -387,14 +416,8 @@ impl SpatialSamples {
             pos_sum[p] += v;
             pos_n[p] += 1;
         }
-        let rows = centred_line_means(&row_sum, &layout.row_count);
-        if let Some(v) = variance(&rows) {
-            self.row_var.push(v);
-            self.row_offsets.extend(rows);
-        }
-        if let Some(v) = variance(&centred_line_means(&col_sum, &layout.col_count)) {
-            self.col_var.push(v);
-        }
+        self.burst_rows.push(line_means(&row_sum, &layout.row_count));
+        self.burst_cols.push(line_means(&col_sum, &layout.col_count));
         self.burst.push(std::array::from_fn(|p| (pos_n[p] > 0).then(|| pos_sum[p] / pos_n[p] as f64)));
         let dft = Dft::new();
         let t = NPS_TILE;
@@ -415,7 +438,8 @@ impl SpatialSamples {
         self.frames += 1;
     }
 
-    /// Ends a burst: the spread of its frames' mean noise joins the frame-offset statistics.
+    /// Ends a burst: its frames' row and column means (centred on their burst means) and the
+    /// spread of their mean noise join the statistics. A burst needs two frames or more.
     pub fn end_burst(&mut self) {
         for p in 0..POSITIONS {
             let v: Vec<f64> = self.burst.iter().filter_map(|m| m[p]).collect();
@@ -426,6 +450,19 @@ impl SpatialSamples {
             }
         }
         self.burst.clear();
+        for rows in temporal_lines(&self.burst_rows) {
+            if let Some(v) = variance(&rows) {
+                self.row_var.push(v);
+                self.row_offsets.extend(rows);
+            }
+        }
+        for cols in temporal_lines(&self.burst_cols) {
+            if let Some(v) = variance(&cols) {
+                self.col_var.push(v);
+            }
+        }
+        self.burst_rows.clear();
+        self.burst_cols.clear();
     }
 
     /// Frames added.
@@ -443,7 +480,7 @@ impl SpatialSamples {
         mean_se(&self.col_var)
     }
 
-    /// Every frame's centred row means.
+    /// Every frame's temporal row offsets (burst- and frame-centred row means).
     pub fn row_offsets(&self) -> &[f64] {
         &self.row_offsets
     }
@@ -703,6 +740,27 @@ mod tests {
     }
 
     #[test]
+    fn a_pattern_fixed_across_frames_is_not_row_noise() {
+        let (w, h) = (64usize, 48usize);
+        let layout = FlatLayout::new(w, h, |_| true);
+        let mut s = SpatialSamples::new();
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let pattern: Vec<i32> = (0..h).map(|y| (y as i32 % 5) * 40 - 80).collect();
+        for _ in 0..3 {
+            for _ in 0..4 {
+                let img: Vec<i32> =
+                    (0..w * h).map(|i| pattern[i / w] + (64.0 * gauss(&mut rng)).round() as i32).collect();
+                s.add_frame(&layout, &img);
+            }
+            s.end_burst();
+        }
+        let (rv, se) = s.row_var().expect("row var");
+        let want = 64.0 * 64.0 / w as f64;
+        assert!((rv - want).abs() < 4.0 * se + 0.05 * want, "{rv} vs {want} ± {se}");
+        assert_eq!(s.row_offsets().len(), 12 * h);
+    }
+
+    #[test]
     fn frame_offsets_are_the_spread_of_frame_means_within_bursts() {
         let layout = FlatLayout::new(32, 32, |_| true);
         let mut s = SpatialSamples::new();
@@ -717,6 +775,7 @@ mod tests {
         assert_eq!(s.frame_offset_var(3), Some(16.0));
         // Constant frames: no row or column spread.
         assert_eq!(s.row_var().map(|v| v.0), Some(0.0));
+        assert_eq!(s.row_offsets().len(), 6 * 32);
     }
 
     #[test]
