@@ -14,7 +14,8 @@
 //!   averaged over frames, is reported as the ratio synthetic/real: row (banding) noise of RMS
 //!   `σ_r` adds `σ_r²` to the real value, while pixel-independent noise of variance `σ²` gives
 //!   only `σ²/m` for rows of `m` flat pixels. Its standard error is from the spread of the
-//!   per-frame values. Bursts of one frame do not count. **Column means**: the same with
+//!   per-frame values within bursts (EV steps differ in level, hence in pixel noise, so the
+//!   spread across steps is not sampling noise). Bursts of one frame do not count. **Column means**: the same with
 //!   columns.
 //! - **Row-offset distribution**: those row values of every frame pooled, as a histogram
 //!   with a common binning (bins of ¼ of the real values' standard deviation, centred on 0,
@@ -30,11 +31,14 @@
 //!   and the periodogram `|DFT|² / T²` taken (white noise of variance σ² has σ² in every bin);
 //!   periodograms are averaged per CFA position. Three curves summarise it: the **row** curve
 //!   `P(f_y, f_x = 0)` (row offsets live at zero horizontal frequency), the **column** curve
-//!   `P(f_y = 0, f_x)`, and the **radial** mean of the other bins by rounded radius. The NPS
-//!   distance is the mean absolute log ratio `|ln(P_synth / P_real)|` over the points of the three
-//!   curves (T/2 + T/2 + 11 = 27 for T = 16), averaged over positions weighted by real crops. It
-//!   is 0 for equal spectra, `ln 2 ≈ 0.69` for a factor 2 everywhere, and robust: no point can
-//!   weigh more than its log ratio. Sampling noise makes each point's log off by about
+//!   `P(f_y = 0, f_x)`, and the **radial** mean of the other bins by rounded radius. Each
+//!   spectrum is divided by its white level (the radial curve's mean): the noise variance is the
+//!   pixel JSDs' business, the spectrum's shape (spatial correlation) is this one's. The NPS
+//!   distance is the mean absolute log ratio `|ln(P̂_synth / P̂_real)|` over the points of the
+//!   three curves (T/2 + T/2 + 11 = 27 for T = 16), averaged over positions weighted by real
+//!   crops; the row and column distances are the same over the row (banding) or column curve
+//!   alone. It is 0 for equal shapes, `ln 2 ≈ 0.69` for a factor 2 at every point, and robust:
+//!   no point can weigh more than its log ratio. Sampling noise makes each point's log off by about
 //!   `1/√(2·crops·frames)`, so the distance of two independent real sets is not 0: its floor is
 //!   the halves' distance scaled by `√(floor_scale)` (the distance's bias falls as `1/√n`, not
 //!   `1/n` as a JSD's).
@@ -283,22 +287,43 @@ impl NpsCurves {
     }
 
     /// Every point of the three curves, in a fixed order.
+    #[cfg(test)]
     fn points(&self) -> impl Iterator<Item = f64> + '_ {
         self.row.iter().chain(&self.col).chain(&self.radial).copied()
     }
 }
 
-/// Mean `|ln(b / a)|` over the points of two spectra's curves (points where either is not
-/// positive are left out); `None` when no point is left.
-pub fn nps_log_distance(a: &NpsCurves, b: &NpsCurves) -> Option<f64> {
-    let (mut acc, mut n) = (0.0, 0usize);
-    for (x, y) in a.points().zip(b.points()) {
-        if x > 0.0 && y > 0.0 {
-            acc += (y / x).ln().abs();
-            n += 1;
-        }
+/// Mean `|ln(b / a)|` over the points of two spectra's curves, each spectrum first divided by
+/// its white level (the mean of its radial curve), so that the distance measures the shape of
+/// the spectrum — spatial correlation — and not the noise variance, which the pixel JSDs score;
+/// `[all points, the row curve, the column curve]`. Points where either is not positive are left
+/// out; `None` when no point is left.
+pub fn nps_log_distances(a: &NpsCurves, b: &NpsCurves) -> Option<[f64; 3]> {
+    let white = |c: &NpsCurves| c.radial.iter().sum::<f64>() / c.radial.len().max(1) as f64;
+    let (wa, wb) = (white(a), white(b));
+    if !(wa > 0.0 && wb > 0.0) {
+        return None;
     }
-    (n > 0).then(|| acc / n as f64)
+    let dist = |x: &[f64], y: &[f64]| {
+        let (mut acc, mut n) = (0.0, 0usize);
+        for (&p, &q) in x.iter().zip(y) {
+            if p > 0.0 && q > 0.0 {
+                acc += ((q / wb) / (p / wa)).ln().abs();
+                n += 1;
+            }
+        }
+        (acc, n)
+    };
+    let (r, nr) = dist(&a.row, &b.row);
+    let (c, nc) = dist(&a.col, &b.col);
+    let (d, nd) = dist(&a.radial, &b.radial);
+    let n = nr + nc + nd;
+    (n > 0 && nr > 0 && nc > 0).then(|| [(r + c + d) / n as f64, r / nr as f64, c / nc as f64])
+}
+
+/// The overall distance of [`nps_log_distances`].
+pub fn nps_log_distance(a: &NpsCurves, b: &NpsCurves) -> Option<f64> {
+    nps_log_distances(a, b).map(|d| d[0])
 }
 
 /// The spatial statistics of one set of frames (real, a real half, or one synthetic set).
@@ -308,6 +333,10 @@ pub struct SpatialSamples {
     row_var: Vec<f64>,
     /// Per frame: the variance across columns of the centred column means.
     col_var: Vec<f64>,
+    /// `Σ_bursts n_b · s_b²` of the per-frame row (column) values, `s_b²` their variance within
+    /// burst `b`: the sampling variance of their sum, free of the differences between EV steps.
+    row_var_acc: f64,
+    col_var_acc: f64,
     /// Every frame's temporal row offsets (see [`temporal_lines`]).
     row_offsets: Vec<f64>,
     /// Per-frame, per-position mean noise of the current burst.
@@ -339,14 +368,13 @@ fn variance(v: &[f64]) -> Option<f64> {
     Some(v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() - 1) as f64)
 }
 
-/// Mean and standard error of per-frame values.
-fn mean_se(v: &[f64]) -> Option<(f64, f64)> {
+/// Mean of per-frame values and its standard error from `acc` (`Σ n_b · s_b²` over bursts).
+fn mean_se(v: &[f64], acc: f64) -> Option<(f64, f64)> {
     if v.is_empty() {
         return None;
     }
-    let m = v.iter().sum::<f64>() / v.len() as f64;
-    let se = variance(v).map_or(f64::NAN, |var| (var / v.len() as f64).sqrt());
-    Some((m, se))
+    let n = v.len() as f64;
+    Some((v.iter().sum::<f64>() / n, acc.sqrt() / n))
 }
 
 /// Line means of one frame: `NaN` for lines with too few flat pixels.
@@ -385,6 +413,8 @@ impl SpatialSamples {
         Self {
             row_var: Vec::new(),
             col_var: Vec::new(),
+            row_var_acc: 0.0,
+            col_var_acc: 0.0,
             row_offsets: Vec::new(),
             burst: Vec::new(),
             burst_rows: Vec::new(),
@@ -450,16 +480,21 @@ impl SpatialSamples {
             }
         }
         self.burst.clear();
+        let mut rv = Vec::new();
         for rows in temporal_lines(&self.burst_rows) {
             if let Some(v) = variance(&rows) {
-                self.row_var.push(v);
+                rv.push(v);
                 self.row_offsets.extend(rows);
             }
         }
-        for cols in temporal_lines(&self.burst_cols) {
-            if let Some(v) = variance(&cols) {
-                self.col_var.push(v);
+        let cv: Vec<f64> = temporal_lines(&self.burst_cols).iter().filter_map(|c| variance(c)).collect();
+        for (vals, all, acc) in
+            [(rv, &mut self.row_var, &mut self.row_var_acc), (cv, &mut self.col_var, &mut self.col_var_acc)]
+        {
+            if let Some(s2) = variance(&vals) {
+                *acc += vals.len() as f64 * s2;
             }
+            all.extend(vals);
         }
         self.burst_rows.clear();
         self.burst_cols.clear();
@@ -472,12 +507,12 @@ impl SpatialSamples {
 
     /// Mean over frames of the row-mean variance, and its standard error.
     pub fn row_var(&self) -> Option<(f64, f64)> {
-        mean_se(&self.row_var)
+        mean_se(&self.row_var, self.row_var_acc)
     }
 
     /// Mean over frames of the column-mean variance, and its standard error.
     pub fn col_var(&self) -> Option<(f64, f64)> {
-        mean_se(&self.col_var)
+        mean_se(&self.col_var, self.col_var_acc)
     }
 
     /// Every frame's temporal row offsets (burst- and frame-centred row means).
@@ -508,6 +543,8 @@ impl SpatialSamples {
     pub fn merge(&mut self, other: &SpatialSamples) {
         self.row_var.extend_from_slice(&other.row_var);
         self.col_var.extend_from_slice(&other.col_var);
+        self.row_var_acc += other.row_var_acc;
+        self.col_var_acc += other.col_var_acc;
         self.row_offsets.extend_from_slice(&other.row_offsets);
         for p in 0..POSITIONS {
             self.frame_ss[p] += other.frame_ss[p];
@@ -558,8 +595,14 @@ pub struct SpatialComparison {
     pub row_offset_jsd: Option<f64>,
     /// Within-burst variance of the per-frame mean noise, summed over positions, other / real.
     pub frame_offset_var_ratio: Option<f64>,
-    /// Mean absolute log ratio of the NPS curves, weighted over positions by real crops.
+    /// Mean absolute log ratio of the white-normalised NPS curves ([`nps_log_distances`]),
+    /// weighted over positions by real crops: all points, the row curve alone (banding), the
+    /// column curve alone.
     pub nps_distance: Option<f64>,
+    #[serde(default)]
+    pub nps_row_distance: Option<f64>,
+    #[serde(default)]
+    pub nps_col_distance: Option<f64>,
 }
 
 fn ratio_se(a: Option<(f64, f64)>, b: Option<(f64, f64)>) -> (Option<f64>, Option<f64>) {
@@ -591,16 +634,18 @@ pub fn compare_spatial(real: &SpatialSamples, other: &SpatialSamples, bin_width:
         }
     }
     let frame_offset_var_ratio = (any && fr > 0.0).then(|| fo / fr);
-    let (mut acc, mut wsum) = (0.0, 0.0);
+    let (mut acc, mut wsum) = ([0.0; 3], 0.0);
     for p in 0..POSITIONS {
         if let (Some(a), Some(b)) = (real.nps(p), other.nps(p))
-            && let Some(d) = nps_log_distance(&a, &b)
+            && let Some(d) = nps_log_distances(&a, &b)
         {
-            acc += d * a.periodograms as f64;
+            for (s, v) in acc.iter_mut().zip(d) {
+                *s += v * a.periodograms as f64;
+            }
             wsum += a.periodograms as f64;
         }
     }
-    let nps_distance = (wsum > 0.0).then(|| acc / wsum);
+    let [nps_distance, nps_row_distance, nps_col_distance] = acc.map(|v| (wsum > 0.0).then(|| v / wsum));
     SpatialComparison {
         row_var_ratio,
         row_var_ratio_se,
@@ -609,6 +654,8 @@ pub fn compare_spatial(real: &SpatialSamples, other: &SpatialSamples, bin_width:
         row_offset_jsd,
         frame_offset_var_ratio,
         nps_distance,
+        nps_row_distance,
+        nps_col_distance,
     }
 }
 
@@ -627,6 +674,8 @@ pub fn mean_comparison(v: &[SpatialComparison]) -> SpatialComparison {
         row_offset_jsd: mean(&|c| c.row_offset_jsd),
         frame_offset_var_ratio: mean(&|c| c.frame_offset_var_ratio),
         nps_distance: mean(&|c| c.nps_distance),
+        nps_row_distance: mean(&|c| c.nps_row_distance),
+        nps_col_distance: mean(&|c| c.nps_col_distance),
     }
 }
 
@@ -670,6 +719,16 @@ impl SpatialFloor {
     /// The NPS distance floor at the comparison's sample sizes.
     pub fn nps_distance_scaled(&self) -> Option<f64> {
         self.halves.nps_distance.map(|d| d * self.nps_scale)
+    }
+
+    /// The NPS row-curve distance floor at the comparison's sample sizes.
+    pub fn nps_row_distance_scaled(&self) -> Option<f64> {
+        self.halves.nps_row_distance.map(|d| d * self.nps_scale)
+    }
+
+    /// The NPS column-curve distance floor at the comparison's sample sizes.
+    pub fn nps_col_distance_scaled(&self) -> Option<f64> {
+        self.halves.nps_col_distance.map(|d| d * self.nps_scale)
     }
 }
 
@@ -736,7 +795,9 @@ mod tests {
         assert!((2.0..2.9).contains(&lift), "{lift}");
         let radial = a.radial.iter().sum::<f64>() / b.radial.iter().sum::<f64>();
         assert!((0.9..1.1).contains(&radial), "{radial}");
-        assert!(c.nps_distance.expect("nps") > 0.2);
+        assert!(c.nps_distance.expect("nps") > 0.15);
+        assert!(c.nps_row_distance.expect("nps rows") > 0.6);
+        assert!(c.nps_col_distance.expect("nps cols") < 0.2);
     }
 
     #[test]
