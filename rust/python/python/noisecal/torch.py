@@ -22,30 +22,53 @@ from . import Pack
 
 _ONE = 1 << 32
 _ROW = 1 << 33  # each table row's CDF lives in [0, 2^32]; rows are offset by 2^33 so all are sorted
+_U16 = (1 << 16) - 1
 
 
 class NoiseSynth(torch.nn.Module):
-    """Adds a pack's noise at one ISO to clean raw tensors on the tensors' device."""
+    """Adds a pack's noise at one ISO to clean raw tensors on the tensors' device.
+
+    Move it with ``.to(device)`` like any module; the generator passed to ``forward`` must live on
+    the same device."""
 
     def __init__(self, pack: Pack, iso: int, *, model: str = "noisecal", extrapolate: bool = False):
         super().__init__()
-        t = pack.tables(iso, model=model, extrapolate=extrapolate)
-        cdf = torch.from_numpy(t["cdf"].astype("int64"))  # (4, B, K)
+        self._load(pack.tables(iso, model=model, extrapolate=extrapolate))
+
+    @classmethod
+    def from_tables(cls, tables: dict) -> NoiseSynth:
+        """A sampler over tables in the layout of :meth:`noisecal.Pack.tables` (e.g. saved ones)."""
+        self = cls.__new__(cls)
+        torch.nn.Module.__init__(self)
+        self._load(tables)
+        return self
+
+    def _load(self, t: dict) -> None:
+        cdf = torch.as_tensor(t["cdf"]).to(torch.int64)  # (4, B, K), units of 2^-32, padded with 2^32
         positions, bins, k = cdf.shape
         rows = torch.arange(positions * bins, dtype=torch.int64).reshape(positions, bins, 1)
         self.register_buffer("flat", (cdf + rows * _ROW).reshape(-1))
-        self.register_buffer("lut", torch.from_numpy(t["lut"].astype("int64")))
-        self.register_buffer("first", torch.from_numpy(t["first"].astype("int64")).reshape(-1))
-        self.register_buffer("lo", torch.from_numpy(t["range"][:, 0].astype("int64")))
-        self.register_buffer("hi", torch.from_numpy(t["range"][:, 1].astype("int64")))
+        self.register_buffer("lut", torch.as_tensor(t["lut"]).to(torch.int64))
+        self.register_buffer("first", torch.as_tensor(t["first"]).to(torch.int64).reshape(-1))
+        rng = torch.as_tensor(t["range"]).to(torch.int64)
+        self.register_buffer("lo", rng[:, 0].clone())
+        self.register_buffer("hi", rng[:, 1].clone())
         self.bins, self.k, self.white = bins, k, int(t["white"])
-        self.iso = iso
+        self.iso = int(t["iso"]) if "iso" in t else None
+
+    def uniform(self, shape: tuple[int, ...], generator: torch.Generator | None, device: torch.device) -> torch.Tensor:
+        """Uniform 32-bit draws in ``[0, 2^32)`` (int64), the unit of the tables' CDFs."""
+        return torch.randint(0, _ONE, shape, generator=generator, device=device, dtype=torch.int64)
 
     def forward(self, clean: torch.Tensor, cfa_origin=None, generator: torch.Generator | None = None) -> torch.Tensor:
-        """``clean``: (H, W) or (N, H, W) levels in DN. ``cfa_origin``: (row, column) of each
-        image's pixel (0, 0) on the sensor, one pair or an (N, 2) tensor. Returns int32 DN."""
+        """``clean``: (H, W) or (N, H, W) levels in DN (integer, or float rounded to the nearest
+        level and clamped to ``[0, white]`` as the core's float input is). ``cfa_origin``: (row,
+        column) of each image's pixel (0, 0) on the sensor, one pair or an (N, 2) tensor (only the
+        parity matters). Returns int32 DN."""
         single = clean.dim() == 2
         x = clean.unsqueeze(0) if single else clean
+        if x.dim() != 3:
+            raise ValueError(f"clean has {clean.dim()} dimensions: give one image (H, W) or a batch (N, H, W)")
         n, h, w = x.shape
         dev = x.device
         if cfa_origin is None:
@@ -54,11 +77,15 @@ class NoiseSynth(torch.nn.Module):
             origin = torch.as_tensor(cfa_origin, dtype=torch.int64, device=dev).reshape(-1, 2).expand(n, 2)
         ys = torch.arange(h, device=dev).view(1, h, 1) + origin[:, 0].view(n, 1, 1)
         xs = torch.arange(w, device=dev).view(1, 1, w) + origin[:, 1].view(n, 1, 1)
-        pos = (ys % 2) * 2 + (xs % 2)  # (n, h, w)
-        level = torch.round(x.double()).clamp(0, self.white).long() if x.is_floating_point() else x.long().clamp(0, self.white)
-        b = self.lut[pos, level]
-        row = pos * self.bins + b
-        u = torch.randint(0, _ONE, (n, h, w), generator=generator, device=dev, dtype=torch.int64)
+        pos = (ys % 2) * 2 + (xs % 2)  # (n, h, w), the core's `position(row, column)`
+        if x.is_floating_point():
+            level = torch.round(x.double()).clamp(0, self.white).long()
+        else:
+            # The core takes uint16 levels; one above white keeps its level (clamped after the
+            # noise is added) and draws from the top bin.
+            level = x.long().clamp(0, _U16)
+        row = pos * self.bins + self.lut[pos, level.clamp(max=self.white)]
+        u = self.uniform((n, h, w), generator, dev)
         idx = torch.searchsorted(self.flat, u + row * _ROW, right=True)
         value = self.first[row] + (idx - row * self.k)
         out = torch.maximum(torch.minimum(level + value, self.hi[pos]), self.lo[pos]).to(torch.int32)

@@ -1,0 +1,61 @@
+//! In-memory synthesis of a 12 MP frame through the whole-image entry point the Python binding
+//! calls (`Pack.synth` → `synthesize_at` on rayon's global pool, i.e. all cores), on the pack, ISO
+//! and clean image of the package's benchmark (`rust/python/tests/test_bench.py`), so that the
+//! Mpix/s of both are comparable. Also on one thread (a pool of one), for the per-thread figure.
+//!
+//! The pack is a file: `NOISECAL_BENCH_PACK=path` (ISO from `NOISECAL_BENCH_ISO`, default 800).
+//! `rust/python/benches/throughput.py` makes the pack, runs this bench, the pytest benchmarks and
+//! the vectorised numpy sampler in one run, and prints the table. Without the variable the bench
+//! says so and measures nothing.
+//!
+//!     NOISECAL_BENCH_PACK=bench.pack cargo bench -p noisecal-core --bench synth
+
+use std::hint::black_box;
+
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use ndarray::Array2;
+use noisecal_core::ModelPack;
+use noisecal_core::derive::interp::model_for;
+use noisecal_core::synth::sampler::IsoSampler;
+use noisecal_core::synth::synthesize_at;
+
+/// 12 MP, as `test_bench.py`.
+const H: usize = 3000;
+const W: usize = 4000;
+
+/// The clean image of `test_bench.py`: a horizontal ramp `64 + x·936 / (W − 1)`, every row alike.
+fn clean() -> Array2<u16> {
+    Array2::from_shape_fn((H, W), |(_, x)| (64 + x * 936 / (W - 1)) as u16)
+}
+
+fn benches(c: &mut Criterion) {
+    let Ok(path) = std::env::var("NOISECAL_BENCH_PACK") else {
+        eprintln!(
+            "synth bench: set NOISECAL_BENCH_PACK to a .pack file (rust/python/benches/throughput.py makes one); nothing measured"
+        );
+        return;
+    };
+    let iso: u32 = std::env::var("NOISECAL_BENCH_ISO").ok().and_then(|s| s.parse().ok()).unwrap_or(800);
+    let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("cannot read {path}: {e}"));
+    let pack = ModelPack::from_bytes(&bytes).expect("pack");
+    // What `Pack.synth(model="noisecal")` builds (noisecal_cli::models::resolve_model → model_for).
+    let (model, _) = model_for(&pack, iso, false).expect("model");
+    let sampler = IsoSampler::new(&pack, &model);
+    let clean = clean();
+    let threads = rayon::current_num_threads();
+
+    let mut g = c.benchmark_group("synth 12MP");
+    g.throughput(Throughput::Elements((W * H) as u64));
+    g.sample_size(20);
+    g.bench_function(format!("synthesize_at, global pool ({threads} threads)"), |b| {
+        b.iter(|| synthesize_at(&sampler, black_box(clean.view()), 1, (0, 0)))
+    });
+    let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().expect("pool");
+    g.bench_function("synthesize_at, 1 thread", |b| {
+        b.iter(|| one.install(|| synthesize_at(&sampler, black_box(clean.view()), 1, (0, 0))))
+    });
+    g.finish();
+}
+
+criterion_group!(synth, benches);
+criterion_main!(synth);
