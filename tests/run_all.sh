@@ -31,3 +31,12 @@ if [ "${NOISECAL_NO_RAY:-0}" != 1 ]; then
 fi
 "$venv/bin/pip" install -q ./rust/python >&2
 (cd rust/python && NOISECAL_BIN="$PWD/../../target/debug/noisecal" "../../$venv/bin/python" -m pytest -q -p no:cacheprovider tests)
+
+# Fuzzing (issue 13): each decoder target — DNG reader, recording reader, pack decoder, JNI
+# frame-view entry — mutated from tests/fuzz-corpus/ for NOISECAL_FUZZ_SECONDS (default 45). The
+# `test` profile (optimised, with overflow checks) is what `cargo test --workspace` above already
+# built, so this costs no build. A panic or an input slower than 2 s fails the run and is saved
+# under target/fuzz-crashes/. Longer runs: docs/fuzzing.md. NOISECAL_FUZZ_SECONDS=0: seeds only.
+echo "== fuzz: dng, recording, pack, jni-frame (${NOISECAL_FUZZ_SECONDS:-45} s each)" >&2
+cargo build --profile test -q -p noisecal-fuzz
+target/debug/noisecal-fuzz all --seconds "${NOISECAL_FUZZ_SECONDS:-45}" --seed "${NOISECAL_FUZZ_SEED:-$(date +%s)}"
