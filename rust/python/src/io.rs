@@ -9,6 +9,7 @@ use pyo3::types::PyDict;
 
 use noisecal_cli::calibrate::{CalibrateOptions, calibrate_path};
 use noisecal_cli::dng;
+use noisecal_cli::models::{ModelKind, resolve_model};
 
 use crate::errors::{err, guarded, to_py};
 use crate::pack::Pack;
@@ -50,32 +51,46 @@ pub fn read_dng<'py>(py: Python<'py>, path: PathBuf) -> PyResult<(Bound<'py, PyA
     Ok((PyArray2::from_owned_array(py, img.pixels), d))
 }
 
-/// Writes `pixels` as a raw DNG at `iso`, with the layout and metadata of the DNG `template`
-/// (atomically: a temporary file, then a rename). `path` may not be the template.
+/// Writes `pixels` as a raw DNG at `iso`, derived from the DNG `template`: the template's file
+/// with only its raw pixels, its ISO and its NoiseProfile changed, every other tag (orientation,
+/// crop, colour, opcode lists, EXIF, maker notes) kept byte for byte; atomically (a temporary
+/// file, then a rename). With `pack`, the NoiseProfile is the pack's fit at `iso` (as `noisecal
+/// synth` writes it); without, the template's NoiseProfile is dropped (it would not describe the
+/// new pixels). `path` may not be the template.
 #[pyfunction]
-#[pyo3(signature = (path, pixels, *, template, iso))]
+#[pyo3(signature = (path, pixels, *, template, iso, pack=None))]
 pub fn write_dng(
     py: Python<'_>,
     path: PathBuf,
     pixels: PyReadonlyArray2<'_, u16>,
     template: PathBuf,
     iso: u32,
+    pack: Option<PyRef<'_, Pack>>,
 ) -> PyResult<()> {
     let pixels = pixels.as_array().to_owned();
+    let pack = pack.map(|p| p.inner.clone());
     py.detach(|| {
         guarded("write_dng", || {
             noisecal_cli::support::refuse_overwriting_inputs(&path, &[&template]).map_err(to_py)?;
-            let t = dng::read_dng_meta(&template).map_err(to_py)?;
+            let t = dng::read_dng_template(&template).map_err(to_py)?;
+            let layout = &t.image.layout;
             let (h, w) = pixels.dim();
-            if (w as u32, h as u32) != (t.layout.width, t.layout.height) {
+            if (w as u32, h as u32) != (layout.width, layout.height) {
                 return Err(err(format!(
                     "pixels are {w}×{h} but the template {} is {}×{}: give an image of the template's size",
                     template.display(),
-                    t.layout.width,
-                    t.layout.height
+                    layout.width,
+                    layout.height
                 )));
             }
-            dng::write_dng(&path, &t, &pixels, iso).map_err(to_py)
+            let profile = match &pack {
+                Some(pack) => {
+                    let (model, _) = resolve_model(pack, iso, ModelKind::Noisecal, false).map_err(to_py)?;
+                    dng::fitted_noise_profile(pack, &model, layout)
+                }
+                None => None,
+            };
+            dng::write_derived(&path, &t, &pixels, iso, profile.as_ref()).map_err(to_py)
         })
     })
 }
