@@ -8,6 +8,7 @@ use noisecal_core::derive::baselines::{self, BaselineKind, BaselineSource};
 use noisecal_core::derive::interp;
 use noisecal_core::error::ModelError;
 use noisecal_core::metrics::NoiseSamples;
+use noisecal_core::metrics::spatial::SpatialSamples;
 use noisecal_core::model::NoiseProfile;
 use noisecal_core::model::pack::IsoModel;
 use noisecal_core::synth::sampler::IsoSampler;
@@ -28,11 +29,15 @@ pub enum CandidateKind {
     NoisecalLoo,
     /// HG interpolated parametrically from the other calibrated ISOs.
     HgLoo,
+    /// The pack's model without its structured components (row, column, frame offsets): the
+    /// pixel-independent model alone. Scored only where the pack has such components.
+    NoisecalPixel,
 }
 
 impl CandidateKind {
     /// Every kind, in the order they are scored and reported.
-    pub const ALL: [Self; 6] = [Self::Noisecal, Self::Hg, Self::Pg, Self::NoiseProfile, Self::NoisecalLoo, Self::HgLoo];
+    pub const ALL: [Self; 7] =
+        [Self::Noisecal, Self::Hg, Self::Pg, Self::NoiseProfile, Self::NoisecalLoo, Self::HgLoo, Self::NoisecalPixel];
 
     /// The short key of the scores (`ModelScore::name`).
     pub fn name(self) -> &'static str {
@@ -43,6 +48,7 @@ impl CandidateKind {
             Self::NoiseProfile => "noiseprofile",
             Self::NoisecalLoo => "noisecal-loo",
             Self::HgLoo => "hg-loo",
+            Self::NoisecalPixel => "noisecal-pixel",
         }
     }
 
@@ -58,6 +64,8 @@ pub(super) struct Candidate {
     pub(super) origin: String,
     pub(super) sampler: IsoSampler,
     pub(super) synth: Vec<NoiseSamples>,
+    /// The spatial statistics of each synthetic set.
+    pub(super) spatial: Vec<SpatialSamples>,
 }
 
 /// The candidates of one ISO, and what building them noticed.
@@ -105,6 +113,7 @@ pub(super) fn candidates(
         origin,
         sampler: IsoSampler::new(pack, m),
         synth: (0..seeds).map(|_| fresh()).collect(),
+        spatial: (0..seeds).map(|_| SpatialSamples::new()).collect(),
     };
     let mut list = vec![candidate(CandidateKind::Noisecal, "noisecal (non-parametric)".into(), origin.clone(), &model)];
     let inner =
@@ -155,7 +164,7 @@ fn build(
         (bk.label().to_string(), baseline_origin(&b.source), b.to_model(pack), None)
     };
     match kind {
-        CandidateKind::Noisecal => None,
+        CandidateKind::Noisecal | CandidateKind::NoisecalPixel => None,
         CandidateKind::Hg | CandidateKind::Pg => {
             let bk = if kind == CandidateKind::Hg { BaselineKind::Hg } else { BaselineKind::Pg };
             Some(

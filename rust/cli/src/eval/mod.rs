@@ -52,7 +52,9 @@ use heldout::{Burst, HeldOutVisitor};
 use noise::StepClean;
 pub use options::EvalOptions;
 use renoise::RenoiseScoring;
-pub use scores::{EvalReport, FloorScore, GroupRow, IsoEval, LooRow, ModelScore, RenoiseEval};
+pub use scores::{
+    EvalReport, FloorScore, GroupRow, IsoEval, LooRow, ModelScore, RenoiseEval, SpatialEval, SpatialModelScore,
+};
 use scoring::IsoScoring;
 pub use text::render_text;
 

@@ -10,6 +10,7 @@ use anyhow::Context;
 use ndarray::{Array2, ArrayView2};
 use noisecal_core::calibrate::flat::NOT_FLAT;
 use noisecal_core::metrics::NoiseSamples;
+use noisecal_core::metrics::spatial::{FlatLayout, SpatialSamples};
 use noisecal_core::{BlackAlignment, FrameMeta, POSITIONS, SensorLayout, position};
 
 /// A flat pixel: index, CFA position, clean level (on the pack's black).
@@ -31,6 +32,8 @@ pub(super) struct StepClean {
     black: [f32; POSITIONS],
     /// The pack's layout: the black level everything is carried onto, and its white level.
     pack: SensorLayout,
+    /// The flat pixels as the spatial measures use them (rows, columns, NPS crops).
+    spatial: FlatLayout,
 }
 
 impl StepClean {
@@ -65,7 +68,8 @@ impl StepClean {
             .filter(|(_, c)| **c != NOT_FLAT)
             .map(|(i, &c)| FlatPx { idx: i as u32, pos: position(i / width, i % width) as u8, clean: c })
             .collect();
-        Self { levels, width, height, flat, black, pack: pack.clone() }
+        let spatial = FlatLayout::new(width, height, |i| levels[i] != NOT_FLAT);
+        Self { levels, width, height, flat, black, pack: pack.clone(), spatial }
     }
 
     /// The clean levels as an image (synthesis input).
@@ -92,6 +96,32 @@ impl StepClean {
     /// Adds the noise of an image synthesized on this clean image.
     pub(super) fn add_synthetic(&self, samples: &mut NoiseSamples, img: &Array2<u16>) {
         self.add(samples, img, &BlackAlignment::between(self.pack.black, self.pack.black));
+    }
+
+    /// Adds the spatial statistics of a real frame's noise.
+    pub(super) fn add_real_spatial(&self, acc: &mut SpatialSamples, meta: &FrameMeta, img: &Array2<u16>) {
+        acc.add_frame(&self.spatial, &self.noise_image(img, &self.frame_alignment(meta)));
+    }
+
+    /// Adds the spatial statistics of the noise of an image synthesized on this clean image.
+    pub(super) fn add_synthetic_spatial(&self, acc: &mut SpatialSamples, img: &Array2<u16>) {
+        acc.add_frame(
+            &self.spatial,
+            &self.noise_image(img, &BlackAlignment::between(self.pack.black, self.pack.black)),
+        );
+    }
+
+    /// `img − clean` at the flat pixels (0 elsewhere), row-major, `img` carried by `align`.
+    fn noise_image(&self, img: &Array2<u16>, align: &BlackAlignment) -> Vec<i32> {
+        let data: Cow<'_, [u16]> = match img.as_slice() {
+            Some(s) => Cow::Borrowed(s),
+            None => Cow::Owned(img.iter().copied().collect()),
+        };
+        let mut out = vec![0i32; self.width * self.height];
+        for px in &self.flat {
+            out[px.idx as usize] = align.level(px.pos as usize, data[px.idx as usize]) - px.clean as i32;
+        }
+        out
     }
 
     /// Adds `img − clean` of the flat pixels, `img` carried by `align` (unclamped: noise).

@@ -3,6 +3,7 @@
 //! come from [`noisecal_core::metrics`].
 
 use noisecal_core::POSITIONS;
+use noisecal_core::metrics::spatial::{NpsCurves, SpatialComparison, SpatialFloor};
 use noisecal_core::metrics::{Floor, SeedMean};
 use serde::{Deserialize, Serialize};
 
@@ -121,6 +122,55 @@ pub struct IsoEval {
     pub samples: [u64; POSITIONS],
     pub floor: Option<FloorScore>,
     pub models: Vec<ModelScore>,
+    /// Spatial measures (row, column and frame-level noise, noise power spectra); absent from
+    /// the JSON of evaluations made before they existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub spatial: Option<SpatialEval>,
+}
+
+/// The spatial measures of one ISO ([`noisecal_core::metrics::spatial`]): what the real frames
+/// show, the finite-sample floor (real half against real half) and each model's synthetic
+/// against real.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SpatialEval {
+    /// Real frames measured.
+    pub frames: u64,
+    /// Variance across rows of the centred per-row mean noise (DN²), mean over frames, and its
+    /// standard error.
+    pub row_var: Option<f64>,
+    pub row_var_se: Option<f64>,
+    /// The same across columns.
+    pub col_var: Option<f64>,
+    pub col_var_se: Option<f64>,
+    /// Row means pooled into the row-offset histogram.
+    pub row_offsets: u64,
+    /// The common bin width of the row-offset histograms (DN).
+    pub row_offset_bin_width: Option<f64>,
+    /// Within-burst variance of the per-frame mean noise per position (DN²).
+    pub frame_offset_var: [Option<f64>; POSITIONS],
+    /// Real noise power spectrum curves per position.
+    pub nps: [Option<NpsCurves>; POSITIONS],
+    /// Real half against real half.
+    pub floor: Option<SpatialFloor>,
+    /// Each model's synthetic noise against the real noise (averaged over seeds).
+    pub models: Vec<SpatialModelScore>,
+}
+
+impl SpatialEval {
+    /// The spatial scores of a model.
+    pub fn model(&self, name: &str) -> Option<&SpatialModelScore> {
+        self.models.iter().find(|m| m.name == name)
+    }
+}
+
+/// One model's spatial measures at one ISO: ratios synthetic/real, the row-offset JSD and the
+/// NPS distance (averaged over seeds), and its NPS curves (seeds pooled).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SpatialModelScore {
+    pub name: String,
+    #[serde(flatten)]
+    pub scores: SpatialComparison,
+    pub nps: [Option<NpsCurves>; POSITIONS],
 }
 
 impl IsoEval {

@@ -4,7 +4,9 @@ use std::fmt::Write;
 
 use noisecal_core::POSITIONS;
 
-use super::scores::{EvalReport, ModelScore};
+use noisecal_core::metrics::spatial::SpatialComparison;
+
+use super::scores::{EvalReport, ModelScore, SpatialEval};
 
 fn fmt_opt(v: Option<f64>) -> String {
     v.map_or_else(|| "—".into(), |x| format!("{x:.4}"))
@@ -57,6 +59,9 @@ pub fn render_text(r: &EvalReport) -> String {
                 f.marginal_scaled(),
                 f.scale
             );
+        }
+        if let Some(sp) = &ie.spatial {
+            spatial_lines(&mut s, sp);
         }
     }
     if let Some(rows) = &r.leave_one_out {
@@ -130,4 +135,56 @@ pub fn render_text(r: &EvalReport) -> String {
         }
     }
     s
+}
+
+/// `r ± se` of a ratio, or a dash.
+fn ratio(v: Option<f64>, se: Option<f64>) -> String {
+    match (v, se) {
+        (Some(r), Some(e)) => format!("{r:.3} ± {e:.3}"),
+        (Some(r), None) => format!("{r:.3}"),
+        _ => "—".into(),
+    }
+}
+
+/// The spatial measures of one ISO (see `noisecal_core::metrics::spatial`).
+fn spatial_lines(s: &mut String, sp: &SpatialEval) {
+    let _ = writeln!(
+        s,
+        "  spatial, flat pixels — ratios synthetic/real (the floor row: real half/real half), JSD of row offsets, NPS distance (mean |ln P_synth/P_real|, spectra normalised to their white level; all curves, row curve):"
+    );
+    let _ = writeln!(
+        s,
+        "  {:<14} {:>15} {:>15} {:>10} {:>9} {:>9} {:>13}",
+        "model", "row-mean var", "col-mean var", "row JSD", "NPS", "NPS rows", "frame-offset"
+    );
+    let row = |s: &mut String, name: &str, c: &SpatialComparison, jsd: Option<f64>, nps: [Option<f64>; 2]| {
+        let _ = writeln!(
+            s,
+            "  {name:<14} {:>15} {:>15} {:>10} {:>9} {:>9} {:>13}",
+            ratio(c.row_var_ratio, c.row_var_ratio_se),
+            ratio(c.col_var_ratio, c.col_var_ratio_se),
+            fmt_opt(jsd),
+            fmt_opt(nps[0]),
+            fmt_opt(nps[1]),
+            ratio(c.frame_offset_var_ratio, None)
+        );
+    };
+    for m in &sp.models {
+        let c = &m.scores;
+        row(s, &m.name, c, c.row_offset_jsd, [c.nps_distance, c.nps_row_distance]);
+    }
+    if let Some(f) = &sp.floor {
+        let nps = [f.nps_distance_scaled(), f.nps_row_distance_scaled()];
+        row(s, "floor (scaled)", &f.halves, f.row_offset_jsd_scaled(), nps);
+    }
+    let crops: u64 = sp.nps.iter().flatten().map(|c| c.periodograms).sum();
+    let _ = writeln!(
+        s,
+        "  real: row-mean variance {} DN², column-mean {} DN² ({} frames, {} row means); NPS on {} crop×frame periodograms",
+        fmt_opt(sp.row_var),
+        fmt_opt(sp.col_var),
+        sp.frames,
+        sp.row_offsets,
+        crops
+    );
 }

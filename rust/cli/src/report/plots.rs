@@ -538,3 +538,208 @@ pub fn renoise_bars(
     let floors: Vec<Option<f64>> = methods.iter().map(|_| floor).collect();
     grouped_bars(title, "JSD (nats)", &groups, &names, &values, &floors, size)
 }
+
+/// Which line-mean ratio to plot.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Lines {
+    Rows,
+    Columns,
+}
+
+/// The row- (or column-) mean variance ratio synthetic/real per ISO, one colour per model with
+/// ±1 SE bars; the grey crosses are real half against real half (what the data allow), the
+/// dashed line is 1 (as much banding as the real frames).
+pub fn spatial_ratio_chart(ev: &EvalReport, lines: Lines, size: (u32, u32)) -> anyhow::Result<String> {
+    let isos: Vec<&crate::eval::IsoEval> = ev.isos.iter().filter(|i| i.spatial.is_some()).collect();
+    let mut names: Vec<String> = Vec::new();
+    for ie in &isos {
+        for m in &ie.spatial.as_ref().expect("filtered").models {
+            if !names.contains(&m.name) {
+                names.push(m.name.clone());
+            }
+        }
+    }
+    let pick = |c: &noisecal_core::metrics::spatial::SpatialComparison| match lines {
+        Lines::Rows => (c.row_var_ratio, c.row_var_ratio_se),
+        Lines::Columns => (c.col_var_ratio, c.col_var_ratio_se),
+    };
+    let mut ymax = 1.5f64;
+    for ie in &isos {
+        let sp = ie.spatial.as_ref().expect("filtered");
+        for c in sp.models.iter().map(|m| &m.scores).chain(sp.floor.as_ref().map(|f| &f.halves)) {
+            if let (Some(r), se) = pick(c) {
+                ymax = ymax.max(r + se.unwrap_or(0.0));
+            }
+        }
+    }
+    let ymax = (ymax * 1.1).min(20.0);
+    let ng = isos.len().max(1) as f64;
+    let ns = names.len().max(1) as f64 + 1.0;
+    let what = match lines {
+        Lines::Rows => "Row-mean variance",
+        Lines::Columns => "Column-mean variance",
+    };
+    let mut buf = String::new();
+    {
+        let root = SVGBackend::with_string(&mut buf, size).into_drawing_area();
+        root.fill(&WHITE).map_err(err)?;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(format!("{what}, synthetic / real, per ISO"), (FONT, 15))
+            .margin(8)
+            .x_label_area_size(30)
+            .y_label_area_size(56)
+            .build_cartesian_2d(0f64..ng, 0f64..ymax)
+            .map_err(err)?;
+        let labels: Vec<String> = isos.iter().map(|i| format!("ISO {}", i.iso)).collect();
+        chart
+            .configure_mesh()
+            .disable_x_mesh()
+            .x_labels(isos.len().max(1) * 2 + 1)
+            .x_label_formatter(&|v| {
+                let i = v.floor() as usize;
+                if (v - i as f64 - 0.5).abs() < 0.26 {
+                    labels.get(i).cloned().unwrap_or_default()
+                } else {
+                    String::new()
+                }
+            })
+            .y_desc("ratio")
+            .y_label_formatter(&|v| format!("{v:.2}"))
+            .label_style((FONT, 11))
+            .light_line_style(RGBColor(235, 235, 235))
+            .draw()
+            .map_err(err)?;
+        chart.draw_series(DashedLineSeries::new([(0.0, 1.0), (ng, 1.0)], 5, 4, BLACK.stroke_width(1))).map_err(err)?;
+        let x_of = |gi: usize, si: usize| gi as f64 + (si as f64 + 1.0) / (ns + 1.0);
+        for (si, name) in names.iter().enumerate() {
+            let c = color(si);
+            let pts: Vec<(f64, f64, f64)> = isos
+                .iter()
+                .enumerate()
+                .filter_map(|(gi, ie)| {
+                    let m = ie.spatial.as_ref()?.model(name)?;
+                    let (r, se) = pick(&m.scores);
+                    Some((x_of(gi, si), r?, se.unwrap_or(0.0)))
+                })
+                .collect();
+            chart
+                .draw_series(pts.iter().map(|&(x, r, _)| Circle::new((x, r.min(ymax)), 4, c.filled())))
+                .map_err(err)?
+                .label(name.clone())
+                .legend(move |(x, y)| Circle::new((x + 6, y), 4, c.filled()));
+            for &(x, r, se) in &pts {
+                chart
+                    .draw_series(LineSeries::new([(x, (r - se).max(0.0)), (x, (r + se).min(ymax))], c.stroke_width(2)))
+                    .map_err(err)?;
+            }
+        }
+        let grey = RGBColor(120, 120, 120);
+        let halves: Vec<(f64, f64, f64)> = isos
+            .iter()
+            .enumerate()
+            .filter_map(|(gi, ie)| {
+                let f = ie.spatial.as_ref()?.floor.as_ref()?;
+                let (r, se) = pick(&f.halves);
+                Some((x_of(gi, names.len()), r?, se.unwrap_or(0.0)))
+            })
+            .collect();
+        if !halves.is_empty() {
+            chart
+                .draw_series(halves.iter().map(|&(x, r, _)| Cross::new((x, r.min(ymax)), 5, grey.stroke_width(2))))
+                .map_err(err)?
+                .label("real half / real half")
+                .legend(move |(x, y)| Cross::new((x + 6, y), 5, grey.stroke_width(2)));
+            for &(x, r, se) in &halves {
+                chart
+                    .draw_series(LineSeries::new(
+                        [(x, (r - se).max(0.0)), (x, (r + se).min(ymax))],
+                        grey.stroke_width(1),
+                    ))
+                    .map_err(err)?;
+            }
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperRight)
+            .background_style(WHITE.mix(0.85))
+            .border_style(RGBColor(180, 180, 180))
+            .label_font((FONT, 11))
+            .draw()
+            .map_err(err)?;
+        root.present().map_err(err)?;
+    }
+    Ok(buf)
+}
+
+/// Noise power spectra of flat crops at one ISO and CFA position: the real frames (black) and
+/// the models in `names` (colours); solid lines are the row curve `P(f_y, f_x = 0)` (banding),
+/// dashed lines the radial mean off the axes (pixel noise), on a log scale.
+pub fn nps_chart(
+    sp: &crate::eval::SpatialEval,
+    iso: u32,
+    pos: usize,
+    pos_name: &str,
+    names: &[&str],
+    size: (u32, u32),
+) -> anyhow::Result<String> {
+    use noisecal_core::metrics::spatial::NpsCurves;
+    let mut curves: Vec<(String, RGBColor, &NpsCurves)> = Vec::new();
+    if let Some(c) = sp.nps[pos].as_ref() {
+        curves.push(("real".into(), RGBColor(20, 20, 20), c));
+    }
+    for (i, n) in names.iter().enumerate() {
+        if let Some(c) = sp.model(n).and_then(|m| m.nps[pos].as_ref()) {
+            curves.push(((*n).to_string(), color(i), c));
+        }
+    }
+    let vals = curves.iter().flat_map(|(_, _, c)| c.row.iter().chain(&c.radial).chain(&c.col).copied());
+    let (lo, hi) = vals.filter(|v| *v > 0.0).fold((f64::INFINITY, 0.0f64), |(a, b), v| (a.min(v), b.max(v)));
+    let (lo, hi) = if lo.is_finite() && hi > 0.0 { (lo / 1.3, hi * 1.6) } else { (0.1, 10.0) };
+    let mut buf = String::new();
+    {
+        let root = SVGBackend::with_string(&mut buf, size).into_drawing_area();
+        root.fill(&WHITE).map_err(err)?;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(format!("Noise power spectrum, ISO {iso}, {pos_name}"), (FONT, 14))
+            .margin(8)
+            .x_label_area_size(34)
+            .y_label_area_size(56)
+            .build_cartesian_2d(0f64..0.72, (lo..hi).log_scale())
+            .map_err(err)?;
+        chart
+            .configure_mesh()
+            .x_desc("frequency (cycles per same-colour pixel)")
+            .y_desc("power (DN²)")
+            .x_label_formatter(&|v| format!("{v:.2}"))
+            .y_label_formatter(&|v| format!("{v:.3}"))
+            .label_style((FONT, 11))
+            .light_line_style(RGBColor(235, 235, 235))
+            .draw()
+            .map_err(err)?;
+        for (name, c, nps) in &curves {
+            let c = *c;
+            let row: Vec<(f64, f64)> = nps.freq.iter().copied().zip(nps.row.iter().copied()).collect();
+            chart
+                .draw_series(LineSeries::new(row, c.stroke_width(2)))
+                .map_err(err)?
+                .label(format!("{name}: rows (f_x = 0)"))
+                .legend(move |(x, y)| PathElement::new([(x, y), (x + 16, y)], c.stroke_width(2)));
+            let radial: Vec<(f64, f64)> = nps.radial_freq.iter().copied().zip(nps.radial.iter().copied()).collect();
+            chart
+                .draw_series(DashedLineSeries::new(radial, 4, 3, c.stroke_width(1)))
+                .map_err(err)?
+                .label(format!("{name}: off-axis (radial)"))
+                .legend(move |(x, y)| PathElement::new([(x, y), (x + 16, y)], c.mix(0.6).stroke_width(1)));
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperRight)
+            .background_style(WHITE.mix(0.85))
+            .border_style(RGBColor(180, 180, 180))
+            .label_font((FONT, 10))
+            .draw()
+            .map_err(err)?;
+        root.present().map_err(err)?;
+    }
+    Ok(buf)
+}
