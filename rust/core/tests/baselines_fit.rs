@@ -17,6 +17,7 @@ fn pack() -> ModelPack {
         pooling: None,
         isos: Vec::new(),
         warnings: Vec::new(),
+        structure: Vec::new(),
     }
 }
 

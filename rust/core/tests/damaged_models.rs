@@ -51,6 +51,7 @@ fn pack() -> ModelPack {
         pooling: None,
         isos: vec![model(100), model(800)],
         warnings: vec![],
+        structure: vec![],
     }
 }
 

@@ -163,6 +163,7 @@ fn pack(isos: &[u32]) -> ModelPack {
         pooling: None,
         isos: isos.iter().map(|&i| iso_model(i, ModelOrigin::Calibrated)).collect(),
         warnings: Vec::new(),
+        structure: Vec::new(),
     }
 }
 

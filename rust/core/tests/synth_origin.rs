@@ -50,6 +50,7 @@ fn tagged_pack() -> (ModelPack, IsoModel) {
         pooling: None,
         isos: vec![model.clone()],
         warnings: vec![],
+        structure: vec![],
     };
     (pack, model)
 }

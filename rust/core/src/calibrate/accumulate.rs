@@ -10,6 +10,7 @@ use crate::calibrate::estimate::FOLDS;
 use crate::calibrate::flat::NOT_FLAT;
 use crate::calibrate::frame::FrameView;
 use crate::calibrate::reference::CleanImage;
+use crate::calibrate::structure::{FrameSums, LineSums, StructureAccumulator};
 use crate::model::histogram::NoiseHistogram;
 use crate::model::layout::{Binning, POSITIONS};
 
@@ -29,6 +30,8 @@ pub(crate) struct IsoAccumulator {
     /// Σ(target − black) and Σ(clean − black) over flat, unclipped pixels, per position.
     pub(crate) target_sum: [f64; POSITIONS],
     pub(crate) reference_sum: [f64; POSITIONS],
+    /// Row, column and frame means of the noise, for the structured components.
+    pub(crate) structure: StructureAccumulator,
 }
 
 impl IsoAccumulator {
@@ -44,6 +47,7 @@ impl IsoAccumulator {
             drift_frames: 0,
             target_sum: [0.0; POSITIONS],
             reference_sum: [0.0; POSITIONS],
+            structure: StructureAccumulator::default(),
         }
     }
 
@@ -80,10 +84,12 @@ impl IsoAccumulator {
         Some(out.iter().map(|h| h.trimmed()).collect())
     }
 
-    /// Folds one target frame in, its raw values mapped by `tf`, its brightness sums already
-    /// taken (`scale` normalised them). Returns the samples added.
+    /// Folds one target frame of EV step `step` in, its raw values mapped by `tf`, its
+    /// brightness sums already taken (`scale` normalised them). Returns the samples added.
+    #[allow(clippy::too_many_arguments)]
     pub(crate) fn add_frame(
         &mut self,
+        step: u32,
         frame: &FrameView<'_>,
         image: &CleanImage,
         binning: &Binning,
@@ -104,11 +110,21 @@ impl IsoAccumulator {
         let clean = &image.levels;
         let (even, odd) = self.folds[fold].split_at_mut(2);
         let (codes_even, codes_odd) = self.codes.split_at_mut(2);
-        let (s0, s1) = rayon::join(
+        let ((s0, rows0, cols0), (s1, rows1, cols1)) = rayon::join(
             || fold_rows(0, frame, clean, w, h, &luts, even, codes_even, tf, white),
             || fold_rows(1, frame, clean, w, h, &luts, odd, codes_odd, tf, white),
         );
         let samples = s0 + s1;
+        let mut lines = FrameSums::new(w, h);
+        for (parity, rows) in [(0, rows0), (1, rows1)] {
+            for (i, r) in rows.into_iter().enumerate() {
+                lines.rows[parity + 2 * i] = r;
+            }
+        }
+        for (c, (a, b)) in lines.cols.iter_mut().zip(cols0.into_iter().zip(cols1)) {
+            *c = [a, b];
+        }
+        self.structure.add_frame(step, &lines);
         // Brightness sums per position for the gain ratio (after normalisation).
         for p in 0..POSITIONS {
             self.target_sum[p] += sums.frame_pos[p] * scale;
@@ -121,6 +137,7 @@ impl IsoAccumulator {
 }
 
 /// Folds the rows of one parity into that parity's two positions' histograms and code counts.
+/// Returns the samples, and the sums of `n` per row (by column parity) and per column.
 #[allow(clippy::too_many_arguments)]
 fn fold_rows(
     parity: usize,
@@ -133,8 +150,10 @@ fn fold_rows(
     codes: &mut [Vec<u64>],
     tf: &Transform,
     white: u16,
-) -> u64 {
+) -> (u64, Vec<[LineSums; 2]>, Vec<LineSums>) {
     let mut samples = 0u64;
+    let mut row_sums = Vec::with_capacity(h / 2 + 1);
+    let mut cols: Vec<LineSums> = vec![[0; 3]; w];
     let mut buf = vec![0u16; w];
     let identity = tf.identity();
     let (h0, h1) = hists.split_at_mut(1);
@@ -152,12 +171,14 @@ fn fold_rows(
             }
         };
         let crow = &clean[y * w..y * w + w];
+        let mut rs: [LineSums; 2] = [[0; 3]; 2];
         if identity {
             for (x, (&v, &c)) in row.iter().zip(crow).enumerate() {
                 if c == NOT_FLAT {
                     continue;
                 }
                 let n = v as i32 - c as i32;
+                line_add(&mut rs[x & 1], &mut cols[x], n);
                 if x & 1 == 0 {
                     hist0[lut0[c as usize] as usize].add(n);
                     codes0[(v as usize).min(top)] += 1;
@@ -175,6 +196,7 @@ fn fold_rows(
                 let pos = parity * 2 + (x & 1);
                 let t = tf.apply(pos, v).round().clamp(0.0, white as f32) as i32;
                 let n = t - c as i32;
+                line_add(&mut rs[x & 1], &mut cols[x], n);
                 if x & 1 == 0 {
                     hist0[lut0[c as usize] as usize].add(n);
                     codes0[(v as usize).min(top)] += 1;
@@ -185,6 +207,18 @@ fn fold_rows(
                 samples += 1;
             }
         }
+        row_sums.push(rs);
     }
-    samples
+    (samples, row_sums, cols)
+}
+
+#[inline(always)]
+fn line_add(row: &mut LineSums, col: &mut LineSums, n: i32) {
+    let (n, n2) = (n as i64, (n as i64) * (n as i64));
+    row[0] += n;
+    row[1] += n2;
+    row[2] += 1;
+    col[0] += n;
+    col[1] += n2;
+    col[2] += 1;
 }

@@ -127,6 +127,23 @@ impl CalibrationSession {
             bin_width: self.binning.bin_width,
             reference_iso: self.config.reference_iso,
             pooling: self.config.pooling,
+            structure: if self.config.plain {
+                Vec::new()
+            } else {
+                isos.iter()
+                    .map(|m| {
+                        let pixel_var = m
+                            .positions
+                            .iter()
+                            .flat_map(|pm| &pm.bins)
+                            .filter(|b| b.samples > 0 && !b.clipped)
+                            .filter_map(|b| b.measured.map(|[_, v]| v))
+                            .fold(f64::INFINITY, f64::min);
+                        let pixel_var = if pixel_var.is_finite() { pixel_var } else { 0.0 };
+                        self.isos[&m.iso].structure.structure(m.iso, self.layout.height as usize, pixel_var)
+                    })
+                    .collect()
+            },
             isos,
             warnings,
         };

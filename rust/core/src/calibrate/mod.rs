@@ -22,6 +22,7 @@ pub mod meta;
 pub mod reference;
 pub mod session;
 pub mod step;
+pub(crate) mod structure;
 
 pub use flat::{NOT_FLAT, Roi};
 pub use frame::FrameView;

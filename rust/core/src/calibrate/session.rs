@@ -25,7 +25,8 @@ use crate::model::layout::{Binning, POSITIONS, SensorLayout};
 use crate::model::pack::NoiseProfile;
 
 pub const CHECKPOINT_MAGIC: &[u8; 8] = b"NCALCKPT";
-pub const CHECKPOINT_VERSION: u16 = 2;
+/// Version 3 adds the structured-noise sums.
+pub const CHECKPOINT_VERSION: u16 = 3;
 
 /// How a session calibrates.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -334,9 +335,10 @@ impl CalibrationSession {
         let clip = clip_level(&self.layout);
         let ident = Transform::of(&self.layout, meta, 1.0);
         let policy = self.drift_policy();
-        let Some(Step { phase: Phase::Targets(tp), .. }) = self.step.as_mut() else {
+        let Some(Step { index, phase: Phase::Targets(tp), .. }) = self.step.as_mut() else {
             return Err(SessionError::NoStep);
         };
+        let step = *index;
         let sums = brightness_sums(frame, &tp.image.levels, &ident, clip, w, h);
         let verdict = match sums.brightness() {
             Some(fb) => {
@@ -360,7 +362,7 @@ impl CalibrationSession {
         let tf = Transform { scale: scale as f32, ..ident };
         let binning = &self.binning;
         let acc = self.isos.entry(meta.iso).or_insert_with(|| IsoAccumulator::new(binning));
-        let samples = acc.add_frame(frame, &tp.image, binning, &tf, &sums, scale);
+        let samples = acc.add_frame(step, frame, &tp.image, binning, &tf, &sums, scale);
         if verdict.drifted {
             acc.drift_frames += 1;
             self.drift_frames += 1;

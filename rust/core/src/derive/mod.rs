@@ -1,8 +1,10 @@
 //! Models derived from a pack: ISO interpolation ([`interp`], never across a conversion-gain
 //! switch, [`gain_switch`]), the parametric baselines ([`baselines`]) and the variance law they
-//! share ([`noise_law`]).
+//! share ([`noise_law`]), and the structured components at ISOs the pack has none for
+//! ([`structure`](mod@structure)).
 
 pub mod baselines;
 pub mod gain_switch;
 pub mod interp;
 pub mod noise_law;
+pub mod structure;

@@ -91,6 +91,7 @@ impl ModelPackV1 {
             pooling: Some(self.min_samples),
             isos,
             warnings,
+            structure: Vec::new(),
         }
     }
 }

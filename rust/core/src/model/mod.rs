@@ -7,5 +7,6 @@ pub mod histogram;
 pub mod layout;
 pub mod pack;
 pub mod pmf;
+pub mod structure;
 
 pub use pack::{BinModel, BinSource, IsoModel, ModelOrigin, ModelPack, NoiseProfile, PositionModel};

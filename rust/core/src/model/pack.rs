@@ -9,13 +9,15 @@ use crate::format::codec;
 use crate::model::codes::CodeLattice;
 use crate::model::layout::{Binning, POSITIONS, SensorLayout};
 use crate::model::pmf::Pmf;
+use crate::model::structure::IsoStructure;
 
 pub const PACK_MAGIC: &[u8; 8] = b"NCALPACK";
 pub const PACK_MAGIC_TEXT: &str = "NCALPACK";
 /// Bump on any change to the serialised structs. Version 2 adds, per bin, where its PMF comes
 /// from, its measured moments and whether it is clipped, and per position the estimator's
-/// report; version 1 packs are read and migrated ([`crate::format::pack_v1`]).
-pub const PACK_VERSION: u16 = 2;
+/// report; version 3 adds the structured components per ISO ([`IsoStructure`]). Versions 1 and 2
+/// are read and migrated ([`crate::format::pack_v1`], [`crate::format::pack_v2`]).
+pub const PACK_VERSION: u16 = 3;
 /// The oldest pack version this noisecal reads.
 pub const PACK_VERSION_MIN: u16 = 1;
 
@@ -39,6 +41,9 @@ pub struct ModelPack {
     pub isos: Vec<IsoModel>,
     /// What the calibration noticed (drifting frames, gain ratios off 1, sparse bins …).
     pub warnings: Vec<String>,
+    /// Row, column and frame offsets per ISO, sorted by ISO ([`crate::model::structure`]);
+    /// empty for packs made before version 3 and for `--plain` packs.
+    pub structure: Vec<IsoStructure>,
 }
 
 /// The camera's own noise model per CFA position, `σ²/(white − black)² = S·x + O` with
@@ -291,6 +296,18 @@ impl ModelPack {
         self.isos.iter().map(|m| m.iso.to_string()).collect::<Vec<_>>().join(", ")
     }
 
+    /// The structured components stored for exactly this ISO.
+    pub fn structure_of(&self, iso: u32) -> Option<&IsoStructure> {
+        self.structure.iter().find(|s| s.iso == iso)
+    }
+
+    /// Inserts or replaces an ISO's structured components, keeping the list sorted.
+    pub fn insert_structure(&mut self, s: IsoStructure) {
+        self.structure.retain(|x| x.iso != s.iso);
+        let at = self.structure.partition_point(|x| x.iso < s.iso);
+        self.structure.insert(at, s);
+    }
+
     /// Inserts or replaces an ISO model, keeping the list sorted.
     pub fn insert(&mut self, m: IsoModel) {
         self.isos.retain(|x| x.iso != m.iso);
@@ -309,6 +326,7 @@ impl ModelPack {
             codec::decode_framing(WHAT, PACK_MAGIC, PACK_MAGIC_TEXT, PACK_VERSION_MIN..=PACK_VERSION, bytes)?;
         let p: ModelPack = match version {
             1 => codec::decode_payload::<crate::format::pack_v1::ModelPackV1>(WHAT, payload)?.migrate(),
+            2 => codec::decode_payload::<crate::format::pack_v2::ModelPackV2>(WHAT, payload)?.migrate(),
             _ => codec::decode_payload(WHAT, payload)?,
         };
         p.check()?;
@@ -333,6 +351,22 @@ impl ModelPack {
                 "the sensor is {}×{}, beyond {MAX_SIDE} pixels a side",
                 self.layout.width, self.layout.height
             )));
+        }
+        for w in self.structure.windows(2) {
+            if w[0].iso >= w[1].iso {
+                return Err(bad(format!(
+                    "structured components are not sorted by ISO ({} then {})",
+                    w[0].iso, w[1].iso
+                )));
+            }
+        }
+        for st in &self.structure {
+            if self.iso(st.iso).is_none() {
+                return Err(bad(format!("structured components for ISO {}, which the pack has no model of", st.iso)));
+            }
+            if let Some(p) = st.problem() {
+                return Err(bad(format!("ISO {} {p}", st.iso)));
+            }
         }
         for m in &self.isos {
             if m.iso == 0 {

@@ -3,6 +3,7 @@
 //! thread count: each band of rows has its own ChaCha stream.
 
 pub mod sampler;
+pub mod structure;
 
 use ndarray::{Array2, ArrayView2};
 use rand::{Rng, SeedableRng};
@@ -37,6 +38,9 @@ pub fn synthesize_at(
     origin: (usize, usize),
 ) -> Array2<u16> {
     let (h, w) = clean.dim();
+    if let Some(st) = sampler.structure() {
+        return synthesize_structured(sampler, st, clean, seed, origin);
+    }
     let (row0, col0) = (origin.0 & 1, origin.1 & 1);
     let mut out = vec![0u16; h * w];
     if w > 0 {
@@ -78,6 +82,50 @@ pub fn synthesize_at(
                 if w % 2 == 1 {
                     let alt = ((w >> 1) + (y >> 1)) & 1 == 1;
                     row[w - 1] = sampler.finish(even, draw(lut0, tab0, src[w - 1], rng.next_u32()), alt);
+                }
+            }
+        });
+    }
+    Array2::from_shape_vec((h, w), out).expect("h × w samples")
+}
+
+/// [`synthesize_at`] with structured components: per image a frame offset per position, per row
+/// and per column an offset ([`structure`](mod@structure)), each pixel adding their sum dithered
+/// onto the integers. The pixel draws use the band streams as without components; the dither
+/// draws follow them in the same stream.
+fn synthesize_structured(
+    sampler: &IsoSampler,
+    st: &structure::StructureSampler,
+    clean: ArrayView2<'_, u16>,
+    seed: u64,
+    origin: (usize, usize),
+) -> Array2<u16> {
+    let (h, w) = clean.dim();
+    let (row0, col0) = (origin.0 & 1, origin.1 & 1);
+    let offsets = st.draw(seed, h, w, origin);
+    let mut out = vec![0u16; h * w];
+    if w > 0 {
+        out.par_chunks_mut(BAND_ROWS * w).enumerate().for_each(|(band, chunk)| {
+            let mut rng = band_rng(seed, band);
+            let mut add = vec![0.0f64; w];
+            for (r, row) in chunk.chunks_mut(w).enumerate() {
+                let y = band * BAND_ROWS + r;
+                let parity = ((y + row0) & 1) << 1;
+                for (x, a) in add.iter_mut().enumerate() {
+                    let pos = parity | ((x + col0) & 1);
+                    *a = offsets.frame[pos] + offsets.rows[y] + offsets.columns[x];
+                }
+                for (x, o) in row.iter_mut().enumerate() {
+                    let c = clean[[y, x]];
+                    let pos = parity | ((x + col0) & 1);
+                    let u = rng.next_u64();
+                    let n = sampler.table(pos, c).sample_u32(u as u32);
+                    let a = add[x];
+                    let fl = a.floor();
+                    let frac = ((a - fl) * 4294967296.0) as u64;
+                    let d = fl as i32 + i32::from(((u >> 32) as u64) < frac);
+                    let alt = ((x >> 1) + (y >> 1)) & 1 == 1;
+                    *o = sampler.finish(pos, c as i32 + n + d, alt);
                 }
             }
         });

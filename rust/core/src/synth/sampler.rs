@@ -5,6 +5,8 @@ use rand::Rng;
 use crate::model::codes::Snap;
 use crate::model::layout::{Binning, POSITIONS};
 use crate::model::pack::{BinModel, IsoModel, ModelPack};
+use crate::model::structure::Components;
+use crate::synth::structure::StructureSampler;
 
 const ONE: u64 = 1 << 32;
 /// Guide cells per CDF entry, as a power of two.
@@ -109,13 +111,31 @@ pub struct IsoSampler {
     snaps: [Option<Snap>; POSITIONS],
     /// Per position, the codes the sensor writes `[floor, ceiling]`.
     range: [[i32; 2]; POSITIONS],
+    /// The row, column and frame offsets added on top (when the pack has significant ones and
+    /// they were asked for); the tables then hold the PMFs with them taken out.
+    structure: Option<StructureSampler>,
 }
 
 impl IsoSampler {
+    /// The sampler of a model with every structured component the pack has for its ISO
+    /// (stored, or derived from the calibrated ISOs: [`crate::derive::structure::structure_at`]).
     pub fn new(pack: &ModelPack, model: &IsoModel) -> Self {
+        Self::with_components(pack, model, Components::ALL)
+    }
+
+    /// The sampler of a model with the components `which` asks for (those the pack has).
+    pub fn with_components(pack: &ModelPack, model: &IsoModel, which: Components) -> Self {
+        let structure = if which.structured() {
+            crate::derive::structure::structure_at(pack, model.iso).and_then(|st| StructureSampler::new(&st, which))
+        } else {
+            None
+        };
         let binning = pack.binning();
         let luts = std::array::from_fn(|p| binning.lut(p));
-        let tables = std::array::from_fn(|p| model.positions[p].bins.iter().map(BinTable::new).collect());
+        let tables = std::array::from_fn(|p| match &structure {
+            Some(st) => st.deconvolved(p, &model.positions[p].bins).iter().map(BinTable::new).collect(),
+            None => model.positions[p].bins.iter().map(BinTable::new).collect(),
+        });
         let white = pack.layout.white;
         let snaps = std::array::from_fn(|p| model.lattice[p].as_ref().map(|l| Snap::new(l, white)));
         let range = std::array::from_fn(|p| {
@@ -123,7 +143,12 @@ impl IsoSampler {
             let c = c.min(white);
             [f.min(c) as i32, c as i32]
         });
-        Self { iso: model.iso, white, binning, luts, tables, snaps, range }
+        Self { iso: model.iso, white, binning, luts, tables, snaps, range, structure }
+    }
+
+    /// The structured components this sampler adds, if any.
+    pub fn structure(&self) -> Option<&StructureSampler> {
+        self.structure.as_ref()
     }
 
     /// The same sampler writing every code (no lattice).

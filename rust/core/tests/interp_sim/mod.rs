@@ -93,6 +93,7 @@ pub fn sim_pack_with(
         pooling: None,
         isos: Vec::new(),
         warnings: Vec::new(),
+        structure: Vec::new(),
     };
     for &iso in isos {
         pack.insert(iso_model(iso, pack.layout.white, &sample_iso_with(sim, &binning, iso, samples, seed)));

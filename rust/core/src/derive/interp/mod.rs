@@ -211,6 +211,9 @@ pub fn materialize(
         }
         let plan = plan_with(pack, iso, extrapolate, opts)?;
         out.insert(interpolate_planned(pack, &plan));
+        if let Some(st) = crate::derive::structure::derived_structure(pack, iso) {
+            out.insert_structure(st);
+        }
         if let Some(w) = plan.gap_warning() {
             out.warnings.push(w);
         }

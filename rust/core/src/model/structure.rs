@@ -1,0 +1,371 @@
+//! Structured noise (method.md, "Structured noise"): the parts of a sensor's noise that are not
+//! independent from pixel to pixel — one offset per row, per column and per frame — as measured,
+//! non-parametric distributions per ISO.
+//!
+//! - [`OffsetDistribution`]: one offset's distribution as its quantile function (row and column
+//!   offsets: thousands of rows × frames stand behind it), with how it was separated from the
+//!   sampling noise of a row mean.
+//! - [`FrameOffsets`]: the per-frame, per-CFA-position black-level offsets themselves (a session
+//!   has only a few dozen frames per ISO: the sample is kept whole, so their joint law across
+//!   the four positions is kept too).
+//! - [`IsoStructure`]: one ISO's components; [`Components`]: which ones synthesis adds.
+//!
+//! A component is only *significant* when its variance stands clear of what sampling noise alone
+//! would give; synthesis adds significant components only, so a sensor without row noise gets
+//! none and nothing changes for it.
+
+use serde::{Deserialize, Serialize};
+
+use crate::model::layout::POSITIONS;
+
+/// Points of a stored quantile function (`u = i / (QUANTILES − 1)`).
+pub const QUANTILES: usize = 513;
+
+/// One offset's distribution (DN), zero-mean.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct OffsetDistribution {
+    /// The true offset's quantile function at `u = i / (len − 1)`: the measured deviations
+    /// shrunk about their mean by `√(1 − sampling / measured)` (variance of the sampling noise of
+    /// a mean removed; shape kept).
+    pub quantiles: Vec<f32>,
+    /// Offsets measured (rows × frames, or columns × frames).
+    pub count: u64,
+    /// Variance of the measured deviations (DN²).
+    pub measured_var: f64,
+    /// Variance a mean of that many pixels has from pixel noise alone (DN²): the measured
+    /// variance's part that is not the component.
+    pub sampling_var: f64,
+    /// The component's variance stands clear of the sampling variance (by three standard
+    /// errors): synthesis adds it.
+    pub significant: bool,
+}
+
+impl OffsetDistribution {
+    /// The component's own variance (measured minus sampling, at least 0).
+    pub fn variance(&self) -> f64 {
+        (self.measured_var - self.sampling_var).max(0.0)
+    }
+
+    pub fn sd(&self) -> f64 {
+        self.variance().sqrt()
+    }
+
+    /// The offset at a uniform draw `u ∈ [0, 1)` (linear between stored quantiles).
+    #[inline]
+    pub fn at(&self, u: f64) -> f64 {
+        quantile_at(&self.quantiles, u)
+    }
+
+    /// The same distribution scaled by `k` (extrapolation).
+    pub fn scaled(&self, k: f64) -> Self {
+        Self {
+            quantiles: self.quantiles.iter().map(|&q| (q as f64 * k) as f32).collect(),
+            measured_var: self.measured_var * k * k,
+            sampling_var: self.sampling_var * k * k,
+            ..self.clone()
+        }
+    }
+
+    /// The displacement interpolation `(1 − t)·Q_a + t·Q_b` of two distributions (quantile
+    /// functions blended pointwise: the shape moves from one to the other).
+    pub fn blend(a: &Self, b: &Self, t: f64) -> Self {
+        let n = a.quantiles.len().max(b.quantiles.len()).max(2);
+        let quantiles = (0..n)
+            .map(|i| {
+                let u = i as f64 / (n - 1) as f64;
+                ((1.0 - t) * a.at_closed(u) + t * b.at_closed(u)) as f32
+            })
+            .collect();
+        let mix = |x: f64, y: f64| (1.0 - t) * x + t * y;
+        Self {
+            quantiles,
+            count: a.count.min(b.count),
+            measured_var: mix(a.measured_var.sqrt(), b.measured_var.sqrt()).powi(2),
+            sampling_var: mix(a.sampling_var.sqrt(), b.sampling_var.sqrt()).powi(2),
+            significant: a.significant || b.significant,
+        }
+    }
+
+    fn at_closed(&self, u: f64) -> f64 {
+        quantile_at(&self.quantiles, u.min(1.0))
+    }
+
+    /// Finite quantiles, non-decreasing, and variances that are numbers.
+    pub fn problem(&self) -> Option<String> {
+        if self.quantiles.len() < 2 || self.quantiles.len() > 1 << 16 {
+            return Some(format!("{} quantiles (2 ..= 65536 expected)", self.quantiles.len()));
+        }
+        if self.quantiles.iter().any(|q| !q.is_finite() || q.abs() > 1e6) {
+            return Some("a quantile is not a finite offset".into());
+        }
+        if self.quantiles.windows(2).any(|w| w[1] < w[0]) {
+            return Some("quantiles decrease".into());
+        }
+        if !(self.measured_var.is_finite() && self.measured_var >= 0.0)
+            || !(self.sampling_var.is_finite() && self.sampling_var >= 0.0)
+        {
+            return Some("a variance is negative or not a number".into());
+        }
+        None
+    }
+}
+
+/// Linear interpolation in a quantile table at `u ∈ [0, 1]`.
+#[inline]
+pub fn quantile_at(q: &[f32], u: f64) -> f64 {
+    match q.len() {
+        0 => 0.0,
+        1 => q[0] as f64,
+        n => {
+            let x = u.clamp(0.0, 1.0) * (n - 1) as f64;
+            let i = (x as usize).min(n - 2);
+            let f = x - i as f64;
+            q[i] as f64 * (1.0 - f) + q[i + 1] as f64 * f
+        }
+    }
+}
+
+/// The per-frame black-level offsets of one ISO (DN per CFA position, each frame's deviation
+/// from its burst's mean, rescaled for the mean's removal).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FrameOffsets {
+    pub offsets: Vec<[f32; POSITIONS]>,
+    /// Variance per position of the offsets (DN²).
+    pub measured_var: [f64; POSITIONS],
+    /// Variance per position a frame mean has from pixel and row noise alone (DN²).
+    pub sampling_var: [f64; POSITIONS],
+    pub significant: bool,
+}
+
+impl FrameOffsets {
+    pub fn variance(&self, pos: usize) -> f64 {
+        (self.measured_var[pos] - self.sampling_var[pos]).max(0.0)
+    }
+
+    /// One frame's offsets: a smoothed bootstrap of the measured ones (a measured frame picked
+    /// by `pick`, plus a Gaussian kernel of Silverman's width, the sum shrunk so the variance
+    /// stays the measured one). Deterministic in the draws.
+    pub fn draw(&self, pick: u64, gauss: [f64; POSITIONS]) -> [f64; POSITIONS] {
+        let n = self.offsets.len();
+        if n == 0 {
+            return [0.0; POSITIONS];
+        }
+        let i = ((pick as u128 * n as u128) >> 64) as usize;
+        let h = 1.06 * (n as f64).powf(-0.2);
+        std::array::from_fn(|p| {
+            let mean = self.offsets.iter().map(|o| o[p] as f64).sum::<f64>() / n as f64;
+            let s2 = self.offsets.iter().map(|o| (o[p] as f64 - mean).powi(2)).sum::<f64>() / n as f64;
+            if s2 <= 0.0 {
+                return 0.0;
+            }
+            let s = s2.sqrt();
+            let shrink = (self.variance(p) / (s2 * (1.0 + h * h))).sqrt();
+            (self.offsets[i][p] as f64 - mean + h * s * gauss[p]) * shrink
+        })
+    }
+
+    pub fn scaled(&self, k: f64) -> Self {
+        Self {
+            offsets: self.offsets.iter().map(|o| o.map(|v| (v as f64 * k) as f32)).collect(),
+            measured_var: self.measured_var.map(|v| v * k * k),
+            sampling_var: self.sampling_var.map(|v| v * k * k),
+            significant: self.significant,
+        }
+    }
+
+    /// The nearer of two ISOs' samples, scaled to the blended standard deviation.
+    pub fn blend(a: &Self, b: &Self, t: f64) -> Self {
+        let (near, far) = if t <= 0.5 { (a, b) } else { (b, a) };
+        let sd = |f: &Self| (0..POSITIONS).map(|p| f.variance(p)).sum::<f64>().sqrt();
+        let (sa, sb) = (sd(a), sd(b));
+        let target = (1.0 - t) * sa + t * sb;
+        let own = sd(near);
+        let k = if own > 0.0 { target / own } else { 1.0 };
+        let mut out = near.scaled(k);
+        out.significant = near.significant || far.significant;
+        out
+    }
+
+    pub fn problem(&self) -> Option<String> {
+        if self.offsets.len() > 1 << 20 {
+            return Some(format!("{} frame offsets", self.offsets.len()));
+        }
+        if self.offsets.iter().flatten().any(|v| !v.is_finite() || v.abs() > 1e6) {
+            return Some("a frame offset is not a finite number".into());
+        }
+        if self.measured_var.iter().chain(&self.sampling_var).any(|v| !(v.is_finite() && *v >= 0.0)) {
+            return Some("a variance is negative or not a number".into());
+        }
+        None
+    }
+}
+
+/// The structured components of one ISO.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct IsoStructure {
+    pub iso: u32,
+    /// Row offsets per row parity (one offset shared by every pixel of a row).
+    pub rows: [Option<OffsetDistribution>; 2],
+    /// Column offsets per column parity (one offset shared by every pixel of a column).
+    pub columns: [Option<OffsetDistribution>; 2],
+    /// Per-frame offsets per CFA position.
+    pub frames: Option<FrameOffsets>,
+    /// Target frames that stood in a burst of at least two at their ISO (the offsets are
+    /// deviations from a burst's mean; a lone frame has none).
+    pub frames_used: u64,
+}
+
+impl IsoStructure {
+    /// The distribution synthesis adds for a component, when it is significant.
+    pub fn row(&self, parity: usize) -> Option<&OffsetDistribution> {
+        self.rows[parity].as_ref().filter(|d| d.significant)
+    }
+
+    pub fn column(&self, parity: usize) -> Option<&OffsetDistribution> {
+        self.columns[parity].as_ref().filter(|d| d.significant)
+    }
+
+    pub fn frame(&self) -> Option<&FrameOffsets> {
+        self.frames.as_ref().filter(|f| f.significant && !f.offsets.is_empty())
+    }
+
+    /// Whether any component is significant.
+    pub fn any(&self) -> bool {
+        (0..2).any(|p| self.row(p).is_some() || self.column(p).is_some()) || self.frame().is_some()
+    }
+
+    /// Scaled by `k` (DN per DN; extrapolation along the gain).
+    pub fn scaled(&self, iso: u32, k: f64) -> Self {
+        Self {
+            iso,
+            rows: self.rows.clone().map(|d| d.map(|d| d.scaled(k))),
+            columns: self.columns.clone().map(|d| d.map(|d| d.scaled(k))),
+            frames: self.frames.as_ref().map(|f| f.scaled(k)),
+            frames_used: self.frames_used,
+        }
+    }
+
+    /// Between two ISOs' components at fraction `t` (0 = `a`).
+    pub fn blend(iso: u32, a: &Self, b: &Self, t: f64) -> Self {
+        let pair = |x: &Option<OffsetDistribution>, y: &Option<OffsetDistribution>| match (x, y) {
+            (Some(x), Some(y)) => Some(OffsetDistribution::blend(x, y, t)),
+            (Some(x), None) => Some(x.scaled(1.0 - t)),
+            (None, Some(y)) => Some(y.scaled(t)),
+            (None, None) => None,
+        };
+        Self {
+            iso,
+            rows: std::array::from_fn(|p| pair(&a.rows[p], &b.rows[p])),
+            columns: std::array::from_fn(|p| pair(&a.columns[p], &b.columns[p])),
+            frames: match (&a.frames, &b.frames) {
+                (Some(x), Some(y)) => Some(FrameOffsets::blend(x, y, t)),
+                (Some(x), None) => Some(x.scaled(1.0 - t)),
+                (None, Some(y)) => Some(y.scaled(t)),
+                (None, None) => None,
+            },
+            frames_used: a.frames_used.min(b.frames_used),
+        }
+    }
+
+    pub fn problem(&self) -> Option<String> {
+        for (name, d) in [("row", &self.rows), ("column", &self.columns)] {
+            for (p, d) in d.iter().enumerate() {
+                if let Some(why) = d.as_ref().and_then(OffsetDistribution::problem) {
+                    return Some(format!("{name} offsets of parity {p}: {why}"));
+                }
+            }
+        }
+        self.frames.as_ref().and_then(FrameOffsets::problem).map(|w| format!("frame offsets: {w}"))
+    }
+}
+
+/// Which noise components synthesis adds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Components {
+    pub pixel: bool,
+    pub row: bool,
+    pub column: bool,
+    pub frame: bool,
+}
+
+impl Components {
+    /// Every calibrated component (the default).
+    pub const ALL: Self = Self { pixel: true, row: true, column: true, frame: true };
+    /// The pixel-independent model alone (version 2 packs, `--components pixel`).
+    pub const PIXEL: Self = Self { pixel: true, row: false, column: false, frame: false };
+
+    /// Parses `pixel,row,column,frame` (also `col`, `all`; `fpn` is named and refused: no
+    /// fixed-pattern component is calibrated yet).
+    pub fn parse(s: &str) -> Result<Self, String> {
+        let mut c = Self { pixel: false, row: false, column: false, frame: false };
+        for part in s.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+            match part.to_ascii_lowercase().as_str() {
+                "all" => c = Self::ALL,
+                "pixel" => c.pixel = true,
+                "row" | "rows" => c.row = true,
+                "column" | "columns" | "col" => c.column = true,
+                "frame" | "frames" => c.frame = true,
+                "fpn" | "dsnu" => {
+                    return Err("the fixed-pattern component (fpn) is not calibrated by this noisecal (no dark-frame step yet); choose from pixel,row,column,frame".into());
+                }
+                other => {
+                    return Err(format!(
+                        "unknown noise component {other:?}; choose from pixel,row,column,frame (or all)"
+                    ));
+                }
+            }
+        }
+        if !c.pixel {
+            return Err("the components must include pixel (the per-pixel noise every other component adds to)".into());
+        }
+        Ok(c)
+    }
+
+    /// Whether any structured component is asked for.
+    pub fn structured(&self) -> bool {
+        self.row || self.column || self.frame
+    }
+}
+
+impl Default for Components {
+    fn default() -> Self {
+        Self::ALL
+    }
+}
+
+impl std::fmt::Display for Components {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let names: Vec<&str> =
+            [(self.pixel, "pixel"), (self.row, "row"), (self.column, "column"), (self.frame, "frame")]
+                .iter()
+                .filter(|(on, _)| *on)
+                .map(|(_, n)| *n)
+                .collect();
+        write!(f, "{}", names.join(","))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn components_parse() {
+        assert_eq!(Components::parse("pixel").unwrap(), Components::PIXEL);
+        assert_eq!(Components::parse("all").unwrap(), Components::ALL);
+        assert_eq!(Components::parse("pixel,row,column,frame").unwrap(), Components::ALL);
+        assert!(Components::parse("row").unwrap_err().contains("must include pixel"));
+        assert!(Components::parse("pixel,fpn").unwrap_err().contains("fpn"));
+        assert!(Components::parse("pixel,banana").unwrap_err().contains("banana"));
+        assert_eq!(Components::ALL.to_string(), "pixel,row,column,frame");
+    }
+
+    #[test]
+    fn quantile_interpolation() {
+        let q = [-1.0f32, 0.0, 3.0];
+        assert_eq!(quantile_at(&q, 0.0), -1.0);
+        assert_eq!(quantile_at(&q, 0.25), -0.5);
+        assert_eq!(quantile_at(&q, 0.75), 1.5);
+        assert_eq!(quantile_at(&q, 1.0), 3.0);
+    }
+}
