@@ -9,6 +9,9 @@
 //! says so and measures nothing.
 //!
 //!     NOISECAL_BENCH_PACK=bench.pack cargo bench -p noisecal-core --bench synth
+//!
+//! With `NOISECAL_BENCH_LOOP=n` it instead times n frames in a plain loop and prints the wall and
+//! the process CPU time per frame (for `rust/python/benches/interleaved.py --cpu`).
 
 use std::hint::black_box;
 
@@ -43,6 +46,22 @@ fn benches(c: &mut Criterion) {
     let sampler = IsoSampler::new(&pack, &model);
     let clean = clean();
     let threads = rayon::current_num_threads();
+    if let Some(n) = std::env::var("NOISECAL_BENCH_LOOP").ok().and_then(|s| s.parse::<u32>().ok()) {
+        // A plain loop, with the process's CPU time as well as the wall time: on a shared machine
+        // CPU time per frame compares two builds where wall time mostly measures the neighbours.
+        synthesize_at(&sampler, clean.view(), 1, (0, 0));
+        let (t0, c0) = (std::time::Instant::now(), cpu_seconds());
+        for _ in 0..n {
+            black_box(synthesize_at(&sampler, black_box(clean.view()), 1, (0, 0)));
+        }
+        let (wall, cpu) = (t0.elapsed().as_secs_f64() / n as f64, (cpu_seconds() - c0) / n as f64);
+        println!(
+            "loop {n} × {H}×{W} on {threads} threads: wall {:.2} ms, cpu {:.2} ms per frame",
+            wall * 1e3,
+            cpu * 1e3
+        );
+        return;
+    }
 
     let mut g = c.benchmark_group("synth 12MP");
     g.throughput(Throughput::Elements((W * H) as u64));
@@ -55,6 +74,17 @@ fn benches(c: &mut Criterion) {
         b.iter(|| one.install(|| synthesize_at(&sampler, black_box(clean.view()), 1, (0, 0))))
     });
     g.finish();
+}
+
+/// User + system CPU time of this process so far (Linux `/proc/self/stat`, 100 ticks per second);
+/// 0 elsewhere.
+fn cpu_seconds() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else { return 0.0 };
+    // Fields after the command name (which is in parentheses): utime and stime are 14 and 15.
+    let rest = stat.rsplit_once(')').map(|(_, r)| r).unwrap_or("");
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let tick = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    (tick(11) + tick(12)) / 100.0
 }
 
 criterion_group!(synth, benches);

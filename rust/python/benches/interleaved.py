@@ -12,6 +12,7 @@ import argparse
 import glob
 import json
 import os
+import re
 import statistics
 import subprocess
 import sys
@@ -41,6 +42,8 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--calls", type=int, default=10)
     ap.add_argument("--workspace", type=Path, default=REPO)
+    ap.add_argument("--cpu", action="store_true",
+                    help="compare process CPU time per frame (plain loops on both sides) instead of criterion wall time")
     a = ap.parse_args()
     env = dict(os.environ, NOISECAL_BENCH_PACK=str(a.pack.resolve()), NOISECAL_BENCH_ISO=str(a.iso))
     target = Path(env.get("CARGO_TARGET_DIR", a.workspace / "target"))
@@ -53,6 +56,8 @@ def main() -> None:
     pack.synth(img, a.iso, SEED)
     npy = NumpySynth(pack.tables(a.iso))
     rng = np.random.default_rng(0)
+    if a.cpu:
+        return cpu_rounds(a, env, exe, pack, img)
     rows = []
     for r in range(a.rounds):
         subprocess.run([exe, "--bench", "--noplot", "--sample-size", "10", "--warm-up-time", "1",
@@ -79,6 +84,29 @@ def main() -> None:
           f"Python/Rust {statistics.median(x[0] / x[1] for x in rows):.3f} "
           f"(best-of: {statistics.median(x[2] / x[3] for x in rows):.3f}); "
           f"Python/numpy {statistics.median(x[4] / x[1] for x in rows):.1f}")
+
+
+def cpu_rounds(a, env: dict, exe: str, pack: noisecal.Pack, img: np.ndarray) -> None:
+    """Per round: the Rust loop (`NOISECAL_BENCH_LOOP`) and as many `Pack.synth` calls, each with
+    wall and process CPU time per frame (all threads, rayon's idle spinning included on both)."""
+    rows = []
+    for r in range(a.rounds):
+        out = subprocess.run([exe, "--bench"], env=dict(env, NOISECAL_BENCH_LOOP=str(a.calls)), check=True,
+                             capture_output=True, text=True).stdout
+        m = re.search(r"wall ([\d.]+) ms, cpu ([\d.]+) ms", out)
+        rw, rc = float(m.group(1)) / 1e3, float(m.group(2)) / 1e3
+        t0, c0 = time.perf_counter(), time.process_time()
+        for _ in range(a.calls):
+            pack.synth(img, a.iso, SEED)
+        pw, pc = (time.perf_counter() - t0) / a.calls, (time.process_time() - c0) / a.calls
+        rows.append((rw, rc, pw, pc))
+        print(f"round {r}: Rust wall {MPIX / rw:6.1f} Mpix/s, {MPIX / rc:6.1f} Mpix per CPU s; Python wall "
+              f"{MPIX / pw:6.1f}, {MPIX / pc:6.1f} per CPU s; Python/Rust wall {rw / pw:.3f}, CPU {rc / pc:.3f}",
+              flush=True)
+    med = lambda i: statistics.median(x[i] for x in rows)  # noqa: E731
+    print(f"\nmedians over {a.rounds} rounds of {a.calls} frames: Rust {MPIX / med(0):.1f} Mpix/s wall, "
+          f"{MPIX / med(1):.1f} Mpix per CPU s; Python {MPIX / med(2):.1f}, {MPIX / med(3):.1f}; Python/Rust wall "
+          f"{statistics.median(x[0] / x[2] for x in rows):.3f}, CPU {statistics.median(x[1] / x[3] for x in rows):.3f}")
 
 
 if __name__ == "__main__":
