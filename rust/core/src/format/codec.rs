@@ -155,11 +155,32 @@ pub fn decode_framing<'a>(
 /// Decodes a payload returned by [`decode_framing`]; every byte must be used.
 pub fn decode_payload<T: DeserializeOwned>(what: &'static str, payload: &[u8]) -> Result<T, CodecError> {
     let (value, used) = bincode::serde::decode_from_slice(payload, config())
-        .map_err(|e| CodecError::Decode { what, detail: e.to_string() })?;
+        .map_err(|e| CodecError::Decode { what, detail: describe_decode_error(&e) })?;
     if used != payload.len() {
         return Err(CodecError::Invalid { what, detail: format!("payload has {} unread bytes", payload.len() - used) });
     }
     Ok(value)
+}
+
+/// What a payload that fails to decode holds, in words (bincode's own text is its Rust `Debug`
+/// form, e.g. `InvalidBooleanValue(130)`, which says nothing to a user).
+fn describe_decode_error(e: &bincode::error::DecodeError) -> String {
+    use bincode::error::DecodeError as E;
+    let what = match e {
+        E::UnexpectedEnd { .. } => "the payload ends inside a value".to_string(),
+        E::InvalidBooleanValue(v) => format!("a yes/no field holds the byte {v} (only 0 or 1 are valid)"),
+        E::UnexpectedVariant { found, .. } => format!("a field holds the unknown kind {found}"),
+        E::Utf8 { .. } => "a text field is not UTF-8".to_string(),
+        E::InvalidCharEncoding(_) => "a character field is not valid".to_string(),
+        E::ArrayLengthMismatch { required, found } => {
+            format!("an array holds {found} values where {required} belong")
+        }
+        E::OutsideUsizeRange(n) => format!("a length of {n} is out of range"),
+        E::InvalidIntegerType { .. } => "a number is stored with the wrong width".to_string(),
+        E::LimitExceeded => "a length exceeds the size limit".to_string(),
+        _ => "a field holds a value of the wrong kind".to_string(),
+    };
+    format!("{what}; the file is damaged or was not written by noisecal")
 }
 
 // ---- record streams --------------------------------------------------------------------------
@@ -238,6 +259,11 @@ impl RecordSeal {
         self.0.finalize()
     }
 
+    /// The CRC of what was fed so far (the value the stored seal must hold).
+    pub fn value(&self) -> u32 {
+        self.0.clone().finalize()
+    }
+
     /// Checks the 4 stored seal bytes.
     pub fn check(self, what: &'static str, stored: [u8; SEAL]) -> Result<(), CodecError> {
         check_crc(what, self.finish(), u32::from_le_bytes(stored))
@@ -273,6 +299,23 @@ mod tests {
             decode::<Vec<u32>>("t", M, "NCTEST", 3, b"hello world, not a pack"),
             Err(CodecError::BadMagic { .. })
         ));
+    }
+
+    /// Issue 13 item 14: a payload that does not decode says so in words, not in Rust's
+    /// (`InvalidBooleanValue(130)`).
+    #[test]
+    fn undecodable_payloads_are_described_in_words() {
+        let b = encode("test file", M, 3, &(true, 7u32)).unwrap();
+        let mut bad = b.clone();
+        let at = SEALED_HEADER;
+        bad[at] = 130;
+        let crc = crc32fast::hash(&bad[SEALED_HEADER..]);
+        bad[20..24].copy_from_slice(&crc.to_le_bytes());
+        let e = decode::<(bool, u32)>("test file", M, "NCTEST", 3, &bad).unwrap_err().to_string();
+        assert!(e.contains("yes/no field holds the byte 130"), "{e}");
+        assert!(!e.contains("InvalidBooleanValue"), "{e}");
+        let e = decode::<(bool, u32, u64)>("test file", M, "NCTEST", 3, &b).unwrap_err().to_string();
+        assert!(e.contains("ends inside a value") && !e.contains("UnexpectedEnd"), "{e}");
     }
 
     /// The sealed layout, written out byte by byte: a change to it breaks every pack on disk.

@@ -16,6 +16,11 @@
 //!   255 End        frames u64
 //! ```
 //! A recording without an End record (an interrupted capture) reads up to its last whole record.
+//! Only a missing tail is an interruption: a damaged record in the middle (bad checksum, unknown
+//! tag, a frame length its geometry cannot hold, a length running past the end of a file that
+//! still ends with its End record), a frame record repeated byte for byte, an End record whose
+//! frame count differs from the frames read, and bytes after the End record are errors naming the
+//! record's index and byte offset.
 //!
 //! - [`RecordingWriter`] writes record by record ([`RecordingWriter::resume`] continues a
 //!   recording cut back to a [`RecordingMark`], as a restored app session does).
@@ -24,7 +29,8 @@
 //! - [`TeeCheckpoint`] is the app's checkpoint: a session checkpoint together with the mark of the
 //!   recording it was teeing into.
 
-use std::io::{self, Read, Write};
+use std::collections::HashMap;
+use std::io::{self, Read, Seek, SeekFrom, Write};
 
 use serde::{Deserialize, Serialize};
 
@@ -39,6 +45,9 @@ pub const RECORDING_VERSION: u16 = 1;
 const WHAT: &str = "recording";
 /// A frame record's plane longer than this is refused as implausible (a damaged length field).
 const MAX_FRAME_BYTES: u64 = 1 << 31;
+/// The largest sensor a header may claim: a pack's limit per side, and 2^28 pixels in all.
+const MAX_SIDE: u32 = crate::model::pack::MAX_SIDE;
+const MAX_PIXELS: u64 = 1 << 28;
 
 /// The session a recording belongs to.
 #[derive(Debug, Clone, PartialEq)]
@@ -338,6 +347,16 @@ fn decode_header_fields(h: &[u8]) -> Result<RecordingHeader, CodecError> {
     let model = text()?;
     let layout = SensorLayout { width, height, cfa, black, white };
     layout.validate().map_err(|e| CodecError::Invalid { what: WHAT, detail: e.to_string() })?;
+    // A session sizes its buffers by the header's sensor before any frame arrives: a damaged
+    // size is refused here (the limits of a model pack; 268 MP is beyond any camera sensor).
+    if width > MAX_SIDE || height > MAX_SIDE || layout.pixels() as u64 > MAX_PIXELS {
+        return Err(CodecError::Invalid {
+            what: WHAT,
+            detail: format!(
+                "the header's sensor is {width}×{height}: beyond {MAX_SIDE} pixels a side or {MAX_PIXELS} pixels in all (a damaged header)"
+            ),
+        });
+    }
     Ok(RecordingHeader { layout, reference_iso, bin_width, make, model })
 }
 
@@ -379,15 +398,61 @@ fn decode_fixed(tag: RecordTag, p: &[u8], index: u64) -> Result<Fixed, CodecErro
 }
 
 /// Reads a recording record by record.
+///
+/// Damage is told from an interruption: only a missing tail (the input ends inside a record, or
+/// between records without an End record) is an interrupted capture
+/// ([`CodecError::CutShort`]). A record whose checksum fails, whose tag is unknown, whose frame
+/// length does not fit its own geometry, or which runs past the end of an input that still ends
+/// with a whole End record is damage ([`CodecError::Invalid`], naming the record's index and byte
+/// offset). The End record's frame count is checked against the frames read, a frame record
+/// repeated byte for byte is refused, and nothing may follow the End record: records removed or
+/// duplicated with valid checksums are found too.
 #[derive(Debug)]
 pub struct RecordingReader<R: Read> {
     input: R,
     header: RecordingHeader,
     records: u64,
     ended: bool,
-    /// Bytes left in the input when its length is known ([`from_bytes`](Self::from_bytes)): a
-    /// length field reaching past them is a cut-short record, found before allocating.
+    /// Bytes left in the input when its length is known ([`from_bytes`](Self::from_bytes),
+    /// [`new_seekable`](Self::new_seekable)): a length field reaching past them is found before
+    /// allocating.
     left: Option<u64>,
+    /// Byte offset of the next record in the input.
+    offset: u64,
+    /// Frame records read so far.
+    frames: u64,
+    /// Whether the input's last bytes are a whole End record (when its length is known): then a
+    /// record running past the end is damage, not an interruption.
+    tail_is_end: bool,
+    /// Each frame record read (checksum, length and metadata) and its index, to refuse copies.
+    seen_frames: HashMap<(u32, u64, u32, u64), u64>,
+}
+
+/// Bytes of a whole End record: tag, frame count, seal.
+const END_RECORD: usize = 1 + 8 + codec::SEAL;
+
+/// Whether `bytes` ends with a whole End record (tag 255, a frame count, a matching seal).
+pub fn ends_with_end_record(bytes: &[u8]) -> bool {
+    let Some(at) = bytes.len().checked_sub(END_RECORD) else { return false };
+    let r = &bytes[at..];
+    if r[0] != RecordTag::End as u8 {
+        return false;
+    }
+    let mut seal = codec::RecordSeal::new(r[0]);
+    seal.update(&r[1..9]);
+    seal.check(WHAT, [r[9], r[10], r[11], r[12]]).is_ok()
+}
+
+/// The plane lengths a frame record of this geometry can hold: from the last sample's end to one
+/// spare row past `height` rows. `None` for a geometry no view accepts (such a frame is read and
+/// then rejected as a frame, not as damage).
+fn plane_len_range(width: u32, height: u32, row_stride: u32, pixel_stride: u32) -> Option<(u64, u64)> {
+    let (w, h, rs, ps) = (width as u64, height as u64, row_stride as u64, pixel_stride as u64);
+    if w == 0 || h == 0 || ps == 0 || rs < w * ps {
+        return None;
+    }
+    let min = (h - 1) * rs + (w - 1) * ps + 2;
+    Some((min, (h + 1) * rs.max(2)))
 }
 
 fn read_exact_or<R: Read>(r: &mut R, buf: &mut [u8], context: &str) -> Result<(), CodecError> {
@@ -411,18 +476,48 @@ fn read_up_to<R: Read>(r: &mut R, buf: &mut [u8]) -> Result<usize, CodecError> {
     Ok(got)
 }
 
+fn damaged(index: u64, offset: u64, why: impl std::fmt::Display) -> CodecError {
+    CodecError::Invalid { what: WHAT, detail: format!("record {index} at byte {offset} is damaged: {why}") }
+}
+
 impl<'a> RecordingReader<&'a [u8]> {
     /// A reader over a whole recording in memory (the fuzzing entry point): the same records and
-    /// errors as [`new`](Self::new) over the same bytes, and no length field makes it allocate
-    /// more than the input holds.
+    /// errors as [`new_seekable`](Self::new_seekable) over the same bytes, and no length field
+    /// makes it allocate more than the input holds.
     pub fn from_bytes(bytes: &'a [u8]) -> Result<Self, CodecError> {
         let mut r = Self::new(bytes)?;
         r.left = Some(r.input.len() as u64);
+        r.tail_is_end = ends_with_end_record(bytes);
+        Ok(r)
+    }
+}
+
+impl<R: Read + Seek> RecordingReader<R> {
+    /// A reader over an input whose length can be learnt (a file): a record running past the end
+    /// is told apart from damage as [`from_bytes`](RecordingReader::from_bytes) does, and no
+    /// length field makes it allocate more than the input holds.
+    pub fn new_seekable(input: R) -> Result<Self, CodecError> {
+        let io_err = |e: io::Error| CodecError::Decode { what: WHAT, detail: e.to_string() };
+        let mut r = Self::new(input)?;
+        let at = r.input.stream_position().map_err(io_err)?;
+        let end = r.input.seek(SeekFrom::End(0)).map_err(io_err)?;
+        let left = end.saturating_sub(at);
+        if left >= END_RECORD as u64 {
+            let mut tail = [0u8; END_RECORD];
+            r.input.seek(SeekFrom::End(-(END_RECORD as i64))).map_err(io_err)?;
+            read_exact_or(&mut r.input, &mut tail, "the End record")?;
+            r.tail_is_end = ends_with_end_record(&tail);
+        }
+        r.input.seek(SeekFrom::Start(at)).map_err(io_err)?;
+        r.left = Some(left);
         Ok(r)
     }
 }
 
 impl<R: Read> RecordingReader<R> {
+    /// A reader over any input, read once from its start. Its length is unknown, so a record
+    /// running past the end is taken for an interruption unless its own fields contradict that
+    /// (prefer [`new_seekable`](RecordingReader::new_seekable) for a file).
     pub fn new(mut input: R) -> Result<Self, CodecError> {
         let mut start = [0u8; codec::STREAM_START];
         let got = read_up_to(&mut input, &mut start)?;
@@ -436,7 +531,17 @@ impl<R: Read> RecordingReader<R> {
         let mut sealed = vec![0u8; len + codec::SEAL];
         read_exact_or(&mut input, &mut sealed, "the header")?;
         let header = decode_header_fields(codec::open_sealed_header(WHAT, &sealed)?)?;
-        Ok(Self { input, header, records: 0, ended: false, left: None })
+        Ok(Self {
+            input,
+            header,
+            records: 0,
+            ended: false,
+            left: None,
+            offset: (codec::STREAM_START + len + codec::SEAL) as u64,
+            frames: 0,
+            tail_is_end: false,
+            seen_frames: HashMap::new(),
+        })
     }
 
     pub fn header(&self) -> &RecordingHeader {
@@ -448,14 +553,36 @@ impl<R: Read> RecordingReader<R> {
         self.ended
     }
 
-    fn fill(&mut self, buf: &mut [u8], context: &str) -> Result<(), CodecError> {
+    /// Frame records read so far.
+    pub fn frames(&self) -> u64 {
+        self.frames
+    }
+
+    /// The input ends inside the record at `index`, `offset`: an interruption, unless the input
+    /// still ends with a whole End record (then the record's length or tag is damaged).
+    fn cut_short(&self, index: u64, offset: u64) -> CodecError {
+        if self.tail_is_end {
+            return damaged(
+                index,
+                offset,
+                "it runs past the end of the file, yet the file ends with a whole End record (a damaged length or tag, not an interrupted capture)",
+            );
+        }
+        CodecError::CutShort { what: WHAT, context: format!("record {index} (at byte {offset})") }
+    }
+
+    fn fill(&mut self, buf: &mut [u8], index: u64, offset: u64) -> Result<(), CodecError> {
         if let Some(left) = self.left.as_mut() {
             if (buf.len() as u64) > *left {
-                return Err(CodecError::CutShort { what: WHAT, context: context.to_string() });
+                return Err(self.cut_short(index, offset));
             }
             *left -= buf.len() as u64;
         }
-        read_exact_or(&mut self.input, buf, context)
+        match self.input.read_exact(buf) {
+            Ok(()) => Ok(()),
+            Err(e) if e.kind() == io::ErrorKind::UnexpectedEof => Err(self.cut_short(index, offset)),
+            Err(e) => Err(CodecError::Decode { what: WHAT, detail: e.to_string() }),
+        }
     }
 
     /// The next record; `Ok(None)` at the end (after End, or at a clean end of file).
@@ -471,35 +598,93 @@ impl<R: Read> RecordingReader<R> {
             *left = left.saturating_sub(1);
         }
         let index = self.records;
+        let offset = self.offset;
         let Some(kind) = RecordTag::from_byte(tag[0]) else {
-            return Err(CodecError::Invalid {
-                what: WHAT,
-                detail: format!("record {index} has unknown tag {}", tag[0]),
-            });
+            return Err(damaged(index, offset, format_args!("unknown tag {}", tag[0])));
         };
-        let ctx = format!("record {index}");
         let mut seal = codec::RecordSeal::new(tag[0]);
         let mut fixed = vec![0u8; kind.fixed_len()];
-        self.fill(&mut fixed, &ctx)?;
+        self.fill(&mut fixed, index, offset)?;
         seal.update(&fixed);
+        let mut len = 1 + fixed.len() as u64 + codec::SEAL as u64;
         let record = match decode_fixed(kind, &fixed, index)? {
             Fixed::Whole(r) => r,
             Fixed::Frame { meta, geometry: [width, height, row_stride, pixel_stride], data_len } => {
+                if let Some((min, max)) = plane_len_range(width, height, row_stride, pixel_stride)
+                    && data_len > max
+                {
+                    return Err(damaged(
+                        index,
+                        offset,
+                        format_args!(
+                            "its plane claims {data_len} bytes, but a {width}×{height} frame with row stride {row_stride} and pixel stride {pixel_stride} holds {min}–{max}"
+                        ),
+                    ));
+                }
                 if self.left.is_some_and(|left| data_len > left) {
-                    return Err(CodecError::CutShort { what: WHAT, context: ctx });
+                    return Err(self.cut_short(index, offset));
                 }
                 let mut data = vec![0u8; data_len as usize];
-                self.fill(&mut data, &ctx)?;
+                self.fill(&mut data, index, offset)?;
                 seal.update(&data);
+                len += data_len;
                 Record::Frame(RecordedFrame { meta, width, height, row_stride, pixel_stride, data })
             }
         };
         let mut stored = [0u8; codec::SEAL];
-        self.fill(&mut stored, &ctx)?;
-        seal.check(WHAT, stored)?;
+        self.fill(&mut stored, index, offset)?;
+        let crc = seal.value();
+        seal.check(WHAT, stored).map_err(|e| damaged(index, offset, format_args!("{} ({})", kind_name(kind), e)))?;
+        match &record {
+            Record::Frame(f) => {
+                let key = (crc, f.data.len() as u64, f.meta.iso, f.meta.exposure_ns);
+                if let Some(first) = self.seen_frames.insert(key, index) {
+                    return Err(damaged(
+                        index,
+                        offset,
+                        format_args!("it repeats frame record {first} byte for byte (records were duplicated)"),
+                    ));
+                }
+                self.frames += 1;
+            }
+            Record::End { frames } if *frames != self.frames => {
+                return Err(damaged(
+                    index,
+                    offset,
+                    format_args!(
+                        "the End record counts {frames} frames but the recording holds {} (frame records were removed or duplicated)",
+                        self.frames
+                    ),
+                ));
+            }
+            Record::End { .. } => {
+                let trailing = match self.left {
+                    Some(left) => left,
+                    None => read_up_to(&mut self.input, &mut [0u8; 1])? as u64,
+                };
+                if trailing > 0 {
+                    return Err(damaged(
+                        index + 1,
+                        offset + len,
+                        "bytes follow the End record (records were appended or the file was joined to another)",
+                    ));
+                }
+            }
+            _ => {}
+        }
         self.records += 1;
+        self.offset += len;
         self.ended = kind == RecordTag::End;
         Ok(Some(record))
+    }
+}
+
+fn kind_name(kind: RecordTag) -> &'static str {
+    match kind {
+        RecordTag::BeginStep => "a BeginStep record",
+        RecordTag::Frame => "a Frame record",
+        RecordTag::NoiseProfile => "a NoiseProfile record",
+        RecordTag::End => "the End record",
     }
 }
 
@@ -634,7 +819,8 @@ mod tests {
                 Err(e) => err = Some(e),
             }
         }
-        assert!(matches!(err, Some(CodecError::Checksum { .. })), "{err:?}");
+        let err = err.expect("an error").to_string();
+        assert!(err.contains("record 1 at byte 81 is damaged") && err.contains("checksum"), "{err}");
         assert!(matches!(RecordingReader::new(&b"NCALPACK...."[..]), Err(CodecError::BadMagic { .. })));
         assert!(matches!(RecordingReader::new(&bytes[..12]), Err(CodecError::Truncated { .. })));
         assert!(matches!(RecordingReader::new(&bytes[..20]), Err(CodecError::CutShort { .. })));
@@ -726,13 +912,14 @@ mod tests {
                 ),
             }
         }
-        // A frame claiming 2 GiB in a short input is cut short before any allocation of that size.
+        // A frame claiming 2 GiB is refused before any allocation of that size: its geometry
+        // holds 20–36 bytes.
         let frame_at = 61 + 13; // header 14 + 43 + 4, BeginStep 1 + 8 + 4
         let mut huge = good.clone();
         huge[frame_at + 1 + 45..frame_at + 1 + 49].copy_from_slice(&(1u32 << 31).to_le_bytes());
         let mut r = RecordingReader::from_bytes(&huge).unwrap();
         r.next_record().unwrap();
-        assert!(matches!(r.next_record(), Err(CodecError::CutShort { .. })));
+        assert!(matches!(r.next_record(), Err(CodecError::Invalid { .. })));
         huge[frame_at + 1 + 45..frame_at + 1 + 49].copy_from_slice(&u32::MAX.to_le_bytes());
         let mut r = RecordingReader::from_bytes(&huge).unwrap();
         r.next_record().unwrap();
@@ -743,6 +930,137 @@ mod tests {
             bad[i] ^= 0x10;
             assert!(read_all(&bad).map(|(_, r, _)| r) != Ok(read_all(&good).unwrap().1), "flip at {i} went unnoticed");
         }
+    }
+
+    /// A recording of `n` frames of 4×2 (row stride 12, planes of 20 bytes, 1 + 49 + 20 + 4 = 74
+    /// bytes a record) after one BeginStep; returns it and each frame record's offset.
+    fn frames_recording(n: u64) -> (Vec<u8>, Vec<usize>) {
+        let mut w = RecordingWriter::new(Vec::new(), &header()).unwrap();
+        w.begin_step(1_000_000).unwrap();
+        let mut at = Vec::new();
+        for i in 0..n {
+            at.push(w.mark().bytes as usize);
+            let data: Vec<u8> = (0..20u8).map(|b| b.wrapping_mul(i as u8 + 3)).collect();
+            w.frame(&FrameMeta::new(50 + i as u32, 1_000_000), 4, 2, 12, 2, &data).unwrap();
+        }
+        (w.finish().unwrap(), at)
+    }
+
+    /// Every record through all three readers: the byte reader, the seekable reader and the plain
+    /// stream reader.
+    fn read_three(bytes: &[u8]) -> [Result<(u64, bool), CodecError>; 3] {
+        fn drain<R: Read>(mut r: RecordingReader<R>) -> Result<(u64, bool), CodecError> {
+            while r.next_record()?.is_some() {}
+            Ok((r.frames(), r.ended()))
+        }
+        [
+            RecordingReader::from_bytes(bytes).and_then(drain),
+            RecordingReader::new_seekable(io::Cursor::new(bytes)).and_then(drain),
+            RecordingReader::new(bytes).and_then(drain),
+        ]
+    }
+
+    fn frame_len_field(at: usize) -> std::ops::Range<usize> {
+        at + 1 + 45..at + 1 + 49
+    }
+
+    /// Issue 13 item 7: one flipped bit in a middle record's length is damage named by record
+    /// and offset, not "an interrupted capture".
+    #[test]
+    fn a_damaged_length_is_not_an_interruption() {
+        let (good, at) = frames_recording(6);
+        for r in read_three(&good) {
+            assert_eq!(r, Ok((6, true)));
+        }
+        // 20 → 20 + 2^20: runs past the end of the file; every reader calls it damage.
+        for (k, bit) in [(2usize, 20u32), (0, 24), (5, 20), (5, 3)] {
+            let mut bad = good.clone();
+            let f = frame_len_field(at[k]);
+            let len = u32::from_le_bytes(bad[f.clone()].try_into().unwrap()) ^ (1 << bit);
+            bad[f].copy_from_slice(&len.to_le_bytes());
+            for (i, r) in read_three(&bad).into_iter().enumerate() {
+                let e = r.expect_err("damage");
+                let want = format!("record {} at byte {} is damaged", k + 1, at[k]);
+                assert!(matches!(e, CodecError::Invalid { .. }), "reader {i}, frame {k}, bit {bit}: {e}");
+                assert!(e.to_string().contains(&want), "reader {i}: {e}");
+            }
+        }
+        // 20 → 28: still within its geometry's 20–36 bytes, on the last frame: it runs past the
+        // end, but the file ends with a whole End record, so the readers that know the length
+        // call it damage (the stream reader finds the bad checksum).
+        let mut bad = good.clone();
+        let f = frame_len_field(at[5]);
+        bad[f].copy_from_slice(&28u32.to_le_bytes());
+        for (i, r) in read_three(&bad).into_iter().enumerate() {
+            let e = r.expect_err("damage");
+            assert!(e.to_string().contains(&format!("record 6 at byte {} is damaged", at[5])), "reader {i}: {e}");
+        }
+        // A real interruption: the file cut inside the last frame record.
+        for cut in [at[5] + 30, at[5] + 1, good.len() - 1] {
+            for (i, r) in read_three(&good[..cut]).into_iter().enumerate() {
+                assert!(matches!(r, Err(CodecError::CutShort { .. })), "reader {i}, cut {cut}: {r:?}");
+            }
+        }
+        // Cut between records: whole records, no End.
+        for r in read_three(&good[..at[5]]) {
+            assert_eq!(r, Ok((5, false)));
+        }
+    }
+
+    /// A header claiming a sensor no camera has is refused before a session sizes buffers by it.
+    #[test]
+    fn absurd_sensor_sizes_are_refused_in_the_header() {
+        for (w, h) in [(u32::MAX, u32::MAX), (100_000, 100_000), (65_536, 65_536), (70_000, 2)] {
+            let mut hd = header();
+            hd.layout.width = w;
+            hd.layout.height = h;
+            let e = RecordingReader::from_bytes(&encode_header(&hd)).unwrap_err();
+            assert!(e.to_string().contains("a damaged header"), "{w}×{h}: {e}");
+        }
+        let mut hd = header();
+        (hd.layout.width, hd.layout.height) = (16_384, 12_288);
+        RecordingReader::from_bytes(&encode_header(&hd)).expect("a 201 MP sensor is read");
+    }
+
+    /// Issue 13 item 8: records removed or duplicated, each with a valid checksum.
+    #[test]
+    fn removed_and_duplicated_records_are_found() {
+        let (good, at) = frames_recording(5);
+        let rec = 74;
+        // Frame 2 removed.
+        let mut removed = good[..at[2]].to_vec();
+        removed.extend_from_slice(&good[at[2] + rec..]);
+        for (i, r) in read_three(&removed).into_iter().enumerate() {
+            let e = r.expect_err("a removed frame");
+            assert!(e.to_string().contains("End record counts 5 frames but the recording holds 4"), "reader {i}: {e}");
+        }
+        // Frame 2 duplicated.
+        let mut dup = good[..at[3]].to_vec();
+        dup.extend_from_slice(&good[at[2]..]);
+        for (i, r) in read_three(&dup).into_iter().enumerate() {
+            let e = r.expect_err("a duplicated frame");
+            assert!(e.to_string().contains("repeats frame record 3"), "reader {i}: {e}");
+            assert!(e.to_string().contains(&format!("record 4 at byte {}", at[3])), "reader {i}: {e}");
+        }
+        // Frame 2 duplicated and frame 4 removed: the count matches, the copy is still found.
+        let mut swapped = good[..at[3]].to_vec();
+        swapped.extend_from_slice(&good[at[2]..at[4]]);
+        swapped.extend_from_slice(&good[at[4] + rec..]);
+        for r in read_three(&swapped) {
+            assert!(r.expect_err("a copy").to_string().contains("repeats frame record"));
+        }
+        // A recording joined to another: bytes after the End record.
+        let mut joined = good.clone();
+        joined.extend_from_slice(&good[at[0]..at[1]]);
+        for (i, r) in read_three(&joined).into_iter().enumerate() {
+            let e = r.expect_err("trailing records");
+            assert!(e.to_string().contains("bytes follow the End record"), "reader {i}: {e}");
+        }
+        // The End record removed: an interrupted capture (only a missing tail is one).
+        for r in read_three(&good[..good.len() - END_RECORD]) {
+            assert_eq!(r, Ok((5, false)));
+        }
+        assert!(ends_with_end_record(&good) && !ends_with_end_record(&good[..good.len() - 1]));
     }
 
     #[test]
