@@ -4,7 +4,9 @@
 //! EV step):
 //!
 //! - **Row-mean variance**: per frame, the mean of the noise over the flat pixels of each row
-//!   (rows with at least [`MIN_LINE_PIXELS`] flat pixels, both CFA columns together). What is
+//!   (rows with at least [`MIN_LINE_PIXELS`] flat pixels, both CFA columns together), the
+//!   frame's mean noise at each CFA position taken out first (a black-level error per position
+//!   would make even and odd rows alternate). What is
 //!   the same in every frame of a burst (same EV step and ISO) is not row noise but a fixed
 //!   pattern — the clean image's own error, DSNU, and above all the noise's mean at each level,
 //!   which differs between the patches a row crosses — so each row's mean is taken relative to
@@ -29,7 +31,9 @@
 //!   (a CFA plane, i.e. 32×32 sensor pixels) that are wholly flat, placed without overlap by a
 //!   row-major scan in steps of a quarter tile. Per crop and frame the noise's mean is removed
 //!   and the periodogram `|DFT|² / T²` taken (white noise of variance σ² has σ² in every bin);
-//!   periodograms are averaged per CFA position. Three curves summarise it: the **row** curve
+//!   periodograms are averaged per CFA position (in DN², the curves reported and drawn) and,
+//!   for the distances, each divided by its crop's white level (mean power off both axes)
+//!   first, so that dark crops, where banding stands out, weigh as much as bright ones. Three curves summarise it: the **row** curve
 //!   `P(f_y, f_x = 0)` (row offsets live at zero horizontal frequency), the **column** curve
 //!   `P(f_y = 0, f_x)`, and the **radial** mean of the other bins by rounded radius. Each
 //!   spectrum is divided by its white level (the radial curve's mean): the noise variance is the
@@ -193,8 +197,9 @@ impl Dft {
         Self { cos: (0..t).map(|k| ang(k).cos()).collect(), sin: (0..t).map(|k| -ang(k).sin()).collect() }
     }
 
-    /// Adds `|DFT(x − mean)|² / T²` of the crop `x` (row-major `T × T`) to `acc`.
-    fn add_periodogram(&self, x: &mut [f64], acc: &mut [f64]) {
+    /// Adds `|DFT(x − mean)|² / T²` of the crop `x` (row-major `T × T`) to `acc`, and the same
+    /// divided by the crop's white level (its mean power off both axes) to `norm`.
+    fn add_periodogram(&self, x: &mut [f64], acc: &mut [f64], norm: &mut [f64]) {
         let t = NPS_TILE;
         let mean = x.iter().sum::<f64>() / (t * t) as f64;
         x.iter_mut().for_each(|v| *v -= mean);
@@ -215,7 +220,8 @@ impl Dft {
             }
         }
         // Along columns.
-        let norm = 1.0 / (t * t) as f64;
+        let scale = 1.0 / (t * t) as f64;
+        let mut p = vec![0.0f64; t * t];
         for kx in 0..t {
             for ky in 0..t {
                 let (mut a, mut b) = (0.0, 0.0);
@@ -226,7 +232,20 @@ impl Dft {
                     a += r * c - i * s;
                     b += r * s + i * c;
                 }
-                acc[ky * t + kx] += (a * a + b * b) * norm;
+                p[ky * t + kx] = (a * a + b * b) * scale;
+            }
+        }
+        let mut white = 0.0;
+        for ky in 1..t {
+            for kx in 1..t {
+                white += p[ky * t + kx];
+            }
+        }
+        let white = white / ((t - 1) * (t - 1)) as f64;
+        for (i, v) in p.iter().enumerate() {
+            acc[i] += v;
+            if white > 0.0 {
+                norm[i] += v / white;
             }
         }
     }
@@ -347,8 +366,10 @@ pub struct SpatialSamples {
     /// Within-burst sums of squares of the frame means and their degrees of freedom.
     frame_ss: [f64; POSITIONS],
     frame_dof: [u64; POSITIONS],
-    /// Summed periodograms per position and how many.
+    /// Summed periodograms per position (DN², and each divided by its crop's white level) and
+    /// how many.
     nps: [Vec<f64>; POSITIONS],
+    nps_norm: [Vec<f64>; POSITIONS],
     nps_count: [u64; POSITIONS],
     frames: u64,
 }
@@ -422,6 +443,7 @@ impl SpatialSamples {
             frame_ss: [0.0; POSITIONS],
             frame_dof: [0; POSITIONS],
             nps: std::array::from_fn(|_| vec![0.0; NPS_TILE * NPS_TILE]),
+            nps_norm: std::array::from_fn(|_| vec![0.0; NPS_TILE * NPS_TILE]),
             nps_count: [0; POSITIONS],
             frames: 0,
         }
@@ -438,13 +460,19 @@ impl SpatialSamples {
         let mut pos_n = [0u64; POSITIONS];
         for &i in &layout.flat {
             let i = i as usize;
+            let p = position(i / w, i % w);
+            pos_sum[p] += noise[i] as f64;
+            pos_n[p] += 1;
+        }
+        // Line means of the noise less the frame's mean at each CFA position: a frame offset
+        // per position would otherwise alternate between even and odd rows (columns).
+        let pos_mean: [f64; POSITIONS] = std::array::from_fn(|p| pos_sum[p] / pos_n[p].max(1) as f64);
+        for &i in &layout.flat {
+            let i = i as usize;
             let (y, x) = (i / w, i % w);
-            let v = noise[i] as f64;
+            let v = noise[i] as f64 - pos_mean[position(y, x)];
             row_sum[y] += v;
             col_sum[x] += v;
-            let p = position(y, x);
-            pos_sum[p] += v;
-            pos_n[p] += 1;
         }
         self.burst_rows.push(line_means(&row_sum, &layout.row_count));
         self.burst_cols.push(line_means(&col_sum, &layout.col_count));
@@ -461,7 +489,7 @@ impl SpatialSamples {
                         crop[yy * t + xx] = noise[y * w + x] as f64;
                     }
                 }
-                dft.add_periodogram(&mut crop, &mut self.nps[p]);
+                dft.add_periodogram(&mut crop, &mut self.nps[p], &mut self.nps_norm[p]);
                 self.nps_count[p] += 1;
             }
         }
@@ -534,6 +562,16 @@ impl SpatialSamples {
         })
     }
 
+    /// The NPS curves at a position with every crop's periodogram divided by its white level
+    /// before averaging (each crop weighs the same, whatever its level): what the distances use.
+    pub fn nps_normalised(&self, pos: usize) -> Option<NpsCurves> {
+        let n = self.nps_count[pos];
+        (n > 0).then(|| {
+            let p: Vec<f64> = self.nps_norm[pos].iter().map(|v| v / n as f64).collect();
+            NpsCurves::from_periodogram(&p, n)
+        })
+    }
+
     /// Periodograms averaged at a position.
     pub fn periodograms(&self, pos: usize) -> u64 {
         self.nps_count[pos]
@@ -550,6 +588,9 @@ impl SpatialSamples {
             self.frame_ss[p] += other.frame_ss[p];
             self.frame_dof[p] += other.frame_dof[p];
             for (a, b) in self.nps[p].iter_mut().zip(&other.nps[p]) {
+                *a += b;
+            }
+            for (a, b) in self.nps_norm[p].iter_mut().zip(&other.nps_norm[p]) {
                 *a += b;
             }
             self.nps_count[p] += other.nps_count[p];
@@ -636,7 +677,7 @@ pub fn compare_spatial(real: &SpatialSamples, other: &SpatialSamples, bin_width:
     let frame_offset_var_ratio = (any && fr > 0.0).then(|| fo / fr);
     let (mut acc, mut wsum) = ([0.0; 3], 0.0);
     for p in 0..POSITIONS {
-        if let (Some(a), Some(b)) = (real.nps(p), other.nps(p))
+        if let (Some(a), Some(b)) = (real.nps_normalised(p), other.nps_normalised(p))
             && let Some(d) = nps_log_distances(&a, &b)
         {
             for (s, v) in acc.iter_mut().zip(d) {
