@@ -208,7 +208,8 @@ mod tests {
         assert_eq!(Tag::SubIfds.to_u16(), 330);
         assert_eq!(tag::EXIF_IFD.to_u16(), 34665);
         assert!(matches!(Tag::from_u16(51041), Tag::NoiseProfile));
-        assert!(matches!(Tag::from_u16(50712), Tag::Unknown(50712)));
+        assert!(matches!(Tag::from_u16(50712), Tag::LinearizationTable));
+        assert!(matches!(Tag::from_u16(50719), Tag::Unknown(50719)));
         assert!(matches!(Tag::from_u16(0), Tag::Unknown(0)));
         assert_eq!(Tag::Unknown(42).name(), None);
     }
