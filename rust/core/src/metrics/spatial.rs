@@ -61,6 +61,10 @@ pub const NPS_TILE: usize = 16;
 /// pixels.
 pub const MIN_LINE_PIXELS: usize = 16;
 
+/// White level (DN²) below which a crop is taken as noiseless (clipped) and left out of the
+/// normalised spectra: half the variance of rounding alone.
+const MIN_WHITE: f64 = 1.0 / 24.0;
+
 /// Bins per real standard deviation of the row-offset histogram.
 const BINS_PER_SD: f64 = 4.0;
 /// The histogram spans ±this many real standard deviations (outer values go to the end bins).
@@ -199,7 +203,8 @@ impl Dft {
 
     /// Adds `|DFT(x − mean)|² / T²` of the crop `x` (row-major `T × T`) to `acc`, and the same
     /// divided by the crop's white level (its mean power off both axes) to `norm`.
-    fn add_periodogram(&self, x: &mut [f64], acc: &mut [f64], norm: &mut [f64]) {
+    /// Returns whether the crop had noise enough to join `norm` ([`MIN_WHITE`]).
+    fn add_periodogram(&self, x: &mut [f64], acc: &mut [f64], norm: &mut [f64]) -> bool {
         let t = NPS_TILE;
         let mean = x.iter().sum::<f64>() / (t * t) as f64;
         x.iter_mut().for_each(|v| *v -= mean);
@@ -242,12 +247,18 @@ impl Dft {
             }
         }
         let white = white / ((t - 1) * (t - 1)) as f64;
-        for (i, v) in p.iter().enumerate() {
-            acc[i] += v;
-            if white > 0.0 {
-                norm[i] += v / white;
-            }
+        for (a, v) in acc.iter_mut().zip(&p) {
+            *a += v;
         }
+        // A crop without noise (a clipped patch) has no spectral shape: it joins the DN² sums
+        // only.
+        if white < MIN_WHITE {
+            return false;
+        }
+        for (n, v) in norm.iter_mut().zip(&p) {
+            *n += v / white;
+        }
+        true
     }
 }
 
@@ -371,6 +382,7 @@ pub struct SpatialSamples {
     nps: [Vec<f64>; POSITIONS],
     nps_norm: [Vec<f64>; POSITIONS],
     nps_count: [u64; POSITIONS],
+    nps_norm_count: [u64; POSITIONS],
     frames: u64,
 }
 
@@ -445,6 +457,7 @@ impl SpatialSamples {
             nps: std::array::from_fn(|_| vec![0.0; NPS_TILE * NPS_TILE]),
             nps_norm: std::array::from_fn(|_| vec![0.0; NPS_TILE * NPS_TILE]),
             nps_count: [0; POSITIONS],
+            nps_norm_count: [0; POSITIONS],
             frames: 0,
         }
     }
@@ -489,7 +502,9 @@ impl SpatialSamples {
                         crop[yy * t + xx] = noise[y * w + x] as f64;
                     }
                 }
-                dft.add_periodogram(&mut crop, &mut self.nps[p], &mut self.nps_norm[p]);
+                if dft.add_periodogram(&mut crop, &mut self.nps[p], &mut self.nps_norm[p]) {
+                    self.nps_norm_count[p] += 1;
+                }
                 self.nps_count[p] += 1;
             }
         }
@@ -565,7 +580,7 @@ impl SpatialSamples {
     /// The NPS curves at a position with every crop's periodogram divided by its white level
     /// before averaging (each crop weighs the same, whatever its level): what the distances use.
     pub fn nps_normalised(&self, pos: usize) -> Option<NpsCurves> {
-        let n = self.nps_count[pos];
+        let n = self.nps_norm_count[pos];
         (n > 0).then(|| {
             let p: Vec<f64> = self.nps_norm[pos].iter().map(|v| v / n as f64).collect();
             NpsCurves::from_periodogram(&p, n)
@@ -594,6 +609,7 @@ impl SpatialSamples {
                 *a += b;
             }
             self.nps_count[p] += other.nps_count[p];
+            self.nps_norm_count[p] += other.nps_norm_count[p];
         }
         self.frames += other.frames;
     }
