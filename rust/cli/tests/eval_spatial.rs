@@ -171,11 +171,6 @@ fn a_pixel_only_pack_misses_row_noise_and_frame_offsets() {
         assert!(j > 5.0 * jf, "ISO {i}: row-offset JSD {j:.4} vs floor {jf:.4}");
         let (d, df) = (m.nps_row_distance.expect("nps"), fl.nps_row_distance_scaled().expect("nps floor"));
         assert!(d > 3.0 * df, "ISO {i}: NPS row-curve distance {d:.4} vs floor {df:.4}");
-        let nps = pm.nps[1].clone().expect("model NPS");
-        let real = sp.nps[1].as_ref().expect("real nps");
-        let lift =
-            |c: &noisecal_core::metrics::spatial::NpsCurves| c.row.iter().sum::<f64>() / c.radial.iter().sum::<f64>();
-        assert!(lift(real) > 1.3 * lift(&nps), "ISO {i}: real row curve not above the synthetic one");
         // Frame offsets: the real frames' means spread more than the synthetic ones'.
         let fo = m.frame_offset_var_ratio.expect("frame-offset ratio");
         assert!(fo < 0.7, "ISO {i}: frame-offset variance ratio {fo:.3}");
