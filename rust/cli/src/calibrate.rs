@@ -1,14 +1,17 @@
 //! Calibration from a DNG folder or a recording into a model pack: the CLI's options on top of
 //! what the captures imply, and the one loop that feeds a session.
 
+use std::collections::BTreeMap;
+use std::io::{Read, Seek, SeekFrom};
 use std::path::Path;
 
-use anyhow::Context;
+use anyhow::{Context, bail};
 use noisecal_core::calibrate::flat::Roi;
 use noisecal_core::error::{CodecError, SessionError};
-use noisecal_core::{CalibrationSession, ModelPack, SessionConfig};
+use noisecal_core::format::recording;
+use noisecal_core::{CalibrationSession, ModelPack, SensorLayout, SessionConfig};
 
-use crate::source::{Record, Source};
+use crate::source::{InputKind, Record, Source};
 use crate::support::progress_bar;
 
 /// Options a user can set on top of what the captures imply.
@@ -48,8 +51,69 @@ impl CalibrateOptions {
 #[derive(Debug, Clone, Default)]
 pub struct CalibrateReport {
     pub frames: u64,
+    /// Each rejected frame: its label and why.
     pub rejected: Vec<String>,
+    /// Why frames were rejected, one line per reason with its count ([`summarize_rejections`]).
+    pub rejection_reasons: Vec<String>,
     pub warnings: Vec<String>,
+}
+
+/// Groups rejection reasons that differ only in their numbers (ISO, exposure, percentages,
+/// sizes): one line per reason, most frequent first, `N× reason (e.g. the first one's text)`.
+pub fn summarize_rejections(reasons: &[String]) -> Vec<String> {
+    let mut groups: BTreeMap<String, (usize, usize, &str)> = BTreeMap::new();
+    for (i, r) in reasons.iter().enumerate() {
+        let mut key = String::with_capacity(r.len());
+        let mut in_number = false;
+        for c in r.chars() {
+            let numeric = c.is_ascii_digit() || (in_number && (c == '.' || c == 'e' || c == '-'));
+            if numeric {
+                if !in_number {
+                    key.push('#');
+                }
+            } else {
+                key.push(c);
+            }
+            in_number = numeric;
+        }
+        groups.entry(key).or_insert((0, i, r)).0 += 1;
+    }
+    let mut v: Vec<(usize, usize, &str)> = groups.into_values().collect();
+    v.sort_by_key(|&(n, first, _)| (std::cmp::Reverse(n), first));
+    v.into_iter().map(|(n, _, example)| format!("{n}× {example}")).collect()
+}
+
+/// Refuses a region of interest that does not lie inside the image.
+fn check_roi(roi: &Roi, layout: &SensorLayout) -> anyhow::Result<()> {
+    if roi.x1 > layout.width || roi.y1 > layout.height {
+        bail!(
+            "--roi {},{},{},{} reaches outside the {}×{} image: give x0,y0,x1,y1 with x1 ≤ {} and y1 ≤ {}",
+            roi.x0,
+            roi.y0,
+            roi.x1,
+            roi.y1,
+            layout.width,
+            layout.height,
+            layout.width,
+            layout.height
+        );
+    }
+    Ok(())
+}
+
+/// Whether the recording file at `path` ends with a whole End record: then a record running
+/// past its end is damage, not an interrupted capture.
+fn recording_ends_whole(path: &Path) -> bool {
+    let tail = || -> std::io::Result<Vec<u8>> {
+        let mut f = std::fs::File::open(path)?;
+        let len = f.metadata()?.len();
+        let n = len.min(13);
+        f.seek(SeekFrom::Start(len - n))?;
+        let mut t = Vec::with_capacity(n as usize);
+        f.take(n).read_to_end(&mut t)?;
+        Ok(t)
+    };
+    tail().is_ok_and(|t| recording::ends_with_end_record(&t))
 }
 
 /// Calibrates from a DNG folder or a recording: every record of the [`Source`] into one
@@ -63,12 +127,17 @@ pub fn calibrate_path(
     let info = source.info();
     let mut config = info.config.clone();
     opts.apply(&mut config);
+    if let Some(roi) = &config.roi {
+        check_roi(roi, &info.layout)?;
+    }
+    let is_recording = info.kind == InputKind::Recording;
     let mut session = CalibrationSession::new(info.layout.clone(), config)?;
     for (&iso, np) in &info.noise_profiles {
         session.set_noise_profile(iso, *np);
     }
     let pb = progress_bar(info.frames, quiet, "calibrating");
     let mut report = CalibrateReport { warnings: info.warnings.clone(), ..Default::default() };
+    let mut reasons = Vec::new();
     while let Some(record) = source.next_record()? {
         match record {
             Record::BeginStep { reference_exposure_ns, .. } => session.begin_step(reference_exposure_ns)?,
@@ -78,18 +147,31 @@ pub fn calibrate_path(
                 let pushed = frame.view().map_err(SessionError::from).and_then(|v| session.push_frame(&v, &frame.meta));
                 if let Err(e) = pushed {
                     report.rejected.push(format!("{}: {e}", frame.label()));
+                    reasons.push(e.to_string());
                 }
             }
             Record::NoiseProfile { iso, profile } => session.set_noise_profile(iso, profile),
-            Record::CutShort(e) => report.rejected.push(match e {
-                CodecError::CutShort { context, .. } => {
-                    format!("the recording ends inside {context} (an interrupted capture); replayed up to it")
+            Record::CutShort(e) => {
+                // Only a missing tail is an interruption: a file that still ends with its End
+                // record has a damaged length or tag in the middle.
+                if is_recording && recording_ends_whole(path) {
+                    pb.finish_and_clear();
+                    bail!(
+                        "{} is damaged: {e:#}, yet the file ends with a whole End record, so this is not an interrupted capture but a damaged record (its length or tag); nothing was written",
+                        path.display()
+                    );
                 }
-                other => other.to_string(),
-            }),
+                report.warnings.push(match e {
+                    CodecError::CutShort { context, .. } => {
+                        format!("the recording ends inside {context} (an interrupted capture); replayed up to it")
+                    }
+                    other => other.to_string(),
+                })
+            }
         }
     }
     pb.finish_and_clear();
+    report.rejection_reasons = summarize_rejections(&reasons);
     if !source.complete() {
         report.warnings.push(format!(
             "{} has no end marker (an interrupted capture): using its {} complete frames",
@@ -97,6 +179,17 @@ pub fn calibrate_path(
             report.frames
         ));
     }
-    let pack = session.finish().with_context(|| format!("building the model pack from {}", path.display()))?;
+    let pack = session.finish().with_context(|| {
+        let mut msg = format!("building the model pack from {}", path.display());
+        if !report.rejected.is_empty() {
+            msg.push_str(&format!(
+                " ({} of {} frames were rejected: {})",
+                report.rejected.len(),
+                report.frames,
+                report.rejection_reasons.join("; ")
+            ));
+        }
+        msg
+    })?;
     Ok((pack, report))
 }

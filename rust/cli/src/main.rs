@@ -81,7 +81,7 @@ fn main() -> ExitCode {
         Ok(Ok(())) => ExitCode::SUCCESS,
         Ok(Err(e)) if is_broken_pipe(&e) => ExitCode::SUCCESS,
         Ok(Err(e)) => {
-            eprintln!("noisecal: error: {e:#}");
+            eprintln!("noisecal: error: {}", noisecal_cli::support::escape_terminal(&format!("{e:#}")));
             ExitCode::FAILURE
         }
         Err(_) => {

@@ -138,7 +138,9 @@ impl SimSession {
                 if let Some(parent) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
                     std::fs::create_dir_all(parent)?;
                 }
-                let f = std::fs::File::create(p).with_context(|| format!("cannot create {}", p.display()))?;
+                // Streamed into a temporary file renamed over `p` at the end: a kill leaves no
+                // partial recording (the next write into the folder removes the temporary file).
+                let f = noisecal_io::AtomicFile::create(p).with_context(|| format!("cannot create {}", p.display()))?;
                 let header = RecordingHeader {
                     layout: layout.clone(),
                     reference_iso: self.plan.reference_iso,
@@ -176,7 +178,9 @@ impl SimSession {
             }
         }
         if let Some(w) = writer {
-            w.finish()?;
+            let p = rec.unwrap_or(Path::new("the recording"));
+            let file = w.finish()?.into_inner().map_err(|e| e.into_error())?;
+            file.commit().with_context(|| format!("cannot write {}", p.display()))?;
         }
         Ok(())
     }

@@ -43,6 +43,27 @@ pub fn print(text: &str) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `s` made safe to print on a terminal: control characters (C0 but tab and newline, DEL, C1 —
+/// the escape sequences a DNG's Make tag or a file name could carry) and bidirectional overrides
+/// are shown as `\u{…}` escapes instead of being sent to the terminal.
+pub fn escape_terminal(s: &str) -> std::borrow::Cow<'_, str> {
+    let unsafe_char = |c: char| {
+        (c.is_control() && c != '\n' && c != '\t') || matches!(c, '\u{202A}'..='\u{202E}' | '\u{2066}'..='\u{2069}')
+    };
+    if !s.chars().any(unsafe_char) {
+        return std::borrow::Cow::Borrowed(s);
+    }
+    let mut o = String::with_capacity(s.len() + 8);
+    for c in s.chars() {
+        if unsafe_char(c) {
+            o.push_str(&format!("\\u{{{:x}}}", c as u32));
+        } else {
+            o.push(c);
+        }
+    }
+    std::borrow::Cow::Owned(o)
+}
+
 /// Whether an error is stdout (or another pipe) closed by its reader, as in
 /// `noisecal inspect --json p.pack | head`: the program then ends quietly and successfully.
 pub fn is_broken_pipe(err: &anyhow::Error) -> bool {
@@ -62,6 +83,15 @@ mod tests {
         assert!(!is_broken_pipe(&other));
         // Panic-like text is not a broken pipe: only the error kind counts.
         assert!(!is_broken_pipe(&anyhow::anyhow!("failed printing to stdout: Broken pipe (os error 32)")));
+    }
+
+    #[test]
+    fn terminal_escapes_are_shown_not_sent() {
+        assert_eq!(escape_terminal("Google Pixel 6\tok\n"), "Google Pixel 6\tok\n");
+        assert_eq!(
+            escape_terminal("\u{1b}]0;pwned\u{7}Evil\u{9b}2J\u{202e}"),
+            "\\u{1b}]0;pwned\\u{7}Evil\\u{9b}2J\\u{202e}"
+        );
     }
 }
 

@@ -7,6 +7,7 @@ use noisecal_core::calibrate::flat::Roi;
 
 use crate::calibrate::{CalibrateOptions, calibrate_path};
 use crate::output::write_atomic;
+use crate::support::escape_terminal;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -70,12 +71,16 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         return Ok(());
     }
     for w in report.warnings.iter().chain(&pack.warnings) {
-        eprintln!("warning: {w}");
+        eprintln!("warning: {}", escape_terminal(w));
     }
     if !report.rejected.is_empty() {
-        eprintln!("{} frames rejected:", report.rejected.len());
+        eprintln!("{} of {} frames rejected, by reason:", report.rejected.len(), report.frames);
+        for r in &report.rejection_reasons {
+            eprintln!("  {}", escape_terminal(r));
+        }
+        eprintln!("rejected frames:");
         for r in report.rejected.iter().take(20) {
-            eprintln!("  {r}");
+            eprintln!("  {}", escape_terminal(r));
         }
         if report.rejected.len() > 20 {
             eprintln!("  … and {} more", report.rejected.len() - 20);

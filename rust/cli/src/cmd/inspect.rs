@@ -9,7 +9,7 @@ use noisecal_core::{ModelPack, POSITIONS};
 use serde::Serialize;
 
 use crate::models::origin_text;
-use crate::support::{load_pack, print};
+use crate::support::{escape_terminal, load_pack, print};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -140,8 +140,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 /// The text `noisecal inspect` prints.
 fn render_text(path: &std::path::Path, pack: &ModelPack, s: &PackSummary) -> String {
     let mut o = String::new();
-    let _ = writeln!(o, "{}", path.display());
-    let _ = writeln!(o, "  camera     {} {}", s.make, s.model);
+    // Make, model and warnings come from the captures (a DNG's tags): escaped, never sent raw.
+    let _ = writeln!(o, "{}", escape_terminal(&path.display().to_string()));
+    let _ = writeln!(o, "  camera     {} {}", escape_terminal(&s.make), escape_terminal(&s.model));
     let _ = writeln!(o, "  sensor     {} ({}-bit)", pack.layout.describe(), s.bit_depth);
     let pooling = match s.pooling {
         Some(m) => format!("pooled to {m} samples (fixed at calibration)"),
@@ -191,7 +192,7 @@ fn render_text(path: &std::path::Path, pack: &ModelPack, s: &PackSummary) -> Str
         let _ = writeln!(o);
         let _ = writeln!(o, "  warnings:");
         for w in &s.warnings {
-            let _ = writeln!(o, "    - {w}");
+            let _ = writeln!(o, "    - {}", escape_terminal(w));
         }
     }
     o
