@@ -180,12 +180,7 @@ fn a_pixel_only_pack_misses_row_noise_and_frame_offsets() {
     }
     // Banding grows with the gain: the gap widens from ISO 100 to 6400.
     let ratio = |i: u32| {
-        iso(&f.report, i)
-            .spatial
-            .as_ref()
-            .and_then(|s| s.model("noisecal"))
-            .and_then(|m| m.scores.row_var_ratio)
-            .expect("ratio")
+        iso(&f.report, i).spatial.as_ref().map(pixel_only).and_then(|m| m.scores.row_var_ratio).expect("ratio")
     };
     assert!(ratio(100) > ratio(1600), "{} vs {}", ratio(100), ratio(1600));
 }
