@@ -4,7 +4,8 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use noisecal_core::model::pack::IsoModel;
+use ndarray::Array2;
+use noisecal_core::model::pack::{IsoModel, NoiseProfile};
 use noisecal_core::synth::sampler::IsoSampler;
 use noisecal_core::synth::synthesize;
 
@@ -38,57 +39,132 @@ pub struct Args {
 
 pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
     crate::support::refuse_overwriting_inputs(&args.output, &[&args.input, &args.pack])?;
-    let pack = load_pack(&args.pack)?;
-    let (model, note) = resolve_model(&pack, args.iso, args.model, args.extrapolate)?;
-    if let Some(n) = note {
-        eprintln!("{n}");
-    }
-    let sampler = IsoSampler::new(&pack, &model);
     let folder = args.input.is_dir();
-    let jobs: Vec<(PathBuf, PathBuf)> = if folder {
-        let files = dng::scan_folder(&args.input)?;
-        if files.is_empty() {
-            bail!("{} holds no .dng files", args.input.display());
+    std::thread::scope(|scope| {
+        // A single input is read while the pack loads.
+        let prefetch = (!folder).then(|| scope.spawn(|| dng::read_dng_source(&args.input)));
+        let pack = load_pack(&args.pack)?;
+        let (model, note) = resolve_model(&pack, args.iso, args.model, args.extrapolate)?;
+        if let Some(n) = note {
+            eprintln!("{n}");
         }
-        std::fs::create_dir_all(&args.output).with_context(|| format!("cannot create {}", args.output.display()))?;
-        files
-            .into_iter()
-            .map(|f| {
-                let name = f.file_name().map(|n| n.to_owned()).unwrap_or_default();
-                let out = args.output.join(name);
-                (f, out)
-            })
-            .collect()
-    } else {
-        vec![(args.input.clone(), args.output.clone())]
-    };
-    let job = Job { pack: &pack, sampler: &sampler, model: &model, iso: args.iso, quiet };
-    for (i, (input, output)) in jobs.iter().enumerate() {
-        // Each file gets its own seed stream so a folder run equals single-file runs with seed + index.
-        let seed = args.seed.wrapping_add(i as u64);
-        let done = job.file(input, output, seed);
-        if let Err(e) = done {
-            if !folder {
-                return Err(e);
+        let sampler = IsoSampler::new(&pack, &model);
+        let jobs: Vec<(PathBuf, PathBuf)> = if folder {
+            let files = dng::scan_folder(&args.input)?;
+            if files.is_empty() {
+                bail!("{} holds no .dng files", args.input.display());
             }
-            let kept = match i {
-                0 => "no output was written".to_string(),
-                1 => format!("the 1 output written before it is kept in {}", args.output.display()),
-                n => format!("the {n} outputs written before it are kept in {}", args.output.display()),
-            };
-            return Err(e.context(format!(
-                "{} failed (file {} of {} in {}); {kept}; fix or remove it and run again",
-                input.display(),
-                i + 1,
-                jobs.len(),
-                args.input.display()
-            )));
+            std::fs::create_dir_all(&args.output)
+                .with_context(|| format!("cannot create {}", args.output.display()))?;
+            files
+                .into_iter()
+                .map(|f| {
+                    let name = f.file_name().map(|n| n.to_owned()).unwrap_or_default();
+                    let out = args.output.join(name);
+                    (f, out)
+                })
+                .collect()
+        } else {
+            vec![(args.input.clone(), args.output.clone())]
+        };
+        let job = Job { pack: &pack, sampler: &sampler, model: &model, quiet };
+        // Three stages overlap: reading file i + 1, sampling file i, writing file i − 1.
+        let (read_tx, read_rx) = std::sync::mpsc::sync_channel::<anyhow::Result<dng::DngFile>>(1);
+        let (write_tx, write_rx) = std::sync::mpsc::sync_channel::<Written>(1);
+        let reader_jobs = jobs.clone();
+        scope.spawn(move || {
+            let mut prefetch = prefetch;
+            for (input, output) in &reader_jobs {
+                let file = match prefetch.take() {
+                    Some(h) => h.join().unwrap_or_else(|_| {
+                        Err(dng::DngError::Io {
+                            path: input.clone(),
+                            source: std::io::Error::other("the reading thread panicked"),
+                        })
+                    }),
+                    None => dng::read_dng_source(input),
+                };
+                let file = file.map_err(anyhow::Error::from).and_then(|f| {
+                    if noisecal_io::same_file(input, output) {
+                        bail!(
+                            "{} is also an input ({}): write to another path; noisecal never writes over what it reads",
+                            output.display(),
+                            input.display()
+                        );
+                    }
+                    Ok(f)
+                });
+                if read_tx.send(file).is_err() {
+                    break;
+                }
+            }
+        });
+        let iso = args.iso;
+        let writer = scope.spawn(move || -> (usize, Option<anyhow::Error>) {
+            let mut written = 0;
+            for w in write_rx {
+                if let Err(e) = dng::write_derived_owned(&w.output, w.file, &w.noisy, iso, w.profile.as_ref()) {
+                    return (written, Some(e.into()));
+                }
+                written += 1;
+                if !quiet {
+                    eprintln!("{} → {} (ISO {iso}, seed {})", w.input.display(), w.output.display(), w.seed);
+                }
+            }
+            (written, None)
+        });
+        let mut failed: Option<(usize, anyhow::Error)> = None;
+        for (i, ((input, output), file)) in jobs.iter().zip(read_rx).enumerate() {
+            // Each file gets its own seed stream so a folder run equals single-file runs with seed + index.
+            let seed = args.seed.wrapping_add(i as u64);
+            match file.and_then(|f| job.sample(input, f, seed)) {
+                Ok((file, noisy, profile)) => {
+                    let w = Written { input: input.clone(), output: output.clone(), seed, file, noisy, profile };
+                    if write_tx.send(w).is_err() {
+                        break;
+                    }
+                }
+                Err(e) => {
+                    failed = Some((i, e));
+                    break;
+                }
+            }
         }
-        if !quiet {
-            eprintln!("{} → {} (ISO {}, seed {seed})", input.display(), output.display(), args.iso);
+        drop(write_tx);
+        let (written, write_error) =
+            writer.join().unwrap_or_else(|_| (0, Some(anyhow::anyhow!("the writing thread panicked"))));
+        // The first failure in file order: a write fails only for files sampled before.
+        let failed = match write_error {
+            Some(e) => Some((written, e)),
+            None => failed,
+        };
+        let Some((i, e)) = failed else { return Ok(()) };
+        if !folder {
+            return Err(e);
         }
-    }
-    Ok(())
+        let kept = match i {
+            0 => "no output was written".to_string(),
+            1 => format!("the 1 output written before it is kept in {}", args.output.display()),
+            n => format!("the {n} outputs written before it are kept in {}", args.output.display()),
+        };
+        Err(e.context(format!(
+            "{} failed (file {} of {} in {}); {kept}; fix or remove it and run again",
+            jobs[i].0.display(),
+            i + 1,
+            jobs.len(),
+            args.input.display()
+        )))
+    })
+}
+
+/// A sampled file on its way to the writer.
+struct Written {
+    input: PathBuf,
+    output: PathBuf,
+    seed: u64,
+    file: dng::DngFile,
+    noisy: Array2<u16>,
+    profile: Option<NoiseProfile>,
 }
 
 /// What every file of a run shares.
@@ -96,34 +172,31 @@ struct Job<'a> {
     pack: &'a noisecal_core::ModelPack,
     sampler: &'a IsoSampler,
     model: &'a IsoModel,
-    iso: u32,
     quiet: bool,
 }
 
 impl Job<'_> {
-    fn file(&self, input: &Path, output: &Path, seed: u64) -> anyhow::Result<()> {
+    /// The noisy pixels of a read file, and the NoiseProfile its DNG gets.
+    fn sample(
+        &self,
+        input: &Path,
+        file: dng::DngFile,
+        seed: u64,
+    ) -> anyhow::Result<(dng::DngFile, Array2<u16>, Option<NoiseProfile>)> {
         let pack = self.pack;
-        if noisecal_io::same_file(input, output) {
-            bail!(
-                "{} is also an input ({}): write to another path; noisecal never writes over what it reads",
-                output.display(),
-                input.display()
-            );
-        }
-        let file = dng::read_dng_file(input)?;
-        let img = &file.image;
-        check_layout_matches(pack, &img.layout, input)?;
+        let layout = file.image.layout.clone();
+        check_layout_matches(pack, &layout, input)?;
         // The model is binned by level above the pack's black level: an image with another black level
         // is shifted onto the pack's, synthesized, and shifted back.
-        let align = align_input(pack, &img.layout, input, self.quiet);
+        let align = align_input(pack, &layout, input, self.quiet);
+        let clean = file.pixels();
         let noisy = if align.is_identity() {
-            synthesize(self.sampler, img.pixels.view(), seed)
+            synthesize(self.sampler, clean, seed)
         } else {
-            let moved = align.apply(img.pixels.view(), pack.layout.white);
-            align.undo(synthesize(self.sampler, moved.view(), seed).view(), img.layout.white)
+            let moved = align.apply(clean, pack.layout.white);
+            align.undo(synthesize(self.sampler, moved.view(), seed).view(), layout.white)
         };
-        let profile = dng::fitted_noise_profile(pack, self.model, &img.layout);
-        dng::write_derived(output, &file, &noisy, self.iso, profile.as_ref())?;
-        Ok(())
+        let profile = dng::fitted_noise_profile(pack, self.model, &layout);
+        Ok((file, noisy, profile))
     }
 }

@@ -22,10 +22,11 @@
 
 use std::collections::{BTreeMap, HashSet};
 
-use ndarray::ArrayView2;
+use ndarray::{Array2, ArrayView2, ShapeBuilder};
 use noisecal_core::SensorLayout;
 use noisecal_core::model::layout::{CfaColor, POSITIONS};
 use noisecal_core::model::pack::NoiseProfile;
+use rayon::prelude::*;
 
 use super::tags::Tag;
 use super::tiff::pack_msb;
@@ -294,13 +295,14 @@ enum DataLayout {
 /// included); it is called only when the pixels cannot be written over the stored ones and the
 /// active area is not the whole image.
 pub(crate) fn derive(
-    input: &[u8],
+    mut out: Vec<u8>,
     layout: &SensorLayout,
     pixels: ArrayView2<'_, u16>,
     iso: u32,
     profile: Option<&NoiseProfile>,
-    decode_full: impl FnOnce() -> Result<Vec<u16>, String>,
+    decode_full: impl FnOnce(&[u8]) -> Result<Vec<u16>, String>,
 ) -> Result<(Vec<u8>, PixelMode), String> {
+    let input: &[u8] = &out;
     let s = Structure::parse(input)?;
     let o = s.order;
     let raw = s.raw_dir(input).ok_or("the template has no full-resolution CFA raw image")?;
@@ -315,13 +317,13 @@ pub(crate) fn derive(
     if geo.origin.0 + ah > geo.height || geo.origin.1 + aw > geo.width {
         return Err(format!("the template's active area does not fit its {}×{} raw image", geo.width, geo.height));
     }
-
+    let mode = pixel_mode(&s, input, raw, &geo, pixels);
+    let planes: Vec<u64> =
+        s.uints(input, raw, Tag::CfaPlaneColor).filter(|p| !p.is_empty() && p.len() <= 4).unwrap_or(vec![0, 1, 2]);
+    let id = new_unique_id(&s, input, iso, pixels);
     let mut edits = Edits::default();
-    let mut out = Vec::with_capacity(input.len() + 4096);
-    out.extend_from_slice(input);
 
     // --- Pixels.
-    let mode = pixel_mode(&s, input, raw, &geo, pixels);
     match mode {
         PixelMode::InPlace16 => write_16(&mut out, o, &geo, pixels),
         PixelMode::InPlacePacked(bits) => write_packed(&mut out, &geo, bits, pixels),
@@ -330,7 +332,7 @@ pub(crate) fn derive(
             let full: Vec<u16> = if geo.origin == (0, 0) && (aw, ah) == (w, h) {
                 pixels.iter().copied().collect()
             } else {
-                let mut full = decode_full()?;
+                let mut full = decode_full(&out)?;
                 if full.len() < w * h {
                     return Err(format!("the template's raw image decodes to {} samples, not {w}×{h}", full.len()));
                 }
@@ -412,10 +414,7 @@ pub(crate) fn derive(
     }
 
     // --- NoiseProfile, digests, raw data ID.
-    let planes: Vec<u64> =
-        s.uints(input, raw, Tag::CfaPlaneColor).filter(|p| !p.is_empty() && p.len() <= 4).unwrap_or(vec![0, 1, 2]);
     let profile_pairs = profile.map(|p| plane_pairs(p, layout, &planes));
-    let id = new_unique_id(&s, input, iso, pixels);
     for d in 0..s.dirs.len() {
         if d == raw
             && let Some(pairs) = &profile_pairs
@@ -516,14 +515,126 @@ fn geometry(s: &Structure, buf: &[u8], raw: usize) -> Result<RawGeometry, String
     Ok(RawGeometry { width, height, bits, origin, data })
 }
 
-/// Whether the new pixels can be written over the stored ones.
-fn pixel_mode(s: &Structure, buf: &[u8], raw: usize, g: &RawGeometry, pixels: ArrayView2<'_, u16>) -> PixelMode {
-    let plain = s.uint(buf, raw, Tag::Compression).unwrap_or(1) == 1
+/// The active area of an uncompressed 16-bit raw image (strips or tiles), read straight from the
+/// file's bytes: the samples a decoder gives, without decoding the whole image and cropping it.
+/// `None` for any other storage (or data the file does not hold), left to the decoder.
+pub(crate) fn read_active_16(
+    buf: &[u8],
+    (width, height): (usize, usize),
+    (top, left, bottom, right): (usize, usize, usize, usize),
+) -> Option<Array2<u16>> {
+    let s = Structure::parse(buf).ok()?;
+    let raw = s.raw_dir(buf)?;
+    let g = geometry(&s, buf, raw).ok()?;
+    if (g.width, g.height) != (width, height)
+        || g.origin != (top, left)
+        || g.bits != 16
+        || !plain(&s, buf, raw)
+        || stored_fits(buf, &g) != Some(true)
+    {
+        return None;
+    }
+    let (ah, aw) = (bottom - top, right - left);
+    let mut out = vec![0u16; ah * aw];
+    let big = s.order.big;
+    let get = |dst: &mut [u16], src: &[u8]| {
+        if big {
+            for (d, c) in dst.iter_mut().zip(src.chunks_exact(2)) {
+                *d = u16::from_be_bytes([c[0], c[1]]);
+            }
+        } else {
+            for (d, c) in dst.iter_mut().zip(src.chunks_exact(2)) {
+                *d = u16::from_le_bytes([c[0], c[1]]);
+            }
+        }
+    };
+    out.par_chunks_mut(aw.max(1)).enumerate().for_each(|(y, row)| {
+        let fy = top + y;
+        match &g.data {
+            DataLayout::Strips { rows, offsets, .. } => {
+                let at = offsets[fy / rows] as usize + ((fy % rows) * g.width + left) * 2;
+                get(row, &buf[at..at + 2 * aw]);
+            }
+            DataLayout::Tiles { width: tw, length: tl, offsets, .. } => {
+                let across = g.width.div_ceil(*tw);
+                let mut x = left;
+                while x < right {
+                    let tx = x / tw;
+                    let stop = ((tx + 1) * tw).min(right);
+                    let at = offsets[(fy / tl) * across + tx] as usize + ((fy % tl) * tw + (x - tx * tw)) * 2;
+                    get(&mut row[x - left..stop - left], &buf[at..at + 2 * (stop - x)]);
+                    x = stop;
+                }
+            }
+        }
+    });
+    Array2::from_shape_vec((ah, aw), out).ok()
+}
+
+/// The active area of uncompressed 16-bit data stored in the host's byte order, in strips that
+/// follow each other in the file, as a view of the file's bytes: no copy. `None` for any other
+/// storage (or when the bytes are not 2-aligned in memory).
+pub(crate) fn active_view(buf: &[u8], (ah, aw): (usize, usize)) -> Option<ArrayView2<'_, u16>> {
+    let s = Structure::parse(buf).ok()?;
+    let raw = s.raw_dir(buf)?;
+    let g = geometry(&s, buf, raw).ok()?;
+    let DataLayout::Strips { rows, offsets, .. } = &g.data else { return None };
+    let host_big = cfg!(target_endian = "big");
+    if g.bits != 16 || s.order.big != host_big || !plain(&s, buf, raw) || stored_fits(buf, &g) != Some(true) {
+        return None;
+    }
+    let (top, left) = g.origin;
+    if ah == 0 || aw == 0 || top + ah > g.height || left + aw > g.width {
+        return None;
+    }
+    let strip = (rows * g.width * 2) as u64;
+    if offsets.windows(2).any(|w| w[1] != w[0] + strip) {
+        return None;
+    }
+    let base = offsets[0] as usize + (top * g.width + left) * 2;
+    let len = ((ah - 1) * g.width + aw) * 2;
+    let samples: &[u16] = bytemuck::try_cast_slice(buf.get(base..base + len)?).ok()?;
+    ArrayView2::from_shape((ah, aw).strides((g.width, 1)), samples).ok()
+}
+
+/// Uncompressed single-sample integer data, stored as it reads (no linearization, no
+/// interleaving).
+fn plain(s: &Structure, buf: &[u8], raw: usize) -> bool {
+    s.uint(buf, raw, Tag::Compression).unwrap_or(1) == 1
         && s.uint(buf, raw, Tag::SamplesPerPixel).unwrap_or(1) == 1
         && s.uint(buf, raw, Tag::SampleFormat).unwrap_or(1) == 1
         && s.entry(raw, Tag::LinearizationTable).is_none()
         && s.uint(buf, raw, Tag::RowInterleaveFactor).unwrap_or(1) == 1
-        && s.uint(buf, raw, Tag::ColumnInterleaveFactor).unwrap_or(1) == 1;
+        && s.uint(buf, raw, Tag::ColumnInterleaveFactor).unwrap_or(1) == 1
+}
+
+/// Whether every strip or tile of 16-bit data is where the file says and as long as it must be
+/// (`None` for other bit depths).
+fn stored_fits(buf: &[u8], g: &RawGeometry) -> Option<bool> {
+    if g.bits != 16 || g.width == 0 || g.height == 0 {
+        return None;
+    }
+    let fits = |offsets: &[u64], counts: &[u64], n: usize, need: &dyn Fn(usize) -> u64| {
+        offsets.len() == n
+            && counts.len() == n
+            && (0..n).all(|i| counts[i] >= need(i) && offsets[i].saturating_add(need(i)) <= buf.len() as u64)
+    };
+    match &g.data {
+        DataLayout::Strips { rows, offsets, counts } => {
+            let n = g.height.div_ceil(*rows);
+            Some(fits(offsets, counts, n, &|i| ((*rows).min(g.height - i * rows) * g.width * 2) as u64))
+        }
+        DataLayout::Tiles { width, length, offsets, counts } if *width > 0 && *length > 0 => {
+            let n = g.width.div_ceil(*width) * g.height.div_ceil(*length);
+            Some(fits(offsets, counts, n, &|_| (width * length * 2) as u64))
+        }
+        DataLayout::Tiles { .. } => Some(false),
+    }
+}
+
+/// Whether the new pixels can be written over the stored ones.
+fn pixel_mode(s: &Structure, buf: &[u8], raw: usize, g: &RawGeometry, pixels: ArrayView2<'_, u16>) -> PixelMode {
+    let plain = plain(s, buf, raw);
     if !plain || g.width == 0 || g.height == 0 {
         return PixelMode::Appended;
     }
@@ -533,15 +644,12 @@ fn pixel_mode(s: &Structure, buf: &[u8], raw: usize, g: &RawGeometry, pixels: Ar
             && (0..n).all(|i| counts[i] >= need(i) && offsets[i].saturating_add(need(i)) <= buf.len() as u64)
     };
     match (&g.data, g.bits) {
-        (DataLayout::Strips { rows, offsets, counts }, 16) => {
-            let n = g.height.div_ceil(*rows);
-            let need = |i: usize| ((*rows).min(g.height - i * rows) * g.width * 2) as u64;
-            if fits(offsets, counts, n, &need) { PixelMode::InPlace16 } else { PixelMode::Appended }
-        }
-        (DataLayout::Tiles { width, length, offsets, counts }, 16) if *width > 0 && *length > 0 => {
-            let n = g.width.div_ceil(*width) * g.height.div_ceil(*length);
-            let need = |_: usize| (width * length * 2) as u64;
-            if fits(offsets, counts, n, &need) { PixelMode::InPlace16 } else { PixelMode::Appended }
+        (_, 16) => {
+            if stored_fits(buf, g) == Some(true) {
+                PixelMode::InPlace16
+            } else {
+                PixelMode::Appended
+            }
         }
         (DataLayout::Strips { rows, offsets, counts }, bits) if (10..16).contains(&bits) => {
             let max = (1u32 << bits) - 1;
@@ -564,8 +672,14 @@ fn pixel_mode(s: &Structure, buf: &[u8], raw: usize, g: &RawGeometry, pixels: Ar
 fn write_16(out: &mut [u8], o: Order, g: &RawGeometry, pixels: ArrayView2<'_, u16>) {
     let (top, left) = g.origin;
     let put = |dst: &mut [u8], src: &[u16]| {
-        for (d, &v) in dst.chunks_exact_mut(2).zip(src) {
-            d.copy_from_slice(&o.b16(v));
+        if o.big {
+            for (d, &v) in dst.chunks_exact_mut(2).zip(src) {
+                d.copy_from_slice(&v.to_be_bytes());
+            }
+        } else {
+            for (d, &v) in dst.chunks_exact_mut(2).zip(src) {
+                d.copy_from_slice(&v.to_le_bytes());
+            }
         }
     };
     let mut scratch = Vec::new();

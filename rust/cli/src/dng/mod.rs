@@ -28,7 +28,7 @@ mod write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use ndarray::Array2;
+use ndarray::{Array2, ArrayView2};
 use noisecal_core::{FrameMeta, SensorLayout};
 
 pub use edit::PixelMode;
@@ -36,10 +36,12 @@ pub use error::DngError;
 pub use profile::fitted_noise_profile;
 pub use read::{
     MAX_DNG_BYTES, decode_dng, decode_dng_meta, decode_dng_template, read_dng, read_dng_file, read_dng_meta,
-    read_dng_template,
+    read_dng_source, read_dng_template,
 };
 pub use tags::Tag;
-pub use write::{DngSpec, derived_bytes, dng_tiff, write_derived, write_dng, write_dng_from_layout};
+pub use write::{
+    DngSpec, derived_bytes, dng_tiff, write_derived, write_derived_owned, write_dng, write_dng_from_layout,
+};
 
 /// Colour tags carried from a read DNG to the ones written from it, so other tools still render
 /// them. They play no part in the noise model.
@@ -90,6 +92,21 @@ impl DngFile {
     /// The file's bytes.
     pub fn bytes(&self) -> &[u8] {
         &self.bytes
+    }
+
+    /// The active area's pixels: a view of the file's bytes when the raw image is stored as
+    /// uncompressed 16-bit samples in this machine's byte order (no copy), else the decoded ones.
+    pub fn pixels(&self) -> ArrayView2<'_, u16> {
+        self.view().unwrap_or_else(|| self.image.pixels.view())
+    }
+
+    fn view(&self) -> Option<ArrayView2<'_, u16>> {
+        edit::active_view(&self.bytes, (self.image.layout.height as usize, self.image.layout.width as usize))
+    }
+
+    /// The file's bytes, owned (copied only if this template is shared).
+    pub(crate) fn into_bytes(self) -> Vec<u8> {
+        Arc::try_unwrap(self.bytes).unwrap_or_else(|shared| (*shared).clone())
     }
 }
 

@@ -67,6 +67,19 @@ pub fn read_dng_file(path: &Path) -> Result<DngFile, DngError> {
     Ok(DngFile { image, bytes })
 }
 
+/// As [`read_dng_file`], but the pixels of an uncompressed 16-bit raw image in this machine's
+/// byte order are not copied out of the file's bytes: read them with [`DngFile::pixels`] (for
+/// other storage they are decoded into `image.pixels`, as [`read_dng_file`] does).
+pub fn read_dng_source(path: &Path) -> Result<DngFile, DngError> {
+    let bytes = file_bytes(path)?;
+    let image = parse(RawSource::new_from_shared_vec(bytes.clone()), path, false)?;
+    let mut file = DngFile { image, bytes };
+    if file.pixels().is_empty() {
+        file.image = parse(RawSource::new_from_shared_vec(file.bytes.clone()), path, true)?;
+    }
+    Ok(file)
+}
+
 /// As [`read_dng_file`] without decoding the pixels (`image.pixels` is empty): a template only.
 pub fn read_dng_template(path: &Path) -> Result<DngFile, DngError> {
     let bytes = file_bytes(path)?;
@@ -278,6 +291,11 @@ fn decode(
                 "BitsPerSample says {bits} bits, but the uncompressed {width}×{height} image stores {data_bytes} bytes,                  as many as 16-bit samples need ({needed} for {bits}-bit): the tag does not describe the data;                  fix BitsPerSample (e.g. exiftool -BitsPerSample=16) or re-export the DNG"
             ),
         ));
+    }
+    // Uncompressed 16-bit data (Android's DngCreator, noisecal's own files) is read straight
+    // into the active area; the rest goes through the decoder.
+    if let Some(pixels) = super::edit::read_active_16(src.buf(), (width, height), (top, left, bottom, right)) {
+        return Ok(pixels);
     }
     let data = guarded(path, "decoding the raw image data", || plain_image_from_ifd(raw, src))
         .map_err(|e| panic_error(path, raw, e))?

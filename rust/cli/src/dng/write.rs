@@ -53,6 +53,23 @@ pub fn write_derived(
     noisecal_io::write_bytes_atomic(path, &bytes).map_err(|e| DngError::io(path, e))
 }
 
+/// As [`write_derived`], consuming the template: its bytes become the output's without a copy.
+pub fn write_derived_owned(
+    path: &Path,
+    template: DngFile,
+    pixels: &Array2<u16>,
+    iso: u32,
+    noise_profile: Option<&NoiseProfile>,
+) -> Result<(), DngError> {
+    let source = template.image.source.clone();
+    let layout = template.image.layout.clone();
+    let (bytes, _) = edit::derive(template.into_bytes(), &layout, pixels.view(), iso, noise_profile, |b| {
+        super::read::decode_full_raw(b, &source).map_err(|e| e.to_string())
+    })
+    .map_err(|what| DngError::invalid(path, format!("from the template {}: {what}", source.display())))?;
+    noisecal_io::write_bytes_atomic(path, &bytes).map_err(|e| DngError::io(path, e))
+}
+
 /// The bytes [`write_derived`] writes (`path` names the output in errors), and how the pixels
 /// got in.
 pub fn derived_bytes(
@@ -66,8 +83,8 @@ pub fn derived_bytes(
         return Err(DngError::invalid(path, "ISO is 0; pass the sensitivity of the frame"));
     }
     let source = &template.image.source;
-    let decode_full = || super::read::decode_full_raw(template.bytes(), source).map_err(|e| e.to_string());
-    edit::derive(template.bytes(), &template.image.layout, pixels.view(), iso, noise_profile, decode_full)
+    let decode_full = |b: &[u8]| super::read::decode_full_raw(b, source).map_err(|e| e.to_string());
+    edit::derive(template.bytes().to_vec(), &template.image.layout, pixels.view(), iso, noise_profile, decode_full)
         .map_err(|what| DngError::invalid(path, format!("from the template {}: {what}", source.display())))
 }
 

@@ -1,0 +1,91 @@
+//! `noisecal synth` of an uncompressed 12 MP DNG end to end (read, sample, encode, atomic write),
+//! as the command runs it (a process: pack load and fsync included) and in process by stage.
+//!
+//!     cargo bench -p noisecal-cli --bench synth_e2e
+//!
+//! The pack and the 4000×3000 DNG (10-bit, Android `DngCreator` layout) come from the simulator,
+//! made once in a temporary folder.
+
+use std::hint::black_box;
+use std::path::Path;
+use std::process::Command;
+
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use noisecal_cli::dng::{derived_bytes, fitted_noise_profile, read_dng_file};
+use noisecal_cli::models::{ModelKind, resolve_model};
+use noisecal_core::ModelPack;
+use noisecal_core::synth::sampler::IsoSampler;
+use noisecal_core::synth::synthesize;
+
+const ISO: u32 = 800;
+
+fn noisecal(args: &[&str]) {
+    let out = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(args).output().expect("noisecal runs");
+    assert!(out.status.success(), "noisecal {args:?}: {}", String::from_utf8_lossy(&out.stderr));
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().expect("utf-8 path")
+}
+
+fn benches(c: &mut Criterion) {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let d = dir.path();
+    let (cal, pack, big) = (d.join("cal"), d.join("p.pack"), d.join("big"));
+    noisecal(&["-q", "simulate", "--dngs", s(&cal), "--width", "256", "--height", "192", "--frames", "4"]);
+    noisecal(&["-q", "calibrate", s(&cal), "-o", s(&pack)]);
+    noisecal(&[
+        "-q",
+        "simulate",
+        "--dngs",
+        s(&big),
+        "--width",
+        "4000",
+        "--height",
+        "3000",
+        "--frames",
+        "1",
+        "--isos",
+        "100",
+        "--ev=0",
+    ]);
+    let input = std::fs::read_dir(&big).expect("big").map(|e| e.expect("entry").path()).min().expect("a dng");
+    let output = d.join("out.dng");
+
+    let file = read_dng_file(&input).expect("read");
+    let px = file.image.pixels.len() as u64;
+    let mut g = c.benchmark_group("synth_e2e_12mp");
+    g.throughput(Throughput::Elements(px));
+    g.sample_size(10);
+
+    g.bench_function("cli", |b| {
+        b.iter(|| {
+            noisecal(&["-q", "synth", "--pack", s(&pack), "--iso", "800", "--seed", "7", s(&input), "-o", s(&output)])
+        })
+    });
+
+    let pack = ModelPack::from_bytes(&std::fs::read(&pack).expect("pack")).expect("pack");
+    let (model, _) = resolve_model(&pack, ISO, ModelKind::Noisecal, false).expect("model");
+    let sampler = IsoSampler::new(&pack, &model);
+    let profile = fitted_noise_profile(&pack, &model, &file.image.layout);
+    g.bench_function("read", |b| b.iter(|| black_box(read_dng_file(&input).expect("read"))));
+    g.bench_function("sample", |b| b.iter(|| black_box(synthesize(&sampler, file.image.pixels.view(), 7))));
+    let noisy = synthesize(&sampler, file.image.pixels.view(), 7);
+    g.bench_function("encode", |b| {
+        b.iter(|| black_box(derived_bytes(&output, &file, &noisy, ISO, profile.as_ref()).expect("encode")))
+    });
+    let (bytes, _) = derived_bytes(&output, &file, &noisy, ISO, profile.as_ref()).expect("encode");
+    g.bench_function("write_atomic", |b| b.iter(|| noisecal_io::write_bytes_atomic(&output, &bytes).expect("write")));
+    g.bench_function("in_process", |b| {
+        b.iter(|| {
+            let f = read_dng_file(&input).expect("read");
+            let noisy = synthesize(&sampler, f.image.pixels.view(), 7);
+            let (bytes, _) = derived_bytes(&output, &f, &noisy, ISO, profile.as_ref()).expect("encode");
+            noisecal_io::write_bytes_atomic(&output, &bytes).expect("write");
+        })
+    });
+    g.finish();
+}
+
+criterion_group!(e2e, benches);
+criterion_main!(e2e);
