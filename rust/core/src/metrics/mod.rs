@@ -505,11 +505,14 @@ mod tests {
         let s: Vec<Scores> = synth.iter().map(|x| compare(&real, x)).collect();
         assert_eq!(m.per_seed_conditional, vec![s[0].conditional_overall, s[1].conditional_overall]);
         assert_eq!(m.conditional_overall, (s[0].conditional_overall + s[1].conditional_overall) / 2.0);
-        assert_eq!(m.marginal[0], Some((s[0].marginal[0].unwrap() + s[1].marginal[0].unwrap()) / 2.0));
+        assert_eq!(
+            m.marginal[0],
+            Some((s[0].marginal[0].expect("marginal") + s[1].marginal[0].expect("marginal")) / 2.0)
+        );
         let (k0, k0_all) = kl_per_position(&real, &synth[0]);
         let (k1, k1_all) = kl_per_position(&real, &synth[1]);
         assert_eq!(m.kl_overall, (k0_all + k1_all) / 2.0);
-        assert_eq!(m.kl[3], Some((k0[3].unwrap() + k1[3].unwrap()) / 2.0));
+        assert_eq!(m.kl[3], Some((k0[3].expect("kl") + k1[3].expect("kl")) / 2.0));
         assert_eq!(m.groups.len(), s[0].groups.len());
         assert!(m.groups.iter().all(|g| g.real_samples == 1000 && g.jsd > 0.0));
     }
