@@ -11,6 +11,7 @@ use noisecal_core::metrics::NoiseSamples;
 use noisecal_core::metrics::spatial::SpatialSamples;
 use noisecal_core::model::NoiseProfile;
 use noisecal_core::model::pack::IsoModel;
+use noisecal_core::model::structure::Components;
 use noisecal_core::synth::sampler::IsoSampler;
 use rayon::prelude::*;
 
@@ -116,6 +117,18 @@ pub(super) fn candidates(
         spatial: (0..seeds).map(|_| SpatialSamples::new()).collect(),
     };
     let mut list = vec![candidate(CandidateKind::Noisecal, "noisecal (non-parametric)".into(), origin.clone(), &model)];
+    // With structured components, the pixel-independent model alone is scored next to it: what
+    // the components add (issue 11's before and after in one evaluation).
+    if list[0].sampler.structure().is_some() {
+        list.push(Candidate {
+            kind: CandidateKind::NoisecalPixel,
+            label: "noisecal, pixel noise only (no row, column or frame offsets)".into(),
+            origin: origin.clone(),
+            sampler: IsoSampler::with_components(pack, &model, Components::PIXEL),
+            synth: (0..seeds).map(|_| fresh()).collect(),
+            spatial: (0..seeds).map(|_| SpatialSamples::new()).collect(),
+        });
+    }
     let inner =
         cal.len() >= 3 && pack.iso(iso).is_some_and(|m| m.is_calibrated()) && iso > cal[0] && iso < cal[cal.len() - 1];
     let loo = leave_one_out && inner;
