@@ -252,8 +252,8 @@ fn rich_dng(kind: Kind) -> Vec<u8> {
 /// A Canon maker note: one IFD (CanonModelID), in the file's byte order.
 fn maker_note(big: bool) -> Vec<u8> {
     let mut b = Vec::new();
-    let (n16, n32): (fn(u16) -> [u8; 2], fn(u32) -> [u8; 4]) =
-        if big { (u16::to_be_bytes, u32::to_be_bytes) } else { (u16::to_le_bytes, u32::to_le_bytes) };
+    let n16 = |v: u16| if big { v.to_be_bytes() } else { v.to_le_bytes() };
+    let n32 = |v: u32| if big { v.to_be_bytes() } else { v.to_le_bytes() };
     b.extend_from_slice(&n16(1));
     b.extend_from_slice(&n16(0x10));
     b.extend_from_slice(&n16(4));

@@ -806,7 +806,9 @@ mod tests {
         assert_eq!(decode_dng(&tiff.to_bytes().expect("bytes"), Path::new("ok.dng")).expect("16-bit").pixels, pixels);
         for bits in [10u16, 12, 14] {
             tiff.chain[0].set(Tag::BitsPerSample, TagValue::Short(vec![bits]));
-            let e = decode_dng(&tiff.to_bytes().expect("bytes"), Path::new("mislabelled.dng")).unwrap_err().to_string();
+            let e = decode_dng(&tiff.to_bytes().expect("bytes"), Path::new("mislabelled.dng"))
+                .expect_err("mislabelled")
+                .to_string();
             assert!(e.contains(&format!("BitsPerSample says {bits} bits")) && e.contains("mislabelled.dng"), "{e}");
         }
     }
