@@ -141,9 +141,46 @@ fn benches(c: &mut Criterion) {
             b.iter(|| pool.install(|| synthesize(&sampler, black_box(clean.view()), 7)))
         });
     }
+    // The same pack with row offsets (1 DN RMS) and frame offsets (0.5 DN RMS) per ISO.
+    let mut spack = pack.clone();
+    let row = noisecal_core::model::structure::OffsetDistribution {
+        quantiles: (0..513).map(|i| (i as f32 / 512.0 - 0.5) * 3.46).collect(),
+        count: 100_000,
+        measured_var: 1.0,
+        sampling_var: 0.0,
+        significant: true,
+    };
+    let frames = noisecal_core::model::structure::FrameOffsets {
+        offsets: (0..32).map(|i| [((i % 7) as f32 - 3.0) * 0.25; 4]).collect(),
+        measured_var: [0.25; 4],
+        sampling_var: [0.0; 4],
+        significant: true,
+    };
+    spack.structure = pack
+        .isos
+        .iter()
+        .map(|m| noisecal_core::model::structure::IsoStructure {
+            iso: m.iso,
+            rows: [Some(row.clone()), Some(row.clone())],
+            columns: [None, None],
+            frames: Some(frames.clone()),
+            frames_used: 32,
+        })
+        .collect();
+    let structured = IsoSampler::new(&spack, &spack.isos[0]);
+    assert!(structured.structure().is_some());
+    for threads in [1usize, 2] {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+        g.bench_function(format!("synthesis with row and frame offsets, {threads} thread(s)"), |b| {
+            b.iter(|| pool.install(|| synthesize(&structured, black_box(clean.view()), 7)))
+        });
+    }
     g.finish();
 
     let mut g = c.benchmark_group("pack");
+    g.bench_function("sampler tables with row and frame offsets (deconvolution)", |b| {
+        b.iter(|| IsoSampler::new(black_box(&spack), &spack.isos[0]))
+    });
     g.throughput(Throughput::Bytes(bytes.len() as u64));
     g.bench_function("load + sampler tables", |b| {
         b.iter(|| {

@@ -13,6 +13,7 @@ use pyo3::types::{PyBytes, PyDict};
 use noisecal_cli::models::{ModelKind, resolve_model};
 use noisecal_core::derive::interp::{self, InterpOptions};
 use noisecal_core::model::layout::{BlackAlignment, position};
+use noisecal_core::model::structure::Components;
 use noisecal_core::renoise::{Method, Renoiser};
 use noisecal_core::synth::sampler::IsoSampler;
 use noisecal_core::synth::synthesize_at;
@@ -25,9 +26,10 @@ use crate::errors::{err, guarded, to_py};
 #[pyclass(frozen, module = "noisecal")]
 pub struct Pack {
     pub(crate) inner: Arc<ModelPack>,
-    /// Samplers already built, by (ISO, model, extrapolate): building one costs more than
-    /// synthesizing a small crop, and a training loop asks for the same few ISOs again and again.
-    samplers: Mutex<HashMap<(u32, ModelKind, bool), Arc<IsoSampler>>>,
+    /// Samplers already built, by (ISO, model, extrapolate, components): building one costs more
+    /// than synthesizing a small crop, and a training loop asks for the same few ISOs again and
+    /// again.
+    samplers: Mutex<HashMap<(u32, ModelKind, bool, Components), Arc<IsoSampler>>>,
 }
 
 impl Pack {
@@ -35,16 +37,26 @@ impl Pack {
         Self { inner: Arc::new(pack), samplers: Mutex::new(HashMap::new()) }
     }
 
-    /// The sampler of `iso` for a model kind, built once per pack.
-    fn sampler(&self, iso: u32, kind: ModelKind, extrapolate: bool) -> PyResult<Arc<IsoSampler>> {
-        let key = (iso, kind, extrapolate);
+    /// The sampler of `iso` for a model kind and noise components, built once per pack. The
+    /// parametric baselines are pixel-independent models: they get no structured components.
+    fn sampler(&self, iso: u32, kind: ModelKind, extrapolate: bool, which: Components) -> PyResult<Arc<IsoSampler>> {
+        let which = if kind == ModelKind::Noisecal { which } else { Components::PIXEL };
+        let key = (iso, kind, extrapolate, which);
         if let Some(s) = self.samplers.lock().map_err(|_| err("a sampler cache was poisoned"))?.get(&key) {
             return Ok(s.clone());
         }
         let (m, _) = resolve_model(&self.inner, iso, kind, extrapolate).map_err(to_py)?;
-        let s = Arc::new(IsoSampler::new(&self.inner, &m));
+        let s = Arc::new(IsoSampler::with_components(&self.inner, &m, which));
         self.samplers.lock().map_err(|_| err("a sampler cache was poisoned"))?.insert(key, s.clone());
         Ok(s)
+    }
+}
+
+/// `None` → every calibrated component; else a comma-separated list (`"pixel,row,column,frame"`).
+fn parse_components(which: Option<&str>) -> PyResult<Components> {
+    match which {
+        None => Ok(Components::ALL),
+        Some(s) => Components::parse(s).map_err(err),
     }
 }
 
@@ -214,7 +226,9 @@ impl Pack {
 
     /// Adds noise at `iso` to clean raw images (uint16 DN, black included), `(H, W)` or
     /// `(N, H, W)`; image `i` of a batch uses seed `seed + i`, as a folder run of `noisecal synth`.
-    #[pyo3(signature = (clean, iso, seed=0, *, model="noisecal", black_level=None, cfa_origin=(0, 0), extrapolate=false))]
+    /// `components` chooses the noise components (`"pixel,row,column,frame"`; default: all the
+    /// pack calibrated), as `noisecal synth --components`.
+    #[pyo3(signature = (clean, iso, seed=0, *, model="noisecal", black_level=None, cfa_origin=(0, 0), extrapolate=false, components=None))]
     #[allow(clippy::too_many_arguments)]
     fn synth<'py>(
         &self,
@@ -226,15 +240,17 @@ impl Pack {
         black_level: Option<Vec<f64>>,
         cfa_origin: (usize, usize),
         extrapolate: bool,
+        components: Option<&str>,
     ) -> PyResult<Bound<'py, PyArrayDyn<u16>>> {
         let kind = parse_model(model)?;
+        let which = parse_components(components)?;
         let black = black_levels(&self.inner, black_level)?;
         let view = clean.as_array();
         let (imgs, batch) = images(&view, "clean")?;
         let pack = &*self.inner;
         let outs = py.detach(|| {
             guarded("Pack.synth", || {
-                let sampler = self.sampler(iso, kind, extrapolate)?;
+                let sampler = self.sampler(iso, kind, extrapolate, which)?;
                 per_image(&imgs, seed, |img, s| Ok(synth_one(pack, &sampler, img, &black, s, cfa_origin)))
             })
         })?;
@@ -243,7 +259,8 @@ impl Pack {
 
     /// As `synth`, for float32 images normalised by black and white (`(DN − black)/(white −
     /// black)` per CFA position, the usual torch input): the result is normalised the same way.
-    #[pyo3(signature = (clean, iso, seed=0, *, model="noisecal", cfa_origin=(0, 0), extrapolate=false))]
+    #[pyo3(signature = (clean, iso, seed=0, *, model="noisecal", cfa_origin=(0, 0), extrapolate=false, components=None))]
+    #[allow(clippy::too_many_arguments)]
     fn synth_float<'py>(
         &self,
         py: Python<'py>,
@@ -253,8 +270,10 @@ impl Pack {
         model: &str,
         cfa_origin: (usize, usize),
         extrapolate: bool,
+        components: Option<&str>,
     ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
         let kind = parse_model(model)?;
+        let which = parse_components(components)?;
         let view = clean.as_array();
         let (imgs, batch) = images(&view, "clean")?;
         let pack = &*self.inner;
@@ -263,7 +282,7 @@ impl Pack {
         let scale: [f32; POSITIONS] = std::array::from_fn(|p| (white - black[p]).max(1.0));
         let outs = py.detach(|| {
             guarded("Pack.synth_float", || {
-                let sampler = self.sampler(iso, kind, extrapolate)?;
+                let sampler = self.sampler(iso, kind, extrapolate, which)?;
                 let pos = |y: usize, x: usize| position(y + cfa_origin.0, x + cfa_origin.1);
                 per_image(&imgs, seed, |img, s| {
                     let dn = Array2::from_shape_fn(img.dim(), |(y, x)| {
@@ -336,12 +355,15 @@ impl Pack {
     /// cumulative weights (units of 2⁻³², padded with 2³²) over noise values `first[p, bin] + i`;
     /// `range[p]` the codes the sensor writes. A uniform 32-bit draw `u` maps to
     /// `first + searchsorted(cdf, u, right=True)`. `lattice` tells where the core also snaps to a
-    /// code lattice (not reproduced by table samplers).
+    /// code lattice (not reproduced by table samplers). The tables are the pixel-independent
+    /// model, `synth(..., components="pixel")`: the row, column and frame offsets of a version 3
+    /// pack are not in them.
     #[pyo3(signature = (iso, *, model="noisecal", extrapolate=false))]
     fn tables<'py>(&self, py: Python<'py>, iso: u32, model: &str, extrapolate: bool) -> PyResult<Bound<'py, PyDict>> {
         let kind = parse_model(model)?;
         let pack = &*self.inner;
-        let sampler = py.detach(|| guarded("Pack.tables", || self.sampler(iso, kind, extrapolate)))?;
+        let sampler =
+            py.detach(|| guarded("Pack.tables", || self.sampler(iso, kind, extrapolate, Components::PIXEL)))?;
         let levels = pack.layout.white as usize + 1;
         let nbins = (0..POSITIONS).map(|p| sampler.tables(p).len()).max().unwrap_or(0);
         let len = (0..POSITIONS).flat_map(|p| sampler.tables(p).iter().map(|t| t.cdf().len())).max().unwrap_or(1);

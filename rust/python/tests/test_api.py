@@ -127,7 +127,7 @@ def test_tables_reproduce_the_cores_distribution(pack):
     t = pack.tables(800)
     level = 700
     clean = np.full((400, 400), level, np.uint16)
-    noise = pack.synth(clean, 800, 4).astype(np.int64) - level
+    noise = pack.synth(clean, 800, 4, components="pixel").astype(np.int64) - level
     for p in range(4):
         b = t["lut"][p, level]
         cdf = t["cdf"][p, b].astype(np.float64) / 2**32

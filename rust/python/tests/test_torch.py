@@ -118,8 +118,8 @@ def setup(pack):
     clean = clean_image()
     # One crop at an odd row origin, and a batch of two images with different origins.
     origins = [(1, 0), (0, 1), (1, 1)]
-    core = [pack.synth(clean, ISO, 3, cfa_origin=origins[0])]
-    core += [pack.synth(clean, ISO, 4 + i, cfa_origin=o) for i, o in enumerate(origins[1:])]
+    core = [pack.synth(clean, ISO, 3, cfa_origin=origins[0], components="pixel")]
+    core += [pack.synth(clean, ISO, 4 + i, cfa_origin=o, components="pixel") for i, o in enumerate(origins[1:])]
     return NoiseSynth, tables, clean, origins, core
 
 

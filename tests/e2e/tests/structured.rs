@@ -19,30 +19,45 @@ fn row_noise_sensor(pre_e: f32, post_dn: f32) -> SensorModel {
     m
 }
 
-/// Row-mean deviations over flat pixels: per frame and row (≥ 32 flat pixels), the row's mean
-/// noise minus that row's mean over the frames (the clean image's own row error cancels), scaled
-/// by `√(k/(k−1))`. Returns `Σ dev²` and the count.
+/// Row-mean variance over flat pixels: per frame and row (≥ 32 flat pixels), the row's mean
+/// noise, centred twice — minus that row's mean over the frames (the clean image's own row error
+/// cancels) and minus the frame's mean over its rows (a frame offset is not row noise) — with the
+/// degrees of freedom the centring took. Per row parity, averaged.
 fn row_mean_var(frames: &[Array2<u16>], clean: &Array2<u16>, flat: &[bool]) -> f64 {
     let (h, w) = clean.dim();
-    let k = frames.len() as f64;
-    let mut acc = 0.0;
-    let mut n = 0usize;
-    for y in 0..h {
-        let xs: Vec<usize> = (0..w).filter(|&x| flat[y * w + x]).collect();
-        if xs.len() < 32 {
-            continue;
+    let k = frames.len();
+    let mut total = 0.0;
+    for parity in 0..2 {
+        let rows: Vec<Vec<usize>> =
+            (parity..h).step_by(2).map(|y| (0..w).filter(|&x| flat[y * w + x]).collect::<Vec<_>>()).collect();
+        let ys: Vec<usize> = (parity..h).step_by(2).collect();
+        let mut m: Vec<Vec<f64>> = Vec::new(); // m[row][frame]
+        for (y, xs) in ys.iter().zip(&rows) {
+            if xs.len() < 32 {
+                continue;
+            }
+            m.push(
+                frames
+                    .iter()
+                    .map(|f| {
+                        xs.iter().map(|&x| f[(*y, x)] as f64 - clean[(*y, x)] as f64).sum::<f64>() / xs.len() as f64
+                    })
+                    .collect(),
+            );
         }
-        let means: Vec<f64> = frames
-            .iter()
-            .map(|f| xs.iter().map(|&x| f[(y, x)] as f64 - clean[(y, x)] as f64).sum::<f64>() / xs.len() as f64)
-            .collect();
-        let m = means.iter().sum::<f64>() / k;
-        for v in means {
-            acc += (v - m).powi(2) * k / (k - 1.0);
-            n += 1;
+        let r = m.len();
+        let row_mean: Vec<f64> = m.iter().map(|v| v.iter().sum::<f64>() / k as f64).collect();
+        let frame_mean: Vec<f64> = (0..k).map(|f| m.iter().map(|v| v[f]).sum::<f64>() / r as f64).collect();
+        let grand = row_mean.iter().sum::<f64>() / r as f64;
+        let mut acc = 0.0;
+        for (i, v) in m.iter().enumerate() {
+            for (f, x) in v.iter().enumerate() {
+                acc += (x - row_mean[i] - frame_mean[f] + grand).powi(2);
+            }
         }
+        total += acc / ((r - 1) * (k - 1)) as f64;
     }
-    acc / n as f64
+    total / 2.0
 }
 
 struct IsoResult {
@@ -197,7 +212,7 @@ fn a_sensor_without_row_noise_gets_none() {
         for p in 0..2 {
             let d = st.rows[p].as_ref().expect("rows measured");
             assert!(st.row(p).is_none(), "ISO {iso}: row noise found where there is none: {:.4} DN", d.sd());
-            assert!(d.sd() < 0.05, "ISO {iso}: row sd {:.4}", d.sd());
+            assert!(d.sd() < 0.1, "ISO {iso}: row sd {:.4}", d.sd());
             assert!(st.column(p).is_none(), "ISO {iso}: column noise found where there is none");
         }
         // No component: the sampler is the pixel-only one, byte for byte.
@@ -208,5 +223,76 @@ fn a_sensor_without_row_noise_gets_none() {
         if st.frame().is_none() {
             assert_eq!(a, b, "ISO {iso}: nothing structured, yet synthesis changed");
         }
+    }
+}
+
+/// JSD between two samples on a common grid of `bins` cells over `±4·sd`.
+fn sample_jsd(a: &[f64], b: &[f64], sd: f64, bins: usize) -> f64 {
+    let hist = |v: &[f64]| {
+        let mut h = vec![0.0; bins];
+        for &x in v {
+            let i = (((x / sd + 4.0) / 8.0) * bins as f64).floor().clamp(0.0, bins as f64 - 1.0) as usize;
+            h[i] += 1.0;
+        }
+        h
+    };
+    noisecal_core::metrics::jsd(&hist(a), &hist(b))
+}
+
+#[test]
+fn frame_offsets_and_rows_of_a_phone_with_structured_noise() {
+    use rand::SeedableRng;
+    let isos = vec![100, 400, 1600];
+    // EV −4 is left out: at 5 DN above black a 0.6 DN black-level error reads as an 8 % brightness
+    // drift, and the session refuses such frames (the drift test is multiplicative).
+    let s =
+        setup(SensorModel::phone_10bit().with_structured_noise(), 512, 384, 23, isos.clone(), 8, vec![-2, -1, 0, 2]);
+    let results = run(&s, &isos);
+    let (_, pack) = calibrate(&s, |_| {});
+    for (r, &iso) in results.iter().zip(&isos) {
+        assert!((0.9..1.1).contains(&r.ratio), "ISO {iso}: row-mean variance ratio {:.3}", r.ratio);
+        assert!(
+            r.marg <= r.marg_pixel_only * 1.15 + r.marg_floor * 0.5,
+            "ISO {iso}: marginal JSD {:.5} worse than pixel-only {:.5}",
+            r.marg,
+            r.marg_pixel_only
+        );
+        let truth = s.sim.structured_truth(iso).expect("truth");
+        let st = pack.structure_of(iso).expect("structure");
+        let f = st.frame().expect("frame offsets found");
+        // Held-out sets as large as the calibration's: per position, real (truth) vs synthetic
+        // against real vs real, averaged over repetitions.
+        let n = f.offsets.len();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(iso as u64);
+        let (mut model, mut floor) = (0.0, 0.0);
+        let reps = 200;
+        for rep in 0..reps {
+            let a = truth.sample_frame_offsets_n(n, &mut rng);
+            let b = truth.sample_frame_offsets_n(n, &mut rng);
+            let syn: Vec<[f64; 4]> = (0..n)
+                .map(|i| {
+                    use rand::RngExt;
+                    let g = std::array::from_fn(|_| {
+                        let (u1, u2): (f64, f64) = (1.0 - rng.random::<f64>(), rng.random());
+                        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+                    });
+                    f.draw(rng.random::<u64>() ^ (rep * n + i) as u64, g)
+                })
+                .collect();
+            for p in 0..4 {
+                let sd = truth.frame_offset_sd_dn[p];
+                let col = |v: &[[f64; 4]]| v.iter().map(|o| o[p]).collect::<Vec<_>>();
+                model += sample_jsd(&col(&a), &col(&syn), sd, 8);
+                floor += sample_jsd(&col(&a), &col(&b), sd, 8);
+            }
+        }
+        let (model, floor) = (model / (4 * reps) as f64, floor / (4 * reps) as f64);
+        let sd_fit: f64 = (0..4).map(|p| f.variance(p).sqrt()).sum::<f64>() / 4.0;
+        let sd_true: f64 = truth.frame_offset_sd_dn.iter().sum::<f64>() / 4.0;
+        eprintln!(
+            "ISO {iso}: frame offsets from {n} frames: sd fitted {sd_fit:.3} true {sd_true:.3}; JSD {model:.4} floor {floor:.4} ({:.2}×)",
+            model / floor
+        );
+        assert!(model <= 1.5 * floor, "ISO {iso}: frame-offset JSD {model:.4} beyond 1.5 × floor {floor:.4}");
     }
 }

@@ -62,12 +62,13 @@ pub(crate) fn clip_level(l: &SensorLayout) -> f32 {
     b + 0.9 * (l.white as f32 - b)
 }
 
-/// Σ(frame − black) and Σ(base − black) over pixels where the base is flat and unclipped, per row
-/// band (for a frame's brightness and its standard error) and per CFA position (for gain ratios),
-/// in one pass over every fourth row pair of large frames.
+/// Σ(frame − black) and Σ(base − black) over pixels where the base is flat and unclipped, per CFA
+/// position (for gain ratios), and per row band the sums of a straight-line fit of frame on base
+/// (for a frame's brightness and its standard error), in one pass over every fourth row pair of
+/// large frames.
 pub(crate) struct BrightnessSums {
-    pub(crate) frame_bands: Vec<f64>,
-    pub(crate) base_bands: Vec<f64>,
+    /// Per band `[n, Σb, Σf, Σb², Σbf]` (`b`, `f`: base and frame above black).
+    pub(crate) bands: Vec<[f64; 5]>,
     pub(crate) frame_pos: [f64; POSITIONS],
     pub(crate) base_pos: [f64; POSITIONS],
 }
@@ -75,7 +76,7 @@ pub(crate) struct BrightnessSums {
 impl BrightnessSums {
     /// The frame's brightness against the base, `None` where the base has nothing to compare.
     pub(crate) fn brightness(&self) -> Option<FrameBrightness> {
-        brightness_from_bands(&self.frame_bands, &self.base_bands)
+        brightness_from_fit(&self.bands)
     }
 }
 
@@ -87,19 +88,15 @@ pub(crate) fn brightness_sums(
     w: usize,
     h: usize,
 ) -> BrightnessSums {
-    let mut out = BrightnessSums {
-        frame_bands: vec![0.0; BANDS],
-        base_bands: vec![0.0; BANDS],
-        frame_pos: [0.0; POSITIONS],
-        base_pos: [0.0; POSITIONS],
-    };
+    let mut out =
+        BrightnessSums { bands: vec![[0.0; 5]; BANDS], frame_pos: [0.0; POSITIONS], base_pos: [0.0; POSITIONS] };
     let rows_per_band = h.div_ceil(BANDS).max(1);
     let step = if h > 512 { 4 } else { 1 };
     let mut buf = vec![0u16; w];
     for y in (0..h).step_by(2 * step).flat_map(|y| [y, y + 1]).filter(|&y| y < h) {
         frame.read_row(y, &mut buf);
         let band = (y / rows_per_band).min(BANDS - 1);
-        let (mut f, mut b) = (0.0f64, 0.0f64);
+        let mut sums = [0.0f64; 5];
         for x in 0..w {
             let c = base[y * w + x];
             if c == NOT_FLAT || c as f32 > clip {
@@ -108,13 +105,17 @@ pub(crate) fn brightness_sums(
             let pos = ((y & 1) << 1) | (x & 1);
             let fv = (tf.apply(pos, buf[x]) - tf.black[pos]) as f64;
             let bv = (c as f32 - tf.black[pos]) as f64;
-            f += fv;
-            b += bv;
+            sums[0] += 1.0;
+            sums[1] += bv;
+            sums[2] += fv;
+            sums[3] += bv * bv;
+            sums[4] += bv * fv;
             out.frame_pos[pos] += fv;
             out.base_pos[pos] += bv;
         }
-        out.frame_bands[band] += f;
-        out.base_bands[band] += b;
+        for (o, v) in out.bands[band].iter_mut().zip(sums) {
+            *o += v;
+        }
     }
     out
 }
@@ -122,7 +123,9 @@ pub(crate) fn brightness_sums(
 /// Brightness of one frame against a base image (the clean image, or the burst's first frame).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FrameBrightness {
-    /// Σ(frame − black) / Σ(base − black) over the pixels compared.
+    /// The frame's gain against the base: Σ(frame − black) / Σ(base − black) over the pixels
+    /// compared, or (from [`brightness_from_fit`]) the slope of frame on base, which an additive
+    /// black-level error of the frame does not move.
     pub ratio: f64,
     /// Standard error of `ratio` from its spread over row bands (includes row noise).
     pub sigma: f64,
@@ -146,6 +149,55 @@ pub fn brightness_from_bands(frame_sums: &[f64], base_sums: &[f64]) -> Option<Fr
         0.0
     };
     Some(FrameBrightness { ratio, sigma })
+}
+
+/// Builds [`FrameBrightness`] from per-band sums of a straight-line fit `f = a·b + δ`
+/// (`[n, Σb, Σf, Σb², Σbf]` per band): the ratio is the slope `a`, so that a frame whose black level is off by `δ` (a real sensor's per-frame offset,
+/// several per cent of a dark step's signal) is not taken for a brighter frame. Standard error by
+/// the jackknife over bands. Where the base's levels hardly vary (a flat field: slope and offset
+/// cannot be told apart) the plain ratio is used.
+pub fn brightness_from_fit(bands: &[[f64; 5]]) -> Option<FrameBrightness> {
+    let total = bands.iter().fold([0.0; 5], |mut a, b| {
+        for k in 0..5 {
+            a[k] += b[k];
+        }
+        a
+    });
+    let slope = |s: &[f64; 5]| -> Option<f64> {
+        let n = s[0];
+        if n < 2.0 {
+            return None;
+        }
+        let sbb = s[3] - s[1] * s[1] / n;
+        let sbf = s[4] - s[1] * s[2] / n;
+        let mean_b = s[1] / n;
+        // The base must spread over at least a tenth of its mean level (and over 1 DN).
+        (sbb > 0.0 && sbb / n > (0.1 * mean_b).powi(2).max(1.0)).then(|| sbf / sbb)
+    };
+    let Some(a) = slope(&total) else {
+        let f: Vec<f64> = bands.iter().map(|b| b[2]).collect();
+        let b: Vec<f64> = bands.iter().map(|b| b[1]).collect();
+        return brightness_from_bands(&f, &b);
+    };
+    let used: Vec<usize> = (0..bands.len()).filter(|&i| bands[i][0] > 0.0).collect();
+    let k = used.len();
+    let sigma = if k >= 2 {
+        let jack: Vec<f64> = used
+            .iter()
+            .filter_map(|&i| {
+                let mut s = total;
+                for j in 0..5 {
+                    s[j] -= bands[i][j];
+                }
+                slope(&s)
+            })
+            .collect();
+        let m = jack.iter().sum::<f64>() / jack.len().max(1) as f64;
+        ((k - 1) as f64 / k as f64 * jack.iter().map(|x| (x - m).powi(2)).sum::<f64>()).sqrt()
+    } else {
+        0.0
+    };
+    Some(FrameBrightness { ratio: a, sigma })
 }
 
 /// What the tracker decided for one frame.
@@ -223,6 +275,38 @@ mod tests {
         for r in [1.0, 1.02, 0.98, 1.03, 0.99] {
             assert!(!t.assess(FrameBrightness { ratio: r, sigma: 0.02 }, 5.0, 0.001).drifted);
         }
+    }
+
+    #[test]
+    fn a_black_level_offset_is_not_a_brightness_drift() {
+        // Base levels 5 … 60 DN above black over 16 bands; the frame adds a 0.6 DN offset
+        // (12 % of the darkest level), or is 3 % brighter.
+        let bands = |gain: f64, offset: f64| -> Vec<[f64; 5]> {
+            (0..16)
+                .map(|i| {
+                    let mut s = [0.0; 5];
+                    for j in 0..200 {
+                        let b = 5.0 + ((i * 7 + j) % 12) as f64 * 5.0;
+                        let f = gain * b + offset + 0.3 * (((i * 31 + j * 17) % 11) as f64 - 5.0) / 5.0;
+                        s[0] += 1.0;
+                        s[1] += b;
+                        s[2] += f;
+                        s[3] += b * b;
+                        s[4] += b * f;
+                    }
+                    s
+                })
+                .collect()
+        };
+        let plain = brightness_from_fit(&bands(1.0, 0.0)).unwrap();
+        let offset = brightness_from_fit(&bands(1.0, 0.6)).unwrap();
+        let brighter = brightness_from_fit(&bands(1.03, 0.0)).unwrap();
+        assert!((offset.ratio - plain.ratio).abs() < 0.002, "{offset:?} vs {plain:?}");
+        assert!((brighter.ratio / plain.ratio - 1.03).abs() < 0.002, "{brighter:?}");
+        assert!(plain.sigma > 0.0 && plain.sigma < 0.005, "{plain:?}");
+        // A flat field: no spread of levels, the plain ratio.
+        let flat = vec![[100.0, 1000.0, 1100.0, 10000.0, 11000.0]; 4];
+        assert!((brightness_from_fit(&flat).unwrap().ratio - 1.1).abs() < 1e-12);
     }
 
     #[test]

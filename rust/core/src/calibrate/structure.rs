@@ -93,8 +93,8 @@ pub(crate) struct OffsetHistogram {
     /// Offsets at 1/64 DN.
     counts: BTreeMap<i32, u64>,
     n: u64,
-    /// `Σd, Σd², Σd⁴, Σ sampling variance`.
-    sums: [f64; 4],
+    /// `Σd, Σd², Σd⁴, Σv, Σv², Σv·d²` (`v`: the line's `s²/m`).
+    sums: [f64; 6],
 }
 
 impl OffsetHistogram {
@@ -109,6 +109,8 @@ impl OffsetHistogram {
         self.sums[1] += d * d;
         self.sums[2] += d * d * d * d;
         self.sums[3] += sampling;
+        self.sums[4] += sampling * sampling;
+        self.sums[5] += sampling * d * d;
     }
 
     /// The distribution of the component (sampling noise taken out), or `None` without data.
@@ -119,7 +121,15 @@ impl OffsetHistogram {
         let n = self.n as f64;
         let mean = self.sums[0] / n;
         let measured_var = (self.sums[1] / n - mean * mean).max(0.0);
-        let sampling_var = self.sums[3] / n;
+        // `s²` along a line also holds what is fixed per pixel (the clean image's error, DSNU),
+        // which the deviations from the burst mean do not: only a fraction `c` of `s²/m` is
+        // the line mean's sampling variance. Lines differ in `s²/m` (pixels, levels), so
+        // `E[d²] = σ² + c·v` is fitted over them; where `v` hardly varies, `c = 1`.
+        let v_mean = self.sums[3] / n;
+        let v_var = self.sums[4] / n - v_mean * v_mean;
+        let cov = self.sums[5] / n - v_mean * self.sums[1] / n;
+        let c = if v_var > (0.1 * v_mean).powi(2) && v_var > 0.0 { (cov / v_var).clamp(0.3, 1.2) } else { 1.0 };
+        let sampling_var = c * v_mean;
         let own = (measured_var - sampling_var).max(0.0);
         // Under "no component" the measured variance is the sampling variance with a standard
         // error of about √(2/n) of it (means of many pixels are Gaussian).

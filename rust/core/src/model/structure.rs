@@ -101,9 +101,8 @@ impl OffsetDistribution {
         if self.quantiles.windows(2).any(|w| w[1] < w[0]) {
             return Some("quantiles decrease".into());
         }
-        if !(self.measured_var.is_finite() && self.measured_var >= 0.0)
-            || !(self.sampling_var.is_finite() && self.sampling_var >= 0.0)
-        {
+        let bad = |v: f64| !v.is_finite() || v < 0.0;
+        if bad(self.measured_var) || bad(self.sampling_var) {
             return Some("a variance is negative or not a number".into());
         }
         None

@@ -103,29 +103,70 @@ fn synthesize_structured(
     let (h, w) = clean.dim();
     let (row0, col0) = (origin.0 & 1, origin.1 & 1);
     let offsets = st.draw(seed, h, w, origin);
+    // Per row parity, per column: the column's offset plus its position's frame offset.
+    let columns: [Vec<f64>; 2] = std::array::from_fn(|r| {
+        let parity = ((r + row0) & 1) << 1;
+        offsets.columns.iter().enumerate().map(|(x, c)| c + offsets.frame[parity | ((x + col0) & 1)]).collect()
+    });
     let mut out = vec![0u16; h * w];
     if w > 0 {
         out.par_chunks_mut(BAND_ROWS * w).enumerate().for_each(|(band, chunk)| {
             let mut rng = band_rng(seed, band);
-            let mut add = vec![0.0f64; w];
+            let (mut whole, mut thresh) = (vec![0i32; w], vec![0u64; w]);
             for (r, row) in chunk.chunks_mut(w).enumerate() {
                 let y = band * BAND_ROWS + r;
+                let view = clean.row(y);
+                let src: std::borrow::Cow<'_, [u16]> = match view.as_slice() {
+                    Some(s) => std::borrow::Cow::Borrowed(s),
+                    None => std::borrow::Cow::Owned(view.to_vec()),
+                };
                 let parity = ((y + row0) & 1) << 1;
-                for (x, a) in add.iter_mut().enumerate() {
-                    let pos = parity | ((x + col0) & 1);
-                    *a = offsets.frame[pos] + offsets.rows[y] + offsets.columns[x];
+                let (even, odd) = (parity | col0, parity | (col0 ^ 1));
+                let (lut0, tab0) = sampler.position_tables(even);
+                let (lut1, tab1) = sampler.position_tables(odd);
+                let finish = sampler.needs_finish(even) || sampler.needs_finish(odd);
+                let white = sampler.white as i32;
+                // This row's offsets, whole part and dither threshold (2⁻³² units) per pixel.
+                let ry = offsets.rows[y];
+                for ((a, t), &cx) in whole.iter_mut().zip(thresh.iter_mut()).zip(&columns[y & 1]) {
+                    let v = cx + ry;
+                    let fl = v.floor();
+                    *a = fl as i32;
+                    *t = ((v - fl) * 4294967296.0) as u64;
                 }
-                for (x, o) in row.iter_mut().enumerate() {
-                    let c = clean[[y, x]];
-                    let pos = parity | ((x + col0) & 1);
-                    let u = rng.next_u64();
-                    let n = sampler.table(pos, c).sample_u32(u as u32);
-                    let a = add[x];
-                    let fl = a.floor();
-                    let frac = ((a - fl) * 4294967296.0) as u64;
-                    let d = fl as i32 + i32::from(((u >> 32) as u64) < frac);
-                    let alt = ((x >> 1) + (y >> 1)) & 1 == 1;
-                    *o = sampler.finish(pos, c as i32 + n + d, alt);
+                let draw = |lut: &[u16], tab: &[BinTable], c: u16, u: u32, v: u32, x: usize| -> i32 {
+                    let l = (c as usize).min(lut.len() - 1);
+                    c as i32 + tab[lut[l] as usize].sample_u32(u) + whole[x] + i32::from(thresh[x] > v as u64)
+                };
+                // Dither draws from a xorshift64* stream seeded by the band's stream per row (a
+                // 32-bit threshold needs no cryptographic quality).
+                let mut state = rng.next_u64() | 1;
+                let mut dither = || {
+                    state ^= state >> 12;
+                    state ^= state << 25;
+                    state ^= state >> 27;
+                    state.wrapping_mul(0x2545_F491_4F6C_DD1D)
+                };
+                let mut x = 0;
+                for (o, c) in row.chunks_exact_mut(2).zip(src.chunks_exact(2)) {
+                    let (u, v) = (rng.next_u64(), dither());
+                    let a = draw(lut0, tab0, c[0], u as u32, v as u32, x);
+                    let b = draw(lut1, tab1, c[1], (u >> 32) as u32, (v >> 32) as u32, x + 1);
+                    if finish {
+                        let alt = ((x >> 1) + (y >> 1)) & 1 == 1;
+                        o[0] = sampler.finish(even, a, alt);
+                        o[1] = sampler.finish(odd, b, alt);
+                    } else {
+                        o[0] = a.clamp(0, white) as u16;
+                        o[1] = b.clamp(0, white) as u16;
+                    }
+                    x += 2;
+                }
+                if w % 2 == 1 {
+                    let (u, v) = (rng.next_u64(), dither());
+                    let alt = ((w >> 1) + (y >> 1)) & 1 == 1;
+                    let a = draw(lut0, tab0, src[w - 1], u as u32, v as u32, w - 1);
+                    row[w - 1] = sampler.finish(even, a, alt);
                 }
             }
         });

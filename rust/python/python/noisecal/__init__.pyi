@@ -61,6 +61,7 @@ class Pack:
         black_level: float | Sequence[float] | None = None,
         cfa_origin: tuple[int, int] = (0, 0),
         extrapolate: bool = False,
+        components: str | None = None,
     ) -> npt.NDArray[np.uint16]: ...
     def synth_float(
         self,
@@ -71,6 +72,7 @@ class Pack:
         model: Model = "noisecal",
         cfa_origin: tuple[int, int] = (0, 0),
         extrapolate: bool = False,
+        components: str | None = None,
     ) -> npt.NDArray[np.float32]: ...
     def renoise(
         self,

@@ -38,7 +38,7 @@ class RenoiseActor:
             noisy = self.pack.synth(clean, self.iso, seed, model=self.model, black_level=meta["black"])
             if self.fmt == "dng":
                 out = self.out_dir / path.name
-                write_dng(out, noisy, template=path, iso=self.iso)
+                write_dng(out, noisy, template=path, iso=self.iso, pack=self.pack)
             else:
                 out = self.out_dir / (path.stem + ".npy")
                 tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
