@@ -21,6 +21,9 @@ use noisecal_core::{ModelPack, POSITIONS};
 
 use crate::errors::{err, guarded, to_py};
 
+/// A sampler cache key: ISO, model, extrapolate, components.
+type SamplerKey = (u32, ModelKind, bool, Components);
+
 /// A calibrated noise model of one camera (a `.pack` file).
 #[derive(Debug)]
 #[pyclass(frozen, module = "noisecal")]
@@ -29,7 +32,7 @@ pub struct Pack {
     /// Samplers already built, by (ISO, model, extrapolate, components): building one costs more
     /// than synthesizing a small crop, and a training loop asks for the same few ISOs again and
     /// again.
-    samplers: Mutex<HashMap<(u32, ModelKind, bool, Components), Arc<IsoSampler>>>,
+    samplers: Mutex<HashMap<SamplerKey, Arc<IsoSampler>>>,
 }
 
 impl Pack {

@@ -102,7 +102,7 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         let (m_nc, _) = resolve_model(&pack, iso, ModelKind::Noisecal, false)?;
         let (m_hg, _) = resolve_model(&pack, iso, ModelKind::Hg, false)?;
         let s_nc = IsoSampler::new(&pack, &m_nc);
-        let s_hg = IsoSampler::new(&pack, &m_hg);
+        let s_hg = IsoSampler::with_components(&pack, &m_hg, noisecal_core::model::structure::Components::PIXEL);
         for k in 0..frames {
             let (px, _) = sim.capture(iso, exp, HELDOUT_BASE + 1000 * (i as u64 + 1) + k)?;
             if k % 2 == 1 {

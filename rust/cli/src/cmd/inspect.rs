@@ -49,6 +49,51 @@ struct IsoSummary {
     drift_frames: u64,
     noise_profile: bool,
     positions: Vec<PositionSummary>,
+    /// Row, column and frame offsets (version 3 packs; absent when the pack has none).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    structure: Option<StructureSummary>,
+}
+
+/// One structured component: its standard deviation (DN, sampling noise taken out) and whether
+/// synthesis adds it.
+#[derive(Serialize)]
+struct ComponentSummary {
+    sd: f64,
+    added: bool,
+}
+
+#[derive(Serialize)]
+struct StructureSummary {
+    /// Per row parity.
+    rows: [Option<ComponentSummary>; 2],
+    /// Per column parity.
+    columns: [Option<ComponentSummary>; 2],
+    /// Per CFA position.
+    frames: Option<[ComponentSummary; POSITIONS]>,
+    /// Target frames in bursts of two or more (what the offsets were measured on).
+    frames_used: u64,
+    /// Whether the offsets were derived from other ISOs' (interpolated or extrapolated).
+    derived: bool,
+}
+
+fn structure_summary(p: &ModelPack, iso: u32) -> Option<StructureSummary> {
+    let stored = p.structure_of(iso);
+    let st = noisecal_core::derive::structure::structure_at(p, iso)?;
+    let line = |d: &Option<noisecal_core::model::structure::OffsetDistribution>| {
+        d.as_ref().map(|d| ComponentSummary { sd: d.sd(), added: d.significant })
+    };
+    Some(StructureSummary {
+        rows: [line(&st.rows[0]), line(&st.rows[1])],
+        columns: [line(&st.columns[0]), line(&st.columns[1])],
+        frames: st.frames.as_ref().map(|f| {
+            std::array::from_fn(|pos| ComponentSummary {
+                sd: f.variance(pos).sqrt(),
+                added: f.significant && !f.offsets.is_empty(),
+            })
+        }),
+        frames_used: st.frames_used,
+        derived: stored.is_none() || p.iso(iso).is_some_and(|m| !m.is_calibrated()),
+    })
 }
 
 #[derive(Serialize)]
@@ -91,6 +136,7 @@ fn summarize(p: &ModelPack) -> PackSummary {
                 frames: m.frames,
                 drift_frames: m.drift_frames,
                 noise_profile: m.noise_profile.is_some(),
+                structure: structure_summary(p, m.iso),
                 positions: (0..POSITIONS)
                     .map(|pos| PositionSummary {
                         name: p.layout.cfa.position_name(pos).to_string(),
@@ -188,6 +234,43 @@ fn render_text(path: &std::path::Path, pack: &ModelPack, s: &PackSummary) -> Str
         o,
         "  held-out: the pack's held-out cross-entropy minus the plain per-bin histogram's (nats per sample; ≤ 0 is better)"
     );
+    if s.isos.iter().any(|i| i.structure.is_some()) {
+        let _ = writeln!(o);
+        let _ = writeln!(
+            o,
+            "  structured noise (RMS in DN, sampling noise taken out; * = added at synthesis, else below detection):"
+        );
+        let _ = writeln!(
+            o,
+            "  {:>6}  {:<17} {:<17} {:<35} {:>6}",
+            "ISO", "rows (even, odd)", "columns", "frame offsets per position", "frames"
+        );
+        let c = |x: &Option<ComponentSummary>| match x {
+            Some(c) => format!("{:.3}{}", c.sd, if c.added { "*" } else { "" }),
+            None => "-".into(),
+        };
+        for iso in &s.isos {
+            let Some(st) = &iso.structure else { continue };
+            let frames = match &st.frames {
+                Some(f) => f
+                    .iter()
+                    .map(|c| format!("{:.3}{}", c.sd, if c.added { "*" } else { "" }))
+                    .collect::<Vec<_>>()
+                    .join(" "),
+                None => "-".into(),
+            };
+            let _ = writeln!(
+                o,
+                "  {:>6}  {:<17} {:<17} {:<35} {:>6}{}",
+                iso.iso,
+                format!("{} {}", c(&st.rows[0]), c(&st.rows[1])),
+                format!("{} {}", c(&st.columns[0]), c(&st.columns[1])),
+                frames,
+                st.frames_used,
+                if st.derived { "  (derived from calibrated ISOs)" } else { "" }
+            );
+        }
+    }
     if !s.warnings.is_empty() {
         let _ = writeln!(o);
         let _ = writeln!(o, "  warnings:");

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use ndarray::Array2;
 use noisecal_core::model::pack::{IsoModel, NoiseProfile};
+use noisecal_core::model::structure::Components;
 use noisecal_core::synth::sampler::IsoSampler;
 use noisecal_core::synth::synthesize;
 
@@ -30,11 +31,20 @@ pub struct Args {
     /// Allow ISOs outside the calibrated range (extrapolated).
     #[arg(long)]
     pub extrapolate: bool,
+    /// Noise components to add: pixel, row, column, frame (comma-separated; default: every
+    /// component the pack calibrated). `pixel` alone is the pixel-independent model of version 2
+    /// packs; the parametric baselines (`--model hg|pg|noiseprofile`) are always pixel-only.
+    #[arg(long, value_parser = parse_components)]
+    pub components: Option<Components>,
     /// A clean raw DNG, or a folder of them.
     pub input: PathBuf,
     /// Output DNG, or a folder when the input is a folder.
     #[arg(short, long)]
     pub output: PathBuf,
+}
+
+fn parse_components(s: &str) -> Result<Components, String> {
+    Components::parse(s)
 }
 
 pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
@@ -48,7 +58,11 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         if let Some(n) = note {
             eprintln!("{n}");
         }
-        let sampler = IsoSampler::new(&pack, &model);
+        let which = match args.model {
+            ModelKind::Noisecal => args.components.unwrap_or(Components::ALL),
+            _ => Components::PIXEL,
+        };
+        let sampler = IsoSampler::with_components(&pack, &model, which);
         let jobs: Vec<(PathBuf, PathBuf)> = if folder {
             let files = dng::scan_folder(&args.input)?;
             if files.is_empty() {

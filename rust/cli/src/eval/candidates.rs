@@ -112,7 +112,11 @@ pub(super) fn candidates(
         kind,
         label,
         origin,
-        sampler: IsoSampler::new(pack, m),
+        // The parametric baselines are pixel-independent models: no structured components.
+        sampler: match kind {
+            CandidateKind::Noisecal => IsoSampler::new(pack, m),
+            _ => IsoSampler::with_components(pack, m, Components::PIXEL),
+        },
         synth: (0..seeds).map(|_| fresh()).collect(),
         spatial: (0..seeds).map(|_| SpatialSamples::new()).collect(),
     };
