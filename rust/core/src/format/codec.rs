@@ -154,7 +154,10 @@ pub fn decode_framing<'a>(
 
 /// Decodes a payload returned by [`decode_framing`]; every byte must be used.
 pub fn decode_payload<T: DeserializeOwned>(what: &'static str, payload: &[u8]) -> Result<T, CodecError> {
-    let (value, used) = bincode::serde::decode_from_slice(payload, config())
+    // A length field is checked against the limit before anything is allocated for it (a
+    // damaged string length once asked for 7.8 EB: found by noisecal-fuzz).
+    let limited = config().with_limit::<{ 1 << 30 }>();
+    let (value, used) = bincode::serde::decode_from_slice(payload, limited)
         .map_err(|e| CodecError::Decode { what, detail: describe_decode_error(&e) })?;
     if used != payload.len() {
         return Err(CodecError::Invalid { what, detail: format!("payload has {} unread bytes", payload.len() - used) });
@@ -314,6 +317,11 @@ mod tests {
         let e = decode::<(bool, u32)>("test file", M, "NCTEST", 3, &bad).unwrap_err().to_string();
         assert!(e.contains("yes/no field holds the byte 130"), "{e}");
         assert!(!e.contains("InvalidBooleanValue"), "{e}");
+        // A string claiming 7.8 EB (noisecal-fuzz's pack finding): refused, not allocated.
+        let mut huge = vec![0xFDu8]; // varint: a u64 follows
+        huge.extend_from_slice(&7_809_660_717_469_758_603u64.to_le_bytes());
+        let e = decode_payload::<String>("test file", &huge).unwrap_err().to_string();
+        assert!(e.contains("size limit"), "{e}");
         let e = decode::<(bool, u32, u64)>("test file", M, "NCTEST", 3, &b).unwrap_err().to_string();
         assert!(e.contains("ends inside a value") && !e.contains("UnexpectedEnd"), "{e}");
     }
