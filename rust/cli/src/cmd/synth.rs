@@ -56,7 +56,9 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         let pack = load_pack(&args.pack)?;
         let (model, note) = resolve_model(&pack, args.iso, args.model, args.extrapolate)?;
         if let Some(n) = note {
-            eprintln!("{n}");
+            if !quiet {
+                eprintln!("{n}");
+            }
         }
         let which = match args.model {
             ModelKind::Noisecal => args.components.unwrap_or(Components::ALL),
