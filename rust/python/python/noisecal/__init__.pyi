@@ -97,5 +97,10 @@ def calibrate(
 ) -> Pack: ...
 def read_dng(path: str | PathLike[str]) -> tuple[npt.NDArray[np.uint16], dict[str, Any]]: ...
 def write_dng(
-    path: str | PathLike[str], pixels: npt.NDArray[np.uint16], *, template: str | PathLike[str], iso: int
+    path: str | PathLike[str],
+    pixels: npt.NDArray[np.uint16],
+    *,
+    template: str | PathLike[str],
+    iso: int,
+    pack: Pack | None = None,
 ) -> None: ...
