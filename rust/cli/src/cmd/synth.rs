@@ -55,10 +55,10 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         let prefetch = (!folder).then(|| scope.spawn(|| dng::read_dng_source(&args.input)));
         let pack = load_pack(&args.pack)?;
         let (model, note) = resolve_model(&pack, args.iso, args.model, args.extrapolate)?;
-        if let Some(n) = note {
-            if !quiet {
-                eprintln!("{n}");
-            }
+        if let Some(n) = note
+            && !quiet
+        {
+            eprintln!("{n}");
         }
         let which = match args.model {
             ModelKind::Noisecal => args.components.unwrap_or(Components::ALL),
