@@ -142,25 +142,35 @@ impl FrameOffsets {
     }
 
     /// One frame's offsets: a smoothed bootstrap of the measured ones (a measured frame picked
-    /// by `pick`, plus a Gaussian kernel of Silverman's width, the sum shrunk so the variance
-    /// stays the measured one). Deterministic in the draws.
+    /// by `pick`, plus a Gaussian kernel: [`Self::bootstrap`]). Deterministic in the draws.
     pub fn draw(&self, pick: u64, gauss: [f64; POSITIONS]) -> [f64; POSITIONS] {
         let n = self.offsets.len();
         if n == 0 {
             return [0.0; POSITIONS];
         }
         let i = ((pick as u128 * n as u128) >> 64) as usize;
-        let h = 1.06 * (n as f64).powf(-0.2);
-        std::array::from_fn(|p| {
-            let mean = self.offsets.iter().map(|o| o[p] as f64).sum::<f64>() / n as f64;
-            let s2 = self.offsets.iter().map(|o| (o[p] as f64 - mean).powi(2)).sum::<f64>() / n as f64;
-            if s2 <= 0.0 {
-                return 0.0;
-            }
-            let s = s2.sqrt();
-            let shrink = (self.variance(p) / (s2 * (1.0 + h * h))).sqrt();
-            (self.offsets[i][p] as f64 - mean + h * s * gauss[p]) * shrink
+        std::array::from_fn(|p| match self.bootstrap(p) {
+            Some(b) => (self.offsets[i][p] as f64 - b.mean) * b.shrink + b.kernel_sd * gauss[p],
+            None => 0.0,
         })
+    }
+
+    /// The smoothed bootstrap at one position: an offset `o` becomes `(o − mean)·shrink` plus a
+    /// Gaussian of `kernel_sd` (Silverman's width `1.06·n^−⅕` of the sample's spread, the sum
+    /// shrunk to the component's variance). `None` for a sample without spread.
+    pub fn bootstrap(&self, pos: usize) -> Option<Bootstrap> {
+        let n = self.offsets.len();
+        if n == 0 {
+            return None;
+        }
+        let mean = self.offsets.iter().map(|o| o[pos] as f64).sum::<f64>() / n as f64;
+        let s2 = self.offsets.iter().map(|o| (o[pos] as f64 - mean).powi(2)).sum::<f64>() / n as f64;
+        if s2 <= 0.0 {
+            return None;
+        }
+        let h = 1.06 * (n as f64).powf(-0.2);
+        let shrink = (self.variance(pos) / (s2 * (1.0 + h * h))).sqrt();
+        Some(Bootstrap { mean, shrink, kernel_sd: h * s2.sqrt() * shrink })
     }
 
     pub fn scaled(&self, k: f64) -> Self {
@@ -197,6 +207,14 @@ impl FrameOffsets {
         }
         None
     }
+}
+
+/// The smoothed bootstrap of [`FrameOffsets`] at one position ([`FrameOffsets::bootstrap`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Bootstrap {
+    pub mean: f64,
+    pub shrink: f64,
+    pub kernel_sd: f64,
 }
 
 /// The structured components of one ISO.

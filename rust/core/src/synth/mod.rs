@@ -48,11 +48,7 @@ pub fn synthesize_at(
             let mut rng = band_rng(seed, band);
             for (r, row) in chunk.chunks_mut(w).enumerate() {
                 let y = band * BAND_ROWS + r;
-                let view = clean.row(y);
-                let src: std::borrow::Cow<'_, [u16]> = match view.as_slice() {
-                    Some(s) => std::borrow::Cow::Borrowed(s),
-                    None => std::borrow::Cow::Owned(view.to_vec()),
-                };
+                let src = clean_row(&clean, y);
                 let parity = ((y + row0) & 1) << 1;
                 // The CFA positions of the even and the odd columns of this row.
                 let (even, odd) = (parity | col0, parity | (col0 ^ 1));
@@ -115,11 +111,7 @@ fn synthesize_structured(
             let (mut whole, mut thresh) = (vec![0i32; w], vec![0u64; w]);
             for (r, row) in chunk.chunks_mut(w).enumerate() {
                 let y = band * BAND_ROWS + r;
-                let view = clean.row(y);
-                let src: std::borrow::Cow<'_, [u16]> = match view.as_slice() {
-                    Some(s) => std::borrow::Cow::Borrowed(s),
-                    None => std::borrow::Cow::Owned(view.to_vec()),
-                };
+                let src = clean_row(&clean, y);
                 let parity = ((y + row0) & 1) << 1;
                 let (even, odd) = (parity | col0, parity | (col0 ^ 1));
                 let (lut0, tab0) = sampler.position_tables(even);
@@ -172,6 +164,15 @@ fn synthesize_structured(
         });
     }
     Array2::from_shape_vec((h, w), out).expect("h × w samples")
+}
+
+/// Row `y` of the clean image as a slice (borrowed when the view is contiguous).
+fn clean_row<'a>(clean: &'a ArrayView2<'_, u16>, y: usize) -> std::borrow::Cow<'a, [u16]> {
+    let view = clean.row(y);
+    match view.to_slice() {
+        Some(s) => std::borrow::Cow::Borrowed(s),
+        None => std::borrow::Cow::Owned(view.to_vec()),
+    }
 }
 
 /// As [`synthesize`], for a clean image with fractional levels (e.g. rendered from HDR data):

@@ -180,24 +180,16 @@ fn quantile_density(d: &OffsetDistribution) -> (i64, Vec<f64>) {
 /// The density of one position's frame offsets as [`FrameOffsets::draw`] makes them: the
 /// measured offsets, shrunk, each with its Gaussian kernel.
 fn frame_density(f: &FrameOffsets, pos: usize) -> (i64, Vec<f64>) {
-    let n = f.offsets.len();
-    let mean = f.offsets.iter().map(|o| o[pos] as f64).sum::<f64>() / n as f64;
-    let s2 = f.offsets.iter().map(|o| (o[pos] as f64 - mean).powi(2)).sum::<f64>() / n as f64;
-    if n == 0 || s2 <= 0.0 {
+    let Some(b) = f.bootstrap(pos) else {
         return (0, vec![1.0]);
-    }
-    let h = 1.06 * (n as f64).powf(-0.2);
-    let shrink = (f.variance(pos) / (s2 * (1.0 + h * h))).sqrt();
-    let sd = h * s2.sqrt() * shrink;
-    let mut pts = Vec::new();
+    };
+    // The kernel at 33 points over ±4 sd.
+    let ws: Vec<f64> = (-16..=16).map(|j| (-0.5 * (j as f64 / 4.0).powi(2)).exp()).collect();
+    let t = ws.iter().sum::<f64>() * f.offsets.len() as f64;
+    let mut pts = Vec::with_capacity(f.offsets.len() * ws.len());
     for o in &f.offsets {
-        let c = (o[pos] as f64 - mean) * shrink;
-        // The kernel at 33 points over ±4 sd.
-        let ws: Vec<f64> = (-16..=16).map(|j| (-0.5 * (j as f64 / 4.0).powi(2)).exp()).collect();
-        let t: f64 = ws.iter().sum();
-        for (j, w) in (-16..=16).zip(ws) {
-            pts.push((c + sd * j as f64 / 4.0, w / t / n as f64));
-        }
+        let c = (o[pos] as f64 - b.mean) * b.shrink;
+        pts.extend((-16..=16).zip(&ws).map(|(j, w)| (c + b.kernel_sd * j as f64 / 4.0, w / t)));
     }
     on_grid(&pts)
 }
