@@ -1,5 +1,7 @@
 //! `noisecal synth` of an uncompressed 12 MP DNG end to end (read, sample, encode, atomic write),
-//! as the command runs it (a process: pack load and fsync included) and in process by stage.
+//! as the command runs it (a process: pack load and fsync included; with every component the pack
+//! has, and with `--components pixel`) and in process by stage (pack load, sampler build, read,
+//! sample, NoiseProfile fit, encode, atomic write).
 //!
 //!     cargo bench -p noisecal-cli --bench synth_e2e
 //!
@@ -14,6 +16,7 @@ use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use noisecal_cli::dng::{derived_bytes, fitted_noise_profile, read_dng_file};
 use noisecal_cli::models::{ModelKind, resolve_model};
 use noisecal_core::ModelPack;
+use noisecal_core::model::structure::Components;
 use noisecal_core::synth::sampler::IsoSampler;
 use noisecal_core::synth::synthesize;
 
@@ -63,9 +66,40 @@ fn benches(c: &mut Criterion) {
             noisecal(&["-q", "synth", "--pack", s(&pack), "--iso", "800", "--seed", "7", s(&input), "-o", s(&output)])
         })
     });
+    // The pixel-independent model alone: no structured components, so no deconvolved tables.
+    g.bench_function("cli_pixel", |b| {
+        b.iter(|| {
+            noisecal(&[
+                "-q",
+                "synth",
+                "--pack",
+                s(&pack),
+                "--iso",
+                "800",
+                "--seed",
+                "7",
+                "--components",
+                "pixel",
+                s(&input),
+                "-o",
+                s(&output),
+            ])
+        })
+    });
 
-    let pack = ModelPack::from_bytes(&std::fs::read(&pack).expect("pack")).expect("pack");
+    let pack_bytes = std::fs::read(&pack).expect("pack");
+    g.bench_function("pack_load", |b| b.iter(|| black_box(ModelPack::from_bytes(&pack_bytes).expect("pack"))));
+    let pack = ModelPack::from_bytes(&pack_bytes).expect("pack");
     let (model, _) = resolve_model(&pack, ISO, ModelKind::Noisecal, false).expect("model");
+    // Per run: the sampler's tables (with the structured components taken out of every bin's PMF
+    // by deconvolution), and without components.
+    g.bench_function("sampler_build", |b| b.iter(|| black_box(IsoSampler::new(&pack, &model))));
+    g.bench_function("sampler_build_pixel", |b| {
+        b.iter(|| black_box(IsoSampler::with_components(&pack, &model, Components::PIXEL)))
+    });
+    g.bench_function("noise_profile", |b| {
+        b.iter(|| black_box(fitted_noise_profile(&pack, &model, &file.image.layout)))
+    });
     let sampler = IsoSampler::new(&pack, &model);
     let profile = fitted_noise_profile(&pack, &model, &file.image.layout);
     g.bench_function("read", |b| b.iter(|| black_box(read_dng_file(&input).expect("read"))));

@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use ndarray::Array2;
+use noisecal_core::SensorLayout;
 use noisecal_core::model::pack::{IsoModel, NoiseProfile};
 use noisecal_core::model::structure::Components;
 use noisecal_core::synth::sampler::IsoSampler;
@@ -83,7 +84,7 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         } else {
             vec![(args.input.clone(), args.output.clone())]
         };
-        let job = Job { pack: &pack, sampler: &sampler, model: &model, quiet };
+        let job = Job { pack: &pack, sampler: &sampler, model: &model, quiet, profiles: Default::default() };
         // Three stages overlap: reading file i + 1, sampling file i, writing file i − 1.
         let (read_tx, read_rx) = std::sync::mpsc::sync_channel::<anyhow::Result<dng::DngFile>>(1);
         let (write_tx, write_rx) = std::sync::mpsc::sync_channel::<Written>(1);
@@ -189,6 +190,8 @@ struct Job<'a> {
     sampler: &'a IsoSampler,
     model: &'a IsoModel,
     quiet: bool,
+    /// The NoiseProfile per image layout met so far (a folder's images share one, usually).
+    profiles: std::sync::Mutex<Vec<(SensorLayout, Option<NoiseProfile>)>>,
 }
 
 impl Job<'_> {
@@ -206,13 +209,32 @@ impl Job<'_> {
         // is shifted onto the pack's, synthesized, and shifted back.
         let align = align_input(pack, &layout, input, self.quiet);
         let clean = file.pixels();
-        let noisy = if align.is_identity() {
-            synthesize(self.sampler, clean, seed)
-        } else {
-            let moved = align.apply(clean, pack.layout.white);
-            align.undo(synthesize(self.sampler, moved.view(), seed).view(), layout.white)
-        };
-        let profile = dng::fitted_noise_profile(pack, self.model, &layout);
+        // The NoiseProfile fit is single-threaded: it runs next to the sampling, not after it.
+        let (noisy, profile) = rayon::join(
+            || {
+                if align.is_identity() {
+                    synthesize(self.sampler, clean, seed)
+                } else {
+                    let moved = align.apply(clean, pack.layout.white);
+                    align.undo(synthesize(self.sampler, moved.view(), seed).view(), layout.white)
+                }
+            },
+            || self.profile(&layout),
+        );
         Ok((file, noisy, profile))
+    }
+
+    /// The NoiseProfile of the images with `layout` (fitted once per layout).
+    fn profile(&self, layout: &SensorLayout) -> Option<NoiseProfile> {
+        let known =
+            |p: &Vec<(SensorLayout, Option<NoiseProfile>)>| p.iter().find(|(l, _)| l == layout).map(|(_, n)| *n);
+        if let Some(n) = self.profiles.lock().ok().and_then(|p| known(&p)) {
+            return n;
+        }
+        let n = dng::fitted_noise_profile(self.pack, self.model, layout);
+        if let Ok(mut p) = self.profiles.lock() {
+            p.push((layout.clone(), n));
+        }
+        n
     }
 }

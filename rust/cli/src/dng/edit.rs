@@ -682,6 +682,27 @@ fn write_16(out: &mut [u8], o: Order, g: &RawGeometry, pixels: ArrayView2<'_, u1
             }
         }
     };
+    // Strips that follow each other hold the rows in order: rows are written in parallel.
+    if let DataLayout::Strips { rows, offsets, .. } = &g.data {
+        let strip = (rows * g.width * 2) as u64;
+        let (ah, aw) = pixels.dim();
+        let start = offsets.first().map_or(0, |&o| o as usize) + top * g.width * 2;
+        let len = ah * g.width * 2;
+        if aw > 0
+            && offsets.windows(2).all(|w| w[1] == w[0] + strip)
+            && start.checked_add(len).is_some_and(|end| end <= out.len())
+        {
+            out[start..start + len].par_chunks_mut(g.width * 2).enumerate().for_each(|(y, dst)| {
+                let dst = &mut dst[left * 2..(left + aw) * 2];
+                let row = pixels.row(y);
+                match row.as_slice() {
+                    Some(src) => put(dst, src),
+                    None => put(dst, &row.to_vec()),
+                }
+            });
+            return;
+        }
+    }
     let mut scratch = Vec::new();
     for (y, row) in pixels.rows().into_iter().enumerate() {
         let src: &[u16] = match row.as_slice() {

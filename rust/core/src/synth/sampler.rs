@@ -1,6 +1,7 @@
 //! Per-bin inverse-CDF sampling with guide tables, built once per pack load.
 
 use rand::Rng;
+use rayon::prelude::*;
 
 use crate::model::codes::Snap;
 use crate::model::layout::{Binning, POSITIONS};
@@ -31,10 +32,20 @@ impl BinTable {
         let total: u128 = w.iter().map(|&c| c as u128).sum();
         let mut cdf = Vec::with_capacity(w.len().max(1));
         let mut acc: u128 = 0;
-        for &c in w {
-            acc += c as u128;
-            let v = (acc * ONE as u128).checked_div(total).unwrap_or(ONE as u128);
-            cdf.push(v as u64);
+        if total > 0 && total <= u32::MAX as u128 {
+            // The same quotients in 64 bits (acc · 2³² < 2⁶⁴): a 128-bit division per entry was
+            // most of the sampler build.
+            let (total, mut acc) = (total as u64, 0u64);
+            for &c in w {
+                acc += c;
+                cdf.push((acc << 32) / total);
+            }
+        } else {
+            for &c in w {
+                acc += c as u128;
+                let v = (acc * ONE as u128).checked_div(total).unwrap_or(ONE as u128);
+                cdf.push(v as u64);
+            }
         }
         if cdf.is_empty() {
             cdf.push(ONE);
@@ -48,14 +59,14 @@ impl BinTable {
         // entry, 132 with eight).
         let bits = (cdf.len().next_power_of_two().trailing_zeros() + GUIDE_EXTRA_BITS).clamp(3, 12);
         let g = 1usize << bits;
-        let mut guide = Vec::with_capacity(g);
+        let mut guide = vec![0u32; g];
         let mut i = 0usize;
-        for k in 0..g {
+        for (k, cell) in guide.iter_mut().enumerate() {
             let threshold = (k as u64) << (32 - bits);
             while cdf[i] <= threshold {
                 i += 1;
             }
-            guide.push(i as u32);
+            *cell = i as u32;
         }
         Self { first, cdf, guide, shift: 32 - bits }
     }
@@ -133,8 +144,8 @@ impl IsoSampler {
         let binning = pack.binning();
         let luts = std::array::from_fn(|p| binning.lut(p));
         let tables = std::array::from_fn(|p| match &structure {
-            Some(st) => st.deconvolved(p, &model.positions[p].bins).iter().map(BinTable::new).collect(),
-            None => model.positions[p].bins.iter().map(BinTable::new).collect(),
+            Some(st) => st.deconvolved(p, &model.positions[p].bins).par_iter().map(BinTable::new).collect(),
+            None => model.positions[p].bins.par_iter().map(BinTable::new).collect(),
         });
         let white = pack.layout.white;
         let snaps = std::array::from_fn(|p| model.lattice[p].as_ref().map(|l| Snap::new(l, white)));
