@@ -21,6 +21,7 @@ struct Outcome {
 }
 
 fn run(seed: u64) -> Outcome {
+    let started = std::time::Instant::now();
     let sensor = random_sensor(seed);
     let spec = random_session(seed, &sensor.model);
     let sim = spec.simulator(&sensor.model, seed ^ 0xA5A5).expect("simulator");
@@ -53,6 +54,7 @@ fn run(seed: u64) -> Outcome {
         &pack.binning(),
         &[("pack", pack.isos.clone(), &pack), ("plain", plain, &pack), ("hg", hg, &pack)],
     );
+    eprintln!("seed {seed}: {:.1} s", started.elapsed().as_secs_f64());
     Outcome {
         seed,
         description: format!("{} | {}", sensor.description, spec.description),

@@ -10,7 +10,7 @@ use crate::calibrate::estimate::FOLDS;
 use crate::calibrate::flat::NOT_FLAT;
 use crate::calibrate::frame::FrameView;
 use crate::calibrate::reference::CleanImage;
-use crate::calibrate::structure::{FrameSums, LineSums, StructureAccumulator};
+use crate::calibrate::structure::{CELLS, FrameSums, LineSums, StructureAccumulator};
 use crate::model::histogram::NoiseHistogram;
 use crate::model::layout::{Binning, POSITIONS};
 
@@ -110,19 +110,23 @@ impl IsoAccumulator {
         let clean = &image.levels;
         let (even, odd) = self.folds[fold].split_at_mut(2);
         let (codes_even, codes_odd) = self.codes.split_at_mut(2);
+        // Line sums leave out levels near white, where clipping moves lines from frame to frame.
+        let black = tf.black.iter().cloned().fold(f32::INFINITY, f32::min);
+        let line_top = (black + 0.9 * (white as f32 - black)).clamp(0.0, white as f32) as u16;
         let ((s0, rows0, cols0), (s1, rows1, cols1)) = rayon::join(
-            || fold_rows(0, frame, clean, w, h, &luts, even, codes_even, tf, white),
-            || fold_rows(1, frame, clean, w, h, &luts, odd, codes_odd, tf, white),
+            || fold_rows(0, frame, clean, w, h, &luts, even, codes_even, tf, white, line_top),
+            || fold_rows(1, frame, clean, w, h, &luts, odd, codes_odd, tf, white, line_top),
         );
         let samples = s0 + s1;
-        let mut lines = FrameSums::new(w, h);
+        let mut lines = FrameSums::new(w, h, tf.black);
         for (parity, rows) in [(0, rows0), (1, rows1)] {
             for (i, r) in rows.into_iter().enumerate() {
                 lines.rows[parity + 2 * i] = r;
             }
         }
+        // A column's cell is `row parity | half << 1`.
         for (c, (a, b)) in lines.cols.iter_mut().zip(cols0.into_iter().zip(cols1)) {
-            *c = [a, b];
+            *c = [a[0], b[0], a[1], b[1]];
         }
         self.structure.add_frame(step, &lines);
         // Brightness sums per position for the gain ratio (after normalisation).
@@ -137,7 +141,8 @@ impl IsoAccumulator {
 }
 
 /// Folds the rows of one parity into that parity's two positions' histograms and code counts.
-/// Returns the samples, and the sums of `n` per row (by column parity) and per column.
+/// Returns the samples, and the sums of `n` and of the clean level per row (by cell) and per
+/// column (by half).
 #[allow(clippy::too_many_arguments)]
 fn fold_rows(
     parity: usize,
@@ -150,10 +155,12 @@ fn fold_rows(
     codes: &mut [Vec<u64>],
     tf: &Transform,
     white: u16,
-) -> (u64, Vec<[LineSums; 2]>, Vec<LineSums>) {
+    line_top: u16,
+) -> (u64, Vec<[LineSums; CELLS]>, Vec<[LineSums; 2]>) {
     let mut samples = 0u64;
     let mut row_sums = Vec::with_capacity(h / 2 + 1);
-    let mut cols: Vec<LineSums> = vec![[0; 3]; w];
+    // Per column, by half (`⌊y/2⌋` parity).
+    let mut cols: Vec<[LineSums; 2]> = vec![[[0; 3]; 2]; w];
     let mut buf = vec![0u16; w];
     let identity = tf.identity();
     let (h0, h1) = hists.split_at_mut(1);
@@ -171,14 +178,17 @@ fn fold_rows(
             }
         };
         let crow = &clean[y * w..y * w + w];
-        let mut rs: [LineSums; 2] = [[0; 3]; 2];
+        let mut rs: [LineSums; CELLS] = [[0; 3]; CELLS];
+        let half = (y >> 1) & 1;
         if identity {
             for (x, (&v, &c)) in row.iter().zip(crow).enumerate() {
                 if c == NOT_FLAT {
                     continue;
                 }
                 let n = v as i32 - c as i32;
-                line_add(&mut rs[x & 1], &mut cols[x], n);
+                if c <= line_top {
+                    line_add(&mut rs[x & 3], &mut cols[x][half], n, c);
+                }
                 if x & 1 == 0 {
                     hist0[lut0[c as usize] as usize].add(n);
                     codes0[(v as usize).min(top)] += 1;
@@ -196,7 +206,9 @@ fn fold_rows(
                 let pos = parity * 2 + (x & 1);
                 let t = tf.apply(pos, v).round().clamp(0.0, white as f32) as i32;
                 let n = t - c as i32;
-                line_add(&mut rs[x & 1], &mut cols[x], n);
+                if c <= line_top {
+                    line_add(&mut rs[x & 3], &mut cols[x][half], n, c);
+                }
                 if x & 1 == 0 {
                     hist0[lut0[c as usize] as usize].add(n);
                     codes0[(v as usize).min(top)] += 1;
@@ -213,12 +225,12 @@ fn fold_rows(
 }
 
 #[inline(always)]
-fn line_add(row: &mut LineSums, col: &mut LineSums, n: i32) {
-    let (n, n2) = (n as i64, (n as i64) * (n as i64));
+fn line_add(row: &mut LineSums, col: &mut LineSums, n: i32, clean: u16) {
+    let (n, c) = (n as i64, clean as i64);
     row[0] += n;
-    row[1] += n2;
+    row[1] += c;
     row[2] += 1;
     col[0] += n;
-    col[1] += n2;
+    col[1] += c;
     col[2] += 1;
 }

@@ -140,7 +140,7 @@ impl CalibrationSession {
                             .filter_map(|b| b.measured.map(|[_, v]| v))
                             .fold(f64::INFINITY, f64::min);
                         let pixel_var = if pixel_var.is_finite() { pixel_var } else { 0.0 };
-                        self.isos[&m.iso].structure.structure(m.iso, self.layout.height as usize, pixel_var)
+                        self.isos[&m.iso].structure.structure(m.iso, pixel_var)
                     })
                     .collect()
             },

@@ -155,7 +155,8 @@ pub fn brightness_from_bands(frame_sums: &[f64], base_sums: &[f64]) -> Option<Fr
 /// (`[n, Σb, Σf, Σb², Σbf]` per band): the ratio is the slope `a`, so that a frame whose black level is off by `δ` (a real sensor's per-frame offset,
 /// several per cent of a dark step's signal) is not taken for a brighter frame. Standard error by
 /// the jackknife over bands. Where the base's levels hardly vary (a flat field: slope and offset
-/// cannot be told apart) the plain ratio is used.
+/// cannot be told apart), or the fitted offset is within three (jackknife) standard errors of
+/// zero, the plain ratio is used.
 pub fn brightness_from_fit(bands: &[[f64; 5]]) -> Option<FrameBrightness> {
     let total = bands.iter().fold([0.0; 5], |mut a, b| {
         for k in 0..5 {
@@ -181,22 +182,34 @@ pub fn brightness_from_fit(bands: &[[f64; 5]]) -> Option<FrameBrightness> {
     };
     let used: Vec<usize> = (0..bands.len()).filter(|&i| bands[i][0] > 0.0).collect();
     let k = used.len();
-    let sigma = if k >= 2 {
-        let jack: Vec<f64> = used
+    // The offset `δ` the slope allows for: `mean f − a · mean b`.
+    let offset = |s: &[f64; 5], a: f64| (s[2] - a * s[1]) / s[0];
+    let (sigma, offset_se) = if k >= 2 {
+        let jack: Vec<(f64, f64)> = used
             .iter()
             .filter_map(|&i| {
                 let mut s = total;
                 for j in 0..5 {
                     s[j] -= bands[i][j];
                 }
-                slope(&s)
+                slope(&s).map(|a| (a, offset(&s, a)))
             })
             .collect();
-        let m = jack.iter().sum::<f64>() / jack.len().max(1) as f64;
-        ((k - 1) as f64 / k as f64 * jack.iter().map(|x| (x - m).powi(2)).sum::<f64>()).sqrt()
+        let sd = |v: &dyn Fn(&(f64, f64)) -> f64| {
+            let m = jack.iter().map(v).sum::<f64>() / jack.len().max(1) as f64;
+            ((k - 1) as f64 / k as f64 * jack.iter().map(|x| (v(x) - m).powi(2)).sum::<f64>()).sqrt()
+        };
+        (sd(&|x| x.0), sd(&|x| x.1))
     } else {
-        0.0
+        (0.0, f64::INFINITY)
     };
+    // Without a measurable offset the plain ratio is the better estimate (its noise is a
+    // fraction of the slope's, and a noisy scale would widen what it normalises).
+    if offset(&total, a).abs() <= 3.0 * offset_se {
+        let f: Vec<f64> = bands.iter().map(|b| b[2]).collect();
+        let b: Vec<f64> = bands.iter().map(|b| b[1]).collect();
+        return brightness_from_bands(&f, &b);
+    }
     Some(FrameBrightness { ratio: a, sigma })
 }
 

@@ -1,21 +1,31 @@
 //! Structured noise measured from the target frames already captured (method.md, "Structured
-//! noise"): per frame, the mean of `n = noisy − clean` over the flat pixels of every row, every
-//! column and every CFA position, taken in the same pass that fills the pixel histograms.
+//! noise"): per frame, the mean of `n = noisy − clean` and of the clean level over the flat
+//! pixels of every row and every column, split by CFA parity and into two interleaved halves,
+//! taken in the same pass that fills the pixel histograms.
 //!
 //! Every frame of a burst (one EV step, one ISO) sees the same clean image and the same flat
-//! pixels, so whatever the clean image gets wrong is the same in each of them: a frame's row
-//! mean minus the burst's mean of that row is the row's offset in that frame (plus the sampling
-//! noise of a mean of `m` pixels), with nothing of the scene left in it. Per frame only these
-//! means are kept until the burst ends (`O(rows + columns)` floats per frame of the current
-//! burst); then they are folded into histograms and the burst's buffer is dropped.
+//! pixels, so whatever the clean image gets wrong is the same in each of them: a frame's line
+//! mean minus the burst's mean of that line holds only what changed from frame to frame. Per
+//! frame only these means are kept until the burst ends (`O(rows + columns)` floats per frame
+//! of the current burst); then they are folded into histograms and the burst's buffer is dropped.
 //!
-//! - Frame offsets: per CFA position, the frame's mean minus the burst's, rescaled by
-//!   `√(k/(k−1))` (removing a mean of `k` frames shrinks the variance by `(k−1)/k`).
-//! - Row offsets (per row parity): the row's deviation minus its frame's deviation over the same
-//!   positions, rescaled the same way. Its variance is the row component's plus the sampling
-//!   variance `s²/m` of the row mean (`s²` the variance of `n` along the row in that frame); the
-//!   latter is summed alongside and taken out at the end ([`fold_offsets`]).
-//! - Column offsets (per column parity): the same along columns.
+//! What changes from frame to frame besides the line offsets is taken out per frame and line
+//! parity by a weighted least-squares fit of the deviations on the cells' clean level, with one
+//! intercept per CFA position and one common slope: the intercepts (at the black level) are the
+//! frame's black-level offsets; the slope is the frame's brightness (exposure or light jitter,
+//! flicker), which multiplies the scene and would otherwise pass for row noise wherever a row
+//! crosses brighter patches than its neighbours.
+//!
+//! - Frame offsets: per CFA position, the intercepts, rescaled by `√(k/(k−1))` (removing a mean
+//!   of `k` frames shrinks the variance by `(k−1)/k`); their sampling variance is the fit's
+//!   (heteroscedasticity-consistent) variance.
+//! - Row offsets (per row parity): the residual of the fit, rescaled the same way. Its variance
+//!   is the row component's plus the sampling noise of a mean of `m` pixels. The two halves of a
+//!   line (columns `x` with `⌊x/2⌋` even, and odd) share the row's offset but not their pixels'
+//!   noise, so the covariance of their residuals is the component's variance, with no model of
+//!   the sampling noise at all (fixed patterns, scene edges, clipping or heavy tails in `n` do
+//!   not enter it).
+//! - Column offsets (per column parity): the same along columns (halves by `⌊y/2⌋`).
 
 use std::collections::BTreeMap;
 
@@ -24,14 +34,14 @@ use serde::{Deserialize, Serialize};
 use crate::model::layout::POSITIONS;
 use crate::model::structure::{FrameOffsets, IsoStructure, OffsetDistribution, QUANTILES};
 
-/// Fewest flat pixels a row (column) needs for its mean to count.
+/// Fewest flat pixels a row (column) needs for its mean to count; each half needs a quarter.
 pub const MIN_LINE_PIXELS: u32 = 32;
 /// Frames of one burst kept before the buffer is folded as a group of its own.
 pub const MAX_GROUP: usize = 64;
 /// Histogram resolution of measured offsets (steps per DN).
 const STEPS_PER_DN: f64 = 64.0;
-/// Significance of a component: its variance above the sampling variance by this many standard
-/// errors of the sampling variance's estimate.
+/// Significance of a component: its variance above zero by this many standard errors of its
+/// estimate.
 const SIGNIFICANCE: f64 = 3.0;
 /// Relevance of a component: its variance at least this fraction of the ISO's lowest pixel
 /// variance. Row and column offsets matter as soon as they rival the sampling noise of a line
@@ -39,69 +49,72 @@ const SIGNIFICANCE: f64 = 3.0;
 /// the pixel variance changes nothing anyone measures.
 const LINE_RELEVANCE: f64 = 1e-3;
 const FRAME_RELEVANCE: f64 = 1e-2;
-/// A line component must exceed this fraction of the line means' sampling variance.
-const MODEL_MARGIN: f64 = 0.25;
+/// A line component must also exceed this fraction of the line means' sampling variance: the
+/// halves' covariance is unbiased, but what the per-frame fit leaves of brightness changes that
+/// are not linear in the level is not.
+const MODEL_MARGIN: f64 = 0.1;
 
-/// `[Σn, Σn², m]` over a line's flat pixels of one parity.
+/// `[Σn, Σclean, m]` over one cell of a line: its flat pixels of one parity in one half.
 pub(crate) type LineSums = [i64; 3];
 
-/// One frame's sums: per row `[column parity]`, per column `[row parity]`.
+/// Cell of a line: `parity | half << 1`; a row's pixel `x` is in cell `x & 3`, a column's
+/// pixel `y` in cell `y & 3`.
+pub(crate) const CELLS: usize = 4;
+
+/// One frame's sums: per row `[cell]` (column parity, half), per column `[cell]` (row parity,
+/// half).
 #[derive(Debug, Clone, Default)]
 pub(crate) struct FrameSums {
-    pub(crate) rows: Vec<[LineSums; 2]>,
-    pub(crate) cols: Vec<[LineSums; 2]>,
+    pub(crate) rows: Vec<[LineSums; CELLS]>,
+    pub(crate) cols: Vec<[LineSums; CELLS]>,
+    /// The black level per position (the intercepts are taken there).
+    pub(crate) black: [f32; POSITIONS],
 }
 
 impl FrameSums {
-    pub(crate) fn new(w: usize, h: usize) -> Self {
-        Self { rows: vec![[[0; 3]; 2]; h], cols: vec![[[0; 3]; 2]; w] }
-    }
-
-    /// `[Σn, Σn², m]` per CFA position.
-    fn positions(&self) -> [[f64; 3]; POSITIONS] {
-        let mut out = [[0.0; 3]; POSITIONS];
-        for (y, r) in self.rows.iter().enumerate() {
-            for (cp, s) in r.iter().enumerate() {
-                let o = &mut out[(y & 1) * 2 + cp];
-                for k in 0..3 {
-                    o[k] += s[k] as f64;
-                }
-            }
-        }
-        out
+    pub(crate) fn new(w: usize, h: usize, black: [f32; POSITIONS]) -> Self {
+        Self { rows: vec![[[0; 3]; CELLS]; h], cols: vec![[[0; 3]; CELLS]; w], black }
     }
 }
 
-/// One line's means in one frame of the burst (`NaN`: too few pixels).
+/// One frame's cell means of `n` (`NaN`: no pixels).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 struct FrameMeans {
-    /// Per row: mean of n over the row's flat pixels, and `s²/m`.
-    rows: Vec<[f32; 2]>,
-    cols: Vec<[f32; 2]>,
-    /// Per position: mean of n and `s²/N`.
-    pos: [[f64; 2]; POSITIONS],
+    rows: Vec<[f32; CELLS]>,
+    cols: Vec<[f32; CELLS]>,
 }
 
-/// A line's pixel counts per parity (the same in every frame of a burst).
+/// A line's cells: pixel count and clean level above black.
+type CellLevels = [(u32, f32); CELLS];
+
+/// The cells' pixel counts and clean levels above black (the same in every frame of a burst).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-struct Counts {
-    rows: Vec<[u32; 2]>,
-    cols: Vec<[u32; 2]>,
+struct Cells {
+    rows: Vec<CellLevels>,
+    cols: Vec<CellLevels>,
 }
 
-/// Measured offsets of one kind, as a histogram and moments.
+/// Measured offsets of one kind, burst by burst (each burst's histogram and moments).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub(crate) struct OffsetHistogram {
+    bursts: Vec<BurstOffsets>,
+}
+
+/// One burst's line offsets.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+struct BurstOffsets {
+    /// Mean clean level of the lines above black (DN).
+    level: f64,
     /// Offsets at 1/64 DN.
     counts: BTreeMap<i32, u64>,
     n: u64,
-    /// `Σd, Σd², Σd⁴, Σv, Σv², Σv·d²` (`v`: the line's `s²/m`).
-    sums: [f64; 6],
+    /// `Σd, Σd², Σab, Σ(ab)²` (`a`, `b`: the halves' residuals).
+    sums: [f64; 4],
 }
 
-impl OffsetHistogram {
-    fn add(&mut self, d: f64, sampling: f64) {
-        if !d.is_finite() {
+impl BurstOffsets {
+    fn add(&mut self, d: f64, a: f64, b: f64) {
+        if !(d.is_finite() && a.is_finite() && b.is_finite()) {
             return;
         }
         let k = (d * STEPS_PER_DN).round().clamp(-1e9, 1e9) as i32;
@@ -109,41 +122,91 @@ impl OffsetHistogram {
         self.n += 1;
         self.sums[0] += d;
         self.sums[1] += d * d;
-        self.sums[2] += d * d * d * d;
-        self.sums[3] += sampling;
-        self.sums[4] += sampling * sampling;
-        self.sums[5] += sampling * d * d;
+        self.sums[2] += a * b;
+        self.sums[3] += (a * b) * (a * b);
+    }
+
+    /// The halves' covariance and its standard error.
+    fn covariance(&self) -> (f64, f64) {
+        let n = self.n as f64;
+        let cov = self.sums[2] / n;
+        (cov, ((self.sums[3] / n - cov * cov).max(0.0) / n).sqrt())
+    }
+}
+
+impl OffsetHistogram {
+    fn push(&mut self, burst: BurstOffsets) {
+        if burst.n >= 2 {
+            self.bursts.push(burst);
+        }
+    }
+
+    /// The component's variance and its standard error, from the bursts' covariances.
+    ///
+    /// A line component of the sensor does not depend on the scene's level; what else moves
+    /// lines from frame to frame does, and grows with it: sub-pixel shake moves the scene's
+    /// gradients (`∝ level`, so its variance `∝ level²`), clipping near white. So the bursts'
+    /// covariances are fitted as `σ² + β·level²` (weights `1/SE²`, `β ≥ 0`) and `σ²` is the
+    /// component; with one level only, their weighted mean.
+    fn component(&self) -> (f64, f64) {
+        let pts: Vec<(f64, f64, f64)> = self
+            .bursts
+            .iter()
+            .map(|b| {
+                let (c, se) = b.covariance();
+                (b.level * b.level, c, 1.0 / se.max(1e-9).powi(2))
+            })
+            .collect();
+        let (sw, swx, swy) = pts.iter().fold((0.0, 0.0, 0.0), |a, &(x, y, w)| (a.0 + w, a.1 + w * x, a.2 + w * y));
+        if sw <= 0.0 {
+            return (0.0, f64::INFINITY);
+        }
+        let (mx, my) = (swx / sw, swy / sw);
+        let mean = (my, (1.0 / sw).sqrt());
+        let sxx: f64 = pts.iter().map(|&(x, _, w)| w * (x - mx).powi(2)).sum();
+        let sxy: f64 = pts.iter().map(|&(x, y, w)| w * (x - mx) * (y - my)).sum();
+        if pts.len() < 3 || sxx <= 1e-12 * sw * mx.max(1.0).powi(2) {
+            return mean;
+        }
+        // A trend only where the covariances do grow with the level (two standard errors).
+        let beta = sxy / sxx;
+        if beta <= 2.0 / sxx.sqrt() {
+            return mean;
+        }
+        let sigma2 = my - beta * mx;
+        (sigma2, (1.0 / sw + mx * mx / sxx).sqrt())
     }
 
     /// The distribution of the component (sampling noise taken out), or `None` without data.
     pub(crate) fn distribution(&self, pixel_var: f64) -> Option<OffsetDistribution> {
-        if self.n < 2 {
+        let (sigma2, se) = self.component();
+        let own = sigma2.max(0.0);
+        // The shape from the bursts the level does not disturb (all when none qualifies).
+        let clean: Vec<&BurstOffsets> =
+            self.bursts.iter().filter(|b| b.covariance().0 <= own + SIGNIFICANCE * b.covariance().1).collect();
+        let used: Vec<&BurstOffsets> = if clean.is_empty() { self.bursts.iter().collect() } else { clean };
+        let n: u64 = used.iter().map(|b| b.n).sum();
+        if n < 2 {
             return None;
         }
-        let n = self.n as f64;
-        let mean = self.sums[0] / n;
-        let measured_var = (self.sums[1] / n - mean * mean).max(0.0);
-        // `s²` along a line also holds what is fixed per pixel (the clean image's error, DSNU),
-        // which the deviations from the burst mean do not: only a fraction `c` of `s²/m` is
-        // the line mean's sampling variance. Lines differ in `s²/m` (pixels, levels), so
-        // `E[d²] = σ² + c·v` is fitted over them; where `v` hardly varies, `c = 1`.
-        let v_mean = self.sums[3] / n;
-        let v_var = self.sums[4] / n - v_mean * v_mean;
-        let cov = self.sums[5] / n - v_mean * self.sums[1] / n;
-        let c = if v_var > (0.1 * v_mean).powi(2) && v_var > 0.0 { (cov / v_var).clamp(0.3, 1.2) } else { 1.0 };
-        let sampling_var = c * v_mean;
-        let own = (measured_var - sampling_var).max(0.0);
-        // Under "no component" the measured variance is the sampling variance with a standard
-        // error of about √(2/n) of it (means of many pixels are Gaussian).
-        // The fit of `c` is a model, not a measurement: a component must also stand above a
-        // quarter of the sampling variance (a sensor without row noise measured up to 17 %).
-        let significant = own > SIGNIFICANCE * sampling_var * (2.0 / n).sqrt()
+        let mut counts: BTreeMap<i32, u64> = BTreeMap::new();
+        for b in &used {
+            for (&k, &c) in &b.counts {
+                *counts.entry(k).or_default() += c;
+            }
+        }
+        let n = n as f64;
+        let mean = used.iter().map(|b| b.sums[0]).sum::<f64>() / n;
+        let measured_var = (used.iter().map(|b| b.sums[1]).sum::<f64>() / n - mean * mean).max(0.0);
+        let own = own.min(measured_var);
+        let sampling_var = measured_var - own;
+        let significant = own > SIGNIFICANCE * se
             && own > MODEL_MARGIN * sampling_var
             && own > 0.0
             && own >= LINE_RELEVANCE * pixel_var;
         let shrink = if measured_var > 0.0 { (own / measured_var).sqrt() } else { 0.0 };
         // The quantile function of the histogram (each 1/64 DN cell spread uniformly).
-        let cells: Vec<(f64, u64)> = self.counts.iter().map(|(&k, &c)| (k as f64 / STEPS_PER_DN, c)).collect();
+        let cells: Vec<(f64, u64)> = counts.iter().map(|(&k, &c)| (k as f64 / STEPS_PER_DN, c)).collect();
         let half = 0.5 / STEPS_PER_DN;
         let mut quantiles = Vec::with_capacity(QUANTILES);
         let (mut i, mut below) = (0usize, 0u64);
@@ -158,46 +221,47 @@ impl OffsetHistogram {
             let v = x - half + f * 2.0 * half;
             quantiles.push(((v - mean) * shrink) as f32);
         }
-        Some(OffsetDistribution { quantiles, count: self.n, measured_var, sampling_var, significant })
+        Some(OffsetDistribution { quantiles, count: n as u64, measured_var, sampling_var, significant })
     }
 }
 
 /// The structured-noise sums of one ISO.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub(crate) struct StructureAccumulator {
-    /// The burst being captured: its step, its counts, its frames' means.
-    group: Option<(u32, Counts, Vec<FrameMeans>)>,
+    /// The burst being captured: its step, its cells, its frames' means.
+    group: Option<(u32, Cells, Vec<FrameMeans>)>,
     rows: [OffsetHistogram; 2],
     cols: [OffsetHistogram; 2],
     frames: Vec<[f32; POSITIONS]>,
-    /// Per position `Σ` of the frame means' sampling variance (pixels only).
-    frame_sampling: [f64; POSITIONS],
+    /// Per frame and position, the offset's sampling variance.
+    frame_sampling: Vec<[f32; POSITIONS]>,
     /// Frames that were part of a burst of at least two.
     frames_used: u64,
     /// Frames alone at their ISO in their burst (no deviation to measure).
     frames_alone: u64,
 }
 
-fn mean_and_sampling(s: &LineSums) -> Option<(f64, f64)> {
-    let m = s[2] as f64;
-    if s[2] < MIN_LINE_PIXELS as i64 {
-        return None;
-    }
-    let mean = s[0] as f64 / m;
-    let var = ((s[1] as f64 - s[0] as f64 * mean) / (m - 1.0)).max(0.0);
-    Some((mean, var / m))
-}
-
-fn line_means(lines: &[[LineSums; 2]]) -> (Vec<[f32; 2]>, Vec<[u32; 2]>) {
+/// Cell means of one frame's lines, and the cells' counts and levels above black
+/// (`position(line, cell)`: the cell's CFA position).
+fn cells(
+    lines: &[[LineSums; CELLS]],
+    black: &[f32; POSITIONS],
+    position: impl Fn(usize, usize) -> usize,
+) -> (Vec<[f32; CELLS]>, Vec<CellLevels>) {
     lines
         .iter()
-        .map(|l| {
-            let both = [l[0][0] + l[1][0], l[0][1] + l[1][1], l[0][2] + l[1][2]];
-            let m = match mean_and_sampling(&both) {
-                Some((mean, v)) => [mean as f32, v as f32],
-                None => [f32::NAN, f32::NAN],
-            };
-            (m, [l[0][2] as u32, l[1][2] as u32])
+        .enumerate()
+        .map(|(i, l)| {
+            let mut means = [f32::NAN; CELLS];
+            let mut cells = [(0u32, 0f32); CELLS];
+            for (j, s) in l.iter().enumerate() {
+                if s[2] > 0 {
+                    let m = s[2] as f64;
+                    means[j] = (s[0] as f64 / m) as f32;
+                    cells[j] = (s[2] as u32, (s[1] as f64 / m - black[position(i, j)] as f64) as f32);
+                }
+            }
+            (means, cells)
         })
         .unzip()
 }
@@ -205,21 +269,14 @@ fn line_means(lines: &[[LineSums; 2]]) -> (Vec<[f32; 2]>, Vec<[u32; 2]>) {
 impl StructureAccumulator {
     /// Records one target frame of burst `step`.
     pub(crate) fn add_frame(&mut self, step: u32, sums: &FrameSums) {
-        let (rows, row_counts) = line_means(&sums.rows);
-        let (cols, col_counts) = line_means(&sums.cols);
-        let pos = sums.positions().map(|[s, s2, m]| {
-            if m < 2.0 {
-                return [f64::NAN, 0.0];
-            }
-            let mean = s / m;
-            [mean, ((s2 - s * mean) / (m - 1.0)).max(0.0) / m / m]
-        });
-        let means = FrameMeans { rows, cols, pos };
-        let counts = Counts { rows: row_counts, cols: col_counts };
-        let same = matches!(&self.group, Some((s, c, f)) if *s == step && *c == counts && f.len() < MAX_GROUP);
+        let (rows, row_cells) = cells(&sums.rows, &sums.black, row_position);
+        let (cols, col_cells) = cells(&sums.cols, &sums.black, col_position);
+        let means = FrameMeans { rows, cols };
+        let cells = Cells { rows: row_cells, cols: col_cells };
+        let same = matches!(&self.group, Some((s, c, f)) if *s == step && *c == cells && f.len() < MAX_GROUP);
         if !same {
             self.close_group();
-            self.group = Some((step, counts, Vec::new()));
+            self.group = Some((step, cells, Vec::new()));
         }
         if let Some((_, _, frames)) = self.group.as_mut() {
             frames.push(means);
@@ -228,7 +285,7 @@ impl StructureAccumulator {
 
     /// Folds the current burst's frames into the histograms.
     fn close_group(&mut self) {
-        let Some((_, counts, frames)) = self.group.take() else {
+        let Some((_, cells, frames)) = self.group.take() else {
             return;
         };
         let k = frames.len();
@@ -237,96 +294,213 @@ impl StructureAccumulator {
             return;
         }
         self.frames_used += k as u64;
-        let kf = k as f64;
-        let rescale = (kf / (kf - 1.0)).sqrt();
-        let avg = |get: &dyn Fn(&FrameMeans) -> f64| frames.iter().map(get).sum::<f64>() / kf;
-        let pos_mean: [f64; POSITIONS] = std::array::from_fn(|p| avg(&|f: &FrameMeans| f.pos[p][0]));
-        // Frame offsets.
-        let dpos: Vec<[f64; POSITIONS]> =
-            frames.iter().map(|f| std::array::from_fn(|p| f.pos[p][0] - pos_mean[p])).collect();
-        for (f, d) in frames.iter().zip(&dpos) {
-            if d.iter().all(|v| v.is_finite()) {
-                self.frames.push(d.map(|v| (v * rescale) as f32));
-                for p in 0..POSITIONS {
-                    self.frame_sampling[p] += f.pos[p][1];
-                }
+        let rescale = (k as f64 / (k as f64 - 1.0)).sqrt();
+        let rows = fold_lines(&frames, &cells.rows, |f| &f.rows, row_position, rescale, &mut self.rows);
+        fold_lines(&frames, &cells.cols, |f| &f.cols, col_position, rescale, &mut self.cols);
+        // Frame offsets: the rows' intercepts (each position is in the rows of one parity).
+        for (offsets, sampling) in rows {
+            if offsets.iter().all(|v| v.is_finite()) && sampling.iter().all(|v| v.is_finite()) {
+                self.frames.push(offsets.map(|v| (v * rescale) as f32));
+                self.frame_sampling.push(sampling.map(|v| (v * rescale * rescale) as f32));
             }
         }
-        // Rows: row y of parity r holds positions 2r (even columns) and 2r + 1.
-        fold_lines(
-            &frames,
-            &dpos,
-            &counts.rows,
-            |f| &f.rows,
-            |y| [(y & 1) * 2, (y & 1) * 2 + 1],
-            rescale,
-            &mut self.rows,
-        );
-        // Columns: column x of parity c holds positions c (even rows) and 2 + c.
-        fold_lines(&frames, &dpos, &counts.cols, |f| &f.cols, |x| [x & 1, 2 + (x & 1)], rescale, &mut self.cols);
     }
 
     /// The measured components (the burst in progress included); `pixel_var` is the ISO's
-    /// lowest measured pixel variance (DN²), `row_counts` the sensor's rows.
-    pub(crate) fn structure(&self, iso: u32, row_counts: usize, pixel_var: f64) -> IsoStructure {
+    /// lowest measured pixel variance (DN²).
+    pub(crate) fn structure(&self, iso: u32, pixel_var: f64) -> IsoStructure {
         let mut acc = self.clone();
         acc.close_group();
         let rows = std::array::from_fn(|p| acc.rows[p].distribution(pixel_var));
         let columns = std::array::from_fn(|p| acc.cols[p].distribution(pixel_var));
-        let frames = (acc.frames.len() >= 2).then(|| {
-            let n = acc.frames.len() as f64;
+        // Frames whose intercepts are well determined: a burst far from black extrapolates its
+        // intercepts a long way, and their noise would pass for offsets.
+        let spread: Vec<f64> = acc.frame_sampling.iter().map(|v| v.iter().map(|&x| x as f64).sum::<f64>()).collect();
+        let mut sorted = spread.clone();
+        sorted.sort_by(f64::total_cmp);
+        let cut = sorted.get(sorted.len() / 10).map_or(0.0, |q| 4.0 * q);
+        let kept: Vec<usize> = (0..spread.len()).filter(|&i| spread[i] <= cut).collect();
+        let frames = (kept.len() >= 2).then(|| {
+            let n = kept.len() as f64;
+            let offsets: Vec<[f32; POSITIONS]> = kept.iter().map(|&i| acc.frames[i]).collect();
             let measured_var: [f64; POSITIONS] =
-                std::array::from_fn(|p| acc.frames.iter().map(|o| (o[p] as f64).powi(2)).sum::<f64>() / n);
-            // A frame's mean also averages its rows' and columns' offsets.
-            let line_var = |d: &Option<OffsetDistribution>| d.as_ref().map_or(0.0, |d| d.variance());
-            let sampling_var: [f64; POSITIONS] = std::array::from_fn(|p| {
-                let lines = row_counts.max(1) as f64 / 2.0;
-                acc.frame_sampling[p] / n + line_var(&rows[p >> 1]) / lines
-            });
+                std::array::from_fn(|p| offsets.iter().map(|o| (o[p] as f64).powi(2)).sum::<f64>() / n);
+            // The intercepts' own sampling variance (pixel noise and row offsets left in the fit).
+            let sampling_var: [f64; POSITIONS] =
+                std::array::from_fn(|p| kept.iter().map(|&i| acc.frame_sampling[i][p] as f64).sum::<f64>() / n);
             let significant = (0..POSITIONS).any(|p| {
                 let own = measured_var[p] - sampling_var[p];
                 own > SIGNIFICANCE * sampling_var[p] * (2.0 / n).sqrt()
                     && own > 1e-6
                     && own >= FRAME_RELEVANCE * pixel_var
             });
-            FrameOffsets { offsets: acc.frames.clone(), measured_var, sampling_var, significant }
+            FrameOffsets { offsets, measured_var, sampling_var, significant }
         });
         IsoStructure { iso, rows, columns, frames, frames_used: acc.frames_used }
     }
 }
 
-/// Folds one burst's line means into the per-parity histograms: each line's deviation from its
-/// burst mean, minus its frame's deviation over the line's two positions (weighted by the
-/// line's pixels there), rescaled for the mean's removal.
+/// The CFA position of cell `j` of row `y` (cells by column parity).
+fn row_position(y: usize, j: usize) -> usize {
+    (y & 1) * 2 + (j & 1)
+}
+
+/// The CFA position of cell `j` of column `x` (cells by row parity).
+fn col_position(x: usize, j: usize) -> usize {
+    (j & 1) * 2 + (x & 1)
+}
+
+/// Folds one burst's cell means into the per-parity histograms (module docs): per frame and
+/// line parity, the deviations from the burst means are fitted by one intercept per position and
+/// one slope on the level; each line's residual goes in with its halves' residuals. Returns per
+/// frame the intercepts at black per position and their sampling variances.
 fn fold_lines(
     frames: &[FrameMeans],
-    dpos: &[[f64; POSITIONS]],
-    counts: &[[u32; 2]],
-    lines: impl Fn(&FrameMeans) -> &Vec<[f32; 2]>,
-    positions: impl Fn(usize) -> [usize; 2],
+    cells: &[[(u32, f32); CELLS]],
+    lines: impl Fn(&FrameMeans) -> &Vec<[f32; CELLS]>,
+    position: impl Fn(usize, usize) -> usize,
     rescale: f64,
     out: &mut [OffsetHistogram; 2],
-) {
+) -> Vec<([f64; POSITIONS], [f64; POSITIONS])> {
     let kf = frames.len() as f64;
-    for (i, c) in counts.iter().enumerate() {
-        let m = (c[0] + c[1]) as f64;
-        if m < MIN_LINE_PIXELS as f64 {
+    // Lines with enough pixels in each half, and their cells' burst means.
+    let usable: Vec<usize> = (0..cells.len())
+        .filter(|&i| {
+            let half = |h: usize| cells[i][2 * h].0 + cells[i][2 * h + 1].0;
+            half(0) >= MIN_LINE_PIXELS / 4 && half(1) >= MIN_LINE_PIXELS / 4 && half(0) + half(1) >= MIN_LINE_PIXELS
+        })
+        .collect();
+    let burst_mean: Vec<[f64; CELLS]> = usable
+        .iter()
+        .map(|&i| std::array::from_fn(|j| frames.iter().map(|f| lines(f)[i][j] as f64).sum::<f64>() / kf))
+        .collect();
+    let mut intercepts = vec![([f64::NAN; POSITIONS], [f64::NAN; POSITIONS]); frames.len()];
+    for parity in 0..2 {
+        let mut burst = BurstOffsets::default();
+        let of_parity: Vec<(usize, usize)> =
+            usable.iter().enumerate().filter(|&(_, &i)| i & 1 == parity).map(|(u, &i)| (u, i)).collect();
+        if of_parity.len() < 4 {
             continue;
         }
-        let mean = frames.iter().map(|f| lines(f)[i][0] as f64).sum::<f64>() / kf;
-        if !mean.is_finite() {
-            continue;
+        let (lw, l) = of_parity
+            .iter()
+            .flat_map(|&(_, i)| cells[i].iter())
+            .fold((0.0, 0.0), |a, &(m, level)| (a.0 + m as f64, a.1 + m as f64 * level as f64));
+        burst.level = l / lw.max(1.0);
+        for (fi, f) in frames.iter().enumerate() {
+            let fl = lines(f);
+            // Points: (intercept index, level, deviation, weight) per cell.
+            let points: Vec<(usize, f64, f64, f64)> = of_parity
+                .iter()
+                .flat_map(|&(u, i)| {
+                    let bm = &burst_mean[u];
+                    (0..CELLS).filter_map(move |j| {
+                        let (m, level) = cells[i][j];
+                        let v = fl[i][j] as f64 - bm[j];
+                        (m > 0 && v.is_finite()).then_some((j & 1, level as f64, v, m as f64))
+                    })
+                })
+                .collect();
+            let Some(fit) = LevelFit::new(&points) else { continue };
+            // The fit's three parameters take their share of the residuals' variance.
+            let lines_n = of_parity.len() as f64;
+            let rescale = rescale * (lines_n / (lines_n - 3.0)).sqrt();
+            let line_residual = |i: usize, u: usize| -> [f64; 3] {
+                let bm = &burst_mean[u];
+                let mut acc = [[0.0; 2]; 2];
+                for j in 0..CELLS {
+                    let (m, level) = cells[i][j];
+                    let v = fl[i][j] as f64 - bm[j];
+                    if m > 0 && v.is_finite() {
+                        acc[j >> 1][0] += m as f64 * (v - fit.at(j & 1, level as f64));
+                        acc[j >> 1][1] += m as f64;
+                    }
+                }
+                let (a, b) = (acc[0][0] / acc[0][1], acc[1][0] / acc[1][1]);
+                [(acc[0][0] + acc[1][0]) / (acc[0][1] + acc[1][1]) * rescale, a * rescale, b * rescale]
+            };
+            for &(u, i) in &of_parity {
+                let [d, a, b] = line_residual(i, u);
+                burst.add(d, a, b);
+            }
+            let (icpt, var) = &mut intercepts[fi];
+            for c in 0..2 {
+                let p = position(parity, c);
+                icpt[p] = fit.coef[c];
+                var[p] = fit.var[c];
+            }
         }
-        let [pa, pb] = positions(i);
-        // The line's sampling variance averaged over the burst: one frame's `s²` is itself noisy,
-        // and a noisy regressor would bias the fit of `c` (and the component) upwards.
-        let v_line = frames.iter().map(|f| lines(f)[i][1] as f64).sum::<f64>() / kf;
-        for (f, d) in frames.iter().zip(dpos) {
-            let [x, _] = lines(f)[i];
-            let v = v_line;
-            let d = d.map(|v| if v.is_finite() { v } else { 0.0 });
-            let frame_part = (c[0] as f64 * d[pa] + c[1] as f64 * d[pb]) / m;
-            out[i & 1].add((x as f64 - mean - frame_part) * rescale, v);
-        }
+        out[parity].push(burst);
     }
+    intercepts
+}
+
+/// Weighted least squares of deviations on `[intercept of cell parity 0, of parity 1, level]`,
+/// with heteroscedasticity-consistent (sandwich) variances of the intercepts.
+struct LevelFit {
+    coef: [f64; 3],
+    var: [f64; 2],
+}
+
+impl LevelFit {
+    fn new(points: &[(usize, f64, f64, f64)]) -> Option<Self> {
+        let row = |c: usize, l: f64| -> [f64; 3] { [(c == 0) as u8 as f64, (c == 1) as u8 as f64, l] };
+        let mut xtx = [[0.0; 3]; 3];
+        let mut xty = [0.0; 3];
+        for &(c, l, v, w) in points {
+            let x = row(c, l);
+            for a in 0..3 {
+                xty[a] += w * x[a] * v;
+                for b in 0..3 {
+                    xtx[a][b] += w * x[a] * x[b];
+                }
+            }
+        }
+        if xtx[0][0] <= 0.0 || xtx[1][1] <= 0.0 {
+            return None;
+        }
+        // Without a spread of levels the slope is not identified: intercepts alone.
+        let spread = xtx[2][2] - xtx[0][2].powi(2) / xtx[0][0] - xtx[1][2].powi(2) / xtx[1][1];
+        let with_slope = spread > 1e-9 * xtx[2][2].max(1e-300);
+        let inv = if with_slope {
+            invert3(&xtx)?
+        } else {
+            [[1.0 / xtx[0][0], 0.0, 0.0], [0.0, 1.0 / xtx[1][1], 0.0], [0.0, 0.0, 0.0]]
+        };
+        let coef: [f64; 3] = std::array::from_fn(|a| (0..3).map(|b| inv[a][b] * xty[b]).sum());
+        let fitted = |c: usize, l: f64| -> f64 { (0..3).map(|a| row(c, l)[a] * coef[a]).sum() };
+        // Sandwich: inv · Σ w² r² x xᵀ · inv.
+        let mut meat = [[0.0; 3]; 3];
+        for &(c, l, v, w) in points {
+            let x = row(c, l);
+            let r = v - fitted(c, l);
+            for a in 0..3 {
+                for b in 0..3 {
+                    meat[a][b] += w * w * r * r * x[a] * x[b];
+                }
+            }
+        }
+        let var: [f64; 2] = std::array::from_fn(|a| {
+            (0..3).map(|b| (0..3).map(|c| inv[a][b] * meat[b][c] * inv[c][a]).sum::<f64>()).sum::<f64>()
+        });
+        Some(Self { coef, var })
+    }
+
+    fn at(&self, c: usize, level: f64) -> f64 {
+        self.coef[c] + self.coef[2] * level
+    }
+}
+
+/// Inverse of a symmetric 3×3 matrix (`None` when singular).
+fn invert3(m: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
+    let c = |a: usize, b: usize| {
+        let (a1, a2) = ((a + 1) % 3, (a + 2) % 3);
+        let (b1, b2) = ((b + 1) % 3, (b + 2) % 3);
+        m[a1][b1] * m[a2][b2] - m[a1][b2] * m[a2][b1]
+    };
+    let det = m[0][0] * c(0, 0) + m[0][1] * c(0, 1) + m[0][2] * c(0, 2);
+    if !det.is_finite() || det.abs() < 1e-300 {
+        return None;
+    }
+    Some(std::array::from_fn(|a| std::array::from_fn(|b| c(b, a) / det)))
 }
