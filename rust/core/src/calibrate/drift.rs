@@ -175,10 +175,13 @@ pub fn brightness_from_fit(bands: &[[f64; 5]]) -> Option<FrameBrightness> {
         // The base must spread over at least a tenth of its mean level (and over 1 DN).
         (sbb > 0.0 && sbb / n > (0.1 * mean_b).powi(2).max(1.0)).then(|| sbf / sbb)
     };
-    let Some(a) = slope(&total) else {
+    let ratio = || {
         let f: Vec<f64> = bands.iter().map(|b| b[2]).collect();
         let b: Vec<f64> = bands.iter().map(|b| b[1]).collect();
-        return brightness_from_bands(&f, &b);
+        brightness_from_bands(&f, &b)
+    };
+    let Some(a) = slope(&total) else {
+        return ratio();
     };
     let used: Vec<usize> = (0..bands.len()).filter(|&i| bands[i][0] > 0.0).collect();
     let k = used.len();
@@ -206,9 +209,7 @@ pub fn brightness_from_fit(bands: &[[f64; 5]]) -> Option<FrameBrightness> {
     // Without a measurable offset the plain ratio is the better estimate (its noise is a
     // fraction of the slope's, and a noisy scale would widen what it normalises).
     if offset(&total, a).abs() <= 3.0 * offset_se {
-        let f: Vec<f64> = bands.iter().map(|b| b[2]).collect();
-        let b: Vec<f64> = bands.iter().map(|b| b[1]).collect();
-        return brightness_from_bands(&f, &b);
+        return ratio();
     }
     Some(FrameBrightness { ratio: a, sigma })
 }
