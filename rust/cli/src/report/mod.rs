@@ -4,10 +4,13 @@
 //! Sections: the sensor and session; noise variance and mean vs level per ISO and CFA position
 //! with the HG fit (paper Fig. 3); PMFs of chosen bins on a log scale against the HG and PG
 //! baselines; the coverage map (samples per bin, filled bins marked); the measured gain ratios;
-//! conversion-gain switches and pack warnings; and, with an evaluation, the JSD tables and bars
+//! the structured components per ISO (row, column and frame offsets: their distributions and
+//! their SD against ISO, which ones synthesis adds); conversion-gain switches and pack warnings;
+//! and, with an evaluation, the JSD tables and bars
 //! (leave-one-out and noise on noise when measured).
 
 pub mod plots;
+pub mod structure_plots;
 
 use std::fmt::Write;
 
@@ -57,6 +60,8 @@ tr.floor td { color: #777; font-style: italic; }
 .warn { background: #fff8e5; border-left: 4px solid #f0b400; padding: 8px 12px; font-size: 13px; }
 .warn li { font-size: 13px; }
 .ok { background: #eef7ee; border-left: 4px solid #4a4; padding: 8px 12px; font-size: 13px; }
+td.added { font-weight: 600; }
+td.below { color: #777; }
 code { background: #f2f2ef; padding: 1px 4px; border-radius: 3px; }
 "#;
 
@@ -97,7 +102,7 @@ pub fn render_html(pack: &ModelPack, pack_name: &str, eval: Option<&EvalReport>)
     );
     let _ = write!(
         o,
-        "<nav><a href=\"#sensor\">Sensor</a><a href=\"#levels\">Variance &amp; mean</a><a href=\"#pmfs\">PMFs</a><a href=\"#coverage\">Coverage</a><a href=\"#gain\">Gain ratios</a><a href=\"#warnings\">Warnings</a>{}</nav>",
+        "<nav><a href=\"#sensor\">Sensor</a><a href=\"#levels\">Variance &amp; mean</a><a href=\"#pmfs\">PMFs</a><a href=\"#coverage\">Coverage</a><a href=\"#gain\">Gain ratios</a><a href=\"#structure\">Structured noise</a><a href=\"#warnings\">Warnings</a>{}</nav>",
         if eval.is_some() { "<a href=\"#eval\">Fidelity</a>" } else { "" }
     );
 
@@ -219,6 +224,8 @@ pub fn render_html(pack: &ModelPack, pack_name: &str, eval: Option<&EvalReport>)
     }
     let _ = write!(o, "</table>");
 
+    structure_section(&mut o, pack)?;
+
     // Warnings and gain switches.
     let _ = write!(o, "<h2 id=\"warnings\">Warnings</h2>");
     let switches = noisecal_core::derive::gain_switch::detect_gain_switches(pack);
@@ -271,6 +278,128 @@ pub fn render_html(pack: &ModelPack, pack_name: &str, eval: Option<&EvalReport>)
         env!("CARGO_PKG_VERSION")
     );
     Ok(o)
+}
+
+/// Row, column and frame offsets per ISO (`noisecal_core::model::structure`): a chart of every
+/// component's SD against ISO with its table, then each ISO's distributions.
+fn structure_section(o: &mut String, pack: &ModelPack) -> anyhow::Result<()> {
+    use structure_plots::{IsoComponents, Line};
+    let _ = write!(o, "<h2 id=\"structure\">Structured noise</h2>");
+    let isos = IsoComponents::of_pack(pack);
+    if isos.is_empty() {
+        let _ = write!(
+            o,
+            "<p class=\"ok\">No structured components calibrated: the pack holds no row, column or frame offsets (a pack of an older version, or calibrated without them), so none are added at synthesis, which adds per-pixel noise only.</p>"
+        );
+        return Ok(());
+    }
+    let _ = write!(
+        o,
+        "<p>Noise shared along a line or by a whole frame, which a pixel-independent model cannot make: one offset per row (by row parity) and per column (by column parity), and one black-level offset per frame and CFA position, measured on the flat cells of each burst with the sampling noise of a mean taken out. Synthesis adds a component only where its variance stands clear of what sampling noise alone gives; the others are below detection and shown for reference (as in <code>noisecal inspect</code>). ISOs the pack interpolates carry components derived from the calibrated ISOs'.</p>"
+    );
+    let names = structure_plots::component_names(pack);
+    // What synthesis adds, by component kind and ISO.
+    let kinds: [(&str, std::ops::Range<usize>); 3] =
+        [("row offsets", 0..2), ("column offsets", 2..4), ("frame offsets", 4..structure_plots::COMPONENTS)];
+    let mut added: Vec<String> = Vec::new();
+    for (kind, range) in &kinds {
+        let at: Vec<String> = isos
+            .iter()
+            .filter(|i| i.sds()[range.clone()].iter().flatten().any(|c| c.added))
+            .map(|i| i.iso.to_string())
+            .collect();
+        if !at.is_empty() {
+            added.push(format!("{kind} at ISO {}", at.join(", ")));
+        }
+    }
+    if added.is_empty() {
+        let _ = write!(
+            o,
+            "<p class=\"ok\">No structured component stands clear of sampling noise at any ISO: none are added at synthesis, which adds per-pixel noise only.</p>"
+        );
+    } else {
+        let _ = write!(o, "<p>Added at synthesis: {}.</p>", esc(&added.join("; ")));
+    }
+    let svg = structure_plots::sd_chart(pack, &isos, (1040, 380))?;
+    figure(
+        o,
+        &svg,
+        "Standard deviation of each component (DN, sampling noise taken out) per ISO, log scales; filled circles are added at synthesis, open circles are below detection. Rows solid, columns dashed, frame offsets dotted; an SD of 0 sits on the bottom edge.",
+    );
+    let _ = write!(o, "<table><tr><th>ISO</th>");
+    for n in &names {
+        let _ = write!(o, "<th>{}</th>", esc(n));
+    }
+    let _ = write!(o, "<th>frames</th><th class=\"l\">origin</th></tr>");
+    for i in &isos {
+        let _ = write!(o, "<tr data-iso=\"{}\"><td>{}</td>", i.iso, i.iso);
+        for c in i.sds() {
+            match c {
+                Some(c) if c.added => {
+                    let _ = write!(o, "<td class=\"added\">{:.3}*</td>", c.sd);
+                }
+                Some(c) => {
+                    let _ = write!(o, "<td class=\"below\">{:.3}</td>", c.sd);
+                }
+                None => {
+                    let _ = write!(o, "<td>—</td>");
+                }
+            }
+        }
+        let _ = write!(
+            o,
+            "<td>{}</td><td class=\"l\">{}</td></tr>",
+            i.structure.frames_used,
+            if i.derived { "derived from calibrated ISOs" } else { "measured" }
+        );
+    }
+    let _ = write!(
+        o,
+        "</table><p class=\"sub\">SD in DN; * = added at synthesis, else below detection; — = not measured. Frames: target frames in bursts of two or more, which the offsets were measured on.</p>"
+    );
+    for i in &isos {
+        let st = &i.structure;
+        let _ = write!(
+            o,
+            "<h3>ISO {}{}</h3><div class=\"grid3\">",
+            i.iso,
+            if i.derived { " — derived from calibrated ISOs" } else { "" }
+        );
+        for (line, what) in [(Line::Rows, "row"), (Line::Columns, "column")] {
+            match structure_plots::line_chart(st, line, (360, 280))? {
+                Some(svg) => figure(
+                    o,
+                    &svg,
+                    &format!(
+                        "ISO {}: quantile function of the {what} offset per {what} parity (DN) against the normal quantile; a Gaussian offset follows its faint straight line (slope = SD), heavier tails bend away at the ends. Solid: added at synthesis, dashed: below detection.",
+                        i.iso
+                    ),
+                ),
+                None => {
+                    let _ =
+                        write!(o, "<figure><p class=\"sub\">ISO {}: no {what} offsets measured.</p></figure>", i.iso);
+                }
+            }
+        }
+        match st.frames.as_ref().filter(|f| !f.offsets.is_empty()) {
+            Some(f) => {
+                let svg = structure_plots::frame_chart(pack, st, f, (360, 280))?;
+                figure(
+                    o,
+                    &svg,
+                    &format!(
+                        "ISO {}: each measured frame's black-level offset per CFA position (DN), centred and scaled to the component's SD, against the normal quantile of its rank; faint lines: Gaussians of the same SD. Solid: added at synthesis, dashed: below detection.",
+                        i.iso
+                    ),
+                );
+            }
+            None => {
+                let _ = write!(o, "<figure><p class=\"sub\">ISO {}: no frame offsets measured.</p></figure>", i.iso);
+            }
+        }
+        let _ = write!(o, "</div>");
+    }
+    Ok(())
 }
 
 fn f4(v: Option<f64>) -> String {
