@@ -76,7 +76,7 @@ fn report_with_eval_is_one_self_contained_page() {
     assert_self_contained(&html);
     let secs = sections(&html);
     let ids: Vec<&str> = secs.iter().map(|(i, _)| i.as_str()).collect();
-    assert_eq!(ids, ["sensor", "levels", "pmfs", "coverage", "gain", "warnings"]);
+    assert_eq!(ids, ["sensor", "levels", "pmfs", "coverage", "gain", "structure", "warnings"]);
     for (id, body) in &secs {
         let svgs = body.matches("<svg").count();
         let want = match id.as_str() {

@@ -35,11 +35,12 @@ pub(crate) fn solve(problem: &Problem, q: &mut [f64], solver: Deconvolution, lim
 /// Full discrete convolution `out[i + j] += a[i] q[j]`.
 pub(crate) fn convolve(a: &[f64], q: &[f64], out: &mut [f64]) {
     out.fill(0.0);
-    for (j, &qj) in q.iter().enumerate() {
-        if qj == 0.0 {
-            continue;
-        }
-        for (o, &ai) in out[j..j + a.len()].iter_mut().zip(a) {
+    let m = q.len();
+    // Kernel taps outermost, from the last: each output then sums over `j` ascending, in the
+    // order of a loop over `q` outermost, so the bits are the same, but every pass is a long
+    // vectorisable `out += a[i]·q` (a deconvolution kernel has a few taps, a PMF hundreds).
+    for (i, &ai) in a.iter().enumerate().rev() {
+        for (o, &qj) in out[i..i + m].iter_mut().zip(q) {
             *o += ai * qj;
         }
     }
@@ -47,8 +48,13 @@ pub(crate) fn convolve(a: &[f64], q: &[f64], out: &mut [f64]) {
 
 /// Adjoint of [`convolve`]: `out[j] = Σ_i a[i] r[i + j]`.
 pub(crate) fn correlate(a: &[f64], r: &[f64], out: &mut [f64]) {
-    for (j, o) in out.iter_mut().enumerate() {
-        *o = a.iter().zip(&r[j..j + a.len()]).map(|(x, y)| x * y).sum();
+    // Taps outermost (the same summation order per output as a sum over `i`, so the same bits).
+    let m = out.len();
+    out.fill(0.0);
+    for (i, &ai) in a.iter().enumerate() {
+        for (o, &ri) in out.iter_mut().zip(&r[i..i + m]) {
+            *o += ai * ri;
+        }
     }
 }
 
@@ -222,5 +228,45 @@ mod tests {
         assert!((v.iter().sum::<f64>() - 1.0).abs() < 1e-12);
         assert!(v.iter().all(|&x| x >= 0.0));
         assert!((v[1] - v[0] - 0.4).abs() < 1e-12);
+    }
+
+    /// The tap-outermost loops give the bits of the textbook loops (a convolution over `q`
+    /// outermost, a correlation as a sum over taps), so reordering them changed no output.
+    #[test]
+    fn reordered_loops_keep_the_bits() {
+        let mut state = 0x9E37_79B9_7F4A_7C15u64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for (na, nq) in [(1, 1), (3, 40), (7, 300), (40, 5), (12, 12)] {
+            let a: Vec<f64> = (0..na).map(|_| next()).collect();
+            let mut q: Vec<f64> = (0..nq).map(|_| next() * 1e-3).collect();
+            q[nq / 2] = 0.0;
+            let mut want = vec![0.0; na + nq - 1];
+            for (j, &qj) in q.iter().enumerate() {
+                if qj != 0.0 {
+                    for (i, &ai) in a.iter().enumerate() {
+                        want[i + j] += ai * qj;
+                    }
+                }
+            }
+            let mut got = vec![1.0; na + nq - 1];
+            convolve(&a, &q, &mut got);
+            assert_eq!(
+                got.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+                want.iter().map(|x| x.to_bits()).collect::<Vec<_>>()
+            );
+            let r: Vec<f64> = (0..na + nq - 1).map(|_| next()).collect();
+            let want: Vec<f64> = (0..nq).map(|j| a.iter().zip(&r[j..j + na]).map(|(x, y)| x * y).sum()).collect();
+            let mut got = vec![1.0; nq];
+            correlate(&a, &r, &mut got);
+            assert_eq!(
+                got.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+                want.iter().map(|x| x.to_bits()).collect::<Vec<_>>()
+            );
+        }
     }
 }

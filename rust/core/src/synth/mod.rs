@@ -99,16 +99,16 @@ fn synthesize_structured(
     let (h, w) = clean.dim();
     let (row0, col0) = (origin.0 & 1, origin.1 & 1);
     let offsets = st.draw(seed, h, w, origin);
-    // Per row parity, per column: the column's offset plus its position's frame offset.
-    let columns: [Vec<f64>; 2] = std::array::from_fn(|r| {
+    // Per row parity, per column: the column's offset plus its position's frame offset, in
+    // 2⁻³² DN (fixed point: a pixel's integer offset is then one add and one shift).
+    let columns: [Vec<i64>; 2] = std::array::from_fn(|r| {
         let parity = ((r + row0) & 1) << 1;
-        offsets.columns.iter().enumerate().map(|(x, c)| c + offsets.frame[parity | ((x + col0) & 1)]).collect()
+        offsets.columns.iter().enumerate().map(|(x, c)| fixed(c + offsets.frame[parity | ((x + col0) & 1)])).collect()
     });
     let mut out = vec![0u16; h * w];
     if w > 0 {
         out.par_chunks_mut(BAND_ROWS * w).enumerate().for_each(|(band, chunk)| {
             let mut rng = band_rng(seed, band);
-            let (mut whole, mut thresh) = (vec![0i32; w], vec![0u64; w]);
             for (r, row) in chunk.chunks_mut(w).enumerate() {
                 let y = band * BAND_ROWS + r;
                 let src = clean_row(&clean, y);
@@ -118,17 +118,12 @@ fn synthesize_structured(
                 let (lut1, tab1) = sampler.position_tables(odd);
                 let finish = sampler.needs_finish(even) || sampler.needs_finish(odd);
                 let white = sampler.white as i32;
-                // This row's offsets, whole part and dither threshold (2⁻³² units) per pixel.
-                let ry = offsets.rows[y];
-                for ((a, t), &cx) in whole.iter_mut().zip(thresh.iter_mut()).zip(&columns[y & 1]) {
-                    let v = cx + ry;
-                    let fl = v.floor();
-                    *a = fl as i32;
-                    *t = ((v - fl) * 4294967296.0) as u64;
-                }
-                let draw = |lut: &[u16], tab: &[BinTable], c: u16, u: u32, v: u32, x: usize| -> i32 {
+                let (ry, cols) = (fixed(offsets.rows[y]), &columns[y & 1]);
+                // `⌊o⌋ + [v < o − ⌊o⌋]` for the offset `o` and a uniform 32-bit `v`, as
+                // `⌊(o·2³² + v) / 2³²⌋`.
+                let draw = |lut: &[u16], tab: &[BinTable], c: u16, u: u32, v: u32, k: i64| -> i32 {
                     let l = (c as usize).min(lut.len() - 1);
-                    c as i32 + tab[lut[l] as usize].sample_u32(u) + whole[x] + i32::from(thresh[x] > v as u64)
+                    c as i32 + tab[lut[l] as usize].sample_u32(u) + ((k + ry + v as i64) >> 32) as i32
                 };
                 // Dither draws from a xorshift64* stream seeded by the band's stream per row (a
                 // 32-bit threshold needs no cryptographic quality).
@@ -139,31 +134,40 @@ fn synthesize_structured(
                     state ^= state >> 27;
                     state.wrapping_mul(0x2545_F491_4F6C_DD1D)
                 };
-                let mut x = 0;
-                for (o, c) in row.chunks_exact_mut(2).zip(src.chunks_exact(2)) {
-                    let (u, v) = (rng.next_u64(), dither());
-                    let a = draw(lut0, tab0, c[0], u as u32, v as u32, x);
-                    let b = draw(lut1, tab1, c[1], (u >> 32) as u32, (v >> 32) as u32, x + 1);
-                    if finish {
-                        let alt = ((x >> 1) + (y >> 1)) & 1 == 1;
+                let pairs = row.chunks_exact_mut(2).zip(src.chunks_exact(2)).zip(cols.chunks_exact(2));
+                if finish {
+                    for (i, ((o, c), k)) in pairs.enumerate() {
+                        let (u, v) = (rng.next_u64(), dither());
+                        let a = draw(lut0, tab0, c[0], u as u32, v as u32, k[0]);
+                        let b = draw(lut1, tab1, c[1], (u >> 32) as u32, (v >> 32) as u32, k[1]);
+                        let alt = (i + (y >> 1)) & 1 == 1;
                         o[0] = sampler.finish(even, a, alt);
                         o[1] = sampler.finish(odd, b, alt);
-                    } else {
+                    }
+                } else {
+                    for ((o, c), k) in pairs {
+                        let (u, v) = (rng.next_u64(), dither());
+                        let a = draw(lut0, tab0, c[0], u as u32, v as u32, k[0]);
+                        let b = draw(lut1, tab1, c[1], (u >> 32) as u32, (v >> 32) as u32, k[1]);
                         o[0] = a.clamp(0, white) as u16;
                         o[1] = b.clamp(0, white) as u16;
                     }
-                    x += 2;
                 }
                 if w % 2 == 1 {
                     let (u, v) = (rng.next_u64(), dither());
                     let alt = ((w >> 1) + (y >> 1)) & 1 == 1;
-                    let a = draw(lut0, tab0, src[w - 1], u as u32, v as u32, w - 1);
+                    let a = draw(lut0, tab0, src[w - 1], u as u32, v as u32, cols[w - 1]);
                     row[w - 1] = sampler.finish(even, a, alt);
                 }
             }
         });
     }
     Array2::from_shape_vec((h, w), out).expect("h × w samples")
+}
+
+/// An offset in DN as a fixed-point number of 2⁻³² DN.
+fn fixed(o: f64) -> i64 {
+    (o * 4294967296.0).round() as i64
 }
 
 /// Row `y` of the clean image as a slice (borrowed when the view is contiguous).
