@@ -319,16 +319,21 @@ mod tests {
         OffsetDistribution { quantiles, count: 1000, measured_var: sd * sd, sampling_var: 0.0, significant: true }
     }
 
-    #[test]
-    fn kernel_has_the_offsets_variance_plus_the_dither() {
+    /// The sampler of Gaussian row offsets of SD `sd` at both parities, nothing else.
+    fn rows_only(sd: f64) -> StructureSampler {
         let st = IsoStructure {
             iso: 100,
-            rows: [Some(gaussian_dist(0.7)), Some(gaussian_dist(0.7))],
+            rows: [Some(gaussian_dist(sd)), Some(gaussian_dist(sd))],
             columns: [None, None],
             frames: None,
             frames_used: 10,
         };
-        let s = StructureSampler::new(&st, Components::ALL).expect("significant rows");
+        StructureSampler::new(&st, Components::ALL).expect("significant rows")
+    }
+
+    #[test]
+    fn kernel_has_the_offsets_variance_plus_the_dither() {
+        let s = rows_only(0.7);
         let (first, k) = s.kernel(0);
         let mean: f64 = k.iter().enumerate().map(|(i, p)| (first + i as i32) as f64 * p).sum();
         let var: f64 = k.iter().enumerate().map(|(i, p)| ((first + i as i32) as f64 - mean).powi(2) * p).sum();
@@ -344,14 +349,7 @@ mod tests {
     fn clipped_bin_case(sd: f64, iterations: usize) -> (f64, f64, f64) {
         use crate::model::pack::BinSource;
         use crate::model::pmf::Pmf;
-        let st = IsoStructure {
-            iso: 100,
-            rows: [Some(gaussian_dist(0.7)), Some(gaussian_dist(0.7))],
-            columns: [None, None],
-            frames: None,
-            frames_used: 10,
-        };
-        let (k0, k) = StructureSampler::new(&st, Components::ALL).expect("rows").kernel(0);
+        let (k0, k) = rows_only(0.7).kernel(0);
         let half = (7.0 * sd).ceil() as i32;
         let q: Vec<f64> = (-half..=half).map(|n| (-(n as f64).powi(2) / (2.0 * sd * sd)).exp()).collect();
         let qs: f64 = q.iter().sum();
