@@ -168,7 +168,7 @@ fn deconvolve_bin_within(b: &BinModel, k0: i32, kernel: &[f64], max_iterations: 
     };
     let start = match b.clipped {
         false => pmf.rescaled(pm - km, pv - kv),
-        true => clipped_start(&pmf, low, k0, kernel, kv),
+        true => clipped_start(&pmf, low, k0, kernel.len(), km, kv),
     };
     if (start_only && !b.clipped) || iterations < 10 {
         return from_weights(b, start.first, &start.p);
@@ -194,13 +194,14 @@ fn deconvolve_bin_within(b: &BinModel, k0: i32, kernel: &[f64], max_iterations: 
 /// narrowed by the kernel's variance (Eq. 5–6) as an unclipped bin is. Narrowing the whole PMF
 /// instead would carry the pile inward, and keeping it would let the offsets smear the pile onto
 /// its neighbour.
-fn clipped_start(pmf: &Pmf, low: bool, k0: i32, kernel: &[f64], kv: f64) -> Pmf {
+/// `k0`, `taps`: the kernel's first offset and length; `km`, `kv`: its mean and variance.
+fn clipped_start(pmf: &Pmf, low: bool, k0: i32, taps: usize, km: f64, kv: f64) -> Pmf {
     let n = pmf.p.len();
     let (pile, rest, rest_first) = match low {
         true => (pmf.p[0], &pmf.p[1..], pmf.first + 1),
         false => (pmf.p[n - 1], &pmf.p[..n - 1], pmf.first),
     };
-    let k_last = k0 + kernel.len() as i32 - 1;
+    let k_last = k0 + taps as i32 - 1;
     // The pile's new place: past the clip by the kernel's reach.
     let at = match low {
         true => pmf.first - k_last,
@@ -210,7 +211,6 @@ fn clipped_start(pmf: &Pmf, low: bool, k0: i32, kernel: &[f64], kv: f64) -> Pmf 
         return Pmf { first: at, p: vec![1.0] };
     };
     let (im, iv) = inner.moments();
-    let km: f64 = kernel.iter().enumerate().map(|(i, p)| (k0 + i as i32) as f64 * p).sum();
     let narrowed = if iv > kv + 1.0 / 12.0 { inner.rescaled(im - km, iv - kv) } else { inner };
     let first = narrowed.first.min(at);
     let last = narrowed.last().max(at);
