@@ -15,14 +15,20 @@ import org.noisecal.capture.plan.CapturePlan
 import org.noisecal.capture.plan.CapturePlanner
 import org.noisecal.capture.plan.Metering
 import org.noisecal.capture.plan.PlanOptions
+import org.noisecal.capture.sim.LensAction
 import org.noisecal.capture.sim.SimBehaviour
+import org.noisecal.capture.sim.SimulatedUser
 import org.noisecal.capture.sim.SimulatedCameraPort
 import org.noisecal.capture.sim.SimulatedProcessDeath
 
-/** A tiny sensor and a short plan: 2 EV steps × (reference + ISO 200 + ISO 400), 5 frames each. */
-fun smallPlan(frames: Int = 5, evMin: Double = -1.0, evMax: Double = 0.0): CapturePlan = planOk(CapturePlanner.plan(
+/**
+ * A tiny sensor and a short plan: 2 EV steps × (reference + ISO 200 + ISO 400), 5 frames each; with
+ * [darkFrames], the dark step too (ISO 100, 200, 400, that many frames each).
+ */
+fun smallPlan(frames: Int = 5, evMin: Double = -1.0, evMax: Double = 0.0, darkFrames: Int? = null): CapturePlan = planOk(CapturePlanner.plan(
     caps(range = 100..400, maxAnalog = 400, exposure = 10_000L..1_000_000_000L, minFrame = 1_000_000L, w = 16, h = 8),
-    PlanOptions(Metering(100, 2_000_000L), evMin = evMin, evMax = evMax, framesPerBurst = frames, settleOverheadNs = 0),
+    PlanOptions(Metering(100, 2_000_000L), evMin = evMin, evMax = evMax, framesPerBurst = frames, settleOverheadNs = 0,
+        darkFrames = darkFrames != null, darkFramesPerIso = darkFrames ?: PlanOptions.DEFAULT_DARK_FRAMES_PER_ISO),
 ))
 
 val fastConfig = ControllerConfig(frameTimeoutMs = 30L, thermalCheckIntervalMs = 0L, thermalPollMs = 1000L)
@@ -37,22 +43,30 @@ class Harness(
     val thermal: ThermalStatusSource = ThermalStatusSource.NONE,
     val config: ControllerConfig = fastConfig,
     val clock: FakeClock = FakeClock(),
+    /** What the person at the phone does at each cover-the-lens prompt (plans with a dark step). */
+    lens: (prompt: Int) -> LensAction = { LensAction.COVER },
 ) {
-    val port = SimulatedCameraPort(plan.sensor.width, plan.sensor.height, TaggedFrames(), maxImages, 2 * plan.sensor.width + padding, behaviour)
+    val port = SimulatedCameraPort(plan.sensor.width, plan.sensor.height, TaggedFrames(), maxImages, 2 * plan.sensor.width + padding,
+        behaviour, TaggedDarkFrames())
     val controller = CaptureController(plan, port, factory, SessionStore(dir), thermal, config, clock)
     val states = mutableListOf<CaptureProgress>()
     init { controller.addListener { states += it } }
+    val user = SimulatedUser(port, lens).attach(controller)
     fun run(): CaptureOutcome = controller.run()
 }
 
 /** The frames a sink got, as (ISO, exposure) per step: what a pack is made of. */
 fun framesOf(s: RecordingSink) = s.calls.filter { it.kind != "checkpoint" }.map { Triple(it.kind, it.iso, it.exposureNs) }
 
-/** Checks that the sink got exactly the plan: one step call per EV step, then each burst's frames at its settings. */
+/**
+ * Checks that the sink got exactly the plan: one step call per EV step, then each burst's frames at
+ * its settings; one dark call before the dark bursts.
+ */
 fun checkSinkMatchesPlan(plan: CapturePlan, calls: List<SinkCall>) {
     val expected = mutableListOf<Triple<String, Int, Long>>()
     for (b in plan.bursts) {
         if (b.role == BurstRole.REFERENCE) expected += Triple("step", 0, b.exposureNs)
+        if (b == plan.darkBursts.firstOrNull()) expected += Triple("dark", 0, 0L)
         repeat(b.frames) { expected += Triple("frame", b.iso, b.exposureNs) }
     }
     eq(expected, calls.map { Triple(it.kind, it.iso, it.exposureNs) }, "sink calls")

@@ -6,6 +6,7 @@ import org.noisecal.capture.controller.Clock
 import org.noisecal.capture.controller.FrameSink
 import org.noisecal.capture.controller.FrameSinkFactory
 import org.noisecal.capture.controller.IsoCoverage
+import org.noisecal.capture.controller.LensNotCoveredException
 import org.noisecal.capture.controller.RawFrame
 import org.noisecal.capture.controller.SinkProgress
 import org.noisecal.capture.plan.SensorSpec
@@ -31,6 +32,20 @@ class TaggedFrames(private val black: Int = 64) : FrameSource {
     fun pattern(x: Int, y: Int, seq: Long): Int = black + ((x * 3 + y * 5 + seq.toInt() * 7) and 511)
 }
 
+/**
+ * What the tagged sensor gives with the lens covered: the same tags in row 0, black level with a
+ * little noise (0..2 DN, by position and running number) everywhere else.
+ */
+class TaggedDarkFrames(private val black: Int = 64) : FrameSource {
+    override fun render(exposure: SimExposure): ShortArray {
+        val out = ShortArray(exposure.width * exposure.height) { (black + ((it * 7 + exposure.sequence.toInt()) % 3)).toShort() }
+        out[0] = exposure.iso.toShort()
+        out[1] = ((exposure.exposureNs / 1000) and 0xFFFF).toShort()
+        out[2] = (exposure.sequence and 0xFFFF).toShort()
+        return out
+    }
+}
+
 /** One call the fake sink saw. */
 data class SinkCall(val kind: String, val iso: Int = 0, val exposureNs: Long = 0, val seq: Long = -1)
 
@@ -38,6 +53,8 @@ data class SinkCall(val kind: String, val iso: Int = 0, val exposureNs: Long = 0
  * A [FrameSink] that records every call, reads every frame the way the core would (through the
  * row and pixel strides, checking the buffer size) and checks the tagged content against what the
  * result reported. Its checkpoint is its call log; [finish] writes per-(step, ISO) frame counts.
+ * After [beginDark] (call "dark") it checks frames the way the core does: rows below the tags must
+ * be black, or the push throws [LensNotCoveredException].
  */
 class RecordingSink(
     val sensor: SensorSpec,
@@ -50,6 +67,15 @@ class RecordingSink(
     val checkpoints = mutableListOf<String>()
     /** Mean level (black removed) of every accepted frame, in order. */
     val means = mutableListOf<Double>()
+    /** Whether a dark step is open: the last step call was "dark". */
+    val dark: Boolean get() = calls.lastOrNull { it.kind == "step" || it.kind == "dark" }?.kind == "dark"
+    /** Frames refused as not dark. */
+    var notDark = 0
+
+    override fun beginDark() {
+        check(!closed) { "sink closed" }
+        calls += SinkCall("dark")
+    }
 
     override fun beginStep(referenceExposureNs: Long) {
         check(!closed) { "sink closed" }
@@ -69,16 +95,23 @@ class RecordingSink(
         fun px(x: Int, y: Int): Int = buf.getShort(y * frame.rowStride + x * frame.pixelStride).toInt() and 0xFFFF
         var sum = 0.0
         for (y in 0 until frame.height) for (x in 0 until frame.width) sum += px(x, y)
-        means += sum / (frame.width * frame.height) - sensor.blackLevels.average()
+        val mean = sum / (frame.width * frame.height) - sensor.blackLevels.average()
         var seq = -1L
         if (tagged != null) {
             if (px(0, 0) != frame.iso) throw Failure("image carries ISO ${px(0, 0)} but its result says ${frame.iso}: image and result mismatched")
             if (px(1, 0).toLong() != ((frame.exposureNs / 1000) and 0xFFFF)) throw Failure("image exposure tag ${px(1, 0)} vs result ${frame.exposureNs}")
             seq = px(2, 0).toLong()
-            for (y in 1 until frame.height) for (x in 0 until frame.width) {
+            if (dark) {
+                val lit = (1 until frame.height).sumOf { y -> (0 until frame.width).count { x -> px(x, y) > sensor.blackLevels[0] + 8 } }
+                if (lit > 0) {
+                    notDark++
+                    throw LensNotCoveredException("fake: dark frame $seq at ISO ${frame.iso} has $lit lit pixels: cover the lens")
+                }
+            } else for (y in 1 until frame.height) for (x in 0 until frame.width) {
                 if (px(x, y) != tagged.pattern(x, y, seq)) throw Failure("pixel ($x,$y) of frame $seq wrong: row stride misused?")
             }
         }
+        means += mean
         calls += SinkCall("frame", frame.iso, frame.exposureNs, seq)
         return false
     }
@@ -116,7 +149,7 @@ class RecordingSink(
         fun countsByStep(calls: List<SinkCall>): Map<String, Int> {
             val m = linkedMapOf<String, Int>()
             var step = -1
-            for (c in calls) if (c.kind == "step") step++ else m.merge("$step#${c.iso}@${c.exposureNs}", 1, Int::plus)
+            for (c in calls) if (c.kind == "step" || c.kind == "dark") step++ else m.merge("$step#${c.iso}@${c.exposureNs}", 1, Int::plus)
             return m
         }
     }

@@ -30,7 +30,7 @@ class App(val dir: File = tempDir("app"), val factory: RecordingSinkFactory = Re
     var state: UiState = UiState.LoadingCameras
     val seen = mutableListOf<UiState>()
     /** A fresh simulated camera per run, as the app opens the camera again. */
-    var port = SimulatedCameraPort(16, 8, TaggedFrames(), 6, 2 * 16 + 12)
+    var port = SimulatedCameraPort(16, 8, TaggedFrames(), 6, 2 * 16 + 12, coveredSource = TaggedDarkFrames())
 
     fun dispatch(e: UiEvent) { state = UiStateMachine.reduce(state, e); seen += state }
 
@@ -43,15 +43,26 @@ class App(val dir: File = tempDir("app"), val factory: RecordingSinkFactory = Re
         return expect(state, "planned")
     }
 
-    /** Starts the capture of the current plan and runs it to its end; [onProgress] may stop it. */
-    fun capture(startOver: Boolean = false, onProgress: (CaptureRun, UiState.Capturing) -> Unit = { _, _ -> }): CaptureOutcome {
-        port = SimulatedCameraPort(16, 8, TaggedFrames(), 6, 2 * 16 + 12)
+    /**
+     * Starts the capture of the current plan and runs it to its end; [onProgress] may stop it;
+     * [onPrompt] answers the cover-the-lens prompt (the screen's [UiState.CoverLens]).
+     */
+    fun capture(
+        startOver: Boolean = false,
+        onPrompt: (CaptureRun, UiState.CoverLens) -> Unit = { _, _ -> },
+        onProgress: (CaptureRun, UiState.Capturing) -> Unit = { _, _ -> },
+    ): CaptureOutcome {
+        port = SimulatedCameraPort(16, 8, TaggedFrames(), 6, 2 * 16 + 12, coveredSource = TaggedDarkFrames())
         val start = workflow.startCapture(expect(state, "planned"), startOver, port, config = fastConfig, clock = FakeClock())
         val run = (start as? CaptureStart.Ready)?.run ?: throw Failure("capture refused: $start")
         dispatch(run.started)
         return run.run { e ->
             dispatch(e)
-            (state as? UiState.Capturing)?.let { onProgress(run, it) }
+            when (val s = state) {
+                is UiState.Capturing -> onProgress(run, s)
+                is UiState.CoverLens -> onPrompt(run, s)
+                else -> {}
+            }
         }
     }
 }

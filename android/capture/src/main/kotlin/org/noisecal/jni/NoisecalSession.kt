@@ -29,6 +29,15 @@ class NoisecalSession private constructor(@Volatile private var handle: Long) : 
     fun beginStep(referenceExposureNs: Long) = nativeBeginStep(live(), referenceExposureNs)
 
     /**
+     * Begins a dark step: every frame pushed from now until the next [beginStep] or [beginDark] was
+     * taken with the lens covered, at the ISO its metadata reports (a short burst per ISO, any
+     * number of ISOs). The core checks each one is really dark: a frame with a scene in it is
+     * refused with [NoisecalNotDarkException] (the session unchanged), whose message tells the user
+     * to cover the lens. Recorded like [beginStep].
+     */
+    fun beginDark() = nativeBeginDark(live())
+
+    /**
      * Folds one RAW_SENSOR frame in, read in place (no copy) from the buffer's native memory. [buffer]
      * must be a direct ByteBuffer (`Image.planes[0].buffer`); the plane is read from the buffer's
      * start address over its capacity, whatever its position (Camera2 planes start at 0; pass
@@ -38,7 +47,8 @@ class NoisecalSession private constructor(@Volatile private var handle: Long) : 
      * [rowStride] and [pixelStride] in bytes as the plane reports them; [iso] and [exposureNs] as the
      * TotalCaptureResult reported them; [blackLevels] the per-frame dynamic black level (4 values,
      * CFA position order) or null. Returns whether the frame's brightness drifted (flicker) and was
-     * normalised.
+     * normalised. During a dark step ([beginDark]) a frame that is not dark throws
+     * [NoisecalNotDarkException].
      */
     fun pushFrame(
         buffer: ByteBuffer,
@@ -73,7 +83,7 @@ class NoisecalSession private constructor(@Volatile private var handle: Long) : 
     fun checkpoint(path: String) = nativeCheckpoint(live(), path)
 
     /**
-     * Tees every accepted frame (exactly as handed over), every [beginStep] and every
+     * Tees every accepted frame (exactly as handed over), every [beginStep], [beginDark] and
      * [setNoiseProfile] from now on into a recording file for desktop replay
      * (`noisecal calibrate session.rec` gives the same pack). Call it before the first [beginStep].
      */
@@ -159,6 +169,7 @@ class NoisecalSession private constructor(@Volatile private var handle: Long) : 
         ): Long
         @JvmStatic private external fun nativeRestore(path: String): Long
         @JvmStatic private external fun nativeBeginStep(handle: Long, referenceExposureNs: Long)
+        @JvmStatic private external fun nativeBeginDark(handle: Long)
         @JvmStatic private external fun nativePushFrame(
             handle: Long, buffer: ByteBuffer, width: Int, height: Int, rowStride: Int, pixelStride: Int,
             iso: Int, exposureNs: Long, blackLevels: FloatArray?,
@@ -175,4 +186,10 @@ class NoisecalSession private constructor(@Volatile private var handle: Long) : 
 }
 
 /** Any failure inside the native core, with its message. */
-class NoisecalException(message: String) : RuntimeException(message)
+open class NoisecalException(message: String) : RuntimeException(message)
+
+/**
+ * A frame pushed during a dark step ([NoisecalSession.beginDark]) has a scene in it: light reaches
+ * the sensor. The message (the core's) tells the user to cover the lens; the session is unchanged.
+ */
+class NoisecalNotDarkException(message: String) : NoisecalException(message)

@@ -198,6 +198,8 @@ class Camera2Port(
             addTarget(checkNotNull(reader).surface)
             set(CaptureRequest.CONTROL_MODE, CaptureRequest.CONTROL_MODE_OFF)
             set(CaptureRequest.CONTROL_AE_MODE, if (s.autoExposure) CaptureRequest.CONTROL_AE_MODE_ON else CaptureRequest.CONTROL_AE_MODE_OFF)
+            // No flash or torch in any burst (with AE off it is the only control of it): it would light the chart unevenly and the dark frames.
+            set(CaptureRequest.FLASH_MODE, CaptureRequest.FLASH_MODE_OFF)
             set(CaptureRequest.CONTROL_AF_MODE, if (s.autoFocus) CaptureRequest.CONTROL_AF_MODE_AUTO else CaptureRequest.CONTROL_AF_MODE_OFF)
             set(CaptureRequest.CONTROL_AWB_MODE, if (s.autoWhiteBalance) CaptureRequest.CONTROL_AWB_MODE_AUTO else CaptureRequest.CONTROL_AWB_MODE_OFF)
             s.focusDistanceDiopters?.let { set(CaptureRequest.LENS_FOCUS_DISTANCE, it) }

@@ -139,6 +139,22 @@ class CaptureViewModel(
         dispatch(UiEvent.StopRequested)
     }
 
+    /** At the cover-the-lens prompt: the lens is covered, the controller takes the dark frames. */
+    fun confirmLensCovered() {
+        if (_uiState.value !is UiState.CoverLens) return
+        val r = run ?: return
+        r.confirmLensCovered()
+        dispatch(UiEvent.LensCovered)
+    }
+
+    /** At the cover-the-lens prompt: skip the dark step; the session finishes without it. */
+    fun skipDarkFrames() {
+        if (_uiState.value !is UiState.CoverLens) return
+        val r = run ?: return
+        r.skipDarkFrames()
+        dispatch(UiEvent.DarkFramesSkipped)
+    }
+
     /** Forgets the finished or abandoned session and goes back to the preview. */
     fun newCalibration() {
         if (capturing) return

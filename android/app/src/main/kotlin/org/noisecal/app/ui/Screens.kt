@@ -59,6 +59,7 @@ import org.noisecal.capture.controller.FrameSize
 import org.noisecal.capture.controller.PlanForm
 import org.noisecal.capture.controller.ThermalLevel
 import org.noisecal.capture.controller.UiState
+import org.noisecal.capture.plan.PlanOptions
 import org.noisecal.capture.plan.PlanResult
 import org.noisecal.capture.plan.fmtDuration
 import org.noisecal.capture.plan.fmtNs
@@ -81,7 +82,7 @@ fun NoisecalApp(vm: CaptureViewModel) {
     }
     // An hour of capture with the phone on a tripod: keep the screen (and so the activity) on.
     val view = LocalView.current
-    val capturing = state is UiState.Capturing
+    val capturing = state is UiState.Capturing || state is UiState.CoverLens
     DisposableEffect(capturing) {
         view.keepScreenOn = capturing
         onDispose { view.keepScreenOn = false }
@@ -147,6 +148,7 @@ private fun CameraScreen(vm: CaptureViewModel, state: UiState.AtCamera, modifier
                 is UiState.Preview -> PreviewPanel(vm, state)
                 is UiState.Planned -> PlanPanel(vm, state)
                 is UiState.Capturing -> CapturePanel(vm, state)
+                is UiState.CoverLens -> CoverLensPanel(vm, state)
                 is UiState.Done -> DonePanel(vm, state)
             }
         }
@@ -249,6 +251,33 @@ private fun PlanFormFields(form: PlanForm, onChange: (PlanForm) -> Unit, modifie
             Checkbox(form.recording, { onChange(form.copy(recording = it)) })
             Text("Also record the frames for desktop replay")
         }
+        DarkFramesOption(form, onChange)
+    }
+}
+
+/** The optional dark step: its toggle, what it is for and what it asks of the user. */
+@Composable
+private fun DarkFramesOption(form: PlanForm, onChange: (PlanForm) -> Unit, modifier: Modifier = Modifier) {
+    val perIso = form.darkFramesPerIso.trim().toIntOrNull() ?: PlanOptions.DEFAULT_DARK_FRAMES_PER_ISO
+    Column(modifier, verticalArrangement = Arrangement.spacedBy(4.dp)) {
+        Row(verticalAlignment = Alignment.CenterVertically) {
+            Checkbox(form.darkFrames, { onChange(form.copy(darkFrames = it)) })
+            Text("Dark frames (lens covered)")
+        }
+        Text(
+            "Optional. After the lit sweep the app asks you to cover the lens and takes a short burst of about $perIso frames " +
+                "per ISO (the lowest ISO and every target), at that ISO's shortest exposure. With no light on the sensor it " +
+                "measures what the sensor adds by itself: the fixed-pattern noise (dark shading, a per-pixel offset that grows " +
+                "with gain) and the signal-independent read noise, so the pack gets a fixed-pattern component per ISO. Cover the " +
+                "lens with an opaque lens cap, or a fingertip with a dark cloth over it and the phone, so that no light leaks in " +
+                "from the sides; frames with light in them are refused and the step is asked for again. You can still skip it " +
+                "when asked.",
+            style = MaterialTheme.typography.bodySmall,
+        )
+        if (form.darkFrames) {
+            OutlinedTextField(form.darkFramesPerIso, { onChange(form.copy(darkFramesPerIso = it)) }, label = { Text("Dark frames per ISO") },
+                singleLine = true, keyboardOptions = KeyboardOptions(keyboardType = KeyboardType.Number), modifier = Modifier.fillMaxWidth())
+        }
     }
 }
 
@@ -288,6 +317,7 @@ private fun CapturePanel(vm: CaptureViewModel, state: UiState.Capturing, modifie
             when (s.phase) {
                 CapturePhase.IDLE -> "Starting…"
                 CapturePhase.RUNNING -> "Capturing"
+                CapturePhase.AWAITING_LENS_COVER -> "Waiting for the lens to be covered"
                 CapturePhase.PAUSED_THERMAL -> "Paused: cooling down"
                 CapturePhase.FINISHING -> "Building the model pack…"
                 CapturePhase.DONE -> "Done"
@@ -313,6 +343,40 @@ private fun CapturePanel(vm: CaptureViewModel, state: UiState.Capturing, modifie
                 Text("ISO ${c.iso}: ${c.totalBins - c.underSampledBins} / ${c.totalBins}", style = MaterialTheme.typography.bodySmall)
                 LinearProgressIndicator(progress = { c.filledFraction.toFloat() }, modifier = Modifier.fillMaxWidth())
             }
+        }
+        OutlinedButton(onClick = vm::stopCapture, enabled = !state.stopping, modifier = Modifier.fillMaxWidth()) {
+            Text(if (state.stopping) "Stopping…" else "Stop (resume later)")
+        }
+    }
+}
+
+/**
+ * The prompt before the dark step: cover the lens (how, and what is taken), then confirm; or skip
+ * the step. After frames with light in them it says so and asks again.
+ */
+@Composable
+private fun CoverLensPanel(vm: CaptureViewModel, state: UiState.CoverLens, modifier: Modifier = Modifier) {
+    val r = state.request
+    Column(modifier, verticalArrangement = Arrangement.spacedBy(8.dp)) {
+        Text("Cover the lens", style = MaterialTheme.typography.titleLarge)
+        r.notCovered?.let {
+            Text("Light reached the sensor, so the dark frames were not kept: $it", color = MaterialTheme.colorScheme.error)
+        }
+        Text(
+            "The lit sweep is done. For the dark frames, cover the lens completely without moving the phone: an opaque lens " +
+                "cap, or a fingertip over the lens with a dark cloth over finger and phone. No light may leak in from the sides. " +
+                "Then tap \"Lens covered\".",
+        )
+        Text(
+            "${r.frames} frames at ISO ${r.isos.joinToString()}, about ${fmtDuration(r.estimatedMs * 1_000_000)}. " +
+                "They measure the sensor's fixed-pattern noise (dark shading) and its signal-independent noise.",
+            style = MaterialTheme.typography.bodySmall,
+        )
+        Button(onClick = vm::confirmLensCovered, enabled = !state.stopping, modifier = Modifier.fillMaxWidth()) {
+            Text("Lens covered: take the dark frames")
+        }
+        OutlinedButton(onClick = vm::skipDarkFrames, enabled = !state.stopping, modifier = Modifier.fillMaxWidth()) {
+            Text("Skip the dark frames and finish")
         }
         OutlinedButton(onClick = vm::stopCapture, enabled = !state.stopping, modifier = Modifier.fillMaxWidth()) {
             Text(if (state.stopping) "Stopping…" else "Stop (resume later)")

@@ -104,4 +104,10 @@ class CaptureRun(val plan: CapturePlan, val controller: CaptureController, priva
     }
 
     fun requestStop() = controller.requestStop()
+
+    /** The user covered the lens at the [UiState.CoverLens] prompt; reduce [UiEvent.LensCovered] too. */
+    fun confirmLensCovered() = controller.confirmLensCovered()
+
+    /** The user skipped the dark step at the prompt; reduce [UiEvent.DarkFramesSkipped] too. */
+    fun skipDarkFrames() = controller.skipDarkFrames()
 }

@@ -55,6 +55,13 @@ data class ResumeInfo(val completedBursts: Int, val totalBursts: Int, val samePl
  * completed burst (the OS may kill the app at any moment; a partial burst is taken again). The
  * thermal status is watched, and capturing pauses at [ControllerConfig.pauseAt].
  *
+ * The optional dark step ([CapturePlan.darkBursts]) comes last. Before it the controller publishes
+ * [CapturePhase.AWAITING_LENS_COVER] with a [CoverLensRequest] and waits for [confirmLensCovered]
+ * (then [FrameSink.beginDark] and the dark bursts, through the same sink) or [skipDarkFrames] (the
+ * session finishes without them). A dark frame the sink refuses as not dark
+ * ([LensNotCoveredException]) rolls the session back to the checkpoint before the interrupted burst
+ * (so no lit frame and no partial burst stays in it) and asks again, saying what was wrong.
+ *
  * One controller serves one [run]. [run] blocks, so call it off the main thread (the app runs it
  * in a coroutine on `Dispatchers.IO`; this library itself has no coroutine dependency).
  * [requestStop] may be called from any thread.
@@ -79,6 +86,7 @@ class CaptureController(
     private class Pending(val submittedNs: Long)
     private class StopRequested : RuntimeException("stop requested")
     private class CaptureFailure(message: String) : RuntimeException(message)
+    private class DarkRefused(val reason: String) : RuntimeException(reason)
 
     private val events = LinkedBlockingQueue<Event>()
     private val listeners = CopyOnWriteArrayList<ProgressListener>()
@@ -89,6 +97,10 @@ class CaptureController(
     private var started = false
     @Volatile private var stopRequested = false
     @Volatile private var current = CaptureProgress.start(plan)
+    /** The user's answers to the cover-the-lens prompt: true covered, false skip. */
+    private val lensAnswers = LinkedBlockingQueue<Boolean>()
+    /** The sink of this run: replaced when the dark step is rolled back to a checkpoint. */
+    private var sink: FrameSink? = null
 
     val maxInFlight: Int = (config.maxInFlight ?: (port.maxImages - 3)).coerceAtLeast(1)
     private val blackTolerance: Float = config.blackLevelToleranceDn ?: maxOf(2f, plan.sensor.whiteLevel / 256f)
@@ -110,6 +122,15 @@ class CaptureController(
 
     /** Asks [run] to stop at the next event; the session resumes later from its last completed burst. */
     fun requestStop() { stopRequested = true }
+
+    /**
+     * The user covered the lens: the dark step starts. Any thread; only an answer given while the
+     * controller waits ([CapturePhase.AWAITING_LENS_COVER]) or just before counts.
+     */
+    fun confirmLensCovered() { lensAnswers.put(true) }
+
+    /** The user skips the dark step at the prompt: the session finishes without dark frames. Any thread. */
+    fun skipDarkFrames() { lensAnswers.put(false) }
 
     private val eventSink = object : CameraEventSink {
         override fun onImage(image: ImageHandle) { events.put(Event.Image(image)) }
@@ -133,7 +154,6 @@ class CaptureController(
             return CaptureOutcome.Finished(store.packFile.path, summary)
         }
         val completed = sortedSetOf<Int>()
-        val sink: FrameSink
         try {
             val ckpt = record?.checkpointName?.let { store.checkpointFile(it) }
             if (record != null && record.planFingerprint == fingerprint && ckpt != null && ckpt.isFile) {
@@ -154,29 +174,20 @@ class CaptureController(
 
         val doneFrames = plan.bursts.filter { it.index in completed }.sumOf { it.frames }
         update { it.copy(phase = CapturePhase.RUNNING, burstsDone = completed.size, framesDone = doneFrames) }
-        sink.use {
+        try {
             try {
                 port.start(eventSink)
-                refreshCoverage(sink)
+                refreshCoverage(sink())
                 for (b in plan.bursts) {
-                    if (b.index in completed) continue
+                    if (b.index in completed || b.role == BurstRole.DARK) continue
                     if (stopRequested) throw StopRequested()
-                    val burstStart = clock.nanoTime()
-                    if (b.role == BurstRole.REFERENCE) sink.beginStep(b.exposureNs)
-                    captureBurst(b, sink)
-                    completed += b.index
-                    val name = store.checkpointName(completed.size)
-                    sink.checkpoint(store.checkpointFile(name).path)
-                    store.save(ProgressRecord(fingerprint, completed.toSet(), name))
-                    store.pruneCheckpoints(name)
-                    plannedDoneNs += plan.burstDurationNs(b)
-                    refreshCoverage(sink)
-                    update { s -> s.copy(burstsDone = completed.size, remainingMs = remainingMs(completed, null, 0),
-                        message = "Burst ${b.index + 1} done in ${(clock.nanoTime() - burstStart) / 1_000_000} ms") }
+                    if (b.role == BurstRole.REFERENCE) sink().beginStep(b.exposureNs)
+                    captureAndCheckpoint(b, completed)
                 }
+                darkStep(completed)
                 update { it.copy(phase = CapturePhase.FINISHING, currentBurst = null, message = "Building the model pack") }
                 store.ensureDir()
-                val summary = sink.finish(store.packFile.path)
+                val summary = sink().finish(store.packFile.path)
                 store.save(ProgressRecord(fingerprint, completed.toSet(), store.checkpointName(completed.size), finished = true, summary = summary))
                 update { it.copy(phase = CapturePhase.DONE, remainingMs = 0, packPath = store.packFile.path, summary = summary, message = summary) }
                 return CaptureOutcome.Finished(store.packFile.path, summary)
@@ -191,7 +202,90 @@ class CaptureController(
                 try { port.stop() } catch (_: Exception) { }
                 closeAllHeld()
             }
+        } finally {
+            sink?.close()
         }
+    }
+
+    private fun sink(): FrameSink = checkNotNull(sink) { "no open sink" }
+
+    /** Captures [b] into the sink, then checkpoints and records it as completed. */
+    private fun captureAndCheckpoint(b: Burst, completed: MutableSet<Int>) {
+        val burstStart = clock.nanoTime()
+        val sink = sink()
+        captureBurst(b, sink)
+        completed += b.index
+        val name = store.checkpointName(completed.size)
+        sink.checkpoint(store.checkpointFile(name).path)
+        store.save(ProgressRecord(plan.fingerprint, completed.toSet(), name))
+        store.pruneCheckpoints(name)
+        plannedDoneNs += plan.burstDurationNs(b)
+        refreshCoverage(sink)
+        update { s -> s.copy(burstsDone = completed.size, remainingMs = remainingMs(completed, null, 0),
+            message = "Burst ${b.index + 1} done in ${(clock.nanoTime() - burstStart) / 1_000_000} ms") }
+    }
+
+    /**
+     * The dark step's bursts not yet completed: the prompt, then [FrameSink.beginDark] and the
+     * bursts; again from the prompt after a frame that is not dark; nothing once the user skips.
+     */
+    private fun darkStep(completed: MutableSet<Int>) {
+        var notCovered: String? = null
+        while (true) {
+            val left = plan.darkBursts.filter { it.index !in completed }
+            if (left.isEmpty()) return
+            if (stopRequested) throw StopRequested()
+            if (!awaitLensCover(left, notCovered)) {
+                update { it.copy(phase = CapturePhase.RUNNING, burstCount = it.burstCount - left.size,
+                    framesTotal = it.framesTotal - left.sumOf { b -> b.frames }, darkSkipped = true,
+                    message = "Dark frames skipped: the pack has no fixed-pattern component") }
+                return
+            }
+            try {
+                sink().beginDark()
+                for (b in left) {
+                    if (stopRequested) throw StopRequested()
+                    captureAndCheckpoint(b, completed)
+                }
+                return
+            } catch (e: DarkRefused) {
+                notCovered = e.reason
+                rollBack(completed)
+            }
+        }
+    }
+
+    /** Waits for the user's answer to the cover-the-lens prompt: true covered, false skip. */
+    private fun awaitLensCover(left: List<Burst>, notCovered: String?): Boolean {
+        lensAnswers.clear()
+        val request = CoverLensRequest(left.map { it.iso }, left.sumOf { it.frames },
+            left.sumOf { plan.burstDurationNs(it) } / 1_000_000, notCovered)
+        update { it.copy(phase = CapturePhase.AWAITING_LENS_COVER, currentBurst = null, coverLens = request,
+            message = if (notCovered == null) "Cover the lens for the dark frames, or skip them"
+            else "Light reached the sensor during the dark frames: cover the lens fully and take them again") }
+        while (true) {
+            if (stopRequested) throw StopRequested()
+            val covered = lensAnswers.poll(LENS_POLL_MS, TimeUnit.MILLISECONDS) ?: continue
+            update { it.copy(phase = CapturePhase.RUNNING, coverLens = null,
+                message = if (covered) "Lens covered: taking the dark frames" else it.message) }
+            return covered
+        }
+    }
+
+    /**
+     * After a dark frame with light in it: back to the checkpoint of the last completed burst
+     * (the interrupted burst's accepted frames, and a recording's, go with it).
+     */
+    private fun rollBack(completed: Set<Int>) {
+        closeAllHeld()
+        val name = store.load()?.checkpointName
+        val file = name?.let { store.checkpointFile(it) }
+        if (file == null || !file.isFile) throw CaptureFailure("cannot take the dark step again: the last checkpoint is missing")
+        sink?.close()
+        sink = null
+        sink = sinkFactory.restore(file.path)
+        update { it.copy(currentBurst = null, burstFramesAccepted = 0,
+            framesDone = plan.bursts.filter { b -> b.index in completed }.sumOf { b -> b.frames }) }
     }
 
     private fun fail(reason: String, resumable: Boolean): CaptureOutcome.Failed {
@@ -293,6 +387,11 @@ class CaptureController(
             }
             val drift = try {
                 sink.pushFrame(RawFrame(img.buffer, img.width, img.height, img.rowStride, img.pixelStride, r.iso, r.exposureNs, r.dynamicBlackLevels))
+            } catch (e: LensNotCoveredException) {
+                val why = "not dark: ${e.message}"
+                update { it.copy(framesRejected = it.framesRejected + 1, lastRejection = why) }
+                if (b.role == BurstRole.DARK) throw DarkRefused(e.message ?: "the frame is not dark: cover the lens")
+                return why
             } catch (e: RuntimeException) {
                 val why = "the session refused the frame: ${e.message}"
                 update { it.copy(framesRejected = it.framesRejected + 1, lastRejection = why) }
@@ -417,6 +516,9 @@ class CaptureController(
     }
 
     companion object {
+        /** How often the cover-the-lens wait looks at [requestStop]. */
+        private const val LENS_POLL_MS = 50L
+
         /** What an earlier run left in [store] for [plan] (null when nothing). */
         fun resumeInfo(store: SessionStore, plan: CapturePlan): ResumeInfo? {
             val r = store.load() ?: return null

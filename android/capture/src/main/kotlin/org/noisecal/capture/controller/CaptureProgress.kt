@@ -3,8 +3,19 @@ package org.noisecal.capture.controller
 import org.noisecal.capture.plan.Burst
 import org.noisecal.capture.plan.CapturePlan
 
-/** Where a capture stands. */
-enum class CapturePhase { IDLE, RUNNING, PAUSED_THERMAL, FINISHING, DONE, STOPPED, FAILED }
+/**
+ * Where a capture stands. [AWAITING_LENS_COVER]: the lit sweep is done and the controller waits
+ * for the user to cover the lens for the dark step (or to skip it); [CaptureProgress.coverLens]
+ * says what for.
+ */
+enum class CapturePhase { IDLE, RUNNING, AWAITING_LENS_COVER, PAUSED_THERMAL, FINISHING, DONE, STOPPED, FAILED }
+
+/**
+ * The prompt before the dark step: cover the lens for [frames] frames at [isos] (about
+ * [estimatedMs]). [notCovered] is set when this is a retry: the core found light in a dark frame
+ * (its message), so the step is taken again from its start.
+ */
+data class CoverLensRequest(val isos: List<Int>, val frames: Int, val estimatedMs: Long, val notCovered: String? = null)
 
 /**
  * How far a [CaptureController] run has got, as one immutable value: what the capture screen
@@ -32,6 +43,10 @@ data class CaptureProgress(
     val message: String? = null,
     val packPath: String? = null,
     val summary: String? = null,
+    /** Set while [phase] is [CapturePhase.AWAITING_LENS_COVER]. */
+    val coverLens: CoverLensRequest? = null,
+    /** The dark step was skipped at the prompt; the session finishes without it. */
+    val darkSkipped: Boolean = false,
 ) {
     val overallFraction: Double get() = if (framesTotal == 0) 0.0 else framesDone.toDouble() / framesTotal
     val burstFraction: Double get() = if (burstFramesWanted == 0) 0.0 else burstFramesAccepted.toDouble() / burstFramesWanted

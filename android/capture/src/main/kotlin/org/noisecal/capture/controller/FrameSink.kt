@@ -36,8 +36,16 @@ interface FrameSink : AutoCloseable {
     fun beginStep(referenceExposureNs: Long)
 
     /**
+     * Begins the dark step: every frame pushed until the next [beginStep] or [beginDark] was taken
+     * with the lens covered, at the ISO its metadata reports (any number of ISOs, one burst each).
+     */
+    fun beginDark()
+
+    /**
      * Folds one frame in and returns whether its brightness drifted and was normalised (flicker).
-     * Throws (any RuntimeException) when the frame is refused, leaving the sink unchanged.
+     * Throws (any RuntimeException) when the frame is refused, leaving the sink unchanged; a frame
+     * of the dark step that shows a scene (the lens is not covered) is refused with
+     * [LensNotCoveredException].
      */
     fun pushFrame(frame: RawFrame): Boolean
 
@@ -55,3 +63,10 @@ interface FrameSinkFactory {
     fun create(sensor: SensorSpec): FrameSink
     fun restore(checkpointPath: String): FrameSink
 }
+
+/**
+ * A frame of the dark step was refused because it is not dark: light reaches the sensor (the lens
+ * is not covered, or not fully). The controller answers it by asking the user to cover the lens
+ * and taking the dark step again; [message] is the core's explanation.
+ */
+class LensNotCoveredException(message: String, cause: Throwable? = null) : RuntimeException(message, cause)

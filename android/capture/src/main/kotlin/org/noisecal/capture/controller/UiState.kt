@@ -13,7 +13,8 @@ import org.noisecal.capture.plan.PlanResult
  * that makes it ([UiStateMachine]) is tested on the host.
  *
  * A calibration walks NeedsPermission → LoadingCameras → Preview ⇄ Planned → Capturing → Done;
- * [Unsupported] ends it when no camera qualifies. The four states with a live camera share
+ * a plan with the dark step passes Capturing → [CoverLens] → Capturing before it is done.
+ * [Unsupported] ends it when no camera qualifies. The states with a live camera share
  * [AtCamera]: the screen keeps one preview for all of them.
  */
 sealed interface UiState {
@@ -58,6 +59,22 @@ sealed interface UiState {
         override val setup: Setup,
         val plan: CapturePlan,
         val progress: CaptureProgress,
+        val stopping: Boolean = false,
+        override val banner: Banner? = null,
+    ) : AtCamera
+
+    /**
+     * A prompt, like [NeedsPermission] and the resume offer of [Planned]: the lit sweep is done and
+     * the controller waits for the user to cover the lens for the dark step ("Lens covered", event
+     * [UiEvent.LensCovered]) or to skip it ([UiEvent.DarkFramesSkipped]). [request] says which ISOs
+     * and how many frames; its [CoverLensRequest.notCovered] is set when the last try had light in
+     * it. The capture goes on behind it: [progress] keeps arriving, stop still works.
+     */
+    data class CoverLens(
+        override val setup: Setup,
+        val plan: CapturePlan,
+        val progress: CaptureProgress,
+        val request: CoverLensRequest,
         val stopping: Boolean = false,
         override val banner: Banner? = null,
     ) : AtCamera
@@ -122,6 +139,9 @@ data class PlanForm(
     val evMax: String = "4",
     val frames: String = "100",
     val recording: Boolean = false,
+    /** The optional dark step (lens covered), off by default. */
+    val darkFrames: Boolean = false,
+    val darkFramesPerIso: String = PlanOptions.DEFAULT_DARK_FRAMES_PER_ISO.toString(),
 ) {
     /** The planner's options for [metering]; throws [IllegalArgumentException] naming the field that is wrong. */
     fun toOptions(metering: Metering): PlanOptions {
@@ -131,7 +151,10 @@ data class PlanForm(
         val from = evMin.trim().toDoubleOrNull() ?: throw IllegalArgumentException("EV from: \"$evMin\" is not a number (e.g. -4)")
         val to = evMax.trim().toDoubleOrNull() ?: throw IllegalArgumentException("EV to: \"$evMax\" is not a number (e.g. 4)")
         val n = frames.trim().toIntOrNull() ?: throw IllegalArgumentException("Frames per burst: \"$frames\" is not a whole number (e.g. 100)")
-        return PlanOptions(metering = metering, targetIsos = isoList.ifEmpty { null }, evMin = from, evMax = to, framesPerBurst = n, recording = recording)
+        val dark = if (!darkFrames) PlanOptions.DEFAULT_DARK_FRAMES_PER_ISO else darkFramesPerIso.trim().toIntOrNull()
+            ?: throw IllegalArgumentException("Dark frames per ISO: \"$darkFramesPerIso\" is not a whole number (e.g. 8)")
+        return PlanOptions(metering = metering, targetIsos = isoList.ifEmpty { null }, evMin = from, evMax = to, framesPerBurst = n,
+            recording = recording, darkFrames = darkFrames, darkFramesPerIso = dark)
     }
 
     companion object {
@@ -142,6 +165,8 @@ data class PlanForm(
             evMax = plain(options.evMax),
             frames = options.framesPerBurst.toString(),
             recording = options.recording,
+            darkFrames = options.darkFrames,
+            darkFramesPerIso = options.darkFramesPerIso.toString(),
         )
 
         private fun plain(x: Double): String = if (x % 1.0 == 0.0 && abs(x) < 1e15) x.toLong().toString() else x.toString()

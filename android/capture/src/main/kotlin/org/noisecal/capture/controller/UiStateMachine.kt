@@ -34,6 +34,12 @@ sealed interface UiEvent {
     /** The user asked the running capture to stop. */
     data object StopRequested : UiEvent
 
+    /** At the [UiState.CoverLens] prompt: the lens is covered, take the dark frames. */
+    data object LensCovered : UiEvent
+
+    /** At the [UiState.CoverLens] prompt: skip the dark step, finish without it. */
+    data object DarkFramesSkipped : UiEvent
+
     /** The controller's run returned [outcome]; [resume] is what the session folder now offers. */
     data class CaptureEnded(val outcome: CaptureOutcome, val resume: ResumeInfo?) : UiEvent
 
@@ -57,7 +63,7 @@ object UiStateMachine {
     fun reduce(state: UiState, event: UiEvent): UiState = when (event) {
         is UiEvent.PermissionAnswered -> when {
             // A running capture is never abandoned; the system kills the process if it revokes the permission.
-            state is UiState.Capturing -> state
+            state is UiState.Capturing || state is UiState.CoverLens -> state
             !event.granted -> UiState.NeedsPermission(denied = true)
             state is UiState.NeedsPermission -> UiState.LoadingCameras
             else -> state
@@ -80,11 +86,23 @@ object UiStateMachine {
                 state
             }
 
-        is UiEvent.Progress -> if (state is UiState.Capturing) state.copy(progress = event.progress) else state
+        is UiEvent.Progress -> progress(state, event.progress)
 
-        UiEvent.StopRequested -> if (state is UiState.Capturing) state.copy(stopping = true) else state
+        UiEvent.StopRequested -> when (state) {
+            is UiState.Capturing -> state.copy(stopping = true)
+            is UiState.CoverLens -> state.copy(stopping = true)
+            else -> state
+        }
 
-        is UiEvent.CaptureEnded -> if (state is UiState.Capturing) captureEnded(state, event) else state
+        // The answer goes to the controller (CaptureRun); the screen shows the capture again at once.
+        UiEvent.LensCovered, UiEvent.DarkFramesSkipped ->
+            if (state is UiState.CoverLens) UiState.Capturing(state.setup, state.plan, state.progress, state.stopping, state.banner) else state
+
+        is UiEvent.CaptureEnded -> when (state) {
+            is UiState.Capturing -> captureEnded(state.setup, state.plan, event)
+            is UiState.CoverLens -> captureEnded(state.setup, state.plan, event)
+            else -> state
+        }
 
         UiEvent.SessionForgotten -> when (state) {
             is UiState.Planned -> UiState.Preview(state.setup)
@@ -111,17 +129,34 @@ object UiStateMachine {
         }
     }
 
-    private fun captureEnded(s: UiState.Capturing, e: UiEvent.CaptureEnded): UiState = when (val o = e.outcome) {
-        is CaptureOutcome.Finished -> UiState.Done(s.setup, o.packPath, o.summary)
-        is CaptureOutcome.Stopped -> UiState.Planned(s.setup, PlanResult.Ok(s.plan), e.resume,
-            Banner.Info("Stopped after ${o.completedBursts} of ${s.plan.bursts.size} bursts; resume whenever you are ready"))
-        is CaptureOutcome.Failed -> UiState.Planned(s.setup, PlanResult.Ok(s.plan), if (o.resumable) e.resume else null, Banner.Error(o.reason))
+    /**
+     * A progress while capturing: the controller asking for the lens to be covered turns the
+     * screen into the [UiState.CoverLens] prompt; any other progress while prompting (the answer
+     * arrived, the dark frames run) turns it back.
+     */
+    private fun progress(state: UiState, p: CaptureProgress): UiState {
+        val ask = p.coverLens?.takeIf { p.phase == CapturePhase.AWAITING_LENS_COVER }
+        return when (state) {
+            is UiState.Capturing ->
+                if (ask != null) UiState.CoverLens(state.setup, state.plan, p, ask, state.stopping, state.banner) else state.copy(progress = p)
+            is UiState.CoverLens ->
+                if (ask != null) state.copy(progress = p, request = ask) else UiState.Capturing(state.setup, state.plan, p, state.stopping, state.banner)
+            else -> state
+        }
+    }
+
+    private fun captureEnded(setup: Setup, plan: CapturePlan, e: UiEvent.CaptureEnded): UiState = when (val o = e.outcome) {
+        is CaptureOutcome.Finished -> UiState.Done(setup, o.packPath, o.summary)
+        is CaptureOutcome.Stopped -> UiState.Planned(setup, PlanResult.Ok(plan), e.resume,
+            Banner.Info("Stopped after ${o.completedBursts} of ${plan.bursts.size} bursts; resume whenever you are ready"))
+        is CaptureOutcome.Failed -> UiState.Planned(setup, PlanResult.Ok(plan), if (o.resumable) e.resume else null, Banner.Error(o.reason))
     }
 
     private fun withBanner(state: UiState, banner: Banner): UiState = when (state) {
         is UiState.Preview -> state.copy(banner = banner)
         is UiState.Planned -> state.copy(banner = banner)
         is UiState.Capturing -> state.copy(banner = banner)
+        is UiState.CoverLens -> state.copy(banner = banner)
         is UiState.Done -> state.copy(banner = banner)
         // Before a camera is open there is nowhere to show a banner, and nothing that reports one.
         is UiState.NeedsPermission, UiState.LoadingCameras, is UiState.Unsupported -> state

@@ -29,6 +29,9 @@ data class Metering(val iso: Int, val exposureNs: Long) {
  * @property settleOverheadNs time counted per burst for settings to settle and frames to be re-taken.
  * @property recording whether a recording for desktop replay is written (counts in the storage estimate).
  * @property rowStrideBytes RAW row stride if known (for the recording size); 2·width otherwise.
+ * @property darkFrames whether the plan ends with the optional dark step: the lens covered, a short
+ *   burst per ISO (the reference ISO and every target), for the core's fixed-pattern ("fpn") component.
+ * @property darkFramesPerIso frames of each dark burst (default 8).
  */
 data class PlanOptions(
     val metering: Metering,
@@ -42,10 +45,20 @@ data class PlanOptions(
     val settleOverheadNs: Long = 300_000_000L,
     val recording: Boolean = false,
     val rowStrideBytes: Int? = null,
-)
+    val darkFrames: Boolean = false,
+    val darkFramesPerIso: Int = DEFAULT_DARK_FRAMES_PER_ISO,
+) {
+    companion object {
+        /** Frames per ISO of the dark step unless the user chose otherwise. */
+        const val DEFAULT_DARK_FRAMES_PER_ISO = 8
+    }
+}
 
-/** Whether a burst is the reference burst of its EV step or a target burst. */
-enum class BurstRole { REFERENCE, TARGET }
+/**
+ * Whether a burst is the reference burst of its EV step, a target burst, or a burst of the dark
+ * step (lens covered; see [CapturePlan.darkBursts]).
+ */
+enum class BurstRole { REFERENCE, TARGET, DARK }
 
 /**
  * One burst: [frames] frames at [iso] and [exposureNs], each taking [frameDurationNs].
@@ -63,8 +76,11 @@ data class Burst(
     val digitalGain: Boolean,
 ) {
     val brightness: Double get() = iso.toDouble() * exposureNs * 1e-9
-    override fun toString(): String =
+    override fun toString(): String = if (role == BurstRole.DARK) {
+        "burst $index (dark ISO $iso, ${fmtNs(exposureNs)} × $frames, lens covered)"
+    } else {
         "burst $index (EV ${fmtEv(ev)} ${role.name.lowercase()} ISO $iso, ${fmtNs(exposureNs)} × $frames)"
+    }
 }
 
 /** One EV step: its reference exposure and the bursts (reference first). */
@@ -132,10 +148,19 @@ data class CapturePlan(
     /** Null when the core's bin width was unknown at planning (no native library). */
     val estimatedPackBytes: Long?,
     val estimatedRecordingBytes: Long,
+    /**
+     * The optional dark step, after the lit sweep (empty unless [PlanOptions.darkFrames]): one burst
+     * per ISO, reference ISO first, captured with the lens covered. Its bursts have role
+     * [BurstRole.DARK], [Burst.stepIndex] `steps.size` and [Burst.ev] 0.
+     */
+    val darkBursts: List<Burst> = emptyList(),
 ) {
-    /** All bursts in capture order. */
-    val bursts: List<Burst> = steps.flatMap { it.bursts }
+    /** All bursts in capture order: the EV steps, then the dark step. */
+    val bursts: List<Burst> = steps.flatMap { it.bursts } + darkBursts
     val totalFrames: Int get() = bursts.sumOf { it.frames }
+
+    /** Frames of the dark step (0 without one). */
+    val darkFrames: Int get() = darkBursts.sumOf { it.frames }
 
     /** Estimated time of one burst (frames plus settle overhead). */
     fun burstDurationNs(b: Burst): Long = b.frames * b.frameDurationNs + options.settleOverheadNs
@@ -154,6 +179,10 @@ data class CapturePlan(
     fun describe(): String = buildString {
         append("Reference ISO $referenceIso; target ISOs ${targetIsos.joinToString()}\n")
         append("${steps.size} EV steps, ${bursts.size} bursts, $totalFrames frames\n")
+        if (darkBursts.isNotEmpty()) {
+            append("Dark step (lens covered): ${darkBursts.size} bursts of ${darkBursts.first().frames} frames, " +
+                "ISO ${darkBursts.joinToString { it.iso.toString() }}\n")
+        }
         append("Estimated time ${fmtDuration(estimatedDurationNs)}; ")
         append(estimatedPackBytes?.let { "pack ≈ ${fmtBytes(it)}" } ?: "pack size unknown (no native library)")
         if (options.recording) append("; recording ≈ ${fmtBytes(estimatedRecordingBytes)}")
@@ -291,16 +320,34 @@ object CapturePlanner {
             adjustments += PlanAdjustment(PlanAdjustment.Kind.DROPPED, null, iso, "ISO $iso: no EV step fits the exposure range, so it is not calibrated")
         }
         val kept = targets.filter { it in isosWithBursts }
+        val darkBursts = if (o.darkFrames) darkStep(c, o, steps, refIso, kept, burstIndex) else emptyList()
         val cfa = requireNotNull(c.cfa)
         val sensor = SensorSpec(c.rawWidth, c.rawHeight, cfa.label, c.blackLevelPattern.map { it.toFloat() }, c.whiteLevel,
             refIso, c.make, c.model)
         val packBytes = binWidths.defaultBinWidth(c.whiteLevel, c.blackLevelPattern)?.let { estimatePackBytes(c, kept, it) }
-        val allBursts = steps.flatMap { it.bursts }
+        val allBursts = steps.flatMap { it.bursts } + darkBursts
         val duration = allBursts.sumOf { it.frames * it.frameDurationNs + o.settleOverheadNs }
         val frames = allBursts.sumOf { it.frames.toLong() }
         val rowStride = (o.rowStrideBytes ?: c.rawRowStrideBytes ?: (2 * c.rawWidth)).toLong()
         val recording = if (o.recording) frames * rowStride * c.rawHeight + allBursts.size * 4096L else 0L
-        return PlanResult.Ok(CapturePlan(c, o, sensor, refIso, kept, steps, adjustments, duration, packBytes, recording))
+        return PlanResult.Ok(CapturePlan(c, o, sensor, refIso, kept, steps, adjustments, duration, packBytes, recording, darkBursts))
+    }
+
+    /**
+     * The dark step: per ISO (the reference ISO, then each kept target) one burst of
+     * [PlanOptions.darkFramesPerIso] frames at the shortest exposure that ISO has in the lit
+     * sweep, numbered from [firstIndex]. Dark shading (the per-pixel offset, k·gain + b) and the
+     * signal-independent noise are properties of the read-out at that gain, not of the exposure
+     * time, so long exposures would add time and dark current without telling the core more; the
+     * shortest exposure already in the plan is one the camera is known to apply at that ISO.
+     */
+    private fun darkStep(c: CameraCapabilities, o: PlanOptions, steps: List<EvStep>, refIso: Int, targets: List<Int>, firstIndex: Int): List<Burst> {
+        val lit = steps.flatMap { it.bursts }
+        var index = firstIndex
+        return (listOf(refIso) + targets).map { iso ->
+            val exp = lit.filter { it.iso == iso }.minOf { it.exposureNs }
+            Burst(index++, steps.size, 0.0, BurstRole.DARK, iso, exp, maxOf(exp, c.minFrameDurationNs), o.darkFramesPerIso, c.isDigitalGain(iso))
+        }
     }
 
     /**
@@ -338,6 +385,7 @@ object CapturePlanner {
         if (o.evMin > o.evMax || o.evMin.isNaN() || o.evMax.isNaN()) r += "EV range ${o.evMin}..${o.evMax} is empty; evMin must be ≤ evMax"
         if ((o.maxExposureNs ?: 1) <= 0) r += "maxExposureNs is ${o.maxExposureNs}; it must be > 0"
         if (o.settleOverheadNs < 0) r += "settleOverheadNs is ${o.settleOverheadNs}; it must be ≥ 0"
+        if (o.darkFrames && o.darkFramesPerIso < 2) r += "darkFramesPerIso is ${o.darkFramesPerIso}; at least 2 are needed (8 recommended)"
         o.targetIsos?.filter { it <= 0 }?.let { if (it.isNotEmpty()) r += "target ISOs $it must be positive" }
         return r
     }

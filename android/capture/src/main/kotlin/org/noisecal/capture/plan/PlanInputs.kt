@@ -22,6 +22,7 @@ data class PlanInputs(val cameraId: String, val options: PlanOptions) {
         append("settleOverheadNs=${options.settleOverheadNs}\n")
         append("recording=${options.recording}\n")
         append("rowStrideBytes=${options.rowStrideBytes ?: "none"}\n")
+        append("darkFrames=${options.darkFrames}\ndarkFramesPerIso=${options.darkFramesPerIso}\n")
     }
 
     fun save(file: File) {
@@ -52,6 +53,9 @@ data class PlanInputs(val cameraId: String, val options: PlanOptions) {
                         settleOverheadNs = kv.getValue("settleOverheadNs").toLong(),
                         recording = kv.getValue("recording").toBooleanStrict(),
                         rowStrideBytes = kv.getValue("rowStrideBytes").let { if (it == "none") null else it.toInt() },
+                        // Absent in inputs saved before the dark step existed: a plan without it.
+                        darkFrames = kv["darkFrames"]?.toBooleanStrict() ?: false,
+                        darkFramesPerIso = kv["darkFramesPerIso"]?.toInt() ?: PlanOptions.DEFAULT_DARK_FRAMES_PER_ISO,
                     ),
                 )
             } catch (e: NoSuchElementException) {

@@ -2,8 +2,16 @@ package org.noisecal.capture.sim
 
 import java.nio.ByteBuffer
 import java.nio.ByteOrder
+import java.util.Random
+import kotlin.math.roundToInt
+import kotlin.math.sqrt
 import org.noisecal.capture.controller.CameraDevicePort
 import org.noisecal.capture.controller.CameraEventSink
+import org.noisecal.capture.controller.CaptureController
+import org.noisecal.capture.controller.CapturePhase
+import org.noisecal.capture.controller.CaptureProgress
+import org.noisecal.capture.controller.CoverLensRequest
+import org.noisecal.capture.controller.ProgressListener
 import org.noisecal.capture.controller.FrameRequest
 import org.noisecal.capture.controller.FrameResult
 import org.noisecal.capture.controller.ImageHandle
@@ -44,6 +52,69 @@ data class SimBehaviour(
     val deathAfterFrames: Long? = null,
 )
 
+/**
+ * What the sensor sees with the lens covered: black level plus a per-pixel dark-shading offset that
+ * grows with gain (DSNU, [dsnuDn] DN at [referenceIso], fixed per pixel by [seed]) plus read noise
+ * ([readNoiseDn] at [referenceIso], ∝ √gain). No scene, whatever the exposure.
+ */
+class LensCoveredScene(
+    private val black: Int,
+    private val white: Int = 1023,
+    private val referenceIso: Int = 100,
+    private val readNoiseDn: Double = 1.5,
+    private val dsnuDn: Double = 0.4,
+    private val seed: Long = 1L,
+) : FrameSource {
+    override fun render(exposure: SimExposure): ShortArray {
+        val gain = exposure.iso.toDouble() / referenceIso
+        val pattern = Random(seed)
+        val noise = Random(seed * 7_919L + 1_000_003L * exposure.sequence)
+        return ShortArray(exposure.width * exposure.height) {
+            val dn = black + pattern.nextGaussian() * dsnuDn * gain + noise.nextGaussian() * readNoiseDn * sqrt(gain)
+            dn.roundToInt().coerceIn(0, white).toShort()
+        }
+    }
+}
+
+/** What the simulated person at the phone does when asked to cover the lens. */
+enum class LensAction {
+    /** Covers the lens, then confirms. */
+    COVER,
+    /** Confirms without covering it: the dark frames show the scene. */
+    CONFIRM_UNCOVERED,
+    /** Skips the dark step. */
+    SKIP,
+}
+
+/**
+ * The person at the phone, for host runs: answers each cover-the-lens prompt of the controller it
+ * listens to ([CapturePhase.AWAITING_LENS_COVER]) with [action] of the prompt's number (0, 1, …),
+ * covering or uncovering [port]'s lens as it says. [requests] are the prompts it saw.
+ */
+class SimulatedUser(
+    private val port: SimulatedCameraPort,
+    private val action: (prompt: Int) -> LensAction = { LensAction.COVER },
+) : ProgressListener {
+    private var controller: CaptureController? = null
+    private var last: CoverLensRequest? = null
+    val requests = mutableListOf<CoverLensRequest>()
+
+    /** Listens to [c] and answers its prompts. */
+    fun attach(c: CaptureController): SimulatedUser = apply { controller = c; c.addListener(this) }
+
+    override fun onProgress(progress: CaptureProgress) {
+        val ask = progress.coverLens ?: return
+        if (progress.phase != CapturePhase.AWAITING_LENS_COVER || ask === last) return
+        last = ask
+        val c = checkNotNull(controller) { "attach the SimulatedUser to its controller" }
+        when (action(requests.size).also { requests += ask }) {
+            LensAction.COVER -> { port.lensCovered = true; c.confirmLensCovered() }
+            LensAction.CONFIRM_UNCOVERED -> { port.lensCovered = false; c.confirmLensCovered() }
+            LensAction.SKIP -> { port.lensCovered = false; c.skipDarkFrames() }
+        }
+    }
+}
+
 /** Thrown to emulate the OS killing the app: an [Error], so the controller does not catch it. */
 class SimulatedProcessDeath(message: String) : Error(message)
 
@@ -54,6 +125,10 @@ class SimulatedProcessDeath(message: String) : Error(message)
  * It counts what a reviewer of the controller wants to know: images still open, the most ever open,
  * reader overruns (an image that found all buffers taken is dropped, as ImageReader does), and
  * buffer accesses after close (which throw, as `Image` does).
+ *
+ * [lensCovered] is the lens cap: while it is on, frames come from [coveredSource] (black level and
+ * noise, no scene) instead of [source]. Nothing in the camera interface knows about it, as on a
+ * phone; a [SimulatedUser] puts it on when the controller asks for the dark step.
  */
 class SimulatedCameraPort(
     val width: Int,
@@ -62,6 +137,7 @@ class SimulatedCameraPort(
     override val maxImages: Int = 8,
     val rowStrideBytes: Int = width * 2,
     private val behaviour: SimBehaviour = SimBehaviour(),
+    private val coveredSource: FrameSource = LensCoveredScene(black = 64),
 ) : CameraDevicePort {
     init {
         require(rowStrideBytes >= 2 * width) { "rowStrideBytes $rowStrideBytes is less than 2 × width ${2 * width}" }
@@ -82,6 +158,10 @@ class SimulatedCameraPort(
     var accessAfterClose = 0L; private set
     var requestsSubmitted = 0L; private set
     var stopped = false; private set
+    /** Whether the lens is covered (see the class doc). */
+    @Volatile var lensCovered = false
+    /** Frames rendered with the lens covered. */
+    var coveredFrames = 0L; private set
 
     override fun start(events: CameraEventSink) { this.events = events; stopped = false }
 
@@ -121,7 +201,9 @@ class SimulatedCameraPort(
 
     private fun makeImage(e: SimExposure, ts: Long): ImageHandle? {
         if (openImages >= maxImages) { readerOverruns++; return null }
-        val samples = source.render(e)
+        val covered = lensCovered
+        if (covered) coveredFrames++
+        val samples = (if (covered) coveredSource else source).render(e)
         require(samples.size == width * height) { "FrameSource returned ${samples.size} samples for a ${width}×$height frame" }
         // Last row unpadded, as on real devices: (height − 1)·rowStride + 2·width bytes.
         val buf = ByteBuffer.allocateDirect((height - 1) * rowStrideBytes + 2 * width).order(ByteOrder.LITTLE_ENDIAN)

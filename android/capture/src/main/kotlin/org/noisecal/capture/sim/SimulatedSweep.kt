@@ -74,7 +74,9 @@ class SyntheticChart(
 
 /**
  * Runs a whole plan through a [CaptureController] against a [SimulatedCameraPort] whose frames
- * come from [frames]: the host-side stand-in for a capture on a phone. Use the same [storeDir]
+ * come from [frames]: the host-side stand-in for a capture on a phone. A plan with the dark step
+ * has its cover-the-lens prompt answered per [lens] (default: the lens is covered, and the frames
+ * become black level plus noise). Use the same [storeDir]
  * again to resume after a [SimulatedProcessDeath]. Returns the outcome and the port (for its
  * counters).
  */
@@ -93,11 +95,15 @@ object SimulatedSweep {
         thermal: ThermalStatusSource = ThermalStatusSource.NONE,
         clock: Clock = Clock.SYSTEM,
         listener: ProgressListener? = null,
+        lens: (prompt: Int) -> LensAction = { LensAction.COVER },
     ): Run {
-        val port = SimulatedCameraPort(plan.sensor.width, plan.sensor.height, frames, maxImages,
-            2 * plan.sensor.width + rowPaddingBytes, behaviour)
+        val s = plan.sensor
+        val port = SimulatedCameraPort(s.width, s.height, frames, maxImages, 2 * s.width + rowPaddingBytes, behaviour,
+            LensCoveredScene(s.blackLevels.min().roundToInt(), s.whiteLevel, s.referenceIso))
         val controller = CaptureController(plan, port, sinkFactory, SessionStore(storeDir), thermal, config, clock)
         if (listener != null) controller.addListener(listener)
+        // The person at the phone answers the dark step's prompt (a plan without one never asks).
+        SimulatedUser(port, lens).attach(controller)
         return Run(controller.run(), port, controller)
     }
 

@@ -3,9 +3,11 @@ package org.noisecal.capture.sink
 import org.noisecal.capture.controller.FrameSink
 import org.noisecal.capture.controller.FrameSinkFactory
 import org.noisecal.capture.controller.IsoCoverage
+import org.noisecal.capture.controller.LensNotCoveredException
 import org.noisecal.capture.controller.RawFrame
 import org.noisecal.capture.controller.SinkProgress
 import org.noisecal.capture.plan.SensorSpec
+import org.noisecal.jni.NoisecalNotDarkException
 import org.noisecal.jni.NoisecalSession
 
 /**
@@ -18,9 +20,14 @@ class NoisecalFrameSink(val session: NoisecalSession) : FrameSink {
 
     override fun beginStep(referenceExposureNs: Long) = session.beginStep(referenceExposureNs)
 
-    override fun pushFrame(frame: RawFrame): Boolean =
+    override fun beginDark() = session.beginDark()
+
+    override fun pushFrame(frame: RawFrame): Boolean = try {
         session.pushFrame(frame.buffer, frame.width, frame.height, frame.rowStride, frame.pixelStride,
             frame.iso, frame.exposureNs, frame.blackLevels).driftNormalised
+    } catch (e: NoisecalNotDarkException) {
+        throw LensNotCoveredException(e.message ?: "the dark frame is not dark: cover the lens", e)
+    }
 
     override fun progress(): SinkProgress {
         val p = session.progress()
