@@ -3,13 +3,14 @@
 
 use std::collections::BTreeMap;
 use std::io::{Read, Seek, SeekFrom};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
+use noisecal_core::calibrate::dark::check_dark;
 use noisecal_core::calibrate::flat::Roi;
 use noisecal_core::error::{CodecError, SessionError};
 use noisecal_core::format::recording;
-use noisecal_core::{CalibrationSession, ModelPack, SensorLayout, SessionConfig};
+use noisecal_core::{CalibrationSession, FrameMeta, FrameView, ModelPack, SensorLayout, SessionConfig};
 
 use crate::source::{InputKind, Record, Source};
 use crate::support::progress_bar;
@@ -131,6 +132,7 @@ pub fn calibrate_path(
         check_roi(roi, &info.layout)?;
     }
     let is_recording = info.kind == InputKind::Recording;
+    let layout = info.layout.clone();
     let mut session = CalibrationSession::new(info.layout.clone(), config)?;
     for (&iso, np) in &info.noise_profiles {
         session.set_noise_profile(iso, *np);
@@ -138,12 +140,34 @@ pub fn calibrate_path(
     let pb = progress_bar(info.frames, quiet, "calibrating");
     let mut report = CalibrateReport { warnings: info.warnings.clone(), ..Default::default() };
     let mut reasons = Vec::new();
+    let mut in_dark = false;
+    let mut deferred: Vec<(PathBuf, FrameMeta, String)> = Vec::new();
     while let Some(record) = source.next_record()? {
         match record {
-            Record::BeginStep { reference_exposure_ns, .. } => session.begin_step(reference_exposure_ns)?,
+            Record::BeginStep { reference_exposure_ns, .. } => {
+                session.begin_step(reference_exposure_ns)?;
+                in_dark = false;
+            }
+            Record::BeginDark => {
+                session.begin_dark()?;
+                in_dark = true;
+                push_deferred(&mut session, &mut deferred, &mut report, &mut reasons);
+            }
             Record::Frame(frame) => {
                 report.frames += 1;
                 pb.inc(1);
+                // A DNG folder's frame in an EV step that is dark (lens covered) is a dark frame
+                // that happened to match a step: kept for the dark step.
+                if !in_dark
+                    && !is_recording
+                    && let Some(path) = &frame.path
+                    && frame
+                        .view()
+                        .is_ok_and(|v| check_dark(&v, &frame.meta.black_or(&layout), &layout, frame.meta.iso).is_ok())
+                {
+                    deferred.push((path.clone(), frame.meta, frame.label()));
+                    continue;
+                }
                 let pushed = frame.view().map_err(SessionError::from).and_then(|v| session.push_frame(&v, &frame.meta));
                 if let Err(e) = pushed {
                     report.rejected.push(format!("{}: {e}", frame.label()));
@@ -170,7 +194,19 @@ pub fn calibrate_path(
             }
         }
     }
+    if !deferred.is_empty() {
+        if !in_dark {
+            session.begin_dark()?;
+        }
+        push_deferred(&mut session, &mut deferred, &mut report, &mut reasons);
+    }
     pb.finish_and_clear();
+    if session.dark_frames() > 0 {
+        report.warnings.push(format!(
+            "{} dark frame(s) (lens covered, told by their content) measured the fixed pattern",
+            session.dark_frames()
+        ));
+    }
     report.rejection_reasons = summarize_rejections(&reasons);
     if !source.complete() {
         report.warnings.push(format!(
@@ -192,4 +228,25 @@ pub fn calibrate_path(
         msg
     })?;
     Ok((pack, report))
+}
+
+/// Pushes the dark frames found inside EV steps (re-read from their files, by ISO) into the
+/// session's dark step.
+fn push_deferred(
+    session: &mut CalibrationSession,
+    deferred: &mut Vec<(PathBuf, FrameMeta, String)>,
+    report: &mut CalibrateReport,
+    reasons: &mut Vec<String>,
+) {
+    deferred.sort_by(|a, b| a.1.iso.cmp(&b.1.iso).then(a.0.cmp(&b.0)));
+    for (path, meta, label) in deferred.drain(..) {
+        let pushed = crate::dng::read_dng(&path).map_err(|e| e.to_string()).and_then(|img| {
+            let v = FrameView::from_array(&img.pixels).map_err(|e| e.to_string())?;
+            session.push_frame(&v, &meta).map(|_| ()).map_err(|e| e.to_string())
+        });
+        if let Err(e) = pushed {
+            report.rejected.push(format!("{label}: {e}"));
+            reasons.push(e);
+        }
+    }
 }

@@ -53,11 +53,15 @@ pub struct DngSet {
     pub noise_profiles: BTreeMap<u32, NoiseProfile>,
     /// What grouping noticed (steps without a reference burst, …).
     pub warnings: Vec<String>,
+    /// Frames in no EV step (matching no reference burst, or a "reference burst" without
+    /// targets): dark frames among them are used as such, recognised by their content
+    /// ([`noisecal_core::calibrate::dark::check_dark`]); sorted by ISO, then file name.
+    pub dark_candidates: Vec<DngFrame>,
 }
 
 impl DngSet {
     pub fn frames(&self) -> usize {
-        self.steps.iter().map(|s| s.reference.len() + s.targets.len()).sum()
+        self.steps.iter().map(|s| s.reference.len() + s.targets.len()).sum::<usize>() + self.dark_candidates.len()
     }
 
     /// Target ISOs present.
@@ -189,6 +193,7 @@ fn group_dngs(mut heads: Vec<DngImage>, reference_iso: Option<u32>, dir: &Path) 
         .collect();
     // Target frames: the step whose ISO × exposure matches.
     let mut unmatched: Vec<String> = Vec::new();
+    let mut dark_candidates: Vec<DngFrame> = Vec::new();
     let mut ambiguous: Vec<String> = Vec::new();
     for f in targets {
         let mut d: Vec<(f64, usize)> = steps.iter().enumerate().map(|(i, s)| (s.key.offset(&f.meta), i)).collect();
@@ -201,16 +206,22 @@ fn group_dngs(mut heads: Vec<DngImage>, reference_iso: Option<u32>, dir: &Path) 
                     steps[*i].targets.push(f);
                 }
             }
-            [(r1, i), ..] => unmatched.push(format!(
-                "{} (ISO {} × {} ns = {:.4} ISO·s; nearest reference step {:.4}, off {:.1} %)",
-                f.path.display(),
-                f.meta.iso,
-                f.meta.exposure_ns,
-                f.meta.brightness(),
-                steps[*i].key.brightness(),
-                r1 * 100.0
-            )),
-            [] => unmatched.push(format!("{} (no reference burst at all)", f.path.display())),
+            [(r1, i), ..] => {
+                unmatched.push(format!(
+                    "{} (ISO {} × {} ns = {:.4} ISO·s; nearest reference step {:.4}, off {:.1} %)",
+                    f.path.display(),
+                    f.meta.iso,
+                    f.meta.exposure_ns,
+                    f.meta.brightness(),
+                    steps[*i].key.brightness(),
+                    r1 * 100.0
+                ));
+                dark_candidates.push(f);
+            }
+            [] => {
+                unmatched.push(format!("{} (no reference burst at all)", f.path.display()));
+                dark_candidates.push(f);
+            }
         }
     }
     let list = |v: &[String]| {
@@ -222,7 +233,7 @@ fn group_dngs(mut heads: Vec<DngImage>, reference_iso: Option<u32>, dir: &Path) 
     };
     if !unmatched.is_empty() {
         warnings.push(format!(
-            "{} target frame(s) match no reference burst within {:.0} % in ISO × exposure and are left out (capture a reference burst at ISO {reference_iso} with the same ISO × exposure): {}",
+            "{} target frame(s) match no reference burst within {:.0} % in ISO × exposure and are left out unless they are dark frames (lens covered, told by their content; otherwise capture a reference burst at ISO {reference_iso} with the same ISO × exposure): {}",
             unmatched.len(),
             STEP_TOLERANCE * 100.0,
             list(&unmatched)
@@ -239,18 +250,21 @@ fn group_dngs(mut heads: Vec<DngImage>, reference_iso: Option<u32>, dir: &Path) 
         s.targets.sort_by(|a, b| a.meta.iso.cmp(&b.meta.iso).then(a.path.cmp(&b.path)));
         if s.targets.is_empty() {
             warnings.push(format!(
-                "EV step with reference exposure {} ns has no target frames: it adds nothing",
+                "EV step with reference exposure {} ns has no target frames: it adds nothing (unless its frames are dark frames, lens covered, told by their content)",
                 s.key.reference_exposure_ns
             ));
+            dark_candidates.append(&mut s.reference);
         }
     }
+    steps.retain(|s| !s.targets.is_empty());
+    dark_candidates.sort_by(|a, b| a.meta.iso.cmp(&b.meta.iso).then(a.path.cmp(&b.path)));
     if steps.iter().all(|s| s.targets.is_empty()) {
         bail!(
             "{}: no EV step has both a reference burst (ISO {reference_iso}) and target frames at a higher ISO",
             dir.display()
         );
     }
-    Ok(DngSet { layout, make, model, reference_iso, steps, noise_profiles, warnings })
+    Ok(DngSet { layout, make, model, reference_iso, steps, noise_profiles, warnings, dark_candidates })
 }
 
 /// ISOs within this factor of each other are one setting reported with rounding (some devices

@@ -21,6 +21,8 @@ pub struct SimSession {
     /// Added to every frame index: a held-out session of the same sensor (same seed) gets fresh
     /// noise by starting at another index.
     pub index_offset: u64,
+    /// Dark frames (lens covered) per ISO, written after the lit frames (a recording's dark step).
+    pub dark_frames: u32,
 }
 
 /// Sensor presets by bit depth.
@@ -82,7 +84,7 @@ impl SimSession {
     /// A session from a simulator and a plan (frame indices start at 0).
     pub fn from_parts(sim: Simulator, plan: SessionPlan, name: &str) -> anyhow::Result<Self> {
         plan.validate()?;
-        Ok(Self { sim, plan, make: "noisecal".into(), model: name.into(), index_offset: 0 })
+        Ok(Self { sim, plan, make: "noisecal".into(), model: name.into(), index_offset: 0, dark_frames: 0 })
     }
 
     /// The session `spec` of a random-family sensor with noise seed `seed`: its calibration
@@ -117,7 +119,22 @@ impl SimSession {
         let sim = Simulator::new(model, chart, seed)?;
         let plan = SessionPlan::for_simulator(&sim, target_isos, frames_per_burst)?.with_ev_steps(ev_steps);
         plan.validate()?;
-        Ok(Self { sim, plan, make: "noisecal".into(), model: name.into(), index_offset: 0 })
+        Ok(Self { sim, plan, make: "noisecal".into(), model: name.into(), index_offset: 0, dark_frames: 0 })
+    }
+
+    /// Each ISO of the plan with the shortest exposure it uses there: the dark step's settings.
+    pub fn dark_settings(&self) -> Vec<(u32, u64)> {
+        let mut by_iso: std::collections::BTreeMap<u32, u64> = std::collections::BTreeMap::new();
+        for f in self.plan.frames() {
+            let e = by_iso.entry(f.iso).or_insert(f.exposure_ns);
+            *e = (*e).min(f.exposure_ns);
+        }
+        by_iso.into_iter().collect()
+    }
+
+    /// Frames the session writes, dark frames included.
+    pub fn frames(&self) -> usize {
+        self.plan.len() + self.dark_settings().len() * self.dark_frames as usize
     }
 
     /// Writes the session: DNGs named by capture index into `dngs`, and/or a recording with
@@ -175,6 +192,31 @@ impl SimSession {
                     w.frame(&meta, layout.width, layout.height, stride as u32, 2, &bytes)?;
                 }
                 tick();
+            }
+        }
+        // Dark frames (lens covered) last: per ISO of the plan, at the shortest exposure it uses.
+        if self.dark_frames > 0 {
+            if let Some(w) = writer.as_mut() {
+                w.begin_dark()?;
+            }
+            let mut index = frames.iter().map(|f| f.index + 1).max().unwrap_or(0);
+            for (iso, exposure_ns) in self.dark_settings() {
+                let caps: Vec<_> = (0..self.dark_frames as u64)
+                    .into_par_iter()
+                    .map(|i| self.sim.capture_dark(iso, exposure_ns, i + self.index_offset))
+                    .collect::<Result<Vec<_>, _>>()?;
+                for (pixels, meta) in caps {
+                    if let Some(d) = dngs {
+                        let path = d.join(format!("f{index:05}.dng"));
+                        dng::write_dng_from_layout(&path, &layout, &meta, &self.make, &self.model, &pixels)?;
+                    }
+                    if let Some(w) = writer.as_mut() {
+                        let bytes = noisecal_sim::to_padded_le_bytes(&pixels, stride);
+                        w.frame(&meta, layout.width, layout.height, stride as u32, 2, &bytes)?;
+                    }
+                    index += 1;
+                    tick();
+                }
             }
         }
         if let Some(w) = writer {

@@ -4,7 +4,8 @@
 //! were written). Calibration, evaluation and the demo read captures through it.
 //!
 //! ```text
-//! Source::open(path) ─ info() ─ next() → BeginStep, Frame, Frame, …, NoiseProfile, BeginStep, …
+//! Source::open(path) ─ info() ─ next() → BeginStep, Frame, Frame, …, NoiseProfile, BeginStep, …,
+//!                                          BeginDark, Frame, …
 //! ```
 
 use std::collections::{BTreeMap, VecDeque};
@@ -90,6 +91,9 @@ pub enum Record {
         iso: u32,
         profile: NoiseProfile,
     },
+    /// A dark step begins: the frames up to the next [`Record::BeginStep`] are dark frames (lens
+    /// covered): a recording's BeginDark record, or a DNG folder's frames in no EV step, last.
+    BeginDark,
     /// The recording ends inside a record (an interrupted capture): nothing follows.
     CutShort(CodecError),
 }
@@ -177,7 +181,15 @@ impl Source {
             warnings: set.warnings.clone(),
             frames: set.frames() as u64,
         };
-        let stream = DngStream { steps: set.steps, step: 0, begun: false, next: 0, read: VecDeque::new(), frames: 0 };
+        let stream = DngStream {
+            steps: set.steps,
+            dark: set.dark_candidates,
+            step: 0,
+            begun: false,
+            next: 0,
+            read: VecDeque::new(),
+            frames: 0,
+        };
         Ok(Self { info, stream: Stream::Dngs(stream) })
     }
 
@@ -243,6 +255,8 @@ impl Source {
 #[derive(Debug)]
 struct DngStream {
     steps: Vec<DngStep>,
+    /// Frames in no EV step, offered as dark frames after the steps.
+    dark: Vec<DngFrame>,
     step: usize,
     begun: bool,
     /// Next frame of the step to read (reference frames, then targets).
@@ -254,7 +268,7 @@ struct DngStream {
 impl DngStream {
     fn next_record(&mut self) -> anyhow::Result<Option<Record>> {
         loop {
-            let Some(step) = self.steps.get(self.step) else { return Ok(None) };
+            let Some(step) = self.steps.get(self.step) else { return self.next_dark() };
             if !self.begun {
                 self.begun = true;
                 self.next = 0;
@@ -291,8 +305,42 @@ impl DngStream {
         }
     }
 
+    /// After the steps: BeginDark, then the frames in no step.
+    fn next_dark(&mut self) -> anyhow::Result<Option<Record>> {
+        if self.dark.is_empty() {
+            return Ok(None);
+        }
+        if !self.begun {
+            self.begun = true;
+            self.next = 0;
+            return Ok(Some(Record::BeginDark));
+        }
+        if self.read.is_empty() && self.next < self.dark.len() {
+            let end = (self.next + (rayon::current_num_threads() * 2).max(2)).min(self.dark.len());
+            let group = &self.dark[self.next..end];
+            let imgs: Vec<Result<DngImage, dng::DngError>> =
+                group.par_iter().map(|fr| dng::read_dng(&fr.path)).collect();
+            self.read.extend(group.iter().cloned().zip(imgs));
+            self.next = end;
+        }
+        let Some((fr, img)) = self.read.pop_front() else { return Ok(None) };
+        let img = img?;
+        let index = self.frames;
+        self.frames += 1;
+        Ok(Some(Record::Frame(Frame {
+            index,
+            meta: fr.meta,
+            path: Some(fr.path),
+            pixels: Pixels::Decoded(img.pixels),
+        })))
+    }
+
     fn skip_step(&mut self) {
         self.read.clear();
+        if self.step >= self.steps.len() {
+            self.dark.clear();
+            return;
+        }
         if self.begun {
             self.step += 1;
             self.begun = false;
@@ -342,6 +390,10 @@ impl RecordingStream {
                 }
                 recording::Record::NoiseProfile { iso, profile } => {
                     return Ok(Some(Record::NoiseProfile { iso, profile }));
+                }
+                recording::Record::BeginDark => {
+                    self.skipping = false;
+                    return Ok(Some(Record::BeginDark));
                 }
                 recording::Record::End { .. } => {}
             }

@@ -209,6 +209,7 @@ fn rewrite(src: &[u8], make: &str, shrink: bool) -> Vec<u8> {
                 w.frame(&f.meta, f.width, f.height, f.row_stride, f.pixel_stride, &f.data).expect("frame")
             }
             Record::NoiseProfile { iso, profile } => w.noise_profile(iso, &profile).expect("profile"),
+            Record::BeginDark => w.begin_dark().expect("dark"),
             Record::End { .. } => {}
         }
     }

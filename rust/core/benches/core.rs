@@ -165,6 +165,7 @@ fn benches(c: &mut Criterion) {
             columns: [None, None],
             frames: Some(frames.clone()),
             frames_used: 32,
+            fpn: None,
         })
         .collect();
     let structured = IsoSampler::new(&spack, &spack.isos[0]);

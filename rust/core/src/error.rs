@@ -79,6 +79,10 @@ pub enum SessionError {
         "the reference burst of this EV step has no flat pixels: the chart is out of focus or moving, or the region of interest is empty"
     )]
     NoFlatPixels,
+    #[error(
+        "dark frame at ISO {iso} is not dark: {why}. Dark frames need the lens covered (an opaque cap, or a finger under a dark cloth, no light leaks); cover it and capture the dark step again, or skip the dark step"
+    )]
+    NotDark { iso: u32, why: String },
     #[error(transparent)]
     Codec(#[from] CodecError),
 }

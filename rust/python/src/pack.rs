@@ -55,7 +55,7 @@ impl Pack {
     }
 }
 
-/// `None` → every calibrated component; else a comma-separated list (`"pixel,row,column,frame"`).
+/// `None` → every calibrated component; else a comma-separated list (`"pixel,row,column,frame,fpn"`).
 fn parse_components(which: Option<&str>) -> PyResult<Components> {
     match which {
         None => Ok(Components::ALL),
@@ -229,7 +229,7 @@ impl Pack {
 
     /// Adds noise at `iso` to clean raw images (uint16 DN, black included), `(H, W)` or
     /// `(N, H, W)`; image `i` of a batch uses seed `seed + i`, as a folder run of `noisecal synth`.
-    /// `components` chooses the noise components (`"pixel,row,column,frame"`; default: all the
+    /// `components` chooses the noise components (`"pixel,row,column,frame,fpn"`; default: all the
     /// pack calibrated), as `noisecal synth --components`.
     #[pyo3(signature = (clean, iso, seed=0, *, model="noisecal", black_level=None, cfa_origin=(0, 0), extrapolate=false, components=None))]
     #[allow(clippy::too_many_arguments)]

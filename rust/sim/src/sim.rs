@@ -78,6 +78,8 @@ pub struct Simulator {
 const FRAME_OFFSET_STREAM: u64 = u64::MAX;
 /// Stream of a frame's column noise.
 const COLUMN_STREAM: u64 = u64::MAX - 1;
+/// Dark frames draw their noise from frame indices with this bit set (no lit frame has it).
+const DARK_FRAMES: u64 = 1 << 62;
 
 impl Simulator {
     /// A simulator for `model` looking at `chart` (the chart's size is the frame size). `seed`
@@ -333,6 +335,28 @@ impl Simulator {
     /// One raw frame at `iso` and `exposure_ns`; `frame_index` tells frames of a burst apart.
     /// Returns the frame (`height × width`, row-major) and what the camera reports for it.
     pub fn capture(&self, iso: u32, exposure_ns: u64, frame_index: u64) -> Result<(Array2<u16>, FrameMeta), SimError> {
+        self.capture_with(iso, exposure_ns, frame_index, true)
+    }
+
+    /// One dark frame (lens covered: no light reaches the sensor; every other effect — DSNU,
+    /// row, column and frame offsets, read noise — as in [`Self::capture`]), with noise of its
+    /// own (a frame index of the dark stream).
+    pub fn capture_dark(
+        &self,
+        iso: u32,
+        exposure_ns: u64,
+        frame_index: u64,
+    ) -> Result<(Array2<u16>, FrameMeta), SimError> {
+        self.capture_with(iso, exposure_ns, frame_index ^ DARK_FRAMES, false)
+    }
+
+    fn capture_with(
+        &self,
+        iso: u32,
+        exposure_ns: u64,
+        frame_index: u64,
+        lit: bool,
+    ) -> Result<(Array2<u16>, FrameMeta), SimError> {
         let s = self.check(iso, exposure_ns)?;
         let chains = self.chains(&s);
         let fx = self.frame_effects(iso, exposure_ns, frame_index);
@@ -353,7 +377,9 @@ impl Simulator {
             |rates, (y, row)| {
                 let mut rng = Self::stream(key, y as u64 + 1);
                 let ry = (y & 1) * 2;
-                prepared.row_rates(y, [colors[ry], colors[ry + 1]], rates);
+                if lit {
+                    prepared.row_rates(y, [colors[ry], colors[ry + 1]], rates);
+                }
                 let row_off = s.row_noise_dn * row_shape.sample_unit(&mut rng);
                 for (x, out) in row.iter_mut().enumerate() {
                     let lambda = rates[x] as f64 * t * self.prnu_gain(y, x) as f64;

@@ -62,6 +62,17 @@ struct ComponentSummary {
     added: bool,
 }
 
+/// The fixed pattern of one ISO: its SD (DN, pixels and shading), the shading's part, the dark
+/// frames' temporal SD (signal-independent noise at black), and whether synthesis adds it.
+#[derive(Serialize)]
+struct PatternSummary {
+    sd: f64,
+    shading_sd: f64,
+    temporal_sd: f64,
+    dark_frames: u32,
+    added: bool,
+}
+
 #[derive(Serialize)]
 struct StructureSummary {
     /// Per row parity.
@@ -72,6 +83,9 @@ struct StructureSummary {
     frames: Option<[ComponentSummary; POSITIONS]>,
     /// Target frames in bursts of two or more (what the offsets were measured on).
     frames_used: u64,
+    /// The fixed pattern (dark frames), when measured.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    fpn: Option<PatternSummary>,
     /// Whether the offsets were derived from other ISOs' (interpolated or extrapolated).
     derived: bool,
 }
@@ -92,6 +106,13 @@ fn structure_summary(p: &ModelPack, iso: u32) -> Option<StructureSummary> {
             })
         }),
         frames_used: st.frames_used,
+        fpn: st.fpn.as_ref().map(|f| PatternSummary {
+            sd: f.sd(),
+            shading_sd: ((0..POSITIONS).map(|p| f.shading_var(p)).sum::<f64>() / POSITIONS as f64).sqrt(),
+            temporal_sd: (f.temporal_var.iter().sum::<f64>() / POSITIONS as f64).sqrt(),
+            dark_frames: f.frames,
+            added: f.significant,
+        }),
         derived: stored.is_none() || p.iso(iso).is_some_and(|m| !m.is_calibrated()),
     })
 }
@@ -242,8 +263,8 @@ fn render_text(path: &std::path::Path, pack: &ModelPack, s: &PackSummary) -> Str
         );
         let _ = writeln!(
             o,
-            "  {:>6}  {:<17} {:<17} {:<35} {:>6}",
-            "ISO", "rows (even, odd)", "columns", "frame offsets per position", "frames"
+            "  {:>6}  {:<17} {:<17} {:<35} {:>6}  {:<24}",
+            "ISO", "rows (even, odd)", "columns", "frame offsets per position", "frames", "fixed pattern (shading)"
         );
         let c = |x: &Option<ComponentSummary>| match x {
             Some(c) => format!("{:.3}{}", c.sd, if c.added { "*" } else { "" }),
@@ -259,14 +280,19 @@ fn render_text(path: &std::path::Path, pack: &ModelPack, s: &PackSummary) -> Str
                     .join(" "),
                 None => "-".into(),
             };
+            let fpn = match &st.fpn {
+                Some(f) => format!("{:.3}{} ({:.3})", f.sd, if f.added { "*" } else { "" }, f.shading_sd),
+                None => "-".into(),
+            };
             let _ = writeln!(
                 o,
-                "  {:>6}  {:<17} {:<17} {:<35} {:>6}{}",
+                "  {:>6}  {:<17} {:<17} {:<35} {:>6}  {:<24}{}",
                 iso.iso,
                 format!("{} {}", c(&st.rows[0]), c(&st.rows[1])),
                 format!("{} {}", c(&st.columns[0]), c(&st.columns[1])),
                 frames,
                 st.frames_used,
+                fpn,
                 if st.derived { "  (derived from calibrated ISOs)" } else { "" }
             );
         }

@@ -72,6 +72,10 @@ pub struct Args {
     /// parts grow with the analog gain. No column noise. The values are printed unless --quiet.
     #[arg(long)]
     pub structured: bool,
+    /// Dark frames (lens covered) per ISO, after the lit frames, at the shortest exposure each ISO
+    /// uses: the optional dark step that measures the fixed pattern. 0 = none.
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=256))]
+    pub dark: u32,
 }
 
 pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
@@ -142,11 +146,12 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         }
     };
     s.index_offset += args.index_offset;
-    let pb = progress_bar(s.plan.len() as u64, quiet, "simulating");
+    s.dark_frames = args.dark;
+    let pb = progress_bar(s.frames() as u64, quiet, "simulating");
     s.write(args.dngs.as_deref(), args.rec.as_deref(), args.padding, || pb.inc(1))?;
     pb.finish_and_clear();
     if !quiet {
-        eprintln!("{} frames simulated ({}×{}, {})", s.plan.len(), s.sim.width(), s.sim.height(), s.model);
+        eprintln!("{} frames simulated ({}×{}, {})", s.frames(), s.sim.width(), s.sim.height(), s.model);
     }
     Ok(())
 }

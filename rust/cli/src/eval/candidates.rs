@@ -114,7 +114,8 @@ pub(super) fn candidates(
         origin,
         // The parametric baselines are pixel-independent models: no structured components.
         sampler: match kind {
-            CandidateKind::Noisecal => IsoSampler::new(pack, m),
+            // Held-out clean images are means of this sensor's frames: they carry its pattern.
+            CandidateKind::Noisecal => IsoSampler::with_components(pack, m, Components::ON_OWN_CAPTURES),
             _ => IsoSampler::with_components(pack, m, Components::PIXEL),
         },
         synth: (0..seeds).map(|_| fresh()).collect(),

@@ -126,6 +126,15 @@ pub fn stream_heldout(
                 visitor.noise_profile(iso, profile);
                 continue;
             }
+            // Dark frames hold no scene to evaluate against.
+            Record::BeginDark => {
+                if let Some(mut st) = step.take() {
+                    flush(&mut st, visitor)?;
+                    visitor.end_step()?;
+                }
+                source.skip_step();
+                continue;
+            }
             Record::CutShort(e) => return Err(anyhow::Error::new(e).context(format!("reading {}", path.display()))),
             Record::Frame(f) => f,
         };

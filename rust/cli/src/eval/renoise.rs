@@ -74,7 +74,11 @@ impl RenoiseScoring {
         Ok(Self {
             from: a,
             to: b,
-            direct: IsoSampler::new(pack, &dst),
+            direct: IsoSampler::with_components(
+                pack,
+                &dst,
+                noisecal_core::model::structure::Components::ON_OWN_CAPTURES,
+            ),
             synth: (0..=renoisers.len()).map(|_| (0..seeds).map(|_| fresh()).collect()).collect(),
             renoisers,
             real: fresh(),

@@ -3,15 +3,21 @@
 //! gain ratios and their warnings, then the pack's self-check.
 
 use crate::calibrate::codes::{detect, output_range};
+use crate::calibrate::dark::difference;
 use crate::calibrate::estimate::{BinLevels, Pooling, estimate_position};
 use crate::calibrate::session::CalibrationSession;
 use crate::error::SessionError;
 use crate::model::check::self_check;
 use crate::model::layout::POSITIONS;
 use crate::model::pack::{IsoModel, ModelOrigin, ModelPack, PositionModel};
+use crate::model::structure::{FixedPattern, IsoStructure};
 
 /// Measured noise variance (DN²) below which an ISO has no noise at all.
 pub const NO_NOISE_VARIANCE: f64 = 1e-3;
+
+/// A fixed pattern whose variance is below this share of the ISO's lowest pixel variance is not
+/// added at synthesis.
+pub const PATTERN_RELEVANCE: f64 = 0.01;
 
 /// A gain ratio further than this from 1 is reported prominently: more likely a capture problem
 /// than a sensor property.
@@ -147,8 +153,88 @@ impl CalibrationSession {
             isos,
             warnings,
         };
+        if !self.config.plain {
+            self.attach_patterns(&mut pack);
+        }
         let checks = self_check(&pack);
         pack.warnings.extend(checks.into_iter().map(|c| c.to_string()));
         Ok(pack)
+    }
+}
+
+impl CalibrationSession {
+    /// Every ISO's fixed pattern, the dark burst in progress included.
+    fn all_patterns(&self) -> std::collections::BTreeMap<u32, FixedPattern> {
+        let mut patterns = self.patterns.clone();
+        let reference = match self.open_dark() {
+            Some(b) if b.iso == self.config.reference_iso => b.pattern_map(&self.layout.black),
+            _ => self.reference_pattern.clone(),
+        };
+        if let Some(burst) = self.open_dark()
+            && let Some(fp) = burst.close(&self.layout.black, reference.as_ref())
+            && patterns.get(&burst.iso).is_none_or(|old| old.frames < fp.frames)
+        {
+            patterns.insert(burst.iso, fp);
+        }
+        patterns
+    }
+
+    /// Gives each calibrated ISO with dark frames its fixed pattern: significant when it stands
+    /// clear of its sampling noise and is at least [`PATTERN_RELEVANCE`] of the pixel variance;
+    /// what the pixel PMFs already hold of it is the pattern's change from the reference ISO's
+    /// (the clean images are means of reference frames, which carry that one): measured pixel by
+    /// pixel when the reference ISO's dark burst came before, else derived from the two
+    /// distributions.
+    fn attach_patterns(&self, pack: &mut ModelPack) {
+        let patterns = self.all_patterns();
+        let reference = patterns.get(&self.config.reference_iso).cloned();
+        if !patterns.is_empty() && reference.is_none() {
+            pack.warnings.push(format!(
+                "no dark frames at the reference ISO {}: the pixel PMFs are taken to hold each ISO's whole fixed pattern (capture the dark step at every ISO, the reference included)",
+                self.config.reference_iso
+            ));
+        }
+        for (&iso, fp) in &patterns {
+            let Some(model) = pack.iso(iso) else {
+                if iso == self.config.reference_iso {
+                    continue; // the reference for the others' (above); no model of its own
+                }
+                pack.warnings.push(format!(
+                    "dark frames at ISO {iso}, which has no target frames: its fixed pattern is not used"
+                ));
+                continue;
+            };
+            let pixel_var = model
+                .positions
+                .iter()
+                .flat_map(|pm| &pm.bins)
+                .filter(|b| b.samples > 0 && !b.clipped)
+                .filter_map(|b| b.measured.map(|[_, v]| v))
+                .fold(f64::INFINITY, f64::min);
+            let pixel_var = if pixel_var.is_finite() { pixel_var } else { 0.0 };
+            let mut fp = fp.clone();
+            let n = fp.frames.max(2) as f64;
+            let mut own = 0.0;
+            let mut se = 0.0;
+            for p in 0..POSITIONS {
+                let d = &fp.pixels[p];
+                let count = d.count.max(1) as f64;
+                own += fp.variance(p) / POSITIONS as f64;
+                se += (d.measured_var * (2.0 / count).sqrt() + d.sampling_var * (2.0 / (count * (n - 1.0))).sqrt())
+                    / POSITIONS as f64;
+            }
+            fp.significant = own > 3.0 * se && own >= PATTERN_RELEVANCE * pixel_var && own > 1e-6;
+            for p in 0..POSITIONS {
+                fp.pixels[p].significant = fp.significant;
+                // Measured pixel by pixel against the reference's map when that came first;
+                // else the two patterns coupled through one uniform per pixel.
+                if fp.in_pixel_noise[p].count == 0 {
+                    fp.in_pixel_noise[p] = difference(&fp, reference.as_ref(), p);
+                }
+            }
+            let mut st = pack.structure_of(iso).cloned().unwrap_or_else(|| IsoStructure::empty(iso));
+            st.fpn = Some(fp);
+            pack.insert_structure(st);
+        }
     }
 }

@@ -9,10 +9,12 @@
 //! - [`flat`], [`drift`], [`deselect`]: the flat test, frame brightness, and the clean image's
 //!   own error.
 //! - [`estimate`]: histograms → per-bin PMFs; [`codes`]: the codes a sensor writes.
+//! - [`dark`]: dark (lens-covered) frames → the fixed pattern per ISO.
 
 pub(crate) mod accumulate;
 mod assemble;
 pub(crate) mod codes;
+pub mod dark;
 pub(crate) mod deselect;
 pub(crate) mod drift;
 pub mod estimate;

@@ -12,6 +12,7 @@ use std::collections::BTreeMap;
 use serde::{Deserialize, Serialize};
 
 use crate::calibrate::accumulate::IsoAccumulator;
+use crate::calibrate::dark::{DarkBurst, ReferencePattern, check_dark};
 use crate::calibrate::drift::{DriftPolicy, DriftTracker, DriftVerdict, Transform, brightness_sums, clip_level};
 use crate::calibrate::flat::{FlatReport, Roi};
 use crate::calibrate::frame::FrameView;
@@ -23,10 +24,11 @@ use crate::format::codec;
 use crate::model::histogram::NoiseHistogram;
 use crate::model::layout::{Binning, POSITIONS, SensorLayout};
 use crate::model::pack::NoiseProfile;
+use crate::model::structure::FixedPattern;
 
 pub const CHECKPOINT_MAGIC: &[u8; 8] = b"NCALCKPT";
-/// Version 3 adds the structured-noise sums.
-pub const CHECKPOINT_VERSION: u16 = 3;
+/// Version 3 adds the structured-noise sums; version 4 the dark frames.
+pub const CHECKPOINT_VERSION: u16 = 4;
 
 /// How a session calibrates.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -119,6 +121,8 @@ pub struct FrameReport {
 pub enum FrameKind {
     Reference,
     Target,
+    /// A dark (lens-covered) frame ([`CalibrationSession::begin_dark`]).
+    Dark,
 }
 
 /// Progress of one ISO.
@@ -158,6 +162,14 @@ pub struct CalibrationSession {
     drift_frames: u64,
     pub(super) events: Vec<String>,
     pub(super) noise_profiles: BTreeMap<u32, NoiseProfile>,
+    /// In a dark step ([`Self::begin_dark`]): the burst being summed (one ISO at a time).
+    dark: Option<Option<DarkBurst>>,
+    /// The fixed pattern of each ISO with dark frames.
+    pub(super) patterns: BTreeMap<u32, FixedPattern>,
+    /// The reference ISO's dark pattern, pixel by pixel (O(pixels)): the other ISOs' patterns
+    /// are compared with it to know what their pixel PMFs hold.
+    pub(super) reference_pattern: Option<ReferencePattern>,
+    dark_frames: u64,
 }
 
 impl CalibrationSession {
@@ -181,6 +193,10 @@ impl CalibrationSession {
             drift_frames: 0,
             events: Vec::new(),
             noise_profiles: BTreeMap::new(),
+            dark: None,
+            patterns: BTreeMap::new(),
+            reference_pattern: None,
+            dark_frames: 0,
         })
     }
 
@@ -212,6 +228,7 @@ impl CalibrationSession {
         if reference_exposure_ns == 0 {
             return Err(SessionError::Metadata("reference exposure is 0 ns".into()));
         }
+        self.end_dark();
         self.step = Some(Step {
             index: self.steps,
             reference_exposure_ns,
@@ -219,6 +236,80 @@ impl CalibrationSession {
         });
         self.steps += 1;
         Ok(())
+    }
+
+    /// Begins a dark step: the lens is covered, and every frame until the next
+    /// [`begin_step`](Self::begin_step) or `begin_dark` is a dark frame of the ISO its metadata
+    /// reports (bursts of several ISOs one after the other; each frame is checked to be dark).
+    /// Dark frames give each ISO its fixed pattern (method.md, "Fixed pattern"). The EV step in
+    /// progress ends.
+    pub fn begin_dark(&mut self) -> Result<(), SessionError> {
+        self.end_dark();
+        self.step = None;
+        self.dark = Some(None);
+        Ok(())
+    }
+
+    /// Closes the dark burst in progress into its ISO's pattern (a burst of more frames than one
+    /// already measured at that ISO replaces it).
+    fn end_dark(&mut self) {
+        if let Some(Some(burst)) = self.dark.take() {
+            self.close_dark(burst);
+        }
+    }
+
+    fn close_dark(&mut self, burst: DarkBurst) {
+        if burst.iso == self.config.reference_iso
+            && self.reference_pattern.as_ref().is_none_or(|r| {
+                r.iso != burst.iso || self.patterns.get(&burst.iso).is_none_or(|p| p.frames < burst.frames())
+            })
+        {
+            self.reference_pattern = burst.pattern_map(&self.layout.black);
+        }
+        let Some(fp) = burst.close(&self.layout.black, self.reference_pattern.as_ref()) else {
+            self.note(format!("dark burst at ISO {} has fewer than 2 frames: no fixed pattern measured", burst.iso));
+            return;
+        };
+        let better = self.patterns.get(&burst.iso).is_none_or(|old| old.frames < fp.frames);
+        if better {
+            self.note(format!(
+                "dark burst at ISO {}: {} frames, pattern SD {:.3} DN, temporal SD {:.3} DN",
+                burst.iso,
+                fp.frames,
+                fp.sd(),
+                (fp.temporal_var.iter().sum::<f64>() / POSITIONS as f64).sqrt()
+            ));
+            self.patterns.insert(burst.iso, fp);
+        }
+    }
+
+    fn push_dark(&mut self, frame: &FrameView<'_>, meta: &FrameMeta) -> Result<FrameReport, SessionError> {
+        let black = meta.black_or(&self.layout);
+        check_dark(frame, &black, &self.layout, meta.iso)?;
+        let open = match self.dark.as_mut() {
+            Some(slot) => slot.as_ref().map(|b| b.iso),
+            None => return Err(SessionError::NoStep),
+        };
+        if open.is_some_and(|iso| iso != meta.iso) {
+            self.end_dark();
+            self.dark = Some(None);
+        }
+        let layout = self.layout.clone();
+        let slot = self.dark.as_mut().ok_or(SessionError::NoStep)?;
+        let burst = slot.get_or_insert_with(|| DarkBurst::new(&layout, meta.iso));
+        burst.push(frame, &black)?;
+        self.dark_frames += 1;
+        Ok(FrameReport { kind: FrameKind::Dark, departure: 0.0, drift_normalised: false, samples: 0 })
+    }
+
+    /// The dark burst in progress.
+    pub(super) fn open_dark(&self) -> Option<&DarkBurst> {
+        self.dark.as_ref().and_then(Option::as_ref)
+    }
+
+    /// Dark frames accepted so far.
+    pub fn dark_frames(&self) -> u64 {
+        self.dark_frames
     }
 
     /// Folds one frame in. On error the session is unchanged (apart from the rejected count).
@@ -241,6 +332,9 @@ impl CalibrationSession {
         let reference = self.config.reference_iso;
         if meta.iso < reference {
             return Err(SessionError::BelowReference { iso: meta.iso, reference });
+        }
+        if self.dark.is_some() {
+            return self.push_dark(frame, meta);
         }
         let step = self.step.as_ref().ok_or(SessionError::NoStep)?;
         let key = StepKey::new(reference, step.reference_exposure_ns);

@@ -336,7 +336,7 @@ impl StructureAccumulator {
             });
             FrameOffsets { offsets, measured_var, sampling_var, significant }
         });
-        IsoStructure { iso, rows, columns, frames, frames_used: acc.frames_used }
+        IsoStructure { iso, rows, columns, frames, frames_used: acc.frames_used, fpn: None }
     }
 }
 

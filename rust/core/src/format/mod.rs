@@ -6,5 +6,6 @@
 pub(crate) mod codec;
 pub(crate) mod pack_v1;
 pub(crate) mod pack_v2;
+pub(crate) mod pack_v3;
 pub mod recording;
 pub mod replay;

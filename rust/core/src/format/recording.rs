@@ -13,6 +13,7 @@
 //!   2 Frame        iso u32, exposure_ns u64, has_black u8, black f32×4, width u32, height u32,
 //!                  row_stride u32, pixel_stride u32, data_len u32, data
 //!   3 NoiseProfile iso u32, (S, O) f64 × 4 positions
+//!   4 BeginDark    (no payload: the frames up to the next BeginStep are dark frames)
 //!   255 End        frames u64
 //! ```
 //! A recording without an End record (an interrupted capture) reads up to its last whole record.
@@ -90,6 +91,7 @@ pub enum RecordTag {
     BeginStep = 1,
     Frame = 2,
     NoiseProfile = 3,
+    BeginDark = 4,
     End = 255,
 }
 
@@ -99,6 +101,7 @@ impl RecordTag {
             1 => Self::BeginStep,
             2 => Self::Frame,
             3 => Self::NoiseProfile,
+            4 => Self::BeginDark,
             255 => Self::End,
             _ => return None,
         })
@@ -110,6 +113,7 @@ impl RecordTag {
             Self::BeginStep | Self::End => 8,
             Self::Frame => FRAME_FIXED,
             Self::NoiseProfile => 4 + 16 * POSITIONS,
+            Self::BeginDark => 0,
         }
     }
 }
@@ -123,6 +127,7 @@ pub enum Record {
     BeginStep { exposure_ns: u64 },
     Frame(RecordedFrame),
     NoiseProfile { iso: u32, profile: NoiseProfile },
+    BeginDark,
     End { frames: u64 },
 }
 
@@ -132,6 +137,7 @@ impl Record {
             Self::BeginStep { .. } => RecordTag::BeginStep,
             Self::Frame(_) => RecordTag::Frame,
             Self::NoiseProfile { .. } => RecordTag::NoiseProfile,
+            Self::BeginDark => RecordTag::BeginDark,
             Self::End { .. } => RecordTag::End,
         }
     }
@@ -246,6 +252,11 @@ impl<W: Write> RecordingWriter<W> {
 
     pub fn begin_step(&mut self, exposure_ns: u64) -> io::Result<()> {
         self.record(RecordTag::BeginStep, &[&exposure_ns.to_le_bytes()])
+    }
+
+    /// Records the start of a dark (lens-covered) step.
+    pub fn begin_dark(&mut self) -> io::Result<()> {
+        self.record(RecordTag::BeginDark, &[])
     }
 
     /// Records a frame exactly as handed over: `data` is the plane's bytes from its start,
@@ -371,6 +382,7 @@ fn decode_fixed(tag: RecordTag, p: &[u8], index: u64) -> Result<Fixed, CodecErro
     Ok(match tag {
         RecordTag::BeginStep => Fixed::Whole(Record::BeginStep { exposure_ns: c.u64()? }),
         RecordTag::End => Fixed::Whole(Record::End { frames: c.u64()? }),
+        RecordTag::BeginDark => Fixed::Whole(Record::BeginDark),
         RecordTag::NoiseProfile => {
             let iso = c.u32()?;
             let mut profile = [[0.0; 2]; POSITIONS];
@@ -684,6 +696,7 @@ fn kind_name(kind: RecordTag) -> &'static str {
         RecordTag::BeginStep => "a BeginStep record",
         RecordTag::Frame => "a Frame record",
         RecordTag::NoiseProfile => "a NoiseProfile record",
+        RecordTag::BeginDark => "a BeginDark record",
         RecordTag::End => "the End record",
     }
 }
@@ -890,10 +903,25 @@ mod tests {
         assert_eq!(tags, [BeginStep, Frame, Frame, NoiseProfile, End]);
         assert_eq!(records[3], Record::NoiseProfile { iso: 110, profile: PROFILE });
         assert_eq!(records[4], Record::End { frames: 2 });
-        for t in [BeginStep, Frame, NoiseProfile, End] {
+        for t in [BeginStep, Frame, NoiseProfile, BeginDark, End] {
             assert_eq!(RecordTag::from_byte(t as u8), Some(t));
         }
-        assert_eq!(RecordTag::from_byte(4), None);
+        assert_eq!(RecordTag::from_byte(5), None);
+    }
+
+    /// A BeginDark record: one tag byte and its checksum, read back as written.
+    #[test]
+    fn begin_dark_round_trips() {
+        let mut w = RecordingWriter::new(Vec::new(), &golden_header()).unwrap();
+        w.begin_step(1_000_000).unwrap();
+        w.begin_dark().unwrap();
+        let bytes = w.finish().unwrap();
+        let (_, records, ended) = read_all(&bytes).unwrap();
+        assert!(ended);
+        assert_eq!(records[..2], [Record::BeginStep { exposure_ns: 1_000_000 }, Record::BeginDark]);
+        // Tag 4 then the CRC of the tag alone, right after the 13-byte BeginStep record.
+        assert_eq!(bytes[61 + 13], 4);
+        assert_eq!(bytes[61 + 14..61 + 18], crc32fast::hash(&[4]).to_le_bytes());
     }
 
     #[test]

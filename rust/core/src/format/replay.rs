@@ -28,7 +28,7 @@ pub fn session_config(header: &RecordingHeader) -> SessionConfig {
 
 /// Replays a recording into a new session, exactly as the app fed it: BeginStep → `begin_step`,
 /// Frame → `push_frame` (rejected frames are listed, not fatal), NoiseProfile →
-/// `set_noise_profile`. `configure` may adjust the implied configuration.
+/// `set_noise_profile`, BeginDark → `begin_dark`. `configure` may adjust the implied configuration.
 pub fn replay<R: Read>(
     mut reader: RecordingReader<R>,
     configure: impl FnOnce(&mut SessionConfig),
@@ -67,6 +67,7 @@ pub fn replay<R: Read>(
                 on_frame(report.frames);
             }
             Record::NoiseProfile { iso, profile } => session.set_noise_profile(iso, profile),
+            Record::BeginDark => session.begin_dark()?,
             Record::End { .. } => {}
         }
     }

@@ -15,9 +15,10 @@ pub const PACK_MAGIC: &[u8; 8] = b"NCALPACK";
 pub const PACK_MAGIC_TEXT: &str = "NCALPACK";
 /// Bump on any change to the serialised structs. Version 2 adds, per bin, where its PMF comes
 /// from, its measured moments and whether it is clipped, and per position the estimator's
-/// report; version 3 adds the structured components per ISO ([`IsoStructure`]). Versions 1 and 2
-/// are read and migrated ([`crate::format::pack_v1`], [`crate::format::pack_v2`]).
-pub const PACK_VERSION: u16 = 3;
+/// report; version 3 adds the structured components per ISO ([`IsoStructure`]); version 4 their
+/// fixed pattern (dark frames). Versions 1 to 3 are read and migrated ([`crate::format::pack_v1`],
+/// [`crate::format::pack_v2`], [`crate::format::pack_v3`]).
+pub const PACK_VERSION: u16 = 4;
 /// The oldest pack version this noisecal reads.
 pub const PACK_VERSION_MIN: u16 = 1;
 
@@ -327,6 +328,7 @@ impl ModelPack {
         let p: ModelPack = match version {
             1 => codec::decode_payload::<crate::format::pack_v1::ModelPackV1>(WHAT, payload)?.migrate(),
             2 => codec::decode_payload::<crate::format::pack_v2::ModelPackV2>(WHAT, payload)?.migrate(),
+            3 => codec::decode_payload::<crate::format::pack_v3::ModelPackV3>(WHAT, payload)?.migrate(),
             _ => codec::decode_payload(WHAT, payload)?,
         };
         p.check()?;

@@ -217,6 +217,145 @@ pub struct Bootstrap {
     pub kernel_sd: f64,
 }
 
+/// Points of a fixed pattern's stored quantile function: a pattern has millions of pixels behind
+/// it, and its tails (warm pixels) are what a coarser table would smear.
+pub const PATTERN_QUANTILES: usize = 4097;
+
+/// The fixed pattern of one ISO, from dark (lens-covered) frames: what every frame of that ISO
+/// carries at the same pixel, whatever the light (dark signal non-uniformity and dark shading).
+///
+/// A pixel's pattern is `shading(x, y) + residual`: the shading is the low-frequency part (a
+/// coarse grid of cell means per CFA position, bilinear between cell centres), the residual its
+/// pixel-to-pixel part, stored as its distribution per position (the per-pixel maps themselves
+/// would be as large as a frame per ISO). Synthesis gives each sensor pixel one uniform draw from
+/// a fixed key, the same at every ISO: a pixel high in the pattern at one ISO is high at all, the
+/// non-parametric reading of a per-pixel `k·gain + b`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FixedPattern {
+    /// Per position, the residual's distribution (zero mean; the sampling noise of a mean of
+    /// `frames` dark frames taken out).
+    pub pixels: [OffsetDistribution; POSITIONS],
+    /// Per position, the shading grid `grid[0] × grid[1]` (rows × columns, row-major, DN, zero
+    /// mean over the sensor).
+    pub shading: [Vec<f32>; POSITIONS],
+    pub grid: [u32; 2],
+    /// The sensor size the grid spans.
+    pub size: [u32; 2],
+    /// Dark frames behind it.
+    pub frames: u32,
+    /// Per position, the variance of a dark pixel from frame to frame (DN²): the
+    /// signal-independent noise at black.
+    pub temporal_var: [f64; POSITIONS],
+    /// Per position, what the pixel PMFs already hold of the pattern (the change of the pattern
+    /// from the reference ISO, whose clean image carries its own): synthesis takes it out of them.
+    pub in_pixel_noise: [OffsetDistribution; POSITIONS],
+    /// The pattern stands clear of sampling noise and is at least 1 % of the pixel variance.
+    pub significant: bool,
+}
+
+impl FixedPattern {
+    /// The pattern's variance at a position (pixels and shading).
+    pub fn variance(&self, pos: usize) -> f64 {
+        self.pixels[pos].variance() + self.shading_var(pos)
+    }
+
+    pub fn sd(&self) -> f64 {
+        ((0..POSITIONS).map(|p| self.variance(p)).sum::<f64>() / POSITIONS as f64).sqrt()
+    }
+
+    /// The variance of a position's shading grid about its mean.
+    pub fn shading_var(&self, pos: usize) -> f64 {
+        let g = &self.shading[pos];
+        if g.is_empty() {
+            return 0.0;
+        }
+        let m = g.iter().map(|&v| v as f64).sum::<f64>() / g.len() as f64;
+        g.iter().map(|&v| (v as f64 - m).powi(2)).sum::<f64>() / g.len() as f64
+    }
+
+    /// The shading at sensor pixel `(y, x)` (bilinear between cell centres, held flat past the
+    /// outer ones).
+    pub fn shading_at(&self, pos: usize, y: usize, x: usize) -> f64 {
+        let [gh, gw] = self.grid.map(|v| v as usize);
+        let g = &self.shading[pos];
+        if gh == 0 || gw == 0 || g.len() != gh * gw {
+            return 0.0;
+        }
+        let coord = |v: usize, size: u32, cells: usize| -> (usize, usize, f64) {
+            let c = ((v as f64 + 0.5) / size.max(1) as f64 * cells as f64 - 0.5).clamp(0.0, (cells - 1) as f64);
+            let i = (c as usize).min(cells.saturating_sub(2));
+            let f = if cells > 1 { c - i as f64 } else { 0.0 };
+            (i, (i + 1).min(cells - 1), f)
+        };
+        let (y0, y1, fy) = coord(y, self.size[0], gh);
+        let (x0, x1, fx) = coord(x, self.size[1], gw);
+        let at = |r: usize, c: usize| g[r * gw + c] as f64;
+        let top = at(y0, x0) * (1.0 - fx) + at(y0, x1) * fx;
+        let bottom = at(y1, x0) * (1.0 - fx) + at(y1, x1) * fx;
+        top * (1.0 - fy) + bottom * fy
+    }
+
+    /// Scaled by `k` (extrapolation along the gain).
+    pub fn scaled(&self, k: f64) -> Self {
+        Self {
+            pixels: self.pixels.clone().map(|d| d.scaled(k)),
+            shading: self.shading.clone().map(|g| g.iter().map(|&v| (v as f64 * k) as f32).collect()),
+            temporal_var: self.temporal_var.map(|v| v * k * k),
+            in_pixel_noise: self.in_pixel_noise.clone().map(|d| d.scaled(k)),
+            ..self.clone()
+        }
+    }
+
+    /// Between two ISOs' patterns at fraction `t` (quantile functions and grids blended).
+    pub fn blend(a: &Self, b: &Self, t: f64) -> Self {
+        let mix = |x: f64, y: f64| (1.0 - t) * x + t * y;
+        let shading = std::array::from_fn(|p| {
+            if a.shading[p].len() == b.shading[p].len() {
+                a.shading[p].iter().zip(&b.shading[p]).map(|(&x, &y)| mix(x as f64, y as f64) as f32).collect()
+            } else if t <= 0.5 {
+                a.shading[p].clone()
+            } else {
+                b.shading[p].clone()
+            }
+        });
+        let (near, _) = if t <= 0.5 { (a, b) } else { (b, a) };
+        Self {
+            pixels: std::array::from_fn(|p| OffsetDistribution::blend(&a.pixels[p], &b.pixels[p], t)),
+            shading: if a.grid == b.grid { shading } else { near.shading.clone() },
+            grid: near.grid,
+            size: near.size,
+            frames: a.frames.min(b.frames),
+            temporal_var: std::array::from_fn(|p| mix(a.temporal_var[p].sqrt(), b.temporal_var[p].sqrt()).powi(2)),
+            in_pixel_noise: std::array::from_fn(|p| {
+                OffsetDistribution::blend(&a.in_pixel_noise[p], &b.in_pixel_noise[p], t)
+            }),
+            significant: a.significant || b.significant,
+        }
+    }
+
+    pub fn problem(&self) -> Option<String> {
+        for (p, d) in self.pixels.iter().chain(&self.in_pixel_noise).enumerate() {
+            if let Some(why) = d.problem() {
+                return Some(format!("pattern distribution {p}: {why}"));
+            }
+        }
+        let [gh, gw] = self.grid;
+        if gh as u64 * gw as u64 > 1 << 16 {
+            return Some(format!("a {gh} × {gw} shading grid (at most 65536 cells)"));
+        }
+        if self.shading.iter().any(|g| g.len() != (gh * gw) as usize) {
+            return Some(format!("a shading grid does not hold {gh} × {gw} cells"));
+        }
+        if self.shading.iter().flatten().any(|v| !v.is_finite() || v.abs() > 1e6) {
+            return Some("a shading value is not a finite offset".into());
+        }
+        if self.temporal_var.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
+            return Some("a temporal variance is negative or not a number".into());
+        }
+        None
+    }
+}
+
 /// The structured components of one ISO.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct IsoStructure {
@@ -230,6 +369,8 @@ pub struct IsoStructure {
     /// Target frames that stood in a burst of at least two at their ISO (the offsets are
     /// deviations from a burst's mean; a lone frame has none).
     pub frames_used: u64,
+    /// The fixed pattern, when dark frames were captured at this ISO.
+    pub fpn: Option<FixedPattern>,
 }
 
 impl IsoStructure {
@@ -246,9 +387,20 @@ impl IsoStructure {
         self.frames.as_ref().filter(|f| f.significant && !f.offsets.is_empty())
     }
 
+    pub fn fixed_pattern(&self) -> Option<&FixedPattern> {
+        self.fpn.as_ref().filter(|f| f.significant)
+    }
+
     /// Whether any component is significant.
     pub fn any(&self) -> bool {
-        (0..2).any(|p| self.row(p).is_some() || self.column(p).is_some()) || self.frame().is_some()
+        (0..2).any(|p| self.row(p).is_some() || self.column(p).is_some())
+            || self.frame().is_some()
+            || self.fixed_pattern().is_some()
+    }
+
+    /// No components measured (an ISO with only dark frames starts here).
+    pub fn empty(iso: u32) -> Self {
+        Self { iso, rows: [None, None], columns: [None, None], frames: None, frames_used: 0, fpn: None }
     }
 
     /// Scaled by `k` (DN per DN; extrapolation along the gain).
@@ -259,6 +411,7 @@ impl IsoStructure {
             columns: self.columns.clone().map(|d| d.map(|d| d.scaled(k))),
             frames: self.frames.as_ref().map(|f| f.scaled(k)),
             frames_used: self.frames_used,
+            fpn: self.fpn.as_ref().map(|f| f.scaled(k)),
         }
     }
 
@@ -281,6 +434,12 @@ impl IsoStructure {
                 (None, None) => None,
             },
             frames_used: a.frames_used.min(b.frames_used),
+            fpn: match (&a.fpn, &b.fpn) {
+                (Some(x), Some(y)) => Some(FixedPattern::blend(x, y, t)),
+                (Some(x), None) => Some(x.scaled(1.0 - t)),
+                (None, Some(y)) => Some(y.scaled(t)),
+                (None, None) => None,
+            },
         }
     }
 
@@ -291,6 +450,9 @@ impl IsoStructure {
                     return Some(format!("{name} offsets of parity {p}: {why}"));
                 }
             }
+        }
+        if let Some(w) = self.fpn.as_ref().and_then(FixedPattern::problem) {
+            return Some(format!("fixed pattern: {w}"));
         }
         self.frames.as_ref().and_then(FrameOffsets::problem).map(|w| format!("frame offsets: {w}"))
     }
@@ -303,18 +465,22 @@ pub struct Components {
     pub row: bool,
     pub column: bool,
     pub frame: bool,
+    /// The fixed pattern (from dark frames).
+    pub fpn: bool,
 }
 
 impl Components {
     /// Every calibrated component (the default).
-    pub const ALL: Self = Self { pixel: true, row: true, column: true, frame: true };
+    pub const ALL: Self = Self { pixel: true, row: true, column: true, frame: true, fpn: true };
+    /// Every component but the fixed pattern: for clean images averaged from this sensor's own
+    /// frames (held-out captures, re-noising), which carry its pattern already.
+    pub const ON_OWN_CAPTURES: Self = Self { pixel: true, row: true, column: true, frame: true, fpn: false };
     /// The pixel-independent model alone (version 2 packs, `--components pixel`).
-    pub const PIXEL: Self = Self { pixel: true, row: false, column: false, frame: false };
+    pub const PIXEL: Self = Self { pixel: true, row: false, column: false, frame: false, fpn: false };
 
-    /// Parses `pixel,row,column,frame` (also `col`, `all`; `fpn` is named and refused: no
-    /// fixed-pattern component is calibrated yet).
+    /// Parses `pixel,row,column,frame,fpn` (also `col`, `dsnu`, `all`).
     pub fn parse(s: &str) -> Result<Self, String> {
-        let mut c = Self { pixel: false, row: false, column: false, frame: false };
+        let mut c = Self { pixel: false, row: false, column: false, frame: false, fpn: false };
         for part in s.split(',').map(str::trim).filter(|p| !p.is_empty()) {
             match part.to_ascii_lowercase().as_str() {
                 "all" => c = Self::ALL,
@@ -322,12 +488,10 @@ impl Components {
                 "row" | "rows" => c.row = true,
                 "column" | "columns" | "col" => c.column = true,
                 "frame" | "frames" => c.frame = true,
-                "fpn" | "dsnu" => {
-                    return Err("the fixed-pattern component (fpn) is not calibrated by this noisecal (no dark-frame step yet); choose from pixel,row,column,frame".into());
-                }
+                "fpn" | "dsnu" | "pattern" => c.fpn = true,
                 other => {
                     return Err(format!(
-                        "unknown noise component {other:?}; choose from pixel,row,column,frame (or all)"
+                        "unknown noise component {other:?}; choose from pixel,row,column,frame,fpn (or all)"
                     ));
                 }
             }
@@ -340,7 +504,7 @@ impl Components {
 
     /// Whether any structured component is asked for.
     pub fn structured(&self) -> bool {
-        self.row || self.column || self.frame
+        self.row || self.column || self.frame || self.fpn
     }
 }
 
@@ -352,12 +516,17 @@ impl Default for Components {
 
 impl std::fmt::Display for Components {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let names: Vec<&str> =
-            [(self.pixel, "pixel"), (self.row, "row"), (self.column, "column"), (self.frame, "frame")]
-                .iter()
-                .filter(|(on, _)| *on)
-                .map(|(_, n)| *n)
-                .collect();
+        let names: Vec<&str> = [
+            (self.pixel, "pixel"),
+            (self.row, "row"),
+            (self.column, "column"),
+            (self.frame, "frame"),
+            (self.fpn, "fpn"),
+        ]
+        .iter()
+        .filter(|(on, _)| *on)
+        .map(|(_, n)| *n)
+        .collect();
         write!(f, "{}", names.join(","))
     }
 }
@@ -370,11 +539,12 @@ mod tests {
     fn components_parse() {
         assert_eq!(Components::parse("pixel").unwrap(), Components::PIXEL);
         assert_eq!(Components::parse("all").unwrap(), Components::ALL);
-        assert_eq!(Components::parse("pixel,row,column,frame").unwrap(), Components::ALL);
+        assert_eq!(Components::parse("pixel,row,column,frame,fpn").unwrap(), Components::ALL);
+        assert!(!Components::parse("pixel,row,column,frame").unwrap().fpn);
         assert!(Components::parse("row").unwrap_err().contains("must include pixel"));
-        assert!(Components::parse("pixel,fpn").unwrap_err().contains("fpn"));
+        assert!(Components::parse("pixel,dsnu").unwrap().fpn);
         assert!(Components::parse("pixel,banana").unwrap_err().contains("banana"));
-        assert_eq!(Components::ALL.to_string(), "pixel,row,column,frame");
+        assert_eq!(Components::ALL.to_string(), "pixel,row,column,frame,fpn");
     }
 
     #[test]

@@ -15,9 +15,10 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
 use crate::model::layout::POSITIONS;
+use crate::model::layout::position;
 use crate::model::pack::BinModel;
 use crate::model::pmf::Pmf;
-use crate::model::structure::{Components, FrameOffsets, IsoStructure, OffsetDistribution};
+use crate::model::structure::{Components, FixedPattern, FrameOffsets, IsoStructure, OffsetDistribution};
 use crate::renoise::deconv::{Problem, SolverLimits, richardson_lucy};
 
 /// Grid of the offset densities (cells per DN).
@@ -33,6 +34,9 @@ const RL_WORK: f64 = 4e6;
 const CLIPPED_SMALL_SHARE_ITERATIONS: usize = 20;
 /// RNG stream of the offsets (the pixel bands use streams `0 ..`, far below).
 const STREAM: u64 = 1 << 62;
+/// The fixed pattern's key: each sensor pixel's uniform draw is a hash of its position and this,
+/// whatever the seed and ISO (the pattern is the sensor's, not the image's).
+const PATTERN_KEY: u64 = 0x6E6F_6973_6563_616C;
 
 /// The components synthesis adds at one ISO.
 #[derive(Debug, Clone)]
@@ -40,6 +44,7 @@ pub struct StructureSampler {
     rows: [Option<OffsetDistribution>; 2],
     columns: [Option<OffsetDistribution>; 2],
     frame: Option<FrameOffsets>,
+    fpn: Option<FixedPattern>,
 }
 
 /// One image's offsets.
@@ -58,8 +63,33 @@ impl StructureSampler {
             rows: std::array::from_fn(|p| st.row(p).filter(|_| which.row).cloned()),
             columns: std::array::from_fn(|p| st.column(p).filter(|_| which.column).cloned()),
             frame: st.frame().filter(|_| which.frame).cloned(),
+            fpn: st.fixed_pattern().filter(|_| which.fpn).cloned(),
         };
-        (s.rows.iter().chain(&s.columns).any(Option::is_some) || s.frame.is_some()).then_some(s)
+        (s.rows.iter().chain(&s.columns).any(Option::is_some) || s.frame.is_some() || s.fpn.is_some()).then_some(s)
+    }
+
+    /// Whether a fixed pattern is added.
+    pub fn has_pattern(&self) -> bool {
+        self.fpn.is_some()
+    }
+
+    /// The fixed pattern at sensor pixel `(y, x)` (DN): its shading plus the residual's quantile
+    /// at the pixel's own uniform draw (a hash of its position, the same in every image).
+    #[inline]
+    pub fn pattern_at(&self, y: usize, x: usize) -> f64 {
+        let Some(fp) = &self.fpn else { return 0.0 };
+        let p = position(y, x);
+        fp.shading_at(p, y, x) + fp.pixels[p].at(pattern_unit(y, x))
+    }
+
+    /// Adds the fixed pattern of sensor row `y`, columns `x0 ..`, to `row` (2⁻³² DN).
+    pub(crate) fn add_pattern_row(&self, y: usize, x0: usize, row: &mut [i64]) {
+        if self.fpn.is_none() {
+            return;
+        }
+        for (i, v) in row.iter_mut().enumerate() {
+            *v += (self.pattern_at(y, x0 + i) * 4294967296.0).round() as i64;
+        }
     }
 
     /// Draws an image's offsets (`origin`: the sensor row and column of its pixel (0, 0); only
@@ -100,6 +130,10 @@ impl StructureSampler {
         }
         if let Some(f) = &self.frame {
             dens = convolve(&dens, &frame_density(f, pos));
+        }
+        // Of the fixed pattern, the pixel PMFs hold its change from the reference ISO's.
+        if let Some(fp) = &self.fpn {
+            dens = convolve(&dens, &quantile_density(&fp.in_pixel_noise[pos]));
         }
         // Dither each grid point onto the integers.
         let (first_cell, w) = dens;
@@ -281,6 +315,16 @@ fn convolve(a: &(i64, Vec<f64>), b: &(i64, Vec<f64>)) -> (i64, Vec<f64>) {
     (a.0 + b.0, out)
 }
 
+/// A sensor pixel's uniform draw of the fixed pattern (splitmix64 of its position).
+#[inline]
+fn pattern_unit(y: usize, x: usize) -> f64 {
+    let mut z = PATTERN_KEY ^ ((y as u64) << 32 | x as u64);
+    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    unit(z ^ (z >> 31))
+}
+
 /// A uniform draw in `[0, 1)` from 53 bits.
 #[inline]
 fn unit(u: u64) -> f64 {
@@ -327,6 +371,7 @@ mod tests {
             columns: [None, None],
             frames: None,
             frames_used: 10,
+            fpn: None,
         };
         StructureSampler::new(&st, Components::ALL).expect("significant rows")
     }

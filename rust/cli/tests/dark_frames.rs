@@ -1,0 +1,152 @@
+//! Dark frames through the binary (issue 11): `simulate --dark` writes a lens-covered step after
+//! the lit sweep; `calibrate` finds the dark frames of a DNG folder by their content (they match
+//! the darkest EV step's ISO × exposure, so metadata alone would take them for targets) and a
+//! recording's by its BeginDark record; both give every ISO the same fixed pattern, and no lit
+//! frame is taken for a dark one.
+
+use std::path::Path;
+use std::process::Command;
+
+use serde_json::Value;
+
+fn noisecal(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(args).output().expect("run noisecal");
+    (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
+}
+
+fn ok(args: &[&str]) -> (String, String) {
+    let (good, out, err) = noisecal(args);
+    assert!(good, "noisecal {args:?} failed: {err}");
+    (out, err)
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().expect("UTF-8 path")
+}
+
+/// Per ISO: (target frames, fixed-pattern SD, added, dark frames).
+fn patterns(pack: &Path) -> Vec<(u64, u64, f64, bool, u64)> {
+    let (out, _) = ok(&["-q", "inspect", s(pack), "--json"]);
+    let v: Value = serde_json::from_str(&out).expect("inspect JSON");
+    v["isos"]
+        .as_array()
+        .expect("isos")
+        .iter()
+        .map(|i| {
+            let f = &i["structure"]["fpn"];
+            (
+                i["iso"].as_u64().expect("iso"),
+                i["frames"].as_u64().expect("frames"),
+                f["sd"].as_f64().unwrap_or(-1.0),
+                f["added"].as_bool().unwrap_or(false),
+                f["dark_frames"].as_u64().unwrap_or(0),
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn dark_step_from_dng_folders_and_recordings() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let d = dir.path();
+    let (dngs, rec) = (d.join("dngs"), d.join("s.rec"));
+    let common = ["-q", "simulate", "--sensor", "phone10", "--structured", "--width", "192", "--height", "128"];
+    let sweep = ["--frames", "4", "--isos", "200,800", "--ev=-2,0,2"];
+    let mut args: Vec<&str> = common.to_vec();
+    args.extend(sweep);
+    args.extend(["--dark", "8", "--dngs", s(&dngs), "--rec", s(&rec)]);
+    ok(&args);
+    // Without the dark step, for comparison.
+    let plain = d.join("plain");
+    let mut args: Vec<&str> = common.to_vec();
+    args.extend(sweep);
+    args.extend(["--dngs", s(&plain)]);
+    ok(&args);
+
+    let (p_dng, p_rec, p_plain) = (d.join("dng.pack"), d.join("rec.pack"), d.join("plain.pack"));
+    let (_, err) = ok(&["calibrate", s(&dngs), "-o", s(&p_dng)]);
+    assert!(err.contains("dark frame(s)"), "the dark frames are announced: {err}");
+    ok(&["-q", "calibrate", s(&rec), "-o", s(&p_rec)]);
+    ok(&["-q", "calibrate", s(&plain), "-o", s(&p_plain)]);
+
+    let (a, b, c) = (patterns(&p_dng), patterns(&p_rec), patterns(&p_plain));
+    assert_eq!(a.len(), 2);
+    for ((x, y), z) in a.iter().zip(&b).zip(&c) {
+        // Every lit target frame stays a target: none was taken for a dark frame.
+        assert_eq!(x.1, z.1, "ISO {}: target frames with the dark step {} vs without {}", x.0, x.1, z.1);
+        assert_eq!(x.4, 8, "ISO {}: 8 dark frames measured the pattern", x.0);
+        assert!(x.3 && x.2 > 0.0, "ISO {}: the pattern is added ({x:?})", x.0);
+        // The folder and the recording hold the same frames: the same pattern.
+        assert!((x.2 - y.2).abs() < 1e-9, "ISO {}: folder {} vs recording {}", x.0, x.2, y.2);
+        assert_eq!(z.2, -1.0, "no pattern without dark frames");
+    }
+
+    // Synthesis with and without the pattern: the pattern repeats across seeds.
+    let (out_a, out_b) = (d.join("a.dng"), d.join("b.dng"));
+    let clean = dngs.join("f00000.dng");
+    for (seed, out) in [("1", &out_a), ("2", &out_b)] {
+        ok(&[
+            "-q",
+            "synth",
+            "--pack",
+            s(&p_dng),
+            "--iso",
+            "800",
+            "--seed",
+            seed,
+            "--components",
+            "pixel,fpn",
+            s(&clean),
+            "-o",
+            s(out),
+        ]);
+    }
+    let (e, _) = ok(&[
+        "-q",
+        "synth",
+        "--pack",
+        s(&p_dng),
+        "--iso",
+        "800",
+        "--seed",
+        "1",
+        "--components",
+        "pixel,row,column,frame",
+        s(&clean),
+        "-o",
+        s(&d.join("c.dng")),
+    ]);
+    assert!(e.is_empty());
+    assert_ne!(std::fs::read(&out_a).unwrap(), std::fs::read(d.join("c.dng")).unwrap(), "fpn changes the output");
+
+    // A lit frame inside a recording's dark step is refused by name, the rest still calibrates.
+    let bad = d.join("bad.rec");
+    {
+        use noisecal_core::format::recording::{Record, RecordingReader, RecordingWriter};
+        let bytes = std::fs::read(&rec).unwrap();
+        let mut r = RecordingReader::from_bytes(&bytes).unwrap();
+        let mut w = RecordingWriter::new(Vec::new(), &r.header().clone()).unwrap();
+        let mut lit = None;
+        while let Some(rec) = r.next_record().unwrap() {
+            match rec {
+                Record::BeginStep { exposure_ns } => w.begin_step(exposure_ns).unwrap(),
+                Record::Frame(f) => {
+                    w.frame(&f.meta, f.width, f.height, f.row_stride, f.pixel_stride, &f.data).unwrap();
+                    lit.get_or_insert(f);
+                }
+                Record::NoiseProfile { iso, profile } => w.noise_profile(iso, &profile).unwrap(),
+                Record::BeginDark => {
+                    w.begin_dark().unwrap();
+                    // Not a byte-for-byte repeat (that is refused as damage): its exposure differs.
+                    let f = lit.as_ref().unwrap();
+                    let meta = noisecal_core::FrameMeta { exposure_ns: f.meta.exposure_ns + 1, ..f.meta };
+                    w.frame(&meta, f.width, f.height, f.row_stride, f.pixel_stride, &f.data).unwrap();
+                }
+                Record::End { .. } => {}
+            }
+        }
+        std::fs::write(&bad, w.finish().unwrap()).unwrap();
+    }
+    let (_, err) = ok(&["calibrate", s(&bad), "-o", s(&d.join("bad.pack"))]);
+    assert!(err.contains("is not dark") && err.contains("cover"), "{err}");
+}
