@@ -81,6 +81,13 @@ fn dark_step_from_dng_folders_and_recordings() {
         assert_eq!(z.2, -1.0, "no pattern without dark frames");
     }
 
+    // The report shows the pattern per ISO, added.
+    let html = d.join("r.html");
+    ok(&["-q", "report", "--pack", s(&p_dng), "-o", s(&html)]);
+    let html = std::fs::read_to_string(&html).unwrap();
+    assert!(html.contains("fixed pattern (dark frames)"), "report lists the component");
+    assert!(html.contains("the fixed pattern at ISO 200, 800"), "report says where it is added");
+
     // Synthesis with and without the pattern: the pattern repeats across seeds.
     let (out_a, out_b) = (d.join("a.dng"), d.join("b.dng"));
     let clean = dngs.join("f00000.dng");

@@ -295,12 +295,16 @@ fn structure_section(o: &mut String, pack: &ModelPack) -> anyhow::Result<()> {
     }
     let _ = write!(
         o,
-        "<p>Noise shared along a line or by a whole frame, which a pixel-independent model cannot make: one offset per row (by row parity) and per column (by column parity), and one black-level offset per frame and CFA position, measured on the flat cells of each burst with the sampling noise of a mean taken out. Synthesis adds a component only where its variance stands clear of what sampling noise alone gives; the others are below detection and shown for reference (as in <code>noisecal inspect</code>). ISOs the pack interpolates carry components derived from the calibrated ISOs'.</p>"
+        "<p>Noise shared along a line or by a whole frame, which a pixel-independent model cannot make: one offset per row (by row parity) and per column (by column parity), and one black-level offset per frame and CFA position, measured on the flat cells of each burst with the sampling noise of a mean taken out; and, where the session had a dark (lens-covered) step, the fixed pattern: each pixel's own dark offset (DSNU and dark shading), the same in every image. Synthesis adds a component only where its variance stands clear of what sampling noise alone gives; the others are below detection and shown for reference (as in <code>noisecal inspect</code>). ISOs the pack interpolates carry components derived from the calibrated ISOs'.</p>"
     );
     let names = structure_plots::component_names(pack);
     // What synthesis adds, by component kind and ISO.
-    let kinds: [(&str, std::ops::Range<usize>); 3] =
-        [("row offsets", 0..2), ("column offsets", 2..4), ("frame offsets", 4..structure_plots::COMPONENTS)];
+    let kinds: [(&str, std::ops::Range<usize>); 4] = [
+        ("row offsets", 0..2),
+        ("column offsets", 2..4),
+        ("frame offsets", 4..4 + POSITIONS),
+        ("the fixed pattern", 4 + POSITIONS..structure_plots::COMPONENTS),
+    ];
     let mut added: Vec<String> = Vec::new();
     for (kind, range) in &kinds {
         let at: Vec<String> = isos
@@ -324,7 +328,7 @@ fn structure_section(o: &mut String, pack: &ModelPack) -> anyhow::Result<()> {
     figure(
         o,
         &svg,
-        "Standard deviation of each component (DN, sampling noise taken out) per ISO, log scales; filled circles are added at synthesis, open circles are below detection. Rows solid, columns dashed, frame offsets dotted; an SD of 0 sits on the bottom edge.",
+        "Standard deviation of each component (DN, sampling noise taken out) per ISO, log scales; filled circles are added at synthesis, open circles are below detection. Rows solid, columns dashed, frame offsets dotted, the fixed pattern solid; an SD of 0 sits on the bottom edge.",
     );
     let _ = write!(o, "<table><tr><th>ISO</th>");
     for n in &names {

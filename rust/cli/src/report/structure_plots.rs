@@ -9,8 +9,9 @@ use plotters::prelude::*;
 
 use super::plots::{FONT, color, err, legend, svg_chart};
 
-/// Components per ISO: rows (even, odd), columns (even, odd), the frame offset of each position.
-pub const COMPONENTS: usize = 4 + POSITIONS;
+/// Components per ISO: rows (even, odd), columns (even, odd), the frame offset of each position,
+/// the fixed pattern (dark frames).
+pub const COMPONENTS: usize = 4 + POSITIONS + 1;
 
 /// One component at one ISO: its standard deviation (DN, sampling noise taken out) and whether
 /// synthesis adds it (the rule of `noisecal inspect`: [`IsoStructure::row`], `column`, `frame`).
@@ -49,6 +50,7 @@ impl IsoComponents {
         std::array::from_fn(|i| match i {
             0 | 1 => line(&st.rows[i], st.row(i).is_some()),
             2 | 3 => line(&st.columns[i - 2], st.column(i - 2).is_some()),
+            8 => st.fpn.as_ref().map(|f| ComponentSd { sd: f.sd(), added: st.fixed_pattern().is_some() }),
             _ => st.frames.as_ref().map(|f| ComponentSd { sd: f.variance(i - 4).sqrt(), added: st.frame().is_some() }),
         })
     }
@@ -61,6 +63,7 @@ pub fn component_names(pack: &ModelPack) -> [String; COMPONENTS] {
         1 => "rows, odd".to_string(),
         2 => "columns, even".to_string(),
         3 => "columns, odd".to_string(),
+        8 => "fixed pattern (dark frames)".to_string(),
         _ => format!("frame, {}", pack.layout.cfa.position_name(i - 4)),
     })
 }
@@ -284,11 +287,12 @@ pub fn sd_chart(pack: &ModelPack, isos: &[IsoComponents], size: (u32, u32)) -> a
                 continue;
             }
             let c = color(i);
-            // Rows solid, columns dashed, frame offsets dotted-ish (short dashes).
-            let style = c.stroke_width(1);
+            // Rows solid, columns dashed, frame offsets dotted-ish (short dashes), the fixed
+            // pattern solid and heavier.
+            let style = c.stroke_width(if i == COMPONENTS - 1 { 2 } else { 1 });
             let line: Vec<(f64, f64)> = pts.iter().map(|p| (p.0, p.1)).collect();
             let drawn = match i {
-                0 | 1 => chart.draw_series(LineSeries::new(line, style)).map_err(err)?,
+                0 | 1 | 8 => chart.draw_series(LineSeries::new(line, style)).map_err(err)?,
                 2 | 3 => chart.draw_series(DashedLineSeries::new(line, 6, 4, style)).map_err(err)?,
                 _ => chart.draw_series(DashedLineSeries::new(line, 2, 3, style)).map_err(err)?,
             };

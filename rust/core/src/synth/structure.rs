@@ -82,13 +82,32 @@ impl StructureSampler {
         fp.shading_at(p, y, x) + fp.pixels[p].at(pattern_unit(y, x))
     }
 
-    /// Adds the fixed pattern of sensor row `y`, columns `x0 ..`, to `row` (2⁻³² DN).
+    /// Adds the fixed pattern of sensor row `y`, columns `x0 ..`, to `row` (2⁻³² DN): the same
+    /// values as [`Self::pattern_at`] (tested), the shading's vertical interpolation done once
+    /// per row and position.
     pub(crate) fn add_pattern_row(&self, y: usize, x0: usize, row: &mut [i64]) {
-        if self.fpn.is_none() {
+        let Some(fp) = &self.fpn else { return };
+        let [gh, gw] = fp.grid.map(|v| v as usize);
+        let grid_ok = gh > 0 && gw > 0 && fp.shading.iter().all(|g| g.len() == gh * gw);
+        if !grid_ok {
+            for (i, v) in row.iter_mut().enumerate() {
+                *v += (self.pattern_at(y, x0 + i) * 4294967296.0).round() as i64;
+            }
             return;
         }
+        // Per column parity, the shading grid interpolated to this row.
+        let (r0, r1, fy) = grid_coord(y, fp.size[0], gh);
+        let lines: [Vec<f64>; 2] = std::array::from_fn(|px| {
+            let g = &fp.shading[position(y, px)];
+            (0..gw).map(|c| g[r0 * gw + c] as f64 * (1.0 - fy) + g[r1 * gw + c] as f64 * fy).collect()
+        });
         for (i, v) in row.iter_mut().enumerate() {
-            *v += (self.pattern_at(y, x0 + i) * 4294967296.0).round() as i64;
+            let x = x0 + i;
+            let p = position(y, x);
+            let (c0, c1, f) = grid_coord(x, fp.size[1], gw);
+            let line = &lines[x & 1];
+            let shade = line[c0] * (1.0 - f) + line[c1] * f;
+            *v += ((shade + fp.pixels[p].at(pattern_unit(y, x))) * 4294967296.0).round() as i64;
         }
     }
 
@@ -315,6 +334,16 @@ fn convolve(a: &(i64, Vec<f64>), b: &(i64, Vec<f64>)) -> (i64, Vec<f64>) {
     (a.0 + b.0, out)
 }
 
+/// The two cells and the weight of the second at pixel `v` along an axis, as
+/// [`FixedPattern::shading_at`] computes them.
+#[inline]
+fn grid_coord(v: usize, size: u32, cells: usize) -> (usize, usize, f64) {
+    let c = ((v as f64 + 0.5) / size.max(1) as f64 * cells as f64 - 0.5).clamp(0.0, (cells - 1) as f64);
+    let i = (c as usize).min(cells.saturating_sub(2));
+    let f = if cells > 1 { c - i as f64 } else { 0.0 };
+    (i, (i + 1).min(cells - 1), f)
+}
+
 /// A sensor pixel's uniform draw of the fixed pattern (splitmix64 of its position).
 #[inline]
 fn pattern_unit(y: usize, x: usize) -> f64 {
@@ -374,6 +403,43 @@ mod tests {
             fpn: None,
         };
         StructureSampler::new(&st, Components::ALL).expect("significant rows")
+    }
+
+    /// The row path of the fixed pattern gives `pattern_at`'s values (to the last 2⁻³² DN), on a
+    /// shaded pattern and a crop at an odd origin.
+    #[test]
+    fn pattern_rows_match_pattern_at() {
+        let mut fp_dist = gaussian_dist(1.5);
+        fp_dist.significant = true;
+        let shading: [Vec<f32>; POSITIONS] =
+            std::array::from_fn(|p| (0..12).map(|i| (i as f32 * 0.37 + p as f32).sin() * 2.0).collect());
+        let fp = FixedPattern {
+            pixels: std::array::from_fn(|_| fp_dist.clone()),
+            shading,
+            grid: [3, 4],
+            size: [40, 60],
+            frames: 8,
+            temporal_var: [1.0; POSITIONS],
+            in_pixel_noise: std::array::from_fn(|_| gaussian_dist(0.5)),
+            significant: true,
+        };
+        let st = IsoStructure { fpn: Some(fp), ..IsoStructure::empty(100) };
+        let s = StructureSampler::new(&st, Components::ALL).expect("a pattern");
+        for (y, x0) in [(0usize, 0usize), (17, 3), (39, 1)] {
+            let mut row = vec![0i64; 50];
+            s.add_pattern_row(y, x0, &mut row);
+            for (i, v) in row.iter().enumerate() {
+                let want = (s.pattern_at(y, x0 + i) * 4294967296.0).round() as i64;
+                assert!((v - want).abs() <= 1, "({y}, {}): {v} vs {want}", x0 + i);
+            }
+        }
+        // The pattern is the sensor's: the same at a pixel whatever the seed; its spread is the
+        // residual's and the shading's.
+        let vals: Vec<f64> =
+            (0..40).flat_map(|y| (0..60).map(move |x| (y, x))).map(|(y, x)| s.pattern_at(y, x)).collect();
+        let m = vals.iter().sum::<f64>() / vals.len() as f64;
+        let sd = (vals.iter().map(|v| (v - m).powi(2)).sum::<f64>() / vals.len() as f64).sqrt();
+        assert!(sd > 1.5 && sd < 2.6, "pattern sd {sd}");
     }
 
     #[test]
