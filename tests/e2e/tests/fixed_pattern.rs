@@ -248,3 +248,43 @@ fn no_dsnu_adds_nothing() {
         assert_eq!(a, b, "ISO {iso}: dark frames changed synthesis on a sensor without a pattern");
     }
 }
+
+/// A session checkpointed in the middle of its dark step, restored and continued, builds the
+/// same pack as one that ran through.
+#[test]
+fn checkpoint_inside_the_dark_step() {
+    let mut m = SensorModel::phone_10bit();
+    m.dsnu_pre_e = 1.2;
+    let s = setup(m, 96, 64, 14, vec![400], 4, vec![0]);
+    let run = |cut: Option<usize>| {
+        let mut session =
+            CalibrationSession::new(s.sim.layout(), SessionConfig::new(s.plan.reference_iso)).expect("session");
+        let mut step = None;
+        for f in s.plan.frames() {
+            if step != Some(f.step) {
+                session.begin_step(s.plan.exposure_ns(f.step, s.plan.reference_iso)).expect("step");
+                step = Some(f.step);
+            }
+            let (px, meta) = s.sim.capture(f.iso, f.exposure_ns, f.index).expect("capture");
+            session.push_frame(&FrameView::from_array(&px).expect("view"), &meta).expect("push");
+        }
+        session.begin_dark().expect("dark");
+        let mut k = 0;
+        for (iso, exp) in dark_settings(&s) {
+            for i in 0..6 {
+                if cut == Some(k) {
+                    session = CalibrationSession::restore(&session.checkpoint().expect("checkpoint")).expect("restore");
+                }
+                let (px, meta) = s.sim.capture_dark(iso, exp, i).expect("dark");
+                session.push_frame(&FrameView::from_array(&px).expect("view"), &meta).expect("dark frame");
+                k += 1;
+            }
+        }
+        session.finish().expect("finish")
+    };
+    let whole = run(None);
+    assert!(whole.structure_of(400).and_then(|st| st.fpn.as_ref()).is_some_and(|f| f.significant));
+    for cut in [3, 6, 9] {
+        assert_eq!(run(Some(cut)), whole, "checkpoint after {cut} dark frames");
+    }
+}
