@@ -1,7 +1,8 @@
 //! `noisecal synth` of an uncompressed 12 MP DNG end to end (read, sample, encode, atomic write),
 //! as the command runs it (a process: pack load and fsync included; with every component the pack
 //! has, and with `--components pixel`) and in process by stage (pack load, sampler build, read,
-//! sample, NoiseProfile fit, encode, atomic write).
+//! sample, NoiseProfile fit, encode, atomic write; and the command's one pass for such a file:
+//! the input mapped, the pixels written while they are drawn).
 //!
 //!     cargo bench -p noisecal-cli --bench synth_e2e
 //!
@@ -13,12 +14,12 @@ use std::path::Path;
 use std::process::Command;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
-use noisecal_cli::dng::{derived_bytes, fitted_noise_profile, read_dng_file};
+use noisecal_cli::dng::{derived_bytes, fitted_noise_profile, read_dng_file, read_dng_source};
 use noisecal_cli::models::{ModelKind, resolve_model};
 use noisecal_core::ModelPack;
 use noisecal_core::model::structure::Components;
 use noisecal_core::synth::sampler::IsoSampler;
-use noisecal_core::synth::synthesize;
+use noisecal_core::synth::{synthesize, synthesize_bands};
 
 const ISO: u32 = 800;
 
@@ -110,6 +111,23 @@ fn benches(c: &mut Criterion) {
     });
     let (bytes, _) = derived_bytes(&output, &file, &noisy, ISO, profile.as_ref()).expect("encode");
     g.bench_function("write_atomic", |b| b.iter(|| noisecal_io::write_bytes_atomic(&output, &bytes).expect("write")));
+    // What the command does for such a file: the input mapped, not decoded (`read_source`),
+    // then sampling, encoding and writing in one pass while the bands are drawn, with the
+    // NoiseProfile fit alongside, and the commit (sync, rename) (`sample_write_streamed`).
+    g.bench_function("read_source", |b| b.iter(|| black_box(read_dng_source(&input).expect("read"))));
+    let source = read_dng_source(&input).expect("read");
+    g.bench_function("sample_write_streamed", |b| {
+        b.iter(|| {
+            let stream = source.streamed().expect("uncompressed 16-bit strips");
+            let tmp = stream
+                .write(&output, ISO, |sink| {
+                    let draw = || synthesize_bands(&sampler, source.pixels(), 7, (0, 0), sink);
+                    rayon::join(draw, || fitted_noise_profile(&pack, &model, &source.image.layout)).1
+                })
+                .expect("write");
+            tmp.commit().expect("commit");
+        })
+    });
     g.bench_function("in_process", |b| {
         b.iter(|| {
             let f = read_dng_file(&input).expect("read");

@@ -10,7 +10,7 @@
 //!   links), so a command can refuse an output that would overwrite one of its inputs.
 //! * [`read_regular`]: reads a whole input file after checking it is a regular file of bounded
 //!   size, so a FIFO, a device such as `/dev/zero` or a directory is refused with a clear message
-//!   instead of blocking, reading forever or failing obscurely.
+//!   instead of blocking, reading forever or failing obscurely; [`map_regular`] maps it instead.
 //!
 //! # Permission policy
 //!
@@ -20,12 +20,13 @@
 //! * a **new** file gets the permissions of [`std::fs::File::create`]: `0o666` less the process
 //!   umask (`0o644` under the usual umask `022`; `0o600` in an Android app, whose umask is `077`).
 //!
-//! Uses only `std`.
+//! Uses `std`, `memmap2` for [`map_regular`] and, on Linux and Android, `libc` for
+//! [`start_writeback`].
 
 mod atomic;
 mod identity;
 mod read;
 
-pub use atomic::{AtomicFile, sweep_stale_temps, write_atomic, write_bytes_atomic};
+pub use atomic::{AtomicFile, start_writeback, sweep_stale_temps, write_all_at, write_atomic, write_bytes_atomic};
 pub use identity::same_file;
-pub use read::read_regular;
+pub use read::{Mapped, map_regular, read_regular};

@@ -9,7 +9,7 @@ use noisecal_core::SensorLayout;
 use noisecal_core::model::pack::{IsoModel, NoiseProfile};
 use noisecal_core::model::structure::Components;
 use noisecal_core::synth::sampler::IsoSampler;
-use noisecal_core::synth::synthesize;
+use noisecal_core::synth::{synthesize, synthesize_bands};
 
 use crate::dng;
 use crate::models::{ModelKind, align_input, check_layout_matches, resolve_model};
@@ -32,9 +32,12 @@ pub struct Args {
     /// Allow ISOs outside the calibrated range (extrapolated).
     #[arg(long)]
     pub extrapolate: bool,
-    /// Noise components to add: pixel, row, column, frame (comma-separated; default: every
+    /// Noise components to add: pixel, row, column, frame, fpn (comma-separated; default: every
     /// component the pack calibrated). `pixel` alone is the pixel-independent model of version 2
     /// packs; the parametric baselines (`--model hg|pg|noiseprofile`) are always pixel-only.
+    /// `fpn` is the sensor's fixed pattern from the dark step: leave it out
+    /// (`pixel,row,column,frame`) for clean images averaged from this sensor's own frames, which
+    /// carry it already.
     #[arg(long, value_parser = parse_components)]
     pub components: Option<Components>,
     /// A clean raw DNG, or a folder of them.
@@ -84,7 +87,8 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         } else {
             vec![(args.input.clone(), args.output.clone())]
         };
-        let job = Job { pack: &pack, sampler: &sampler, model: &model, quiet, profiles: Default::default() };
+        let job =
+            Job { pack: &pack, sampler: &sampler, model: &model, iso: args.iso, quiet, profiles: Default::default() };
         // Three stages overlap: reading file i + 1, sampling file i, writing file i − 1.
         let (read_tx, read_rx) = std::sync::mpsc::sync_channel::<anyhow::Result<dng::DngFile>>(1);
         let (write_tx, write_rx) = std::sync::mpsc::sync_channel::<Written>(1);
@@ -120,7 +124,13 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         let writer = scope.spawn(move || -> (usize, Option<anyhow::Error>) {
             let mut written = 0;
             for w in write_rx {
-                if let Err(e) = dng::write_derived_owned(&w.output, w.file, &w.noisy, iso, w.profile.as_ref()) {
+                let done = match w.out {
+                    Output::Pixels { file, noisy, profile } => {
+                        dng::write_derived_owned(&w.output, file, &noisy, iso, profile.as_ref())
+                    }
+                    Output::Streamed(file) => file.commit().map_err(|e| dng::DngError::io(&w.output, e)),
+                };
+                if let Err(e) = done {
                     return (written, Some(e.into()));
                 }
                 written += 1;
@@ -134,9 +144,9 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         for (i, ((input, output), file)) in jobs.iter().zip(read_rx).enumerate() {
             // Each file gets its own seed stream so a folder run equals single-file runs with seed + index.
             let seed = args.seed.wrapping_add(i as u64);
-            match file.and_then(|f| job.sample(input, f, seed)) {
-                Ok((file, noisy, profile)) => {
-                    let w = Written { input: input.clone(), output: output.clone(), seed, file, noisy, profile };
+            match file.and_then(|f| job.sample(input, output, f, seed)) {
+                Ok(out) => {
+                    let w = Written { input: input.clone(), output: output.clone(), seed, out };
                     if write_tx.send(w).is_err() {
                         break;
                     }
@@ -179,9 +189,16 @@ struct Written {
     input: PathBuf,
     output: PathBuf,
     seed: u64,
-    file: dng::DngFile,
-    noisy: Array2<u16>,
-    profile: Option<NoiseProfile>,
+    out: Output,
+}
+
+/// What the writer finishes (one per file: the size of the variants does not matter).
+#[allow(clippy::large_enum_variant)]
+enum Output {
+    /// The noisy pixels, to write into a DNG derived from the file.
+    Pixels { file: dng::DngFile, noisy: Array2<u16>, profile: Option<NoiseProfile> },
+    /// The derived DNG, written while it was drawn ([`dng::DerivedStream`]), to commit.
+    Streamed(noisecal_io::AtomicFile),
 }
 
 /// What every file of a run shares.
@@ -189,25 +206,34 @@ struct Job<'a> {
     pack: &'a noisecal_core::ModelPack,
     sampler: &'a IsoSampler,
     model: &'a IsoModel,
+    /// The ISO the outputs are written with.
+    iso: u32,
     quiet: bool,
     /// The NoiseProfile per image layout met so far (a folder's images share one, usually).
     profiles: std::sync::Mutex<Vec<(SensorLayout, Option<NoiseProfile>)>>,
 }
 
 impl Job<'_> {
-    /// The noisy pixels of a read file, and the NoiseProfile its DNG gets.
-    fn sample(
-        &self,
-        input: &Path,
-        file: dng::DngFile,
-        seed: u64,
-    ) -> anyhow::Result<(dng::DngFile, Array2<u16>, Option<NoiseProfile>)> {
+    /// The noisy pixels of a read file and the NoiseProfile its DNG gets, or, for a file whose
+    /// raw image is stored as uncompressed 16-bit strips, its derived DNG written (uncommitted)
+    /// while the pixels are drawn.
+    fn sample(&self, input: &Path, output: &Path, file: dng::DngFile, seed: u64) -> anyhow::Result<Output> {
         let pack = self.pack;
         let layout = file.image.layout.clone();
         check_layout_matches(pack, &layout, input)?;
         // The model is binned by level above the pack's black level: an image with another black level
         // is shifted onto the pack's, synthesized, and shifted back.
         let align = align_input(pack, &layout, input, self.quiet);
+        if align.is_identity()
+            && let Some(stream) = file.streamed()
+        {
+            // The NoiseProfile fit is single-threaded: it runs next to the sampling.
+            let out = stream.write(output, self.iso, |sink| {
+                let draw = || synthesize_bands(self.sampler, file.pixels(), seed, (0, 0), sink);
+                rayon::join(draw, || self.profile(&layout)).1
+            })?;
+            return Ok(Output::Streamed(out));
+        }
         let clean = file.pixels();
         // The NoiseProfile fit is single-threaded: it runs next to the sampling, not after it.
         let (noisy, profile) = rayon::join(
@@ -221,7 +247,7 @@ impl Job<'_> {
             },
             || self.profile(&layout),
         );
-        Ok((file, noisy, profile))
+        Ok(Output::Pixels { file, noisy, profile })
     }
 
     /// The NoiseProfile of the images with `layout` (fitted once per layout).

@@ -320,7 +320,10 @@ pub(crate) fn derive(
     let mode = pixel_mode(&s, input, raw, &geo, pixels);
     let planes: Vec<u64> =
         s.uints(input, raw, Tag::CfaPlaneColor).filter(|p| !p.is_empty() && p.len() <= 4).unwrap_or(vec![0, 1, 2]);
-    let id = new_unique_id(&s, input, iso, pixels);
+    let id = match pixels.as_slice() {
+        Some(sl) => new_unique_id(&s, input, iso, sl.iter().step_by(UNIQUE_ID_STEP).copied()),
+        None => new_unique_id(&s, input, iso, pixels.iter().step_by(UNIQUE_ID_STEP).copied()),
+    };
     let mut edits = Edits::default();
 
     // --- Pixels.
@@ -381,6 +384,24 @@ pub(crate) fn derive(
         }
     }
 
+    metadata_edits(&s, raw, layout, iso, profile, &planes, id, &mut edits);
+    apply(&s, &mut out, &edits)?;
+    Ok((out, mode))
+}
+
+/// The tag edits every derived DNG gets: the ISO, the NoiseProfile (or none), the raw digests
+/// dropped and the raw data ID changed.
+fn metadata_edits(
+    s: &Structure,
+    raw: usize,
+    layout: &SensorLayout,
+    iso: u32,
+    profile: Option<&NoiseProfile>,
+    planes: &[u64],
+    id: [u8; 16],
+    edits: &mut Edits,
+) {
+    let o = s.order;
     // --- ISO.
     let iso_tags = [Tag::IsoSpeedRatings, Tag::StandardOutputSensitivity, Tag::RecommendedExposureIndex, Tag::IsoSpeed];
     let mut has_iso = false;
@@ -414,7 +435,7 @@ pub(crate) fn derive(
     }
 
     // --- NoiseProfile, digests, raw data ID.
-    let profile_pairs = profile.map(|p| plane_pairs(p, layout, &planes));
+    let profile_pairs = profile.map(|p| plane_pairs(p, layout, planes));
     for d in 0..s.dirs.len() {
         if d == raw
             && let Some(pairs) = &profile_pairs
@@ -435,9 +456,6 @@ pub(crate) fn derive(
             edits.set(d, Tag::RawDataUniqueId, e.ty, 16, id.to_vec());
         }
     }
-
-    apply(&s, &mut out, &edits)?;
-    Ok((out, mode))
 }
 
 /// NoiseProfile pairs `[S₀, O₀, S₁, O₁, …]` per colour plane (CFAPlaneColor order): the mean of the
@@ -462,8 +480,13 @@ fn plane_pairs(p: &NoiseProfile, layout: &SensorLayout, planes: &[u64]) -> Vec<f
     out
 }
 
-/// A new `RawDataUniqueID`: a hash of the old one, the ISO and a sample of the new pixels.
-fn new_unique_id(s: &Structure, input: &[u8], iso: u32, pixels: ArrayView2<'_, u16>) -> [u8; 16] {
+/// Every this many pixels (in row-major order of the active area, from the first) one goes into
+/// the new `RawDataUniqueID`.
+pub(crate) const UNIQUE_ID_STEP: usize = 997;
+
+/// A new `RawDataUniqueID`: a hash of the old one, the ISO and a sample of the new pixels (those
+/// at row-major indices that are multiples of [`UNIQUE_ID_STEP`], in order).
+fn new_unique_id(s: &Structure, input: &[u8], iso: u32, sampled: impl Iterator<Item = u16>) -> [u8; 16] {
     let old = s.dirs.iter().enumerate().find_map(|(d, _)| {
         let e = s.entry(d, Tag::RawDataUniqueId)?;
         s.bytes(input, e).map(<[u8]>::to_vec)
@@ -475,11 +498,7 @@ fn new_unique_id(s: &Structure, input: &[u8], iso: u32, pixels: ArrayView2<'_, u
         h2 = (h2 ^ b as u64).wrapping_mul(0x0000_0100_0000_01b3).rotate_left(7);
     };
     old.unwrap_or_default().into_iter().chain(iso.to_le_bytes()).for_each(&mut feed);
-    if let Some(sl) = pixels.as_slice() {
-        sl.iter().step_by(997).flat_map(|v| v.to_le_bytes()).for_each(&mut feed);
-    } else {
-        pixels.iter().step_by(997).flat_map(|v| v.to_le_bytes()).for_each(&mut feed);
-    }
+    sampled.flat_map(|v| v.to_le_bytes()).for_each(&mut feed);
     let mut id = [0u8; 16];
     id[..8].copy_from_slice(&h1.to_be_bytes());
     id[8..].copy_from_slice(&h2.to_be_bytes());
@@ -595,6 +614,183 @@ pub(crate) fn active_view(buf: &[u8], (ah, aw): (usize, usize)) -> Option<ArrayV
     let len = ((ah - 1) * g.width + aw) * 2;
     let samples: &[u16] = bytemuck::try_cast_slice(buf.get(base..base + len)?).ok()?;
     ArrayView2::from_shape((ah, aw).strides((g.width, 1)), samples).ok()
+}
+
+/// A derived DNG written as its pixels are drawn, when the input stores its raw image as
+/// uncompressed 16-bit strips (any byte order, any strip order): the bytes
+/// [`derive`] would give, made in parts: the input's bytes around the stored rows of the active
+/// area ([`Self::gaps`]), those rows band by band ([`Self::encode`]), then the tag edits
+/// ([`Self::finish`]).
+#[derive(Debug)]
+pub(crate) struct StreamPlan {
+    s: Structure,
+    raw: usize,
+    /// Samples per stored row.
+    width: usize,
+    origin: (usize, usize),
+    /// (height, width) of the active area.
+    active: (usize, usize),
+    rows_per_strip: usize,
+    offsets: Vec<u64>,
+    /// The file's byte ranges `[start, end)` the stored rows of the active area cover, sorted,
+    /// touching ranges merged.
+    rows: Vec<(usize, usize)>,
+}
+
+/// The [`StreamPlan`] of an input whose active area is `(ah, aw)`, or `None` when its raw image
+/// is stored otherwise (or its IFDs lie among the stored rows): [`derive`] writes those.
+pub(crate) fn stream_plan(buf: &[u8], (ah, aw): (usize, usize)) -> Option<StreamPlan> {
+    let s = Structure::parse(buf).ok()?;
+    let raw = s.raw_dir(buf)?;
+    let g = geometry(&s, buf, raw).ok()?;
+    let (top, left) = g.origin;
+    if ah == 0 || aw == 0 || top + ah > g.height || left + aw > g.width {
+        return None;
+    }
+    if g.bits != 16 || !plain(&s, buf, raw) || stored_fits(buf, &g) != Some(true) {
+        return None;
+    }
+    let DataLayout::Strips { rows: rows_per_strip, offsets, .. } = g.data else { return None };
+    let row_bytes = g.width * 2;
+    let mut rows: Vec<(usize, usize)> = Vec::new();
+    for fy in top..top + ah {
+        let at = offsets[fy / rows_per_strip] as usize + (fy % rows_per_strip) * row_bytes;
+        match rows.last_mut() {
+            Some(last) if last.1 == at => last.1 += row_bytes,
+            _ => rows.push((at, at + row_bytes)),
+        }
+    }
+    rows.sort_unstable();
+    let mut merged: Vec<(usize, usize)> = Vec::with_capacity(rows.len());
+    for r in rows {
+        match merged.last_mut() {
+            // Rows stored over each other: left to `derive`.
+            Some(last) if r.0 < last.1 => return None,
+            Some(last) if r.0 == last.1 => last.1 = r.1,
+            _ => merged.push(r),
+        }
+    }
+    let overlaps = |a: usize, b: usize| {
+        let i = merged.partition_point(|r| r.1 <= a);
+        merged.get(i).is_some_and(|r| r.0 < b)
+    };
+    if s.dirs.iter().any(|d| overlaps(d.offset, d.offset + 2 + 12 * d.entries.len() + 4)) {
+        return None;
+    }
+    Some(StreamPlan {
+        raw,
+        width: g.width,
+        origin: g.origin,
+        active: (ah, aw),
+        rows_per_strip,
+        offsets,
+        rows: merged,
+        s,
+    })
+}
+
+impl StreamPlan {
+    /// The byte ranges `[start, end)` of the input (of `len` bytes) that the output keeps as they
+    /// are (before the tag edits): everything but the stored rows of the active area.
+    pub(crate) fn gaps(&self, len: usize) -> Vec<(usize, usize)> {
+        let mut out = Vec::new();
+        let mut at = 0;
+        for &(a, b) in &self.rows {
+            if a > at {
+                out.push((at, a));
+            }
+            at = b;
+        }
+        if len > at {
+            out.push((at, len));
+        }
+        out
+    }
+
+    /// The stored rows of active rows `y0 ..` (`samples`: whole rows of the active area) as the
+    /// output holds them, handed to `write(file offset, bytes)` run by run (rows stored one after
+    /// the other form one run). Masked columns keep the input's bytes. `scratch` is reused.
+    pub(crate) fn encode<E>(
+        &self,
+        input: &[u8],
+        y0: usize,
+        samples: &[u16],
+        scratch: &mut Vec<u8>,
+        mut write: impl FnMut(u64, &[u8]) -> Result<(), E>,
+    ) -> Result<(), E> {
+        let (_, aw) = self.active;
+        let (top, left) = self.origin;
+        let row_bytes = self.width * 2;
+        let n = samples.len() / aw;
+        let at = |y: usize| {
+            let fy = top + y;
+            self.offsets[fy / self.rows_per_strip] as usize + (fy % self.rows_per_strip) * row_bytes
+        };
+        let host = self.s.order.big == cfg!(target_endian = "big");
+        let mut y = 0;
+        while y < n {
+            // A run: rows stored one after the other.
+            let start = at(y0 + y);
+            let mut end = y + 1;
+            while end < n && at(y0 + end) == start + (end - y) * row_bytes {
+                end += 1;
+            }
+            let rows = &samples[y * aw..end * aw];
+            if host && aw == self.width {
+                write(start as u64, bytemuck::cast_slice(rows))?;
+            } else {
+                scratch.clear();
+                scratch.extend_from_slice(&input[start..start + (end - y) * row_bytes]);
+                for (dst, src) in scratch.chunks_exact_mut(row_bytes).zip(rows.chunks_exact(aw)) {
+                    let dst = &mut dst[left * 2..(left + aw) * 2];
+                    if self.s.order.big {
+                        for (d, &v) in dst.chunks_exact_mut(2).zip(src) {
+                            d.copy_from_slice(&v.to_be_bytes());
+                        }
+                    } else {
+                        for (d, &v) in dst.chunks_exact_mut(2).zip(src) {
+                            d.copy_from_slice(&v.to_le_bytes());
+                        }
+                    }
+                }
+                write(start as u64, scratch)?;
+            }
+            y = end;
+        }
+        Ok(())
+    }
+
+    /// The tag edits, once every row is written: overwrites of the output's bytes, to be applied
+    /// in order after the rows, and the bytes appended after the input's. `sampled` are the new
+    /// pixels at row-major indices that are multiples of [`UNIQUE_ID_STEP`], in order.
+    #[allow(clippy::type_complexity)]
+    pub(crate) fn finish(
+        &self,
+        input: &[u8],
+        layout: &SensorLayout,
+        iso: u32,
+        profile: Option<&NoiseProfile>,
+        sampled: impl Iterator<Item = u16>,
+    ) -> Result<(Vec<(usize, Vec<u8>)>, Vec<u8>), String> {
+        let (ah, aw) = self.active;
+        if (aw as u32, ah as u32) != (layout.width, layout.height) {
+            return Err(format!(
+                "the pixel array is {aw}×{ah} but the template's active area is {}×{}",
+                layout.width, layout.height
+            ));
+        }
+        let s = &self.s;
+        let planes: Vec<u64> = s
+            .uints(input, self.raw, Tag::CfaPlaneColor)
+            .filter(|p| !p.is_empty() && p.len() <= 4)
+            .unwrap_or(vec![0, 1, 2]);
+        let id = new_unique_id(s, input, iso, sampled);
+        let mut edits = Edits::default();
+        metadata_edits(s, self.raw, layout, iso, profile, &planes, id, &mut edits);
+        let mut out = Overlay { base: input, patches: Vec::new(), tail: Vec::new() };
+        apply(s, &mut out, &edits)?;
+        Ok((out.patches, out.tail))
+    }
 }
 
 /// Uncompressed single-sample integer data, stored as it reads (no linearization, no
@@ -769,21 +965,98 @@ fn unpack_msb(b: &[u8], bits: u32, n: usize) -> Vec<u16> {
     out
 }
 
-fn align(out: &mut Vec<u8>) {
+fn align(out: &mut impl Out) {
     while !out.len().is_multiple_of(4) {
-        out.push(0);
+        out.push(&[0]);
     }
 }
 
-fn pos(out: &[u8]) -> Result<u32, String> {
+fn pos(out: &impl Out) -> Result<u32, String> {
     u32::try_from(out.len()).map_err(|_| "the DNG would exceed 4 GiB".to_string())
+}
+
+/// What [`apply`] edits: the output's bytes (the input's, pixels written), or the input with
+/// the edits kept aside ([`Overlay`]).
+trait Out {
+    fn len(&self) -> usize;
+    /// The 4 bytes at `at` (`None` past the end).
+    fn get4(&self, at: usize) -> Option<[u8; 4]>;
+    /// Overwrites bytes inside the output.
+    fn put(&mut self, at: usize, bytes: &[u8]);
+    /// Appends bytes.
+    fn push(&mut self, bytes: &[u8]);
+}
+
+impl Out for Vec<u8> {
+    fn len(&self) -> usize {
+        <[u8]>::len(self)
+    }
+
+    fn get4(&self, at: usize) -> Option<[u8; 4]> {
+        self.get(at..at.checked_add(4)?)?.try_into().ok()
+    }
+
+    fn put(&mut self, at: usize, bytes: &[u8]) {
+        self[at..at + bytes.len()].copy_from_slice(bytes);
+    }
+
+    fn push(&mut self, bytes: &[u8]) {
+        self.extend_from_slice(bytes);
+    }
+}
+
+/// The input's bytes with the edits [`apply`] makes kept aside: overwrites of the input's bytes
+/// (to be applied in order) and what is appended after it. Reads see the edits.
+#[derive(Debug)]
+struct Overlay<'a> {
+    base: &'a [u8],
+    patches: Vec<(usize, Vec<u8>)>,
+    tail: Vec<u8>,
+}
+
+impl Out for Overlay<'_> {
+    fn len(&self) -> usize {
+        self.base.len() + self.tail.len()
+    }
+
+    fn get4(&self, at: usize) -> Option<[u8; 4]> {
+        let n = self.base.len();
+        let mut b = [0u8; 4];
+        for (k, v) in b.iter_mut().enumerate() {
+            let i = at.checked_add(k)?;
+            *v = if i < n { self.base[i] } else { *self.tail.get(i - n)? };
+        }
+        for (p, bytes) in &self.patches {
+            for (k, v) in b.iter_mut().enumerate() {
+                if let Some(x) = (at + k).checked_sub(*p).and_then(|i| bytes.get(i)) {
+                    *v = *x;
+                }
+            }
+        }
+        Some(b)
+    }
+
+    fn put(&mut self, at: usize, bytes: &[u8]) {
+        let n = self.base.len();
+        let inside = n.saturating_sub(at).min(bytes.len());
+        if inside > 0 {
+            self.patches.push((at, bytes[..inside].to_vec()));
+        }
+        for (k, &x) in bytes.iter().enumerate().skip(inside) {
+            self.tail[at + k - n] = x;
+        }
+    }
+
+    fn push(&mut self, bytes: &[u8]) {
+        self.tail.extend_from_slice(bytes);
+    }
 }
 
 /// Applies the edits: in place where every changed tag keeps its type and size, else by writing
 /// the directory again at the end and patching the pointer to it. Directories are visited from
 /// the last found to the first, so a directory is rewritten after the ones it points to have
 /// patched their pointers inside it.
-fn apply(s: &Structure, out: &mut Vec<u8>, edits: &Edits) -> Result<(), String> {
+fn apply(s: &Structure, out: &mut impl Out, edits: &Edits) -> Result<(), String> {
     let o = s.order;
     for (&d, changes) in edits.0.iter().rev() {
         let dir = &s.dirs[d];
@@ -792,7 +1065,7 @@ fn apply(s: &Structure, out: &mut Vec<u8>, edits: &Edits) -> Result<(), String> 
         let current: Vec<Entry> = (0..n)
             .map(|i| {
                 let e = dir.offset + 2 + 12 * i;
-                Entry { field: out[e + 8..e + 12].try_into().unwrap_or([0; 4]), ..dir.entries[i] }
+                Entry { field: out.get4(e + 8).unwrap_or([0; 4]), ..dir.entries[i] }
             })
             .collect();
         let find = |tag: u16| current.iter().position(|e| e.tag == tag);
@@ -817,14 +1090,14 @@ fn apply(s: &Structure, out: &mut Vec<u8>, edits: &Edits) -> Result<(), String> 
                 } else {
                     o.u32(&current[i].field, 0).unwrap_or(0) as usize
                 };
-                out[at..at + bytes.len()].copy_from_slice(bytes);
+                out.put(at, bytes);
                 if bytes.len() < 4 {
-                    out[at + bytes.len()..at + 4].fill(0);
+                    out.put(at + bytes.len(), &[0; 4][bytes.len()..]);
                 }
             }
             continue;
         }
-        let next = o.u32(out, dir.offset + 2 + 12 * n).unwrap_or(0);
+        let next = out.get4(dir.offset + 2 + 12 * n).and_then(|b| o.u32(&b, 0)).unwrap_or(0);
         let mut entries: BTreeMap<u16, Entry> = current.iter().map(|e| (e.tag, *e)).collect();
         for (&tag, edit) in changes {
             match edit {
@@ -838,7 +1111,7 @@ fn apply(s: &Structure, out: &mut Vec<u8>, edits: &Edits) -> Result<(), String> 
                     } else {
                         align(out);
                         field = o.b32(pos(out)?);
-                        out.extend_from_slice(bytes);
+                        out.push(bytes);
                     }
                     entries.insert(tag, Entry { tag, ty: *ty, count: *count, field });
                 }
@@ -846,15 +1119,15 @@ fn apply(s: &Structure, out: &mut Vec<u8>, edits: &Edits) -> Result<(), String> 
         }
         align(out);
         let at = pos(out)?;
-        out.extend_from_slice(&o.b16(u16::try_from(entries.len()).map_err(|_| "too many tags in one IFD")?));
+        out.push(&o.b16(u16::try_from(entries.len()).map_err(|_| "too many tags in one IFD")?));
         for e in entries.values() {
-            out.extend_from_slice(&o.b16(e.tag));
-            out.extend_from_slice(&o.b16(e.ty));
-            out.extend_from_slice(&o.b32(e.count));
-            out.extend_from_slice(&e.field);
+            out.push(&o.b16(e.tag));
+            out.push(&o.b16(e.ty));
+            out.push(&o.b32(e.count));
+            out.push(&e.field);
         }
-        out.extend_from_slice(&o.b32(next));
-        out[dir.pointer_at..dir.pointer_at + 4].copy_from_slice(&o.b32(at));
+        out.push(&o.b32(next));
+        out.put(dir.pointer_at, &o.b32(at));
     }
     Ok(())
 }

@@ -9,7 +9,8 @@
 //! * [`write_derived`] writes a DNG derived from a read one ([`read_dng_file`]): the input file
 //!   with only its raw pixels, its ISO and its `NoiseProfile` changed, every other tag, sub-IFD,
 //!   preview and maker note kept byte for byte (the editor in `edit`). [`write_dng`] does the same
-//!   from a [`DngImage`] (re-reading its file).
+//!   from a [`DngImage`] (re-reading its file). [`DngFile::streamed`] writes the same bytes while
+//!   the pixels are drawn, band by band, for inputs stored as uncompressed 16-bit strips.
 //! * [`write_dng_from_layout`] writes a fresh uncompressed 16-bit CFA DNG (one IFD, the way
 //!   Android's `DngCreator` lays it out) through the small TIFF writer in [`tiff`], atomically,
 //!   for the simulator, which has no input file.
@@ -40,7 +41,8 @@ pub use read::{
 };
 pub use tags::Tag;
 pub use write::{
-    DngSpec, derived_bytes, dng_tiff, write_derived, write_derived_owned, write_dng, write_dng_from_layout,
+    DerivedStream, DngSpec, derived_bytes, dng_tiff, write_derived, write_derived_owned, write_dng,
+    write_dng_from_layout,
 };
 
 /// Colour tags carried from a read DNG to the ones written from it, so other tools still render
@@ -80,18 +82,44 @@ pub struct DngImage {
     pub source: PathBuf,
 }
 
+/// A file's bytes: read into memory, or mapped.
+#[derive(Debug)]
+enum Bytes {
+    Owned(Vec<u8>),
+    Mapped(noisecal_io::Mapped),
+}
+
+impl std::ops::Deref for Bytes {
+    type Target = [u8];
+
+    fn deref(&self) -> &[u8] {
+        match self {
+            Bytes::Owned(v) => v,
+            Bytes::Mapped(m) => m,
+        }
+    }
+}
+
 /// A DNG as read, with its file's bytes: the template of the DNGs derived from it.
 #[derive(Debug, Clone)]
 pub struct DngFile {
     /// The decoded image (`pixels` is empty when read with [`read_dng_template`]).
     pub image: DngImage,
-    bytes: Arc<Vec<u8>>,
+    bytes: Arc<Bytes>,
 }
 
 impl DngFile {
     /// The file's bytes.
     pub fn bytes(&self) -> &[u8] {
         &self.bytes
+    }
+
+    /// A writer of the DNGs derived from this one that writes the pixels as they are drawn,
+    /// when the raw image is stored as uncompressed 16-bit strips (see [`DerivedStream`]);
+    /// `None` for other storage ([`write_derived`] writes those).
+    pub fn streamed(&self) -> Option<DerivedStream<'_>> {
+        let (h, w) = (self.image.layout.height as usize, self.image.layout.width as usize);
+        edit::stream_plan(&self.bytes, (h, w)).map(|plan| DerivedStream { template: self, plan })
     }
 
     /// The active area's pixels: a view of the file's bytes when the raw image is stored as
@@ -104,9 +132,13 @@ impl DngFile {
         edit::active_view(&self.bytes, (self.image.layout.height as usize, self.image.layout.width as usize))
     }
 
-    /// The file's bytes, owned (copied only if this template is shared).
+    /// The file's bytes, owned (copied only if this template is shared or mapped).
     pub(crate) fn into_bytes(self) -> Vec<u8> {
-        Arc::try_unwrap(self.bytes).unwrap_or_else(|shared| (*shared).clone())
+        match Arc::try_unwrap(self.bytes) {
+            Ok(Bytes::Owned(v)) => v,
+            Ok(Bytes::Mapped(m)) => m.to_vec(),
+            Err(shared) => shared.to_vec(),
+        }
     }
 }
 

@@ -15,7 +15,7 @@ use rawler::formats::tiff::{GenericTiffReader, IFD, Value};
 use rawler::rawsource::RawSource;
 
 use super::tags::Tag;
-use super::{ColorTags, DngError, DngFile, DngImage};
+use super::{Bytes, ColorTags, DngError, DngFile, DngImage};
 
 const PHOTOMETRIC_CFA: u64 = 32803;
 const PHOTOMETRIC_LINEAR_RAW: u64 = 34892;
@@ -38,44 +38,45 @@ pub const MAX_DNG_BYTES: u64 = 1 << 30;
 /// is absent; [`DngError::Unsupported`] for non-Bayer (X-Trans, 4-colour), demosaiced (LinearRaw),
 /// lossy, floating-point or < 10-bit data, and levels that make no sense.
 pub fn read_dng(path: &Path) -> Result<DngImage, DngError> {
-    parse(source_of(path)?, path, true)
+    parse(Src::Raw(source_of(path)?), path, true)
 }
 
 /// As [`read_dng`] without decoding the pixels (`pixels` is empty): the metadata a capture set is
 /// grouped by, at a fraction of the cost. The same checks apply, but for the data's integrity.
 pub fn read_dng_meta(path: &Path) -> Result<DngImage, DngError> {
-    parse(source_of(path)?, path, false)
+    parse(Src::Raw(source_of(path)?), path, false)
 }
 
 /// Decodes a DNG held in memory, as [`read_dng`] decodes a file: the entry point for fuzzing and
 /// for callers that already hold the bytes. `source` names the data in errors and becomes
 /// [`DngImage::source`]. Malformed input of any kind is an error, never a panic.
 pub fn decode_dng(bytes: &[u8], source: &Path) -> Result<DngImage, DngError> {
-    parse(RawSource::new_from_slice(bytes), source, true)
+    parse(Src::Slice(bytes), source, true)
 }
 
 /// As [`decode_dng`] without decoding the pixels, as [`read_dng_meta`].
 pub fn decode_dng_meta(bytes: &[u8], source: &Path) -> Result<DngImage, DngError> {
-    parse(RawSource::new_from_slice(bytes), source, false)
+    parse(Src::Slice(bytes), source, false)
 }
 
 /// As [`read_dng`], keeping the file's bytes: the template [`super::write_derived`] writes a
 /// derived DNG from (the input with only its pixels and ISO-dependent tags changed).
 pub fn read_dng_file(path: &Path) -> Result<DngFile, DngError> {
-    let bytes = file_bytes(path)?;
-    let image = parse(RawSource::new_from_shared_vec(bytes.clone()), path, true)?;
+    let bytes = mapped_bytes(path)?;
+    let image = parse(Src::Slice(&bytes), path, true)?;
     Ok(DngFile { image, bytes })
 }
 
 /// As [`read_dng_file`], but the pixels of an uncompressed 16-bit raw image in this machine's
 /// byte order are not copied out of the file's bytes: read them with [`DngFile::pixels`] (for
-/// other storage they are decoded into `image.pixels`, as [`read_dng_file`] does).
+/// other storage they are decoded into `image.pixels`, as [`read_dng_file`] does). The file is
+/// memory-mapped, not read: it must not be truncated while the returned file lives.
 pub fn read_dng_source(path: &Path) -> Result<DngFile, DngError> {
-    let bytes = file_bytes(path)?;
-    let image = parse(RawSource::new_from_shared_vec(bytes.clone()), path, false)?;
+    let bytes = mapped_bytes(path)?;
+    let image = parse(Src::Slice(&bytes), path, false)?;
     let mut file = DngFile { image, bytes };
     if file.pixels().is_empty() {
-        file.image = parse(RawSource::new_from_shared_vec(file.bytes.clone()), path, true)?;
+        file.image = parse(Src::Slice(&file.bytes), path, true)?;
     }
     Ok(file)
 }
@@ -83,15 +84,15 @@ pub fn read_dng_source(path: &Path) -> Result<DngFile, DngError> {
 /// As [`read_dng_file`] without decoding the pixels (`image.pixels` is empty): a template only.
 pub fn read_dng_template(path: &Path) -> Result<DngFile, DngError> {
     let bytes = file_bytes(path)?;
-    let image = parse(RawSource::new_from_shared_vec(bytes.clone()), path, false)?;
+    let image = parse(Src::Raw(RawSource::new_from_shared_vec(bytes.clone())), path, false)?;
+    let bytes = Arc::new(Bytes::Owned(Arc::unwrap_or_clone(bytes)));
     Ok(DngFile { image, bytes })
 }
 
 /// A template from bytes already in memory (`source` names it in errors).
 pub fn decode_dng_template(bytes: Vec<u8>, source: &Path) -> Result<DngFile, DngError> {
-    let bytes = Arc::new(bytes);
-    let image = parse(RawSource::new_from_shared_vec(bytes.clone()), source, false)?;
-    Ok(DngFile { image, bytes })
+    let image = parse(Src::Slice(&bytes), source, false)?;
+    Ok(DngFile { image, bytes: Arc::new(Bytes::Owned(bytes)) })
 }
 
 /// The whole raw image of a DNG (masked areas included, `ImageWidth × ImageLength` samples, as
@@ -121,12 +122,38 @@ fn file_bytes(path: &Path) -> Result<Arc<Vec<u8>>, DngError> {
     Ok(Arc::new(bytes))
 }
 
+/// The file's bytes, mapped after checking it is a regular file of a sane size.
+fn mapped_bytes(path: &Path) -> Result<Arc<Bytes>, DngError> {
+    let map = noisecal_io::map_regular(path, MAX_DNG_BYTES).map_err(|e| DngError::io(path, e))?;
+    Ok(Arc::new(Bytes::Mapped(map)))
+}
+
+/// What [`parse`] reads: a source for the decoder, or bytes (given to the decoder as a copy, only
+/// when the pixels need the decoder).
+enum Src<'a> {
+    Raw(RawSource),
+    Slice(&'a [u8]),
+}
+
+impl Src<'_> {
+    fn buf(&self) -> &[u8] {
+        match self {
+            Src::Raw(r) => r.buf(),
+            Src::Slice(b) => b,
+        }
+    }
+
+    fn reader(&self) -> std::io::Cursor<&[u8]> {
+        std::io::Cursor::new(self.buf())
+    }
+}
+
 /// The file's bytes, read whole after checking it is a regular file of a sane size.
 fn source_of(path: &Path) -> Result<RawSource, DngError> {
     Ok(RawSource::new_from_shared_vec(file_bytes(path)?))
 }
 
-fn parse(src: RawSource, path: &Path, decode_pixels: bool) -> Result<DngImage, DngError> {
+fn parse(src: Src<'_>, path: &Path, decode_pixels: bool) -> Result<DngImage, DngError> {
     let len = src.buf().len();
     if len < 8 {
         return Err(DngError::decode(path, format!("the file is only {len} bytes long; a DNG is a TIFF file")));
@@ -264,7 +291,7 @@ fn parse(src: RawSource, path: &Path, decode_pixels: bool) -> Result<DngImage, D
 fn decode(
     path: &Path,
     raw: &IFD,
-    src: &RawSource,
+    src: &Src<'_>,
     (width, height): (usize, usize),
     (top, left, bottom, right): (usize, usize, usize, usize),
     bits: u32,
@@ -297,6 +324,14 @@ fn decode(
     if let Some(pixels) = super::edit::read_active_16(src.buf(), (width, height), (top, left, bottom, right)) {
         return Ok(pixels);
     }
+    let copy;
+    let src = match src {
+        Src::Raw(r) => r,
+        Src::Slice(b) => {
+            copy = RawSource::new_from_slice(b);
+            &copy
+        }
+    };
     let data = guarded(path, "decoding the raw image data", || plain_image_from_ifd(raw, src))
         .map_err(|e| panic_error(path, raw, e))?
         .map_err(|e| decode_error(path, raw, e))?;

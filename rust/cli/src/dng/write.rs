@@ -10,6 +10,8 @@
 //! and an EXIF IFD with `ExposureTime` and `ISOSpeedRatings`.
 
 use std::path::Path;
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, AtomicU16, AtomicUsize, Ordering};
 
 use ndarray::Array2;
 use noisecal_core::model::layout::CfaColor;
@@ -68,6 +70,111 @@ pub fn write_derived_owned(
     })
     .map_err(|what| DngError::invalid(path, format!("from the template {}: {what}", source.display())))?;
     noisecal_io::write_bytes_atomic(path, &bytes).map_err(|e| DngError::io(path, e))
+}
+
+/// A DNG derived from a template ([`DngFile::streamed`]) written while its pixels are drawn: the
+/// bytes [`write_derived`] writes, made in parts. The template's bytes around its raw rows go to
+/// a temporary file next to the output first; each band of noisy rows is then encoded in the
+/// file's byte order and written where the template stores those rows as soon as it is drawn,
+/// on the thread that drew it, and the OS is asked to start writing it to the disk
+/// ([`noisecal_io::start_writeback`]), so the sync of the commit waits for little; the tag
+/// edits follow. There is no image-sized buffer and no separate encoding pass.
+#[derive(Debug)]
+pub struct DerivedStream<'a> {
+    pub(super) template: &'a DngFile,
+    pub(super) plan: edit::StreamPlan,
+}
+
+thread_local! {
+    /// Per thread, the stored rows of a band being encoded.
+    static SCRATCH: std::cell::RefCell<Vec<u8>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+impl DerivedStream<'_> {
+    /// Writes the derived DNG with ISO `iso` to a temporary file next to `path`, and returns it
+    /// uncommitted: [`noisecal_io::AtomicFile::commit`] syncs it and renames it over `path`
+    /// (dropping it instead removes it). `draw` is given the sink the noisy image goes to, as
+    /// [`noisecal_core::synth::synthesize_bands`] hands it over (`sink(first row, whole rows of
+    /// the active area)`; every row exactly once, in any order, from any thread), and returns the
+    /// NoiseProfile to write (see [`write_derived`]).
+    pub fn write(
+        &self,
+        path: &Path,
+        iso: u32,
+        draw: impl FnOnce(&(dyn Fn(usize, &[u16]) + Sync)) -> Option<NoiseProfile>,
+    ) -> Result<noisecal_io::AtomicFile, DngError> {
+        if iso == 0 {
+            return Err(DngError::invalid(path, "ISO is 0; pass the sensitivity of the frame"));
+        }
+        let input = self.template.bytes();
+        let layout = &self.template.image.layout;
+        let (ah, aw) = (layout.height as usize, layout.width as usize);
+        let io = |e: std::io::Error| DngError::io(path, e);
+        let mut out = noisecal_io::AtomicFile::create(path).map_err(io)?;
+        let file = out.positioned().map_err(io)?;
+        for (a, b) in self.plan.gaps(input.len()) {
+            noisecal_io::write_all_at(file, &input[a..b], a as u64).map_err(io)?;
+        }
+        let step = edit::UNIQUE_ID_STEP;
+        let sampled: Vec<AtomicU16> = (0..(ah * aw).div_ceil(step)).map(|_| AtomicU16::new(0)).collect();
+        let rows_done = AtomicUsize::new(0);
+        let failed: Mutex<Option<std::io::Error>> = Mutex::new(None);
+        let stop = AtomicBool::new(false);
+        let sink = |y0: usize, samples: &[u16]| {
+            // The pixels the new RawDataUniqueID hashes.
+            let first = y0 * aw;
+            let mut k = first.div_ceil(step) * step;
+            while k < first + samples.len() {
+                if let Some(slot) = sampled.get(k / step) {
+                    slot.store(samples[k - first], Ordering::Relaxed);
+                }
+                k += step;
+            }
+            let whole_rows = samples.len().is_multiple_of(aw.max(1)) && y0 + samples.len() / aw.max(1) <= ah;
+            if stop.load(Ordering::Relaxed) || !whole_rows {
+                stop.store(true, Ordering::Relaxed);
+                return;
+            }
+            let written = SCRATCH.with(|scratch| {
+                let mut scratch = scratch.borrow_mut();
+                self.plan.encode(input, y0, samples, &mut scratch, |at, bytes| {
+                    noisecal_io::write_all_at(file, bytes, at)?;
+                    noisecal_io::start_writeback(file, at, bytes.len() as u64);
+                    Ok::<(), std::io::Error>(())
+                })
+            });
+            match written {
+                Ok(()) => {
+                    rows_done.fetch_add(samples.len() / aw, Ordering::Relaxed);
+                }
+                Err(e) => {
+                    stop.store(true, Ordering::Relaxed);
+                    if let Ok(mut f) = failed.lock() {
+                        f.get_or_insert(e);
+                    }
+                }
+            }
+        };
+        let profile = draw(&sink);
+        if let Some(e) = failed.into_inner().ok().flatten() {
+            return Err(io(e));
+        }
+        if stop.load(Ordering::Relaxed) || rows_done.load(Ordering::Relaxed) != ah {
+            return Err(DngError::invalid(path, "the noisy image was not drawn whole (internal error)"));
+        }
+        let source = &self.template.image.source;
+        let (patches, tail) = self
+            .plan
+            .finish(input, layout, iso, profile.as_ref(), sampled.iter().map(|v| v.load(Ordering::Relaxed)))
+            .map_err(|what| DngError::invalid(path, format!("from the template {}: {what}", source.display())))?;
+        for (at, bytes) in &patches {
+            noisecal_io::write_all_at(file, bytes, *at as u64).map_err(io)?;
+        }
+        if !tail.is_empty() {
+            noisecal_io::write_all_at(file, &tail, input.len() as u64).map_err(io)?;
+        }
+        Ok(out)
+    }
 }
 
 /// The bytes [`write_derived`] writes (`path` names the output in errors), and how the pixels

@@ -38,13 +38,51 @@ pub fn synthesize_at(
     origin: (usize, usize),
 ) -> Array2<u16> {
     let (h, w) = clean.dim();
-    if let Some(st) = sampler.structure() {
-        return synthesize_structured(sampler, st, clean, seed, origin);
-    }
-    let (row0, col0) = (origin.0 & 1, origin.1 & 1);
     let mut out = vec![0u16; h * w];
     if w > 0 {
-        out.par_chunks_mut(BAND_ROWS * w).enumerate().for_each(|(band, chunk)| {
+        let fill = band_filler(sampler, clean, seed, origin);
+        out.par_chunks_mut(BAND_ROWS * w).enumerate().for_each(|(band, chunk)| fill(band, chunk));
+    }
+    Array2::from_shape_vec((h, w), out).expect("h × w samples")
+}
+
+/// As [`synthesize_at`], handing each band of [`BAND_ROWS`] rows (the last may be shorter) to
+/// `sink(first_row, samples)` as soon as it is drawn, on the thread that drew it, instead of
+/// returning the image: for callers that write the noisy image out as it is made. The samples
+/// are those [`synthesize_at`] returns, byte for byte.
+pub fn synthesize_bands<F>(sampler: &IsoSampler, clean: ArrayView2<'_, u16>, seed: u64, origin: (usize, usize), sink: F)
+where
+    F: Fn(usize, &[u16]) + Sync,
+{
+    let (h, w) = clean.dim();
+    if w == 0 || h == 0 {
+        return;
+    }
+    let fill = band_filler(sampler, clean, seed, origin);
+    (0..h.div_ceil(BAND_ROWS)).into_par_iter().for_each_init(Vec::new, |buf, band| {
+        let rows = BAND_ROWS.min(h - band * BAND_ROWS);
+        buf.resize(rows * w, 0);
+        fill(band, buf);
+        sink(band * BAND_ROWS, buf);
+    });
+}
+
+/// What draws band `band` of the noisy image into its `chunk` of rows.
+type BandFiller<'a> = Box<dyn Fn(usize, &mut [u16]) + Sync + 'a>;
+
+fn band_filler<'a>(
+    sampler: &'a IsoSampler,
+    clean: ArrayView2<'a, u16>,
+    seed: u64,
+    origin: (usize, usize),
+) -> BandFiller<'a> {
+    if let Some(st) = sampler.structure() {
+        return structured_filler(sampler, st, clean, seed, origin);
+    }
+    let w = clean.dim().1;
+    let (row0, col0) = (origin.0 & 1, origin.1 & 1);
+    {
+        Box::new(move |band: usize, chunk: &mut [u16]| {
             let mut rng = band_rng(seed, band);
             for (r, row) in chunk.chunks_mut(w).enumerate() {
                 let y = band * BAND_ROWS + r;
@@ -80,22 +118,21 @@ pub fn synthesize_at(
                     row[w - 1] = sampler.finish(even, draw(lut0, tab0, src[w - 1], rng.next_u32()), alt);
                 }
             }
-        });
+        })
     }
-    Array2::from_shape_vec((h, w), out).expect("h × w samples")
 }
 
 /// [`synthesize_at`] with structured components: per image a frame offset per position, per row
 /// and per column an offset ([`structure`](mod@structure)), each pixel adding their sum dithered
 /// onto the integers. The pixel draws use the band streams as without components; the dither
 /// draws follow them in the same stream.
-fn synthesize_structured(
-    sampler: &IsoSampler,
+fn structured_filler<'a>(
+    sampler: &'a IsoSampler,
     st: &structure::StructureSampler,
-    clean: ArrayView2<'_, u16>,
+    clean: ArrayView2<'a, u16>,
     seed: u64,
     origin: (usize, usize),
-) -> Array2<u16> {
+) -> BandFiller<'a> {
     let (h, w) = clean.dim();
     let (row0, col0) = (origin.0 & 1, origin.1 & 1);
     let offsets = st.draw(seed, h, w, origin);
@@ -105,9 +142,8 @@ fn synthesize_structured(
         let parity = ((r + row0) & 1) << 1;
         offsets.columns.iter().enumerate().map(|(x, c)| fixed(c + offsets.frame[parity | ((x + col0) & 1)])).collect()
     });
-    let mut out = vec![0u16; h * w];
-    if w > 0 {
-        out.par_chunks_mut(BAND_ROWS * w).enumerate().for_each(|(band, chunk)| {
+    {
+        Box::new(move |band: usize, chunk: &mut [u16]| {
             let mut rng = band_rng(seed, band);
             for (r, row) in chunk.chunks_mut(w).enumerate() {
                 let y = band * BAND_ROWS + r;
@@ -160,9 +196,8 @@ fn synthesize_structured(
                     row[w - 1] = sampler.finish(even, a, alt);
                 }
             }
-        });
+        })
     }
-    Array2::from_shape_vec((h, w), out).expect("h × w samples")
 }
 
 /// An offset in DN as a fixed-point number of 2⁻³² DN.
