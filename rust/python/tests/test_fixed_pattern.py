@@ -1,0 +1,55 @@
+"""The fixed pattern (dark frames) through the Python package: a pack calibrated with a dark
+step adds each sensor pixel's own dark offset, the same whatever the seed, and a crop given its
+true origin gets the pattern of its true pixels (a crop told it sits at (0, 0) does not)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import noisecal
+
+from conftest import run
+
+ISO = 1600
+
+
+@pytest.fixture(scope="module")
+def dark_pack(tmp_path_factory: pytest.TempPathFactory, cli) -> noisecal.Pack:
+    d = tmp_path_factory.mktemp("dark")
+    run(cli, "simulate", "--dngs", d / "cal", "--width", "96", "--height", "64", "--frames", "6",
+        "--isos", f"400,{ISO}", "--structured", "--dark", "8", "--seed", "5")
+    return noisecal.calibrate(d / "cal")
+
+
+def _pattern(pack: noisecal.Pack, clean: np.ndarray, origin: tuple[int, int], seeds: range, comps: str) -> np.ndarray:
+    """Per-pixel mean of the synthetic noise over seeds (the part that repeats)."""
+    acc = np.zeros(clean.shape)
+    for s in seeds:
+        acc += pack.synth(clean, ISO, s, cfa_origin=origin, components=comps).astype(np.float64) - clean
+    return acc / len(seeds)
+
+
+def _corr(a: np.ndarray, b: np.ndarray) -> float:
+    a, b = a - a.mean(), b - b.mean()
+    return float((a * b).sum() / np.sqrt((a * a).sum() * (b * b).sum()))
+
+
+def test_pattern_repeats_and_follows_the_crop(dark_pack: noisecal.Pack) -> None:
+    black = int(round(dark_pack.layout["black"][0]))
+    full = np.full((64, 96), black + 40, dtype=np.uint16)
+    # The pattern repeats from seed to seed: two disjoint sets of seeds see the same pattern.
+    a = _pattern(dark_pack, full, (0, 0), range(0, 48), "pixel,fpn")
+    b = _pattern(dark_pack, full, (0, 0), range(48, 96), "pixel,fpn")
+    assert _corr(a, b) > 0.25, _corr(a, b)
+    # Without it nothing repeats.
+    c = _pattern(dark_pack, full, (0, 0), range(0, 48), "pixel")
+    d = _pattern(dark_pack, full, (0, 0), range(48, 96), "pixel")
+    assert abs(_corr(c, d)) < 0.08, _corr(c, d)
+    # A 32×48 crop at (10, 21) of the sensor: with its origin it gets those pixels' pattern.
+    crop = full[10:42, 21:69].copy()
+    e = _pattern(dark_pack, crop, (10, 21), range(96, 144), "pixel,fpn")
+    assert _corr(e, a[10:42, 21:69]) > 0.25, _corr(e, a[10:42, 21:69])
+    # Told it sits at (0, 0) (wrong pixels, and the wrong CFA phase), it does not.
+    f = _pattern(dark_pack, crop, (0, 0), range(96, 144), "pixel,fpn")
+    assert abs(_corr(f, a[10:42, 21:69])) < 0.08, _corr(f, a[10:42, 21:69])
