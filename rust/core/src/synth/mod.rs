@@ -30,7 +30,8 @@ pub fn synthesize(sampler: &IsoSampler, clean: ArrayView2<'_, u16>, seed: u64) -
 
 /// As [`synthesize`], for a crop whose pixel (0, 0) sits at `origin = (row, column)` of the full
 /// sensor: each pixel gets the noise of its true CFA position (`position(row + y, column + x)`).
-/// Only the parity of the origin matters; `(0, 0)` is [`synthesize`], byte for byte.
+/// Only the parity of the origin matters, except to a fixed pattern (which is the sensor's, pixel
+/// by pixel); `(0, 0)` is [`synthesize`], byte for byte.
 pub fn synthesize_at(
     sampler: &IsoSampler,
     clean: ArrayView2<'_, u16>,
@@ -123,9 +124,9 @@ fn band_filler<'a>(
 }
 
 /// [`synthesize_at`] with structured components: per image a frame offset per position, per row
-/// and per column an offset ([`structure`](mod@structure)), each pixel adding their sum dithered
-/// onto the integers. The pixel draws use the band streams as without components; the dither
-/// draws follow them in the same stream.
+/// and per column an offset, per sensor pixel its fixed pattern ([`structure`](mod@structure)),
+/// each pixel adding their sum dithered onto the integers. The pixel draws use the band streams
+/// as without components; the dither draws follow them in the same stream.
 fn structured_filler<'a>(
     sampler: &'a IsoSampler,
     st: &structure::StructureSampler,
@@ -142,9 +143,12 @@ fn structured_filler<'a>(
         let parity = ((r + row0) & 1) << 1;
         offsets.columns.iter().enumerate().map(|(x, c)| fixed(c + offsets.frame[parity | ((x + col0) & 1)])).collect()
     });
+    // The fixed pattern varies from pixel to pixel: each row's offsets are then built anew.
+    let pattern = st.has_pattern().then(|| st.clone());
     {
         Box::new(move |band: usize, chunk: &mut [u16]| {
             let mut rng = band_rng(seed, band);
+            let mut pattern_row: Vec<i64> = Vec::new();
             for (r, row) in chunk.chunks_mut(w).enumerate() {
                 let y = band * BAND_ROWS + r;
                 let src = clean_row(&clean, y);
@@ -154,7 +158,16 @@ fn structured_filler<'a>(
                 let (lut1, tab1) = sampler.position_tables(odd);
                 let finish = sampler.needs_finish(even) || sampler.needs_finish(odd);
                 let white = sampler.white as i32;
-                let (ry, cols) = (fixed(offsets.rows[y]), &columns[y & 1]);
+                let ry = fixed(offsets.rows[y]);
+                let cols: &[i64] = match &pattern {
+                    Some(p) => {
+                        pattern_row.clear();
+                        pattern_row.extend_from_slice(&columns[y & 1]);
+                        p.add_pattern_row(origin.0 + y, origin.1, &mut pattern_row);
+                        &pattern_row
+                    }
+                    None => &columns[y & 1],
+                };
                 // `⌊o⌋ + [v < o − ⌊o⌋]` for the offset `o` and a uniform 32-bit `v`, as
                 // `⌊(o·2³² + v) / 2³²⌋`.
                 let draw = |lut: &[u16], tab: &[BinTable], c: u16, u: u32, v: u32, k: i64| -> i32 {
