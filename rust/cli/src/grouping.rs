@@ -388,9 +388,12 @@ mod tests {
             head("stray.dng", 400, 3_000_000),
         ];
         let set = group_dngs(heads, None, Path::new("x")).unwrap();
-        assert_eq!(set.steps.len(), 2);
+        // The second reference burst has no targets: its frame, and the stray one, are offered
+        // as dark frames (their content decides); the ambiguous one is left out.
+        assert_eq!(set.steps.len(), 1);
         assert_eq!(set.steps[0].targets.len(), 1);
-        assert!(set.steps[1].targets.is_empty());
+        let dark: Vec<_> = set.dark_candidates.iter().map(|f| f.path.to_str().unwrap()).collect();
+        assert_eq!(dark, ["rb.dng", "stray.dng"]);
         let w = set.warnings.join("\n");
         assert!(w.contains("between.dng") && w.contains("lie between two reference steps"), "{w}");
         assert!(w.contains("stray.dng") && w.contains("match no reference burst"), "{w}");
