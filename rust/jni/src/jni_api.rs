@@ -10,7 +10,9 @@
 //! One error policy at the edge, [`ThrowNoisecal`]: every body runs inside
 //! `EnvUnowned::with_env` (which catches panics), and every [`BoundaryError`] and every panic
 //! becomes an `org.noisecal.jni.NoisecalException` carrying the error's message (the core's own
-//! message for a core error); the method then returns 0 / null. No Rust panic crosses into the
+//! message for a core error); the method then returns 0 / null. A dark frame with a scene in it
+//! (`SessionError::NotDark`) throws its subclass `org.noisecal.jni.NoisecalNotDarkException`, so
+//! the app can tell "cover the lens" from other refusals without reading the message. No Rust panic crosses into the
 //! JVM, and nothing on this path unwraps.
 //!
 //! Progress crosses as a Kotlin object, `NoisecalSession.Progress` with its
@@ -26,6 +28,8 @@ use jni::objects::{JByteBuffer, JClass, JDoubleArray, JFloatArray, JString};
 use jni::strings::JNIString;
 use jni::sys::{jint, jlong};
 use jni::{Env, NativeMethod, jni_str, native_method};
+
+use noisecal_core::error::SessionError;
 
 use crate::error::{BoundaryError, Result};
 use crate::files::checked_path;
@@ -44,6 +48,24 @@ fn throw_noisecal(env: &mut Env<'_>, message: &str) {
     if thrown(env.throw_new(jni_str!("org/noisecal/jni/NoisecalException"), &msg)) {
         return;
     }
+    throw_fallback(env, message);
+}
+
+/// Throws what `err` is at the edge: `NoisecalNotDarkException` for a dark frame that is not
+/// dark, `NoisecalException` for everything else.
+fn throw_error(env: &mut Env<'_>, err: &BoundaryError) {
+    let message = err.to_string();
+    if matches!(err, BoundaryError::Session(SessionError::NotDark { .. })) {
+        let msg = JNIString::from(message.as_str());
+        if thrown(env.throw_new(jni_str!("org/noisecal/jni/NoisecalNotDarkException"), &msg)) {
+            return;
+        }
+        env.exception_clear();
+    }
+    throw_noisecal(env, &message);
+}
+
+fn throw_fallback(env: &mut Env<'_>, message: &str) {
     env.exception_clear();
     let fallback = JNIString::from(format!(
         "{message} (org.noisecal.jni.NoisecalException is missing from the class path: package NoisecalSession.kt with the library)"
@@ -79,7 +101,7 @@ impl<T: Default> ErrorPolicy<T, BoundaryError> for ThrowNoisecal {
         // to the caller as it is.
         if !env.exception_check() {
             log::debug!("noisecal: {err}");
-            throw_noisecal(env, &err.to_string());
+            throw_error(env, &err);
         }
         Ok(T::default())
     }
@@ -127,6 +149,7 @@ pub const NATIVE_METHODS: &[NativeMethod<'_>] = &[
     },
     session_method! { static extern fn native_restore(path: JString) -> jlong },
     session_method! { static extern fn native_begin_step(handle: jlong, reference_exposure_ns: jlong) },
+    session_method! { static extern fn native_begin_dark(handle: jlong) },
     session_method! {
         static extern fn native_push_frame(
             handle: jlong, buffer: java.nio.ByteBuffer, width: jint, height: jint, row_stride: jint,
@@ -261,6 +284,11 @@ fn native_begin_step<'local>(
     reference_exposure_ns: jlong,
 ) -> Result<()> {
     registry::with(handle, |s| s.begin_step(reference_exposure_ns))
+}
+
+/// Begins a dark (lens-covered) step; recorded like `native_begin_step`.
+fn native_begin_dark<'local>(_env: &mut Env<'local>, _class: JClass<'local>, handle: jlong) -> Result<()> {
+    registry::with(handle, |s| s.begin_dark())
 }
 
 /// Bit 0 of `nativePushFrame`'s result: the frame's brightness drifted and was normalised.

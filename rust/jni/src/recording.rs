@@ -88,6 +88,10 @@ impl RecordingTee {
         self.writer.begin_step(exposure_ns).map_err(|e| self.err(e))
     }
 
+    pub fn begin_dark(&mut self) -> Result<()> {
+        self.writer.begin_dark().map_err(|e| self.err(e))
+    }
+
     /// Records a frame exactly as handed over: `plane` from the buffer's start.
     pub fn frame(
         &mut self,

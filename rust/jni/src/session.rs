@@ -151,6 +151,14 @@ impl NativeSession {
         self.record(|t| t.begin_step(e))
     }
 
+    /// Begins a dark (lens-covered) step: the frames pushed until the next step are dark frames
+    /// (the core refuses one with a scene in it, `SessionError::NotDark`). Recorded, so the
+    /// recording replays the same.
+    pub fn begin_dark(&mut self) -> Result<()> {
+        self.session.begin_dark()?;
+        self.record(|t| t.begin_dark())
+    }
+
     /// Folds in one plane: `plane` is the whole buffer from its start (little-endian 16-bit samples,
     /// rows `row_stride` bytes apart). A rejected frame leaves the session unchanged.
     pub fn push_plane(&mut self, plane: &[u8], p: &PlaneParams<'_>) -> Result<FrameReport> {

@@ -6,7 +6,7 @@ use std::path::Path;
 use noisecal_core::calibrate::Progress;
 use noisecal_core::format::recording::{Record, RecordingReader};
 use noisecal_jni::session::{CreateParams, NativeSession, PlaneParams, default_bin_width};
-use noisecal_jni::testkit::{Plan, Synth, write_recording};
+use noisecal_jni::testkit::{Plan, Synth, normalish, splitmix64, write_recording};
 use noisecal_jni::{BoundaryError, replay_recording};
 
 const W: usize = 320;
@@ -330,4 +330,71 @@ fn the_bin_width_is_the_cores_and_the_packs() {
     })
     .expect("explicit bin width");
     assert_eq!(wide.bin_width(), 32);
+}
+
+/// A lens-covered frame: black level, a fixed per-pixel offset growing with gain, read noise.
+fn dark_frame(iso: u32, index: u64) -> Frame {
+    let gain = iso as f64 / 100.0;
+    let samples = (0..W * H)
+        .map(|i| {
+            let i = i as u64;
+            let pattern = 0.4 * gain * normalish(splitmix64(0xDA4B ^ i));
+            let read = 1.2 * gain.sqrt() * normalish(splitmix64(splitmix64(index + 1) ^ i));
+            (64.0 + pattern + read + 0.5).floor().clamp(0.0, 1023.0) as u16
+        })
+        .collect();
+    Frame { iso, exposure_ns: 1_000_000, black: None, samples }
+}
+
+#[test]
+fn dark_step_is_recorded_and_a_lit_frame_in_it_is_refused_unchanged() {
+    let (synth, rec, events) = synthetic();
+    let lit_only = reference_pack(&rec);
+    let dir = tempfile::tempdir().expect("dir");
+    let mut s = create(&synth);
+    s.start_recording(&dir.path().join("d.rec")).expect("recording");
+    run(&mut s, &events);
+    s.begin_dark().expect("begin_dark");
+    let mut index = 0;
+    for iso in [100, 200, 400] {
+        for _ in 0..6 {
+            push(&mut s, &dark_frame(iso, index), 6).expect("dark frame");
+            index += 1;
+        }
+    }
+    let before = s.progress();
+    let lit = events
+        .iter()
+        .rev()
+        .find_map(|e| match e {
+            Event::Frame(f) => Some(f),
+            Event::Step(_) => None,
+        })
+        .expect("a lit frame");
+    match push(&mut s, lit, 4) {
+        Err(BoundaryError::Session(noisecal_core::error::SessionError::NotDark { iso, .. })) => {
+            assert_eq!(iso, lit.iso)
+        }
+        other => panic!("a lit frame in the dark step: {other:?}"),
+    }
+    let err = push(&mut s, lit, 4).expect_err("refused again").to_string();
+    assert!(err.contains("is not dark") && err.contains("cover"), "{err}");
+    let after = s.progress();
+    assert_eq!((after.frames_accepted, after.isos, after.steps), (before.frames_accepted, before.isos, before.steps));
+    s.finish_to(&dir.path().join("d.pack")).expect("finish");
+    s.close().expect("close");
+    let pack = std::fs::read(dir.path().join("d.pack")).expect("pack");
+    assert_ne!(pack, lit_only, "the dark frames changed nothing in the pack");
+    let (replayed, ended, frames) = replay_file(&dir.path().join("d.rec"));
+    assert!(ended);
+    let lit_frames = events.iter().filter(|e| matches!(e, Event::Frame(_))).count() as u64;
+    assert_eq!(frames, lit_frames + 18, "the refused frames are not recorded");
+    assert_eq!(replayed, pack, "the recording replays to the session's pack");
+    let bytes = std::fs::read(dir.path().join("d.rec")).expect("recording");
+    let mut r = RecordingReader::new(&bytes[..]).expect("reader");
+    let mut dark_records = 0;
+    while let Some(record) = r.next_record().expect("record") {
+        dark_records += usize::from(matches!(record, Record::BeginDark));
+    }
+    assert_eq!(dark_records, 1, "one BeginDark record");
 }

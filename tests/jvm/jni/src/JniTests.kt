@@ -1,6 +1,7 @@
 package org.noisecal.jni.test
 
 import org.noisecal.jni.NoisecalException
+import org.noisecal.jni.NoisecalNotDarkException
 import org.noisecal.jni.NoisecalSession
 import java.io.File
 import java.lang.reflect.InvocationTargetException
@@ -93,6 +94,7 @@ class Suite(private val cfg: Config) {
             if (i < from || i >= to) continue
             when (r) {
                 is Record.BeginStep -> s.beginStep(r.exposureNs)
+                is Record.BeginDark -> s.beginDark()
                 is Record.NoiseProfile -> s.setNoiseProfile(r.iso, r.profile)
                 is Record.End -> {}
                 is Record.Frame -> {
@@ -145,6 +147,7 @@ class Suite(private val cfg: Config) {
         "bad paths and checkpoints" to ::badPaths,
         "bin width: the core's default, reported by the session" to ::binWidths,
         "noise profiles are checked" to ::noiseProfiles,
+        "dark step: beginDark + dark frames accepted, a lit frame refused as not dark, the pack replays" to ::darkFrames,
         "12 MP frame through JNI vs the core alone" to ::bench,
     )
 
@@ -197,6 +200,84 @@ class Suite(private val cfg: Config) {
         val out = File(cfg.work, "jni-replayed.pack")
         tool(cfg, "replay", recording.path, out.path)
         samePack("replay of the JNI recording", out)
+    }
+
+    /**
+     * A lens-covered frame of the synthetic sensor: black level, a fixed per-pixel offset growing
+     * with gain (dark shading) and read noise, no scene.
+     */
+    private fun darkPlane(h: RecordingHeader, iso: Int, index: Long, rowStride: Int): ByteBuffer {
+        val buf = ByteBuffer.allocateDirect((h.height - 1) * rowStride + 2 * h.width).order(ByteOrder.LITTLE_ENDIAN)
+        val gain = iso.toDouble() / h.referenceIso
+        val k = Synth.splitmix64(0x5EEDL xor Synth.splitmix64(index + 1))
+        for (y in 0 until h.height) for (x in 0 until h.width) {
+            val i = y.toLong() * h.width + x
+            val pattern = 0.4 * gain * Synth.normalish(Synth.splitmix64(0xDA4BL xor i))
+            val read = 1.2 * kotlin.math.sqrt(gain) * Synth.normalish(Synth.splitmix64(k xor i))
+            val v = kotlin.math.floor(h.black[(y % 2) * 2 + x % 2] + pattern + read + 0.5).coerceIn(0.0, h.white.toDouble())
+            buf.putShort(y * rowStride + 2 * x, v.toInt().toShort())
+        }
+        return buf
+    }
+
+    private fun darkFrames() {
+        val h = rec.header
+        val pack = File(cfg.work, "dark.pack")
+        val recording = File(cfg.work, "dark.rec")
+        val isos = listOf(h.referenceIso) + rec.frames.map { it.iso }.filter { it != h.referenceIso }.distinct().sorted()
+        val perIso = 8
+        val exposure = rec.frames.minOf { it.exposureNs }
+        val stride = 2 * h.width + 48
+        create(h).use { s ->
+            s.startRecording(recording.path)
+            replay(s, 0, rec.records.size)
+            val lit = s.progress()
+            s.beginDark()
+            var index = 0L
+            for (iso in isos) repeat(perIso) {
+                s.pushFrame(darkPlane(h, iso, index++, stride), h.width, h.height, stride, 2, iso, exposure, null)
+            }
+            val dark = s.progress()
+            check(dark.framesAccepted >= lit.framesAccepted) { "dark frames lost accepted frames: $lit -> $dark" }
+            // A frame of the lit chart while the dark step runs: the lens is not covered.
+            val f = rec.frames.last()
+            var refused: NoisecalNotDarkException? = null
+            try {
+                push(s, f, directPlane(f, stride, padLastRow = false), stride)
+            } catch (e: NoisecalNotDarkException) {
+                refused = e
+            }
+            val m = refused?.message ?: fail("a lit frame during the dark step was accepted")
+            check(m.contains("dark frame at ISO ${f.iso} is not dark") && m.contains("cover")) { "not-dark message: \"$m\"" }
+            val after = s.progress()
+            check(after.framesAccepted == dark.framesAccepted && after.isos == dark.isos && after.steps == dark.steps) {
+                "the refused frame changed the session: $dark -> $after"
+            }
+            // Other refusals stay plain NoisecalExceptions.
+            val heap = ByteBuffer.wrap(ByteArray(16))
+            try {
+                push(s, f, heap, stride)
+                fail("a heap buffer was accepted")
+            } catch (e: NoisecalException) {
+                check(e !is NoisecalNotDarkException) { "a heap buffer is not a not-dark frame: $e" }
+            }
+            // The lens covered again: dark frames go on being accepted, and the session finishes.
+            s.pushFrame(darkPlane(h, isos.last(), index++, stride), h.width, h.height, stride, 2, isos.last(), exposure, null)
+            val summary = s.finish(pack.path)
+            println("    finish: $summary")
+        }
+        val bytes = pack.readBytes()
+        check(bytes.isNotEmpty()) { "no pack" }
+        check(!bytes.contentEquals(reference)) { "the dark frames left the pack as the lit sweep alone makes it" }
+        val r = Recording.read(recording)
+        check(r.ended) { "the recording has no End record" }
+        check(r.records.count { it == Record.BeginDark } == 1) { "one BeginDark record expected" }
+        val afterDark = r.records.dropWhile { it != Record.BeginDark }.drop(1)
+        check(afterDark.filterIsInstance<Record.Frame>().size == isos.size * perIso + 1) { "dark frames in the recording: ${afterDark.size}" }
+        check(r.frames.size == frameCount + isos.size * perIso + 1) { "recording holds ${r.frames.size} frames: the refused one must not be there" }
+        val out = File(cfg.work, "dark-replayed.pack")
+        tool(cfg, "replay", recording.path, out.path)
+        check(out.readBytes().contentEquals(bytes)) { "the replayed recording gives another pack than the session" }
     }
 
     private fun frameBeforeStep() {

@@ -12,7 +12,8 @@ import java.util.zip.CRC32
 /**
  * A reader of noisecal's recording format v1 (rust/core/src/recording.rs), all integers little-endian:
  * magic "NCALREC\0" | version u16 | header_len u32 | header | crc32(header) u32, then records
- * tag u8 | payload | crc32(tag + payload) u32 (1 BeginStep, 2 Frame, 3 NoiseProfile, 255 End).
+ * tag u8 | payload | crc32(tag + payload) u32 (1 BeginStep, 2 Frame, 3 NoiseProfile, 4 BeginDark
+ * (no payload), 255 End).
  */
 class RecordingHeader(
     val width: Int,
@@ -39,6 +40,7 @@ sealed class Record {
         val data: ByteArray,
     ) : Record()
     class NoiseProfile(val iso: Int, val profile: DoubleArray) : Record()
+    data object BeginDark : Record()
     data class End(val frames: Long) : Record()
 }
 
@@ -122,6 +124,10 @@ class Recording(val header: RecordingHeader, val records: List<Record>, val ende
                             val iso = b.getInt()
                             parts = listOf(p)
                             record = Record.NoiseProfile(iso, DoubleArray(8) { b.getDouble() })
+                        }
+                        4 -> {
+                            parts = emptyList()
+                            record = Record.BeginDark
                         }
                         255 -> {
                             val p = bytes(8)

@@ -4,6 +4,9 @@ import java.io.File
 import java.nio.file.Files
 import kotlin.math.roundToInt
 import org.noisecal.capture.controller.CaptureOutcome
+import org.noisecal.capture.controller.CapturePhase
+import org.noisecal.capture.controller.CoverLensRequest
+import org.noisecal.capture.controller.ProgressListener
 import org.noisecal.capture.controller.CaptureUiState
 import org.noisecal.capture.controller.ControllerConfig
 import org.noisecal.capture.controller.FrameSink
@@ -19,6 +22,7 @@ import org.noisecal.capture.plan.Metering
 import org.noisecal.capture.plan.PlanOptions
 import org.noisecal.capture.plan.PlanResult
 import org.noisecal.capture.plan.SensorSpec
+import org.noisecal.capture.sim.LensAction
 import org.noisecal.capture.sim.SimBehaviour
 import org.noisecal.capture.sim.SimulatedCameraPort
 import org.noisecal.capture.sim.SimulatedProcessDeath
@@ -245,6 +249,49 @@ class SweepJniTests(private val env: Env) : Suite("sweep-jni") {
         throw Failure("$what: $expected (${a.size} bytes) and $actual (${b.size} bytes) differ first at byte $first")
     }
 
+    /** The same sweep with the dark step: 4 frames per ISO (50, then each target). */
+    private val darkPlan: CapturePlan by lazy {
+        when (val r = CapturePlanner.plan(capabilities, plan.options.copy(darkFrames = true, darkFramesPerIso = 4))) {
+            is PlanResult.Ok -> r.plan
+            is PlanResult.Refused -> throw Failure("the dark test plan was refused: $r")
+        }
+    }
+
+    class DarkRun(val outcome: CaptureOutcome.Finished, val pack: File, val recording: File, val prompts: List<CoverLensRequest>,
+                  val last: CaptureUiState, val port: SimulatedCameraPort)
+
+    /** [darkPlan] through the real library, the person at the phone doing [lens] at each cover-the-lens prompt. */
+    private fun darkSweep(name: String, lens: (Int) -> LensAction): DarkRun {
+        val dir = fresh(name)
+        val rec = File(dir, "session.rec")
+        val prompts = mutableListOf<CoverLensRequest>()
+        var last: CaptureUiState? = null
+        val listener = ProgressListener { p ->
+            last = p
+            val ask = p.coverLens
+            if (p.phase == CapturePhase.AWAITING_LENS_COVER && ask != null && prompts.lastOrNull() !== ask) prompts += ask
+        }
+        val run = SimulatedSweep.run(darkPlan, NoisecalSinkFactory(rec.path), dir, chart(darkPlan), SimBehaviour(),
+            rowPaddingBytes = cleanPadding, config = config, listener = listener, lens = lens)
+        val done = checkFinished(run.outcome, name)
+        checkPortClean(run.port, name)
+        return DarkRun(done, File(done.packPath), rec, prompts, checkNotNull(last), run.port)
+    }
+
+    private val darkCovered: DarkRun by lazy { darkSweep("dark", lens = { LensAction.COVER }) }
+
+    /** Per ISO of [pack], its fixed-pattern component as `noisecal inspect --json` shows it (null: none). */
+    private fun fpnOf(pack: File): Map<Int, Map<*, *>?> {
+        val root = Json.parse(cli("inspect", pack.path, "--json")) as? Map<*, *> ?: throw Failure("inspect --json did not print an object")
+        val isos = (root["isos"] as? List<*>)?.map { it as Map<*, *> } ?: throw Failure("inspect --json has no \"isos\" array")
+        return isos.associate { (it["iso"] as Number).toInt() to ((it["structure"] as? Map<*, *>)?.get("fpn") as? Map<*, *>) }
+    }
+
+    /** Frames of the recording, from the summary's "; recording PATH (N frames)". */
+    private fun recordedFrames(summary: String): Long =
+        Regex("""; recording .+ \((\d+) frames\)""").find(summary)?.groupValues?.get(1)?.toLong()
+            ?: throw Failure("the session is no longer recording (summary: $summary)")
+
     init {
         test("plan: base ISO 50, 10-bit 128x96, ISO ${targetIsos.joinToString("/")}, EV -1..+1") {
             eq(targetIsos, plan.targetIsos, "target ISOs")
@@ -306,6 +353,60 @@ class SweepJniTests(private val env: Env) : Suite("sweep-jni") {
                 }
             }
             println("    ISOs ${isos.map { it["iso"] }}, warnings ${root["warnings"]}")
+        }
+
+        test("dark step: covered frames through the JNI sink are accepted; pack == noisecal calibrate of its recording") {
+            eq(listOf(50) + targetIsos, darkPlan.darkBursts.map { it.iso }, "dark bursts: base ISO and every target")
+            val d = darkCovered
+            eq(1, d.prompts.size, "one prompt")
+            eq(null, d.prompts[0].notCovered, "nothing to retry")
+            eq(0, d.last.framesRejected, "no frame refused")
+            eq(darkPlan.darkFrames.toLong(), d.port.coveredFrames, "dark frames taken with the lens covered, none again")
+            eq(darkPlan.totalFrames.toLong(), recordedFrames(d.outcome.summary), "every planned frame, dark ones included, recorded")
+            assertSameBytes(d.pack, calibrate(d.recording, File(d.pack.parentFile, "cli.pack")), "app pack vs CLI pack (dark step)")
+            // The pack has a fixed-pattern component per target ISO, near the simulated lens cap's
+            // DSNU (LensCoveredScene: 0.4 DN × ISO / 50 per pixel).
+            val fpn = fpnOf(d.pack)
+            eq(targetIsos, fpn.keys.toList(), "ISOs with a fixed-pattern component (inspect --json)")
+            for ((iso, component) in fpn) {
+                val f = component ?: throw Failure("ISO $iso has no fpn component")
+                eq(4, (f["dark_frames"] as Number).toInt(), "ISO $iso dark frames")
+                eq(true, f["added"], "ISO $iso: the pattern is added at synthesis")
+                val sd = (f["sd"] as Number).toDouble()
+                val truth = 0.4 * iso / 50
+                check(sd in 0.75 * truth..1.25 * truth) { "ISO $iso: fixed-pattern SD $sd DN, simulated $truth DN" }
+            }
+            println("    fixed-pattern SD per ISO: ${fpn.mapValues { "%.2f".format((it.value!!["sd"] as Number).toDouble()) }}")
+            println("    ${darkPlan.darkBursts.size} dark bursts, pack ${d.pack.length()} bytes (lit-only sweep: ${clean.pack.length()})")
+        }
+
+        test("dark step with the lens uncovered: the core refuses the frame, the step is asked again and finishes covered") {
+            val d = darkSweep("dark-uncovered", lens = { if (it == 0) LensAction.CONFIRM_UNCOVERED else LensAction.COVER })
+            eq(2, d.prompts.size, "asked again after the refusal")
+            val why = d.prompts[1].notCovered ?: throw Failure("the second prompt does not say why")
+            check(why.contains("is not dark") && why.contains("cover")) { "the core's not-dark message: \"$why\"" }
+            check(d.last.framesRejected >= 1) { "the lit frame was counted as rejected: ${d.last}" }
+            eq(darkPlan.totalFrames, d.last.framesDone, "frames done after the retry")
+            // The refused frame is not in the recording, and the retry's rollback cut nothing else.
+            eq(darkPlan.totalFrames.toLong(), recordedFrames(d.outcome.summary), "recorded frames")
+            assertSameBytes(d.pack, calibrate(d.recording, File(d.pack.parentFile, "cli.pack")), "app pack vs CLI pack (retried dark step)")
+        }
+
+        test("dark step skipped at the prompt: the session finishes on the lit sweep alone") {
+            val d = darkSweep("dark-skipped", lens = { LensAction.SKIP })
+            eq(1, d.prompts.size, "one prompt")
+            check(d.last.darkSkipped) { "skip reported" }
+            eq(0L, d.port.coveredFrames, "no dark frame taken")
+            val litFrames = darkPlan.totalFrames - darkPlan.darkFrames
+            eq(litFrames.toLong(), recordedFrames(d.outcome.summary), "only the lit sweep recorded")
+            assertSameBytes(d.pack, calibrate(d.recording, File(d.pack.parentFile, "cli.pack")), "app pack vs CLI pack (skipped)")
+            // Up to the prompt both runs took the same frames: only the dark frames tell the packs apart.
+            val covered = darkCovered
+            check(!Files.readAllBytes(d.pack.toPath()).contentEquals(Files.readAllBytes(covered.pack.toPath()))) {
+                "the dark frames left the pack as the lit sweep alone makes it"
+            }
+            println("    pack ${d.pack.length()} bytes without the dark step, ${covered.pack.length()} with it")
+            eq(targetIsos.associateWith { null }, fpnOf(d.pack), "no fixed-pattern component without dark frames")
         }
     }
 }
