@@ -178,12 +178,13 @@ pub fn write_all_at(file: &File, buf: &[u8], offset: u64) -> io::Result<()> {
 }
 
 /// Asks the OS to start writing `len` bytes at `offset` of `file` to the disk now, without
-/// waiting (Linux and Android: `sync_file_range(SYNC_FILE_RANGE_WRITE)`; elsewhere nothing). A
+/// waiting (Linux: `sync_file_range(SYNC_FILE_RANGE_WRITE)`; elsewhere, Android included, whose
+/// `libc` bindings lack the flag, nothing). A
 /// file written in parts then has most of its data on the disk by the time it is complete, and
 /// the sync of [`AtomicFile::commit`] (which this does not replace: it makes no promise of
 /// durability) waits for the rest only. Best effort: errors are ignored.
 pub fn start_writeback(file: &File, offset: u64, len: u64) {
-    #[cfg(any(target_os = "linux", target_os = "android"))]
+    #[cfg(target_os = "linux")]
     {
         use std::os::fd::AsRawFd;
         let (Ok(offset), Ok(len)) = (libc::off64_t::try_from(offset), libc::off64_t::try_from(len)) else {
@@ -194,7 +195,7 @@ pub fn start_writeback(file: &File, offset: u64, len: u64) {
             libc::sync_file_range(file.as_raw_fd(), offset, len, libc::SYNC_FILE_RANGE_WRITE);
         }
     }
-    #[cfg(not(any(target_os = "linux", target_os = "android")))]
+    #[cfg(not(target_os = "linux"))]
     {
         let _ = (file, offset, len);
     }
