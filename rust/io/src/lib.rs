@@ -20,7 +20,7 @@
 //! * a **new** file gets the permissions of [`std::fs::File::create`]: `0o666` less the process
 //!   umask (`0o644` under the usual umask `022`; `0o600` in an Android app, whose umask is `077`).
 //!
-//! Uses `std`, `memmap2` for [`map_regular`] and, on Linux and Android, `libc` for
+//! Uses `std`, `memmap2` for [`map_regular`] and, on Linux, `libc` for
 //! [`start_writeback`].
 
 mod atomic;
