@@ -24,6 +24,13 @@ pub fn calibrate(s: &Setup, tweak: impl FnOnce(&mut SessionConfig)) -> (Calibrat
     let mut config = SessionConfig::new(s.plan.reference_iso);
     tweak(&mut config);
     let mut session = CalibrationSession::new(s.sim.layout(), config).expect("session");
+    push_plan(s, &mut session);
+    let pack = session.finish().expect("finish");
+    (session, pack)
+}
+
+/// Pushes the plan's frames into a session in capture order, one EV step after another.
+pub fn push_plan(s: &Setup, session: &mut CalibrationSession) {
     let mut step = None;
     for f in s.plan.frames() {
         if step != Some(f.step) {
@@ -33,8 +40,6 @@ pub fn calibrate(s: &Setup, tweak: impl FnOnce(&mut SessionConfig)) -> (Calibrat
         let (px, meta) = s.sim.capture(f.iso, f.exposure_ns, f.index).expect("capture");
         session.push_frame(&FrameView::from_array(&px).expect("view"), &meta).expect("push");
     }
-    let pack = session.finish().expect("finish");
-    (session, pack)
 }
 
 /// Held-out clean image at an exposure (reference burst of `m` frames from frame index `base`):

@@ -10,7 +10,7 @@ use noisecal_core::model::structure::Components;
 use noisecal_core::synth::sampler::IsoSampler;
 use noisecal_core::synth::synthesize;
 use noisecal_core::{CalibrationSession, FrameView, ModelPack, SessionConfig};
-use noisecal_e2e::{Setup, setup};
+use noisecal_e2e::{Setup, push_plan, setup};
 use noisecal_sim::SensorModel;
 
 const DARK_FRAMES: u64 = 16;
@@ -29,15 +29,7 @@ fn dark_settings(s: &Setup) -> BTreeMap<u32, u64> {
 fn calibrate_with_dark(s: &Setup, dark: bool) -> ModelPack {
     let mut session =
         CalibrationSession::new(s.sim.layout(), SessionConfig::new(s.plan.reference_iso)).expect("session");
-    let mut step = None;
-    for f in s.plan.frames() {
-        if step != Some(f.step) {
-            session.begin_step(s.plan.exposure_ns(f.step, s.plan.reference_iso)).expect("step");
-            step = Some(f.step);
-        }
-        let (px, meta) = s.sim.capture(f.iso, f.exposure_ns, f.index).expect("capture");
-        session.push_frame(&FrameView::from_array(&px).expect("view"), &meta).expect("push");
-    }
+    push_plan(s, &mut session);
     if dark {
         session.begin_dark().expect("dark step");
         for (iso, exp) in dark_settings(s) {
@@ -259,15 +251,7 @@ fn checkpoint_inside_the_dark_step() {
     let run = |cut: Option<usize>| {
         let mut session =
             CalibrationSession::new(s.sim.layout(), SessionConfig::new(s.plan.reference_iso)).expect("session");
-        let mut step = None;
-        for f in s.plan.frames() {
-            if step != Some(f.step) {
-                session.begin_step(s.plan.exposure_ns(f.step, s.plan.reference_iso)).expect("step");
-                step = Some(f.step);
-            }
-            let (px, meta) = s.sim.capture(f.iso, f.exposure_ns, f.index).expect("capture");
-            session.push_frame(&FrameView::from_array(&px).expect("view"), &meta).expect("push");
-        }
+        push_plan(&s, &mut session);
         session.begin_dark().expect("dark");
         let mut k = 0;
         for (iso, exp) in dark_settings(&s) {

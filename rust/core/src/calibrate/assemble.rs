@@ -136,19 +136,7 @@ impl CalibrationSession {
             structure: if self.config.plain {
                 Vec::new()
             } else {
-                isos.iter()
-                    .map(|m| {
-                        let pixel_var = m
-                            .positions
-                            .iter()
-                            .flat_map(|pm| &pm.bins)
-                            .filter(|b| b.samples > 0 && !b.clipped)
-                            .filter_map(|b| b.measured.map(|[_, v]| v))
-                            .fold(f64::INFINITY, f64::min);
-                        let pixel_var = if pixel_var.is_finite() { pixel_var } else { 0.0 };
-                        self.isos[&m.iso].structure.structure(m.iso, pixel_var)
-                    })
-                    .collect()
+                isos.iter().map(|m| self.isos[&m.iso].structure.structure(m.iso, lowest_pixel_var(m))).collect()
             },
             isos,
             warnings,
@@ -204,14 +192,7 @@ impl CalibrationSession {
                 ));
                 continue;
             };
-            let pixel_var = model
-                .positions
-                .iter()
-                .flat_map(|pm| &pm.bins)
-                .filter(|b| b.samples > 0 && !b.clipped)
-                .filter_map(|b| b.measured.map(|[_, v]| v))
-                .fold(f64::INFINITY, f64::min);
-            let pixel_var = if pixel_var.is_finite() { pixel_var } else { 0.0 };
+            let pixel_var = lowest_pixel_var(model);
             let mut fp = fp.clone();
             let n = fp.frames.max(2) as f64;
             let mut own = 0.0;
@@ -237,4 +218,17 @@ impl CalibrationSession {
             pack.insert_structure(st);
         }
     }
+}
+
+/// An ISO's lowest measured pixel variance (DN², unclipped bins with samples; 0 without any):
+/// what the structured components' relevance is judged against.
+fn lowest_pixel_var(m: &IsoModel) -> f64 {
+    let v = m
+        .positions
+        .iter()
+        .flat_map(|pm| &pm.bins)
+        .filter(|b| b.samples > 0 && !b.clipped)
+        .filter_map(|b| b.measured.map(|[_, v]| v))
+        .fold(f64::INFINITY, f64::min);
+    if v.is_finite() { v } else { 0.0 }
 }
