@@ -187,4 +187,8 @@ class FakeClock : Clock {
     override fun sleepMs(ms: Long) { sleptMs += ms }
 }
 
-fun tempDir(name: String): File = Files.createTempDirectory("noisecal-$name").toFile()
+/** A fresh temporary folder, removed with its contents when the test JVM exits. */
+fun tempDir(name: String): File =
+    Files.createTempDirectory("noisecal-$name").toFile().also { dir ->
+        Runtime.getRuntime().addShutdownHook(Thread { dir.deleteRecursively() })
+    }
