@@ -122,19 +122,9 @@ impl SimSession {
         Ok(Self { sim, plan, make: "noisecal".into(), model: name.into(), index_offset: 0, dark_frames: 0 })
     }
 
-    /// Each ISO of the plan with the shortest exposure it uses there: the dark step's settings.
-    pub fn dark_settings(&self) -> Vec<(u32, u64)> {
-        let mut by_iso: std::collections::BTreeMap<u32, u64> = std::collections::BTreeMap::new();
-        for f in self.plan.frames() {
-            let e = by_iso.entry(f.iso).or_insert(f.exposure_ns);
-            *e = (*e).min(f.exposure_ns);
-        }
-        by_iso.into_iter().collect()
-    }
-
     /// Frames the session writes, dark frames included.
     pub fn frames(&self) -> usize {
-        self.plan.len() + self.dark_settings().len() * self.dark_frames as usize
+        self.plan.len() + self.plan.dark_settings().len() * self.dark_frames as usize
     }
 
     /// Writes the session: DNGs named by capture index into `dngs`, and/or a recording with
@@ -200,7 +190,7 @@ impl SimSession {
                 w.begin_dark()?;
             }
             let mut index = frames.iter().map(|f| f.index + 1).max().unwrap_or(0);
-            for (iso, exposure_ns) in self.dark_settings() {
+            for (iso, exposure_ns) in self.plan.dark_settings() {
                 let caps: Vec<_> = (0..self.dark_frames as u64)
                     .into_par_iter()
                     .map(|i| self.sim.capture_dark(iso, exposure_ns, i + self.index_offset))

@@ -158,6 +158,17 @@ impl SessionPlan {
     }
 
     /// Number of frames in the plan.
+    /// The dark step's settings: each ISO of the plan with the shortest exposure it uses there
+    /// (dark shading needs no long exposure), by ISO.
+    pub fn dark_settings(&self) -> Vec<(u32, u64)> {
+        let mut by_iso = std::collections::BTreeMap::new();
+        for f in self.frames() {
+            let e = by_iso.entry(f.iso).or_insert(f.exposure_ns);
+            *e = (*e).min(f.exposure_ns);
+        }
+        by_iso.into_iter().collect()
+    }
+
     pub fn len(&self) -> usize {
         self.ev_steps.len() * (1 + self.target_isos.len()) * self.frames_per_burst as usize
     }

@@ -15,16 +15,6 @@ use noisecal_sim::SensorModel;
 
 const DARK_FRAMES: u64 = 16;
 
-/// Each ISO of the plan with the shortest exposure it uses (the dark step's settings).
-fn dark_settings(s: &Setup) -> BTreeMap<u32, u64> {
-    let mut m = BTreeMap::new();
-    for f in s.plan.frames() {
-        let e = m.entry(f.iso).or_insert(f.exposure_ns);
-        *e = (*e).min(f.exposure_ns);
-    }
-    m
-}
-
 /// The plan, then a dark step of [`DARK_FRAMES`] per ISO (when `dark`).
 fn calibrate_with_dark(s: &Setup, dark: bool) -> ModelPack {
     let mut session =
@@ -32,7 +22,7 @@ fn calibrate_with_dark(s: &Setup, dark: bool) -> ModelPack {
     push_plan(s, &mut session);
     if dark {
         session.begin_dark().expect("dark step");
-        for (iso, exp) in dark_settings(s) {
+        for (iso, exp) in s.plan.dark_settings() {
             for k in 0..DARK_FRAMES {
                 let (px, meta) = s.sim.capture_dark(iso, exp, k).expect("dark capture");
                 session.push_frame(&FrameView::from_array(&px).expect("view"), &meta).expect("dark frame accepted");
@@ -115,7 +105,7 @@ fn run(model: SensorModel, seed: u64) -> Vec<Row> {
     let pack = calibrate_with_dark(&s, true);
     let layout = s.sim.layout();
     let (h, w) = (layout.height as usize, layout.width as usize);
-    let settings = dark_settings(&s);
+    let settings: BTreeMap<u32, u64> = s.plan.dark_settings().into_iter().collect();
     // The clean chart without the sensor's pattern: the same sensor with no DSNU.
     let mut plain = s.sim.model().clone();
     plain.dsnu_pre_e = 0.0;
@@ -254,7 +244,7 @@ fn checkpoint_inside_the_dark_step() {
         push_plan(&s, &mut session);
         session.begin_dark().expect("dark");
         let mut k = 0;
-        for (iso, exp) in dark_settings(&s) {
+        for (iso, exp) in s.plan.dark_settings() {
             for i in 0..6 {
                 if cut == Some(k) {
                     session = CalibrationSession::restore(&session.checkpoint().expect("checkpoint")).expect("restore");

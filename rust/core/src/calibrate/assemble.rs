@@ -154,13 +154,8 @@ impl CalibrationSession {
     /// Every ISO's fixed pattern, the dark burst in progress included.
     fn all_patterns(&self) -> std::collections::BTreeMap<u32, FixedPattern> {
         let mut patterns = self.patterns.clone();
-        let reference = match self.open_dark() {
-            Some(b) if b.iso == self.config.reference_iso => b.pattern_map(&self.layout.black),
-            _ => self.reference_pattern.clone(),
-        };
         if let Some(burst) = self.open_dark()
-            && let Some(fp) = burst.close(&self.layout.black, reference.as_ref())
-            && patterns.get(&burst.iso).is_none_or(|old| old.frames < fp.frames)
+            && let (_, Some(fp)) = self.closed(burst)
         {
             patterns.insert(burst.iso, fp);
         }

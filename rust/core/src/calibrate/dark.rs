@@ -231,23 +231,23 @@ impl DarkBurst {
     /// from the reference's, pixel by pixel) is measured too; otherwise it is derived when the
     /// pack is assembled. The significance is set then.
     pub fn close(&self, black: &[f32; POSITIONS], reference: Option<&ReferencePattern>) -> Option<FixedPattern> {
-        if self.frames < 2 || self.pair_var.is_empty() {
-            return None;
-        }
+        let own = self.pattern_map(black)?;
         let (w, h) = (self.width, self.height);
-        let n = self.frames as f64;
-        // Each pixel's mean above its position's mean.
-        let offset: [f64; POSITIONS] = std::array::from_fn(|p| self.means[p] / n + black[p] as f64);
-        let pattern = |y: usize, x: usize| self.sum[y * w + x] as f64 / n - offset[position(y, x)];
+        let pattern = |y: usize, x: usize| own.map[y * w + x] as f64;
         let [gh, gw] = SHADING_GRID.map(|v| v as usize);
         let (gh, gw) = (gh.min(h / 2).max(1), gw.min(w / 2).max(1));
+        // Per cell and position: Σ pattern and count; per position: Σ pattern², count.
         let mut cells = vec![[0f64; 2]; gh * gw * POSITIONS];
+        let mut spread = [[0f64; 2]; POSITIONS];
         for y in 0..h {
             let cy = y * gh / h;
             for x in 0..w {
-                let c = &mut cells[(cy * gw + x * gw / w) * POSITIONS + position(y, x)];
-                c[0] += pattern(y, x);
+                let (p, v) = (position(y, x), pattern(y, x));
+                let c = &mut cells[(cy * gw + x * gw / w) * POSITIONS + p];
+                c[0] += v;
                 c[1] += 1.0;
+                spread[p][0] += v * v;
+                spread[p][1] += 1.0;
             }
         }
         let mut shading: [Vec<f32>; POSITIONS] = std::array::from_fn(|p| {
@@ -263,15 +263,6 @@ impl DarkBurst {
         // sampling noise of their means): the grid's spread is shrunk by that much before the
         // residuals are taken against it, so that variance stays with the residual (against the
         // raw grid, a 192 × 128 sensor lost 3 % of its pattern variance into cell means).
-        let mut spread = [[0f64; 2]; POSITIONS];
-        for y in 0..h {
-            for x in 0..w {
-                let v = pattern(y, x);
-                let s = &mut spread[position(y, x)];
-                s[0] += v * v;
-                s[1] += 1.0;
-            }
-        }
         for (p, grid) in shading.iter_mut().enumerate() {
             let per_cell = spread[p][1] / grid.len().max(1) as f64;
             let noise = spread[p][0] / spread[p][1].max(1.0) / per_cell.max(1.0);
@@ -301,13 +292,14 @@ impl DarkBurst {
         };
         let mut residuals: [Vec<f32>; POSITIONS] = std::array::from_fn(|_| Vec::with_capacity(w * h / POSITIONS + w));
         for y in 0..h {
+            let lines: [Option<Vec<f64>>; 2] = std::array::from_fn(|px| fp.shading_line(position(y, px), y));
             for x in 0..w {
-                let p = position(y, x);
-                residuals[p].push((pattern(y, x) - fp.shading_at(p, y, x)) as f32);
+                let shade = lines[x & 1].as_deref().map_or(0.0, |l| fp.shading_on_line(l, x));
+                residuals[position(y, x)].push((pattern(y, x) - shade) as f32);
             }
         }
         for (p, mut r) in residuals.into_iter().enumerate() {
-            fp.pixels[p] = pattern_distribution(&mut r, temporal_var[p] / n);
+            fp.pixels[p] = pattern_distribution(&mut r, own.sampling_var[p]);
         }
         if let Some(r) = reference.filter(|r| r.map.len() == w * h && r.iso != self.iso) {
             let mut diffs: [Vec<f32>; POSITIONS] = std::array::from_fn(|_| Vec::with_capacity(w * h / POSITIONS + w));
@@ -317,7 +309,7 @@ impl DarkBurst {
                 }
             }
             for (p, mut d) in diffs.into_iter().enumerate() {
-                let mut dist = pattern_distribution(&mut d, temporal_var[p] / n + r.sampling_var[p]);
+                let mut dist = pattern_distribution(&mut d, own.sampling_var[p] + r.sampling_var[p]);
                 dist.significant = true;
                 fp.in_pixel_noise[p] = dist;
             }

@@ -259,28 +259,41 @@ impl CalibrationSession {
     }
 
     fn close_dark(&mut self, burst: DarkBurst) {
-        if burst.iso == self.config.reference_iso
-            && self.reference_pattern.as_ref().is_none_or(|r| {
-                r.iso != burst.iso || self.patterns.get(&burst.iso).is_none_or(|p| p.frames < burst.frames())
-            })
-        {
-            self.reference_pattern = burst.pattern_map(&self.layout.black);
+        let (new_reference, pattern) = self.closed(&burst);
+        if new_reference.is_some() {
+            self.reference_pattern = new_reference;
         }
-        let Some(fp) = burst.close(&self.layout.black, self.reference_pattern.as_ref()) else {
-            self.note(format!("dark burst at ISO {} has fewer than 2 frames: no fixed pattern measured", burst.iso));
+        let Some(fp) = pattern else {
+            self.note(format!(
+                "dark burst at ISO {} ({} frames) adds no fixed pattern: fewer than 2 frames, or fewer than one already measured at that ISO",
+                burst.iso,
+                burst.frames()
+            ));
             return;
         };
-        let better = self.patterns.get(&burst.iso).is_none_or(|old| old.frames < fp.frames);
-        if better {
-            self.note(format!(
-                "dark burst at ISO {}: {} frames, pattern SD {:.3} DN, temporal SD {:.3} DN",
-                burst.iso,
-                fp.frames,
-                fp.sd(),
-                (fp.temporal_var.iter().sum::<f64>() / POSITIONS as f64).sqrt()
-            ));
-            self.patterns.insert(burst.iso, fp);
+        self.note(format!(
+            "dark burst at ISO {}: {} frames, pattern SD {:.3} DN, temporal SD {:.3} DN",
+            burst.iso,
+            fp.frames,
+            fp.sd(),
+            (fp.temporal_var.iter().sum::<f64>() / POSITIONS as f64).sqrt()
+        ));
+        self.patterns.insert(burst.iso, fp);
+    }
+
+    /// What closing `burst` gives: the reference ISO's new pattern map (when the burst is the
+    /// reference ISO's and the better one), and its ISO's pattern when it has more frames than
+    /// the one already measured there (closing is skipped otherwise).
+    pub(super) fn closed(&self, burst: &DarkBurst) -> (Option<ReferencePattern>, Option<FixedPattern>) {
+        let better = self.patterns.get(&burst.iso).is_none_or(|old| old.frames < burst.frames());
+        if !better {
+            return (None, None);
         }
+        let new_reference =
+            if burst.iso == self.config.reference_iso { burst.pattern_map(&self.layout.black) } else { None };
+        let reference = new_reference.as_ref().or(self.reference_pattern.as_ref());
+        let pattern = burst.close(&self.layout.black, reference);
+        (new_reference, pattern)
     }
 
     fn push_dark(&mut self, frame: &FrameView<'_>, meta: &FrameMeta) -> Result<FrameReport, SessionError> {
@@ -294,9 +307,9 @@ impl CalibrationSession {
             self.end_dark();
             self.dark = Some(None);
         }
-        let layout = self.layout.clone();
+        let layout = &self.layout;
         let slot = self.dark.as_mut().ok_or(SessionError::NoStep)?;
-        let burst = slot.get_or_insert_with(|| DarkBurst::new(&layout, meta.iso));
+        let burst = slot.get_or_insert_with(|| DarkBurst::new(layout, meta.iso));
         burst.push(frame, &black)?;
         self.dark_frames += 1;
         Ok(FrameReport { kind: FrameKind::Dark, departure: 0.0, drift_normalised: false, samples: 0 })

@@ -273,26 +273,30 @@ impl FixedPattern {
         g.iter().map(|&v| (v as f64 - m).powi(2)).sum::<f64>() / g.len() as f64
     }
 
-    /// The shading at sensor pixel `(y, x)` (bilinear between cell centres, held flat past the
-    /// outer ones).
-    pub fn shading_at(&self, pos: usize, y: usize, x: usize) -> f64 {
+    /// A position's shading grid interpolated to sensor row `y` (one value per grid column;
+    /// `None` without a usable grid). [`Self::shading_on_line`] finishes the bilinear
+    /// interpolation along the row.
+    pub fn shading_line(&self, pos: usize, y: usize) -> Option<Vec<f64>> {
         let [gh, gw] = self.grid.map(|v| v as usize);
         let g = &self.shading[pos];
         if gh == 0 || gw == 0 || g.len() != gh * gw {
-            return 0.0;
+            return None;
         }
-        let coord = |v: usize, size: u32, cells: usize| -> (usize, usize, f64) {
-            let c = ((v as f64 + 0.5) / size.max(1) as f64 * cells as f64 - 0.5).clamp(0.0, (cells - 1) as f64);
-            let i = (c as usize).min(cells.saturating_sub(2));
-            let f = if cells > 1 { c - i as f64 } else { 0.0 };
-            (i, (i + 1).min(cells - 1), f)
-        };
-        let (y0, y1, fy) = coord(y, self.size[0], gh);
-        let (x0, x1, fx) = coord(x, self.size[1], gw);
-        let at = |r: usize, c: usize| g[r * gw + c] as f64;
-        let top = at(y0, x0) * (1.0 - fx) + at(y0, x1) * fx;
-        let bottom = at(y1, x0) * (1.0 - fx) + at(y1, x1) * fx;
-        top * (1.0 - fy) + bottom * fy
+        let (r0, r1, fy) = grid_coord(y, self.size[0], gh);
+        Some((0..gw).map(|c| g[r0 * gw + c] as f64 * (1.0 - fy) + g[r1 * gw + c] as f64 * fy).collect())
+    }
+
+    /// The shading at column `x` of a row's [`Self::shading_line`].
+    #[inline]
+    pub fn shading_on_line(&self, line: &[f64], x: usize) -> f64 {
+        let (c0, c1, f) = grid_coord(x, self.size[1], line.len());
+        line[c0] * (1.0 - f) + line[c1] * f
+    }
+
+    /// The shading at sensor pixel `(y, x)` (bilinear between cell centres, held flat past the
+    /// outer ones; 0 without a grid).
+    pub fn shading_at(&self, pos: usize, y: usize, x: usize) -> f64 {
+        self.shading_line(pos, y).map_or(0.0, |line| self.shading_on_line(&line, x))
     }
 
     /// Scaled by `k` (extrapolation along the gain).
@@ -356,6 +360,16 @@ impl FixedPattern {
     }
 }
 
+/// Along an axis of `size` pixels cut into `cells` cells: the two cells whose centres bracket
+/// pixel `v` and the weight of the second (held flat past the outer centres).
+#[inline]
+pub fn grid_coord(v: usize, size: u32, cells: usize) -> (usize, usize, f64) {
+    let c = ((v as f64 + 0.5) / size.max(1) as f64 * cells as f64 - 0.5).clamp(0.0, cells.saturating_sub(1) as f64);
+    let i = (c as usize).min(cells.saturating_sub(2));
+    let f = if cells > 1 { c - i as f64 } else { 0.0 };
+    (i, (i + 1).min(cells.saturating_sub(1)), f)
+}
+
 /// The structured components of one ISO.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct IsoStructure {
@@ -417,29 +431,16 @@ impl IsoStructure {
 
     /// Between two ISOs' components at fraction `t` (0 = `a`).
     pub fn blend(iso: u32, a: &Self, b: &Self, t: f64) -> Self {
-        let pair = |x: &Option<OffsetDistribution>, y: &Option<OffsetDistribution>| match (x, y) {
-            (Some(x), Some(y)) => Some(OffsetDistribution::blend(x, y, t)),
-            (Some(x), None) => Some(x.scaled(1.0 - t)),
-            (None, Some(y)) => Some(y.scaled(t)),
-            (None, None) => None,
+        let pair = |x: &Option<OffsetDistribution>, y: &Option<OffsetDistribution>| {
+            blend_either(x, y, t, OffsetDistribution::blend, OffsetDistribution::scaled)
         };
         Self {
             iso,
             rows: std::array::from_fn(|p| pair(&a.rows[p], &b.rows[p])),
             columns: std::array::from_fn(|p| pair(&a.columns[p], &b.columns[p])),
-            frames: match (&a.frames, &b.frames) {
-                (Some(x), Some(y)) => Some(FrameOffsets::blend(x, y, t)),
-                (Some(x), None) => Some(x.scaled(1.0 - t)),
-                (None, Some(y)) => Some(y.scaled(t)),
-                (None, None) => None,
-            },
+            frames: blend_either(&a.frames, &b.frames, t, FrameOffsets::blend, FrameOffsets::scaled),
             frames_used: a.frames_used.min(b.frames_used),
-            fpn: match (&a.fpn, &b.fpn) {
-                (Some(x), Some(y)) => Some(FixedPattern::blend(x, y, t)),
-                (Some(x), None) => Some(x.scaled(1.0 - t)),
-                (None, Some(y)) => Some(y.scaled(t)),
-                (None, None) => None,
-            },
+            fpn: blend_either(&a.fpn, &b.fpn, t, FixedPattern::blend, FixedPattern::scaled),
         }
     }
 
@@ -455,6 +456,23 @@ impl IsoStructure {
             return Some(format!("fixed pattern: {w}"));
         }
         self.frames.as_ref().and_then(FrameOffsets::problem).map(|w| format!("frame offsets: {w}"))
+    }
+}
+
+/// One component between two ISOs at fraction `t`: blended where both have it, else the one
+/// that has it faded towards the other (scaled by its weight).
+fn blend_either<T>(
+    a: &Option<T>,
+    b: &Option<T>,
+    t: f64,
+    blend: impl Fn(&T, &T, f64) -> T,
+    scaled: impl Fn(&T, f64) -> T,
+) -> Option<T> {
+    match (a, b) {
+        (Some(x), Some(y)) => Some(blend(x, y, t)),
+        (Some(x), None) => Some(scaled(x, 1.0 - t)),
+        (None, Some(y)) => Some(scaled(y, t)),
+        (None, None) => None,
     }
 }
 

@@ -82,32 +82,17 @@ impl StructureSampler {
         fp.shading_at(p, y, x) + fp.pixels[p].at(pattern_unit(y, x))
     }
 
-    /// Adds the fixed pattern of sensor row `y`, columns `x0 ..`, to `row` (2⁻³² DN): the same
-    /// values as [`Self::pattern_at`] (tested), the shading's vertical interpolation done once
-    /// per row and position.
+    /// Adds the fixed pattern of sensor row `y`, columns `x0 ..`, to `row` (2⁻³² DN): the values
+    /// of [`Self::pattern_at`] (tested), the shading's vertical interpolation done once per row
+    /// and position.
     pub(crate) fn add_pattern_row(&self, y: usize, x0: usize, row: &mut [i64]) {
         let Some(fp) = &self.fpn else { return };
-        let [gh, gw] = fp.grid.map(|v| v as usize);
-        let grid_ok = gh > 0 && gw > 0 && fp.shading.iter().all(|g| g.len() == gh * gw);
-        if !grid_ok {
-            for (i, v) in row.iter_mut().enumerate() {
-                *v += (self.pattern_at(y, x0 + i) * 4294967296.0).round() as i64;
-            }
-            return;
-        }
         // Per column parity, the shading grid interpolated to this row.
-        let (r0, r1, fy) = grid_coord(y, fp.size[0], gh);
-        let lines: [Vec<f64>; 2] = std::array::from_fn(|px| {
-            let g = &fp.shading[position(y, px)];
-            (0..gw).map(|c| g[r0 * gw + c] as f64 * (1.0 - fy) + g[r1 * gw + c] as f64 * fy).collect()
-        });
+        let lines: [Option<Vec<f64>>; 2] = std::array::from_fn(|px| fp.shading_line(position(y, px), y));
         for (i, v) in row.iter_mut().enumerate() {
             let x = x0 + i;
-            let p = position(y, x);
-            let (c0, c1, f) = grid_coord(x, fp.size[1], gw);
-            let line = &lines[x & 1];
-            let shade = line[c0] * (1.0 - f) + line[c1] * f;
-            *v += ((shade + fp.pixels[p].at(pattern_unit(y, x))) * 4294967296.0).round() as i64;
+            let shade = lines[x & 1].as_deref().map_or(0.0, |l| fp.shading_on_line(l, x));
+            *v += ((shade + fp.pixels[position(y, x)].at(pattern_unit(y, x))) * 4294967296.0).round() as i64;
         }
     }
 
@@ -332,16 +317,6 @@ fn convolve(a: &(i64, Vec<f64>), b: &(i64, Vec<f64>)) -> (i64, Vec<f64>) {
     let mut out = vec![0.0; a.1.len() + b.1.len() - 1];
     crate::renoise::deconv::convolve(&a.1, &b.1, &mut out);
     (a.0 + b.0, out)
-}
-
-/// The two cells and the weight of the second at pixel `v` along an axis, as
-/// [`FixedPattern::shading_at`] computes them.
-#[inline]
-fn grid_coord(v: usize, size: u32, cells: usize) -> (usize, usize, f64) {
-    let c = ((v as f64 + 0.5) / size.max(1) as f64 * cells as f64 - 0.5).clamp(0.0, (cells - 1) as f64);
-    let i = (c as usize).min(cells.saturating_sub(2));
-    let f = if cells > 1 { c - i as f64 } else { 0.0 };
-    (i, (i + 1).min(cells - 1), f)
 }
 
 /// A sensor pixel's uniform draw of the fixed pattern (splitmix64 of its position).
