@@ -166,3 +166,15 @@ fn leave_one_out_on_a_calibrated_iso_ignores_it() {
     let back = ModelPack::from_bytes(&p.to_bytes().expect("encode")).expect("decode");
     assert_eq!(back, p);
 }
+
+#[test]
+fn interpolation_is_the_same_on_any_thread_count() {
+    let s = setup();
+    let on = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+        pool.install(|| interp::interpolate(&s.without, 400, false).expect("interpolated"))
+    };
+    let one = on(1);
+    assert_eq!(one, on(3));
+    assert_eq!(one, on(8));
+}

@@ -32,6 +32,9 @@ const RL_ITERATIONS: usize = 200;
 const RL_WORK: f64 = 4e6;
 /// Richardson–Lucy iterations at most for a clipped bin below [`RESCALE_ONLY`].
 const CLIPPED_SMALL_SHARE_ITERATIONS: usize = 20;
+/// The least mass an end cell of a clipped bin holds to be the clamp's pile (a floor count of
+/// 1 is 2⁻³⁰ ≈ 10⁻⁹; a pile this small moves at most 10⁻⁶ of the bin's mass when folded).
+const PILE_MIN: f64 = 1e-6;
 /// RNG stream of the offsets (the pixel bands use streams `0 ..`, far below).
 const STREAM: u64 = 1 << 62;
 /// The fixed pattern's key: each sensor pixel's uniform draw is a hash of its position and this,
@@ -198,17 +201,21 @@ fn deconvolve_bin_within(b: &BinModel, k0: i32, kernel: &[f64], max_iterations: 
     // clip: 20 leave a JSD near 10⁻⁵ on clipped Gaussians, far below a bin's sampling floor.
     let cap = if start_only { max_iterations.min(CLIPPED_SMALL_SHARE_ITERATIONS) } else { max_iterations };
     let iterations = (RL_WORK / (n * kernel.len()) as f64).min(cap as f64) as usize;
-    // Which end holds the clamp's pile (clipped bins only).
-    let (low, high) = match b.clipped {
+    // Which end holds the clamp's pile: in a clipped bin, the heavier end cell, if it holds at
+    // least `PILE_MIN`. A bin whose samples reached a clip can have no pile at either end of its
+    // PMF (pooled neighbours, whose clips sit elsewhere, leave floor-count tails past its own):
+    // such a bin is deconvolved as an unclipped one, since there is nothing at an end to fold.
+    let (low, high) = match b.clipped && pmf.p[0].max(pmf.p[n - 1]) >= PILE_MIN {
         false => (false, false),
         true if pmf.p[0] >= pmf.p[n - 1] => (true, false),
         true => (false, true),
     };
-    let start = match b.clipped {
+    let clipped = low || high;
+    let start = match clipped {
         false => pmf.rescaled(pm - km, pv - kv),
         true => clipped_start(&pmf, low, k0, kernel.len(), km, kv),
     };
-    if (start_only && !b.clipped) || iterations < 10 {
+    if (start_only && !clipped) || iterations < 10 {
         return from_weights(b, start.first, &start.p);
     }
     let ext = kernel.len();
@@ -479,6 +486,38 @@ mod tests {
         };
         let truth = Pmf { first: -half, p: q };
         (jsd_kept, jsd_after, below(&dp) / below(&truth))
+    }
+
+    /// A bin flagged clipped whose PMF has no pile at either end (its tails are floor counts
+    /// past the clip, as pooling leaves them) has nothing to fold: it is deconvolved exactly as
+    /// the same bin unflagged, and a pile at an end is still found and folded.
+    #[test]
+    fn a_clipped_bin_without_a_pile_at_an_end_is_deconvolved_as_unclipped() {
+        use crate::model::pack::BinSource;
+        use crate::model::pmf::Pmf;
+        let (k0, k) = rows_only(0.7).kernel(0);
+        let sd = 20.0;
+        // A Gaussian whose clip (+1 SD) holds the pile inside the PMF, with floor tails beyond.
+        let clip = 20;
+        // Floor tails of about 3 counts in 2³⁰ (the Gaussian's sum is 50).
+        let floor = 1.5e-7;
+        let mut p: Vec<f64> =
+            (-200..=200).map(|n: i32| (-(n as f64).powi(2) / (2.0 * sd * sd)).exp() + floor).collect();
+        let beyond: f64 = p[(200 + clip + 1) as usize..].iter().sum();
+        p[(200 + clip) as usize] += beyond;
+        p[(200 + clip + 1) as usize..].iter_mut().for_each(|x| *x = floor);
+        let s: f64 = p.iter().sum();
+        let pmf = Pmf { first: -200, p: p.iter().map(|x| x / s).collect() };
+        let flagged = BinModel::estimated(&pmf, 100_000, BinSource::Measured, None, true);
+        let plain = BinModel { clipped: false, ..flagged.clone() };
+        let (a, b) = (deconvolve_bin(&flagged, k0, &k), deconvolve_bin(&plain, k0, &k));
+        assert_eq!((a.first, &a.counts), (b.first, &b.counts));
+        // The same PMF cut at the clip has its pile at the end: folded, so not the unclipped result.
+        let cut = Pmf { first: -200, p: pmf.p[..=(200 + clip) as usize].to_vec() };
+        let piled = BinModel::estimated(&cut, 100_000, BinSource::Measured, None, true);
+        let unflagged = BinModel { clipped: false, ..piled.clone() };
+        let (c, d) = (deconvolve_bin(&piled, k0, &k), deconvolve_bin(&unflagged, k0, &k));
+        assert_ne!((c.first, &c.counts), (d.first, &d.counts));
     }
 
     #[test]

@@ -41,9 +41,16 @@ pub fn blend_quantiles(a: &Pmf, b: &Pmf, t: f64, mu: f64, var: f64) -> Pmf {
     if t >= 1.0 {
         return b.rescaled(mu, var);
     }
-    let mut knots: Vec<f64> = qa.iter().chain(&qb).map(|s| s.1).collect();
+    // Both quantile functions' cell ends ascend: merged in one pass (what sorting them gives).
+    let mut knots: Vec<f64> = Vec::with_capacity(qa.len() + qb.len() + 1);
     knots.push(0.0);
-    knots.sort_by(f64::total_cmp);
+    let (mut ea, mut eb) = (qa.iter().map(|s| s.1).peekable(), qb.iter().map(|s| s.1).peekable());
+    while let (Some(&x), Some(&y)) = (ea.peek(), eb.peek()) {
+        let from_a = x.total_cmp(&y).is_le();
+        knots.push(if from_a { x } else { y });
+        let _ = if from_a { ea.next() } else { eb.next() };
+    }
+    knots.extend(ea.chain(eb));
     knots.dedup_by(|x, y| (*x - *y).abs() < 1e-15);
     let mut segs: Vec<(f64, f64, f64)> = Vec::with_capacity(knots.len());
     let (mut ia, mut ib) = (0usize, 0usize);

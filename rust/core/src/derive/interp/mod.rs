@@ -52,6 +52,7 @@ use crate::error::ModelError;
 use crate::model::layout::POSITIONS;
 use crate::model::pack::{BinModel, IsoModel, ModelOrigin, ModelPack, NoiseProfile, PositionModel};
 use fit::{Point, fit_mean, fit_variance, lin_lerp, log_lerp};
+use rayon::prelude::*;
 
 /// The model of an uncalibrated ISO (see the module docs), with the default options.
 pub fn interpolate(pack: &ModelPack, iso: u32, extrapolate: bool) -> Result<IsoModel, ModelError> {
@@ -93,7 +94,10 @@ pub fn interpolate_planned(pack: &ModelPack, plan: &InterpPlan) -> IsoModel {
     let positions = (0..POSITIONS)
         .map(|pos| {
             let single_params = (nb.len() == 1).then(|| fit_params(&binning, nb[0], pos)).flatten();
+            // Bins are independent: built in parallel, collected in order (the same model on
+            // any thread count).
             let bins = (0..binning.bins(pos))
+                .into_par_iter()
                 .map(|b| {
                     let pts: Vec<Point<'_>> = nb
                         .iter()
