@@ -225,6 +225,15 @@ pub fn calibrate_path(
                 report.rejection_reasons.join("; ")
             ));
         }
+        // Frames all at the black level go to the dark step: say so, or "no target samples" is a
+        // riddle for a folder of them.
+        let dark = session.dark_frames();
+        if dark > 0 {
+            msg.push_str(&format!(
+                " ({dark} of {} frames are dark, at the black level as with the lens covered, and were taken as dark frames, not targets)",
+                report.frames
+            ));
+        }
         msg
     })?;
     Ok((pack, report))

@@ -57,7 +57,7 @@ pub fn resolve_model(
             Ok((m.into_owned(), note))
         }
         Some(b) => {
-            let m = baselines::baseline_model(pack, iso, b)?;
+            let m = baselines::baseline_model(pack, iso, b, extrapolate)?;
             Ok((m, Some(format!("synthesizing with the {} baseline ({}) at ISO {iso}", b.name(), b.label()))))
         }
     }

@@ -279,3 +279,124 @@ fn renoise_takes_levels_above_black() {
     assert_ne!(ra, capture.pixels, "noise was added");
     assert_eq!(rb, ra.mapv(|v| v.saturating_sub(4)), "the same noise on noise, 4 DN lower");
 }
+
+/// Issue 13 "degenerate sessions": a capture folder whose frames are all saturated, all one
+/// noiseless level, or all at black is refused, naming what is wrong; the existing pack is kept.
+#[test]
+fn degenerate_sessions_are_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    simulate(dir.path());
+    let dngs = dir.path().join("dngs");
+    let pack = dir.path().join("p.pack");
+    let (ok, err) = noisecal(&["calibrate", dngs.to_str().unwrap(), "-o", pack.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    let good = std::fs::read(&pack).unwrap();
+    let files: Vec<_> = std::fs::read_dir(&dngs).unwrap().map(|e| e.unwrap().path()).collect();
+    for (name, level, says) in [
+        ("saturated", 1023u16, "are saturated"),
+        ("flat", 500, "carry no noise at all"),
+        ("black", 64, "frames are dark, at the black level"),
+    ] {
+        let d = dir.path().join(name);
+        std::fs::create_dir(&d).unwrap();
+        for f in &files {
+            let img = noisecal_cli::dng::read_dng(f).unwrap();
+            let meta = noisecal_core::FrameMeta { black: None, ..img.meta };
+            let px = img.pixels.mapv(|_| level);
+            let out = d.join(f.file_name().unwrap());
+            noisecal_cli::dng::write_dng_from_layout(&out, &img.layout, &meta, &img.make, &img.model, &px).unwrap();
+        }
+        let (ok, err) = noisecal(&["calibrate", d.to_str().unwrap(), "-o", pack.to_str().unwrap()]);
+        assert!(!ok, "{name}: a degenerate session calibrated");
+        assert!(err.contains(says), "{name}: {err}");
+        assert_eq!(std::fs::read(&pack).unwrap(), good, "{name}: the existing pack was replaced");
+    }
+}
+
+/// Issue 13 item 14: `synth --model hg|pg --extrapolate` extrapolates instead of asking
+/// for the flag it was given; `synth` and `renoise` create a missing output folder as the other
+/// commands do; `eval` does not suggest `--extrapolate`, which it lacks; `-q` silences
+/// `calibrate`'s and `renoise`'s warnings.
+#[test]
+fn flags_folders_and_quiet_do_what_they_say() {
+    let dir = tempfile::tempdir().unwrap();
+    simulate(dir.path());
+    let dngs = dir.path().join("dngs");
+    let pack = dir.path().join("p.pack");
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let (ok, err) = noisecal(&["calibrate", &s(&dngs), "-o", &s(&pack)]);
+    assert!(ok, "{err}");
+    let clean = s(&dngs.join("f00000.dng"));
+
+    for model in ["hg", "pg"] {
+        let out = dir.path().join(format!("x-{model}.dng"));
+        let args = ["synth", "--pack", &s(&pack), "--iso", "3200", "--model", model, &clean, "-o", &s(&out)];
+        let (ok, err) = noisecal(&args);
+        assert!(!ok && err.contains("--extrapolate"), "{model}: {err}");
+        let (ok, err) = noisecal(&[&args[..], &["--extrapolate"]].concat());
+        assert!(ok, "{model} --extrapolate: {err}");
+        assert_eq!(noisecal_cli::dng::read_dng(&out).unwrap().meta.iso, 3200);
+    }
+
+    let deep = dir.path().join("new/deeper/n.dng");
+    let (ok, err) = noisecal(&["synth", "--pack", &s(&pack), "--iso", "200", &clean, "-o", &s(&deep)]);
+    assert!(ok && deep.is_file(), "synth into a missing folder: {err}");
+    let deep = dir.path().join("new2/deeper/r.dng");
+    let renoise = ["renoise", "--pack", &s(&pack), "--from-iso", "200", "--to-iso", "800", &clean, "-o", &s(&deep)];
+    let (ok, err) = noisecal(&renoise);
+    assert!(ok && deep.is_file(), "renoise into a missing folder: {err}");
+    // -q (which `noisecal` adds) leaves stderr empty; without it the warnings are said.
+    assert!(err.is_empty(), "renoise -q printed: {err}");
+    let loud = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(renoise).output().unwrap();
+    assert!(loud.status.success() && String::from_utf8_lossy(&loud.stderr).contains("warning"));
+
+    // A recording cut short calibrates with a warning, which -q keeps off stderr.
+    let rec = dir.path().join("s.rec");
+    let (ok, err) = noisecal(&[
+        "simulate",
+        "--width",
+        "64",
+        "--height",
+        "48",
+        "--frames",
+        "3",
+        "--isos",
+        "200,800",
+        "--ev=-1,1",
+        "--rec",
+        &s(&rec),
+    ]);
+    assert!(ok, "{err}");
+    let bytes = std::fs::read(&rec).unwrap();
+    let cut = dir.path().join("cut.rec");
+    std::fs::write(&cut, &bytes[..bytes.len() - 2000]).unwrap();
+    let args = ["calibrate", &s(&cut), "-o", &s(&dir.path().join("cut.pack"))];
+    let loud = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(args).output().unwrap();
+    let loud_err = String::from_utf8_lossy(&loud.stderr);
+    assert!(loud.status.success() && loud_err.contains("interrupted capture"), "{loud_err}");
+    let (ok, err) = noisecal(&args);
+    assert!(ok && err.is_empty(), "calibrate -q printed: {err}");
+
+    // Held-out frames at an ISO beyond the pack: eval says what to do without a flag it lacks.
+    let held = dir.path().join("held");
+    let (ok, err) = noisecal(&[
+        "simulate",
+        "--width",
+        "64",
+        "--height",
+        "48",
+        "--frames",
+        "2",
+        "--isos",
+        "3200",
+        "--ev=0",
+        "--index-offset",
+        "100000",
+        "--dngs",
+        &s(&held),
+    ]);
+    assert!(ok, "{err}");
+    let (ok, err) = noisecal(&["eval", "--pack", &s(&pack), &s(&held)]);
+    assert!(!ok && err.contains("eval only scores ISOs the pack models"), "{err}");
+    assert!(!err.contains("--extrapolate"), "eval suggested a flag it lacks: {err}");
+}

@@ -141,9 +141,13 @@ fn bad_write_input_is_refused_and_leaves_existing_file_intact() {
     let names: Vec<_> = std::fs::read_dir(dir.path()).expect("ls").map(|e| e.expect("entry").file_name()).collect();
     assert_eq!(names.len(), 1, "{names:?}");
 
-    // Writing into a missing folder is an I/O error naming the file.
+    // A missing folder is created, as for every output of the CLI (issue 13 item 14); a folder
+    // that cannot be made (a file stands in its way) is an I/O error naming the file.
     let missing = dir.path().join("no/such/dir/x.dng");
-    let err = write_dng_from_layout(&missing, &lay, &meta, "M", "N", &pixels).expect_err("missing dir");
+    write_dng_from_layout(&missing, &lay, &meta, "M", "N", &pixels).expect("into a missing folder");
+    assert_eq!(read_dng(&missing).expect("read").pixels, pixels);
+    let blocked = path.join("x.dng");
+    let err = write_dng_from_layout(&blocked, &lay, &meta, "M", "N", &pixels).expect_err("a file as the folder");
     assert!(matches!(err, DngError::Io { .. }) && err.to_string().contains("x.dng"), "{err}");
 }
 

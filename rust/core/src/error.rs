@@ -76,6 +76,10 @@ pub enum SessionError {
     )]
     NoNoise { iso: u32 },
     #[error(
+        "the target frames of ISO {iso} are saturated: most samples are at the sensor's white level and every one measured is clipped, so no noise below it can be measured; lower the exposure or the light and capture again"
+    )]
+    Saturated { iso: u32 },
+    #[error(
         "the reference burst of this EV step has no flat pixels: the chart is out of focus or moving, or the region of interest is empty"
     )]
     NoFlatPixels,

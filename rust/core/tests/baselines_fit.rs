@@ -148,11 +148,17 @@ fn parametric_interpolation_recovers_a_linear_in_iso_and_b_quadratic_in_a() {
     }
     assert!(matches!(&got.source, BaselineSource::Interpolated { from, extrapolated: false } if from.len() == 4));
     // As a model: same layout as the pack, flagged interpolated; out of range refused.
-    let m = baselines::baseline_model(&p, 400, BaselineKind::Pg).expect("pg model");
+    let m = baselines::baseline_model(&p, 400, BaselineKind::Pg, false).expect("pg model");
     assert!(matches!(m.origin, ModelOrigin::Interpolated { .. }));
     assert_eq!(m.positions.len(), POSITIONS);
     let mut q = p.clone();
     q.insert(m);
     q.check().expect("a valid pack");
-    assert!(baselines::baseline_model(&p, 3200, BaselineKind::Hg).is_err());
+    let e = baselines::baseline_model(&p, 3200, BaselineKind::Hg, false).unwrap_err();
+    assert!(e.to_string().contains("--extrapolate"), "{e}");
+    // Issue 13 item 14: with extrapolation allowed the baseline is extrapolated, not refused
+    // with advice to pass the flag that was given.
+    let m = baselines::baseline_model(&p, 3200, BaselineKind::Hg, true).expect("extrapolated hg");
+    assert!(matches!(m.origin, ModelOrigin::Extrapolated { .. }), "{:?}", m.origin);
+    assert!(baselines::baseline_model(&p, 1_000_000, BaselineKind::Hg, true).is_err(), "far beyond: bounded");
 }

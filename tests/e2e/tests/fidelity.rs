@@ -28,7 +28,7 @@ fn synthetic_noise_matches_heldout_captures_and_beats_hg() {
     for (i, &iso) in [200u32, 800].iter().enumerate() {
         let model = pack.iso(iso).expect("calibrated");
         let sampler = IsoSampler::new(&pack, model);
-        let hg = baseline_model(&pack, iso, BaselineKind::Hg).expect("hg");
+        let hg = baseline_model(&pack, iso, BaselineKind::Hg, false).expect("hg");
         let hg_sampler = IsoSampler::new(&pack, &hg);
         let mut real = NoiseSamples::new(&binning, 4);
         let mut real_b = NoiseSamples::new(&binning, 4);

@@ -52,6 +52,7 @@ pub fn write_derived(
     let (bytes, _) = derived_bytes(path, template, pixels, iso, noise_profile)?;
     // A failure leaves any existing file untouched and never a half-written DNG under `path`;
     // permissions follow noisecal_io's policy.
+    create_parent(path)?;
     noisecal_io::write_bytes_atomic(path, &bytes).map_err(|e| DngError::io(path, e))
 }
 
@@ -69,6 +70,7 @@ pub fn write_derived_owned(
         super::read::decode_full_raw(b, &source).map_err(|e| e.to_string())
     })
     .map_err(|what| DngError::invalid(path, format!("from the template {}: {what}", source.display())))?;
+    create_parent(path)?;
     noisecal_io::write_bytes_atomic(path, &bytes).map_err(|e| DngError::io(path, e))
 }
 
@@ -110,6 +112,7 @@ impl DerivedStream<'_> {
         let layout = &self.template.image.layout;
         let (ah, aw) = (layout.height as usize, layout.width as usize);
         let io = |e: std::io::Error| DngError::io(path, e);
+        create_parent(path)?;
         let mut out = noisecal_io::AtomicFile::create(path).map_err(io)?;
         let file = out.positioned().map_err(io)?;
         for (a, b) in self.plan.gaps(input.len()) {
@@ -330,7 +333,18 @@ fn write_spec(path: &Path, spec: &DngSpec, pixels: &Array2<u16>) -> Result<(), D
     let bytes = dng_tiff(spec, pixels).and_then(|t| t.to_bytes()).map_err(|what| DngError::invalid(path, what))?;
     // A failure leaves any existing file untouched and never a half-written DNG under `path`;
     // permissions follow noisecal_io's policy.
+    create_parent(path)?;
     noisecal_io::write_bytes_atomic(path, &bytes).map_err(|e| DngError::io(path, e))
+}
+
+/// Creates the folder an output DNG goes into when it is missing, as every command's other
+/// outputs do ([`crate::output::write_atomic`]); issue 13 item 14: `synth` and `renoise` failed
+/// on a missing output folder.
+fn create_parent(path: &Path) -> Result<(), DngError> {
+    match path.parent() {
+        Some(dir) if !dir.as_os_str().is_empty() => std::fs::create_dir_all(dir).map_err(|e| DngError::io(path, e)),
+        _ => Ok(()),
+    }
 }
 
 fn color_code(c: CfaColor) -> u8 {

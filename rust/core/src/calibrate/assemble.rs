@@ -68,13 +68,26 @@ impl CalibrationSession {
                 continue;
             }
             // Real raw noise is never below quantisation's 1/12 DN²: none at all means copied frames.
-            let variances: Vec<f64> = positions
+            // Only clipped bins with most codes at white mean nothing below the clip was seen:
+            // saturated frames. (Copies of a flat frame also give only clipped bins, their one code
+            // looking like a pile-up, and so can a sparse region of interest.)
+            let measured: Vec<(f64, bool)> = positions
                 .iter()
                 .flat_map(|pm| &pm.bins)
-                .filter_map(|b| b.measured.filter(|_| b.samples > 0 && !b.clipped))
-                .map(|[_, v]| v)
+                .filter_map(|b| b.measured.filter(|_| b.samples > 0).map(|[_, v]| (v, b.clipped)))
                 .collect();
-            if !variances.is_empty() && variances.iter().all(|&v| v < NO_NOISE_VARIANCE) {
+            let all_clipped = measured.iter().all(|m| m.1);
+            let judged = measured.iter().filter(|m| all_clipped || !m.1);
+            if !measured.is_empty() && all_clipped {
+                let white = self.layout.white as usize;
+                let (at_white, all) = acc.codes.iter().fold((0u64, 0u64), |(w, a), c| {
+                    (w + c.get(white).copied().unwrap_or(0), a + c.iter().sum::<u64>())
+                });
+                if 2 * at_white > all {
+                    return Err(SessionError::Saturated { iso });
+                }
+            }
+            if !measured.is_empty() && judged.clone().all(|&(v, _)| v < NO_NOISE_VARIANCE) {
                 return Err(SessionError::NoNoise { iso });
             }
             let gain_ratio: [f64; POSITIONS] = std::array::from_fn(|p| {

@@ -227,10 +227,16 @@ pub fn baseline(pack: &ModelPack, iso: u32, kind: BaselineKind, extrapolate: boo
     }
 }
 
-/// The baseline at an ISO as an [`IsoModel`] (for `synth --model hg|pg|noiseprofile`; refuses
-/// ISOs outside the calibrated range).
-pub fn baseline_model(pack: &ModelPack, iso: u32, kind: BaselineKind) -> Result<IsoModel, ModelError> {
-    Ok(baseline(pack, iso, kind, false)?.to_model(pack))
+/// The baseline at an ISO as an [`IsoModel`] (for `synth --model hg|pg|noiseprofile`; ISOs
+/// outside the calibrated range are refused unless `extrapolate`, within the bounds of
+/// [`crate::derive::interp::plan`]).
+pub fn baseline_model(
+    pack: &ModelPack,
+    iso: u32,
+    kind: BaselineKind,
+    extrapolate: bool,
+) -> Result<IsoModel, ModelError> {
+    Ok(baseline(pack, iso, kind, extrapolate)?.to_model(pack))
 }
 
 impl Baseline {
