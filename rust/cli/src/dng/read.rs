@@ -309,13 +309,22 @@ fn decode(
         ));
     }
     // 16-bit samples labelled 10, 12 or 14 bits would unpack into garbage: an uncompressed image
-    // storing as many bytes as 16-bit samples need is not what its BitsPerSample says.
+    // storing as many bytes as 16-bit samples need is not what its BitsPerSample says. Strip rows
+    // are padded to a byte at most (TIFF 6.0), so from 4 pixels a row a 14-bit row is at least a
+    // byte shorter than a 16-bit one (tiles pad to their size: not judged).
     let full = (width * height * 2) as u64;
-    if uint(raw, Tag::Compression).unwrap_or(1) == 1 && bits < 16 && width >= 64 && data_bytes >= full {
+    if uint(raw, Tag::Compression).unwrap_or(1) == 1
+        && bits < 16
+        && width >= 4
+        && has(raw, Tag::StripOffsets)
+        && data_bytes >= full
+    {
         return Err(DngError::decode(
             path,
             format!(
-                "BitsPerSample says {bits} bits, but the uncompressed {width}×{height} image stores {data_bytes} bytes,                  as many as 16-bit samples need ({needed} for {bits}-bit): the tag does not describe the data;                  fix BitsPerSample (e.g. exiftool -BitsPerSample=16) or re-export the DNG"
+                "BitsPerSample says {bits} bits, but the uncompressed {width}×{height} image stores {data_bytes} bytes, \
+                 as many as 16-bit samples need ({needed} for {bits}-bit): the tag does not describe the data; \
+                 fix BitsPerSample (e.g. exiftool -BitsPerSample=16) or re-export the DNG"
             ),
         ));
     }
@@ -828,23 +837,29 @@ mod tests {
 
     #[test]
     fn sixteen_bit_data_labelled_fewer_bits_is_refused() {
-        let layout = SensorLayout { width: 64, height: 8, cfa: CfaPattern::Rggb, black: [64.0; 4], white: 1023 };
-        let pixels = Array2::from_shape_fn((8, 64), |(y, x)| (64 + y * 64 + x) as u16);
-        let spec = DngSpec {
-            layout,
-            meta: FrameMeta::new(100, 1_000_000),
-            make: "M".into(),
-            model: "N".into(),
-            color: ColorTags::default(),
-        };
-        let mut tiff = dng_tiff(&spec, &pixels).expect("build");
-        assert_eq!(decode_dng(&tiff.to_bytes().expect("bytes"), Path::new("ok.dng")).expect("16-bit").pixels, pixels);
-        for bits in [10u16, 12, 14] {
-            tiff.chain[0].set(Tag::BitsPerSample, TagValue::Short(vec![bits]));
-            let e = decode_dng(&tiff.to_bytes().expect("bytes"), Path::new("mislabelled.dng"))
-                .expect_err("mislabelled")
-                .to_string();
-            assert!(e.contains(&format!("BitsPerSample says {bits} bits")) && e.contains("mislabelled.dng"), "{e}");
+        // 48 pixels a row: the mutation run's DNGs, which a 64-pixel floor let through.
+        for width in [64usize, 48, 8] {
+            let layout =
+                SensorLayout { width: width as u32, height: 8, cfa: CfaPattern::Rggb, black: [64.0; 4], white: 1023 };
+            let pixels = Array2::from_shape_fn((8, width), |(y, x)| (64 + y * 64 + x) as u16);
+            let spec = DngSpec {
+                layout,
+                meta: FrameMeta::new(100, 1_000_000),
+                make: "M".into(),
+                model: "N".into(),
+                color: ColorTags::default(),
+            };
+            let mut tiff = dng_tiff(&spec, &pixels).expect("build");
+            let ok = decode_dng(&tiff.to_bytes().expect("bytes"), Path::new("ok.dng")).expect("16-bit");
+            assert_eq!(ok.pixels, pixels);
+            for bits in [10u16, 12, 14] {
+                tiff.chain[0].set(Tag::BitsPerSample, TagValue::Short(vec![bits]));
+                let e = decode_dng(&tiff.to_bytes().expect("bytes"), Path::new("mislabelled.dng"))
+                    .expect_err("mislabelled")
+                    .to_string();
+                assert!(e.contains(&format!("BitsPerSample says {bits} bits")) && e.contains("mislabelled.dng"), "{e}");
+                assert!(!e.contains("  "), "runs of spaces in the message: {e}");
+            }
         }
     }
 
