@@ -42,18 +42,22 @@ enum Command {
     Renoise(cmd::renoise::Args),
 }
 
-/// The most worker threads `--threads` may ask for.
-const MAX_THREADS: usize = 1024;
+/// The most worker threads `--threads` may ask for: 16 per core, at least 64, at most 1024.
+fn max_threads() -> usize {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    cores.saturating_mul(16).clamp(64, 1024)
+}
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let level = if cli.quiet { "error" } else { "warn" };
     env_logger::Builder::from_env(env_logger::Env::default().default_filter_or(level)).format_timestamp(None).init();
     if let Some(n) = cli.threads
-        && n > MAX_THREADS
+        && n > max_threads()
     {
         eprintln!(
-            "noisecal: --threads {n} is more than the {MAX_THREADS} worker threads allowed; results do not depend on it, so leave it out to use every core"
+            "noisecal: --threads {n} is more than the {} worker threads allowed on this machine (16 per core); results do not depend on it, so leave it out to use every core",
+            max_threads()
         );
         return ExitCode::from(2);
     }
@@ -81,7 +85,10 @@ fn main() -> ExitCode {
         Ok(Ok(())) => ExitCode::SUCCESS,
         Ok(Err(e)) if is_broken_pipe(&e) => ExitCode::SUCCESS,
         Ok(Err(e)) => {
-            eprintln!("noisecal: error: {}", noisecal_cli::support::escape_terminal(&format!("{e:#}")));
+            eprintln!(
+                "noisecal: error: {}",
+                noisecal_cli::support::escape_terminal(&noisecal_cli::support::error_text(&e))
+            );
             ExitCode::FAILURE
         }
         Err(_) => {

@@ -70,9 +70,39 @@ pub fn is_broken_pipe(err: &anyhow::Error) -> bool {
     err.chain().any(|cause| cause.downcast_ref::<io::Error>().is_some_and(|e| e.kind() == io::ErrorKind::BrokenPipe))
 }
 
+/// The error and its causes joined by `: ` as `{:#}` joins them, leaving out a cause its parent's
+/// text already holds (an error that says its source, as [`crate::dng::DngError`]'s I/O error
+/// does, would otherwise say it twice).
+pub fn error_text(e: &anyhow::Error) -> String {
+    let mut out = String::new();
+    let mut parent = String::new();
+    for cause in e.chain() {
+        let text = cause.to_string();
+        if parent.is_empty() || !parent.contains(&text) {
+            if !out.is_empty() {
+                out.push_str(": ");
+            }
+            out.push_str(&text);
+        }
+        parent = text;
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_cause_is_said_once() {
+        let io = std::io::Error::other("x.dng is a named pipe (FIFO), not a regular file");
+        let e = anyhow::Error::from(crate::dng::DngError::io(Path::new("x.dng"), io)).context("reading inputs");
+        let text = error_text(&e);
+        assert_eq!(text.matches("named pipe").count(), 1, "{text}");
+        assert!(text.starts_with("reading inputs: x.dng: x.dng is a named pipe"), "{text}");
+        let e = anyhow::anyhow!("inner").context("middle").context("outer");
+        assert_eq!(error_text(&e), format!("{e:#}"));
+    }
 
     #[test]
     fn broken_pipes_are_found_anywhere_in_the_chain() {

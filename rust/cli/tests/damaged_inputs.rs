@@ -248,4 +248,28 @@ fn messages_say_what_is_wrong() {
     // JSON escapes them its own way.
     let (ok, out, _) = run(&["inspect", "--json", s(&pack)]);
     assert!(ok && !out.contains('\u{1b}'), "{out:?}");
+    // `eval` names the pack's camera too.
+    let held = dir.path().join("held");
+    let (ok, _, err) = run(&[
+        "simulate",
+        "-q",
+        "--width",
+        "64",
+        "--height",
+        "48",
+        "--frames",
+        "2",
+        "--isos",
+        "200",
+        "--ev=0",
+        "--index-offset",
+        "100000",
+        "--dngs",
+        s(&held),
+    ]);
+    assert!(ok, "{err}");
+    let (ok, out, err) = run(&["eval", "-q", "--pack", s(&pack), s(&held)]);
+    assert!(ok, "{err}");
+    assert!(!out.contains('\u{1b}') && !out.contains('\u{7}') && !out.contains('\u{9b}'), "raw escapes: {out:?}");
+    assert!(out.contains("Evil\\u{1b}[2J"), "{out}");
 }

@@ -60,4 +60,11 @@ fn an_absurd_thread_count_is_refused_before_any_thread_starts() {
     let (ok, err) = run(&["--threads", "100000", "inspect", "/dev/null"]);
     assert!(!ok);
     assert!(err.contains("--threads 100000") && err.contains("leave it out"), "{err}");
+    // The cap is a multiple of the cores: 16 per core, at least 64, at most 1024.
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let cap = (16 * cores).clamp(64, 1024);
+    let (ok, err) = run(&["--threads", &(cap + 1).to_string(), "inspect", "/dev/null"]);
+    assert!(!ok && err.contains(&format!("the {cap} worker threads allowed")), "{err}");
+    let (_, err) = run(&["--threads", &cap.to_string(), "inspect", "/dev/null"]);
+    assert!(!err.contains("worker threads allowed") && err.contains("/dev/null"), "{err}");
 }

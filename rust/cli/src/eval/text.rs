@@ -16,7 +16,8 @@ fn fmt_opt(v: Option<f64>) -> String {
 pub fn render_text(r: &EvalReport) -> String {
     let mut s = String::new();
     let pos = &r.positions;
-    let _ = writeln!(s, "pack {}  ({})", r.pack, r.camera);
+    // The camera's make and model come from the pack (a DNG's tags): never raw to a terminal.
+    let _ = writeln!(s, "pack {}  ({})", r.pack, crate::support::escape_terminal(&r.camera));
     let _ =
         writeln!(s, "held-out {}  ({} seed(s) per model, {} bins per level group)", r.heldout, r.seeds, r.group_bins);
     let _ = writeln!(
