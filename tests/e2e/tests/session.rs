@@ -239,3 +239,26 @@ fn byte_identical_frames_are_refused_not_calibrated() {
     let (_, pack) = calibrate(&s, |_| {});
     assert_eq!(pack.iso_list(), vec![400]);
 }
+
+/// Issue 13 item 1: an absurd camera NoiseProfile (S = 1e-3, O = 1e10, from a damaged tag or
+/// record) does not go into the pack, where `synth --model noiseprofile`, `eval` and `report`
+/// would size their work by it; the pack says why.
+#[test]
+fn an_absurd_noise_profile_is_left_out_with_a_warning() {
+    use noisecal_core::model::pack::NoiseProfile;
+    let s = setup(SensorModel::phone_10bit(), 64, 48, 5, vec![200, 800], 3, vec![-1, 1]);
+    let mut session = CalibrationSession::new(s.sim.layout(), SessionConfig::new(s.plan.reference_iso)).unwrap();
+    session.set_noise_profile(200, NoiseProfile([[1e-3, 1e10]; 4]));
+    session.set_noise_profile(800, NoiseProfile([[2e-4, 3e-6]; 4]));
+    noisecal_e2e::push_plan(&s, &mut session);
+    let pack = session.finish().expect("a pack without the absurd profile");
+    assert_eq!(pack.iso(200).unwrap().noise_profile, None);
+    assert!(pack.iso(800).unwrap().noise_profile.is_some(), "a plausible profile is kept");
+    assert!(
+        pack.warnings.iter().any(|w| w.contains("ISO 200") && w.contains("NoiseProfile is impossible")),
+        "{:?}",
+        pack.warnings
+    );
+    let back = ModelPack::from_bytes(&pack.to_bytes().unwrap()).expect("the pack decodes");
+    assert_eq!(back.iso(200).unwrap().noise_profile, None);
+}
