@@ -281,7 +281,8 @@ fn renoise_takes_levels_above_black() {
 }
 
 /// Issue 13 "degenerate sessions": a capture folder whose frames are all saturated, all one
-/// noiseless level, or all at black is refused, naming what is wrong; the existing pack is kept.
+/// noiseless level, all at black, or all masked (a texture with no flat pixel anywhere) is
+/// refused, naming what is wrong; the existing pack is kept.
 #[test]
 fn degenerate_sessions_are_refused_by_name() {
     let dir = tempfile::tempdir().unwrap();
@@ -291,18 +292,33 @@ fn degenerate_sessions_are_refused_by_name() {
     let (ok, err) = noisecal(&["calibrate", dngs.to_str().unwrap(), "-o", pack.to_str().unwrap()]);
     assert!(ok, "{err}");
     let good = std::fs::read(&pack).unwrap();
-    let files: Vec<_> = std::fs::read_dir(&dngs).unwrap().map(|e| e.unwrap().path()).collect();
-    for (name, level, says) in [
-        ("saturated", 1023u16, "are saturated"),
-        ("flat", 500, "carry no noise at all"),
-        ("black", 64, "frames are dark, at the black level"),
-    ] {
+    let mut files: Vec<_> = std::fs::read_dir(&dngs).unwrap().map(|e| e.unwrap().path()).collect();
+    files.sort();
+    // A fixed hash: the same texture in every frame, and fresh noise in each.
+    let hash = |a: u64| {
+        let mut z = a.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        z = (z ^ (z >> 31)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z ^ (z >> 29)
+    };
+    let textured = |y: usize, x: usize, i: usize| {
+        let texture = 100 + hash((y * 1000 + x) as u64) % 800;
+        let noise = hash(((i + 1) * 1_000_003 + y * 1000 + x) as u64) % 9;
+        (texture + noise) as u16
+    };
+    type Pixels<'a> = &'a dyn Fn(usize, usize, usize) -> u16;
+    let cases: [(&str, Pixels, &str); 4] = [
+        ("saturated", &|_, _, _| 1023, "are saturated"),
+        ("flat", &|_, _, _| 500, "carry no noise at all"),
+        ("black", &|_, _, _| 64, "frames are dark, at the black level"),
+        ("masked", &textured, "has no flat pixels"),
+    ];
+    for (name, pixel, says) in cases {
         let d = dir.path().join(name);
         std::fs::create_dir(&d).unwrap();
-        for f in &files {
+        for (i, f) in files.iter().enumerate() {
             let img = noisecal_cli::dng::read_dng(f).unwrap();
             let meta = noisecal_core::FrameMeta { black: None, ..img.meta };
-            let px = img.pixels.mapv(|_| level);
+            let px = ndarray::Array2::from_shape_fn(img.pixels.dim(), |(y, x)| pixel(y, x, i));
             let out = d.join(f.file_name().unwrap());
             noisecal_cli::dng::write_dng_from_layout(&out, &img.layout, &meta, &img.make, &img.model, &px).unwrap();
         }
