@@ -8,7 +8,13 @@ CRC-repaired mutations, records removed or duplicated) and bad arguments, each r
   hangs       runs past the timeout
   harmed      an input whose hash changed
   silent      exit 0 on an input known to be damaged (a CRC-covered byte changed without repair,
-              frame records removed or duplicated, a DNG cut inside its pixel data)
+              frame records removed or duplicated, a DNG cut inside its pixel data, 16-bit DNG data
+              relabelled BitsPerSample 10/12/14) or on a degenerate capture folder (every frame's
+              pixels identical, saturated at white, or at black)
+Kill cases run calibrate, simulate --rec or synth and kill -9 them at a random moment: a target
+that is neither the old file nor a complete new one counts as harmed; a temporary file that the
+next run writing into the folder does not sweep (aged past the sweep's grace period first)
+counts as an orphan.
 
 usage: tests/mutation_run.py [--cases N] [--seed S] [--bin target/release/noisecal] [--work DIR]
 """
@@ -52,6 +58,14 @@ class Counts:
         self.harmed = []
         self.silent = []
         self.by_cmd = {}
+        self.kills = 0
+        self.kill_temps = 0
+        self.orphans = []
+        # per command: [cases, aborts, hangs, harmed, silent]
+        self.table = {}
+
+    def note(self, cmd, col):
+        self.table.setdefault(cmd, [0, 0, 0, 0, 0])[col] += 1
 
 
 def run(counts, binary, args, inputs, damaged, label):
@@ -63,18 +77,23 @@ def run(counts, binary, args, inputs, damaged, label):
     except subprocess.TimeoutExpired:
         code, err = None, "timeout"
     counts.cases += 1
-    cmd = args[0]
+    cmd = args[2] if args[0] == "--threads" else args[0]
     counts.by_cmd[cmd] = counts.by_cmd.get(cmd, 0) + 1
+    counts.note(cmd, 0)
     what = f"{label}: noisecal {' '.join(args)}"
     if code is None:
         counts.hangs.append(what)
+        counts.note(cmd, 2)
     elif code < 0 or code in (3, 134) or "panicked" in err:
         counts.aborts.append(f"{what} → exit {code}: {err[-300:]}")
+        counts.note(cmd, 1)
     for p in inputs:
         if sha(p) != before[p]:
             counts.harmed.append(f"{what}: {p} changed")
+            counts.note(cmd, 3)
     if code == 0 and damaged:
         counts.silent.append(f"{what}: exit 0 on damaged input ({damaged})")
+        counts.note(cmd, 4)
     return code, time.time() - t0
 
 
@@ -203,6 +222,83 @@ def dng_pixel_region(b):
         return None
 
 
+def set_bits(b, bits):
+    """The DNG with BitsPerSample (tag 258) set to `bits`: 16-bit data mislabelled (issue 13 item 9)."""
+    b = bytearray(b)
+    ifd = struct.unpack_from("<I", b, 4)[0]
+    for k in range(struct.unpack_from("<H", b, ifd)[0]):
+        at = ifd + 2 + 12 * k
+        if struct.unpack_from("<H", b, at)[0] == 258:
+            struct.pack_into("<H", b, at + 8, bits)
+    return bytes(b)
+
+
+def with_pixels(b, pixels):
+    """The DNG with its (single, 16-bit) strip replaced by `pixels` (bytes of the same length)."""
+    off, cnt = dng_pixel_region(b)
+    b = bytearray(b)
+    b[off:off + cnt] = pixels[:cnt]
+    return bytes(b)
+
+
+def temps_in(d):
+    return [os.path.join(r, n) for r, _, names in os.walk(d) for n in names if ".noisecal-tmp." in n]
+
+
+def kill_case(counts, rng, binary, out, rec, pack, dngs, synth_sizes):
+    """Runs a writing command, kills it with SIGKILL at a random moment, checks its target, then
+    has the next run writing into the same folder sweep the killed run's temporary files."""
+    existing = os.path.join(out, "kept.pack")
+    shutil.copy(pack, existing)
+    old = sha(existing)
+    which = rng.choice(["calibrate", "simulate", "synth"])
+    syn = os.path.join(out, "syn")
+    srec = os.path.join(out, "s.rec")
+    args = {
+        "calibrate": ["calibrate", "-q", rec, "-o", existing],
+        "simulate": ["simulate", "-q", "--width", "512", "--height", "384", "--frames", "3", "--isos", "200,800",
+                     "--ev=-1,1", "--rec", srec],
+        "synth": ["synth", "-q", "--pack", pack, "--iso", "200", dngs, "-o", syn],
+    }[which]
+    p = subprocess.Popen([binary] + args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, preexec_fn=limit)
+    time.sleep(rng.uniform(0.0, 0.6))
+    p.kill()
+    p.wait()
+    counts.cases += 1
+    counts.kills += 1
+    counts.by_cmd[which] = counts.by_cmd.get(which, 0) + 1
+    counts.note(which, 0)
+    what = f"kill -9: noisecal {' '.join(args)}"
+    bad = None
+    if which == "calibrate" and sha(existing) != old:
+        if subprocess.run([binary, "inspect", existing], capture_output=True).returncode != 0:
+            bad = "the pack is neither the old one nor a complete new one"
+    elif which == "simulate" and os.path.exists(srec):
+        b = open(srec, "rb").read()
+        if len(b) < 13 or b[-13] != 255:
+            bad = "a partial recording under the target name"
+    elif which == "synth" and os.path.isdir(syn):
+        for n in os.listdir(syn):
+            if ".noisecal-tmp." not in n and os.path.getsize(os.path.join(syn, n)) != synth_sizes.get(n):
+                bad = f"a partial {n}"
+    if bad:
+        counts.harmed.append(f"{what}: {bad}")
+        counts.note(which, 3)
+    # Past the sweep's grace period for dead processes (10 s), then the next write into each folder.
+    left = temps_in(out)
+    for t in left:
+        past = time.time() - 60
+        os.utime(t, (past, past))
+    if left:
+        counts.kill_temps += 1
+        subprocess.run([binary, "calibrate", "-q", rec, "-o", os.path.join(out, "next.pack")], capture_output=True)
+        if os.path.isdir(syn):
+            subprocess.run([binary, "synth", "-q", "--pack", pack, "--iso", "200", os.path.join(dngs, sorted(os.listdir(dngs))[0]),
+                            "-o", os.path.join(syn, "next.dng")], capture_output=True)
+        for t in temps_in(out):
+            counts.orphans.append(f"{what}: {t} not swept by the next run")
+
+
 # ---- the run -----------------------------------------------------------------------------------
 
 
@@ -232,6 +328,10 @@ def main():
     clean = os.path.join(dngs, sorted(os.listdir(dngs))[0])
     good = {"pack": open(pack, "rb").read(), "rec": open(rec, "rb").read(), "dng": open(clean, "rb").read()}
     dng_names = sorted(os.listdir(dngs))
+    # The size of each complete synth output, to tell a partial one after a kill.
+    syn_ref = os.path.join(seeds, "syn")
+    sh(binary, "synth", "-q", "--pack", pack, "--iso", "200", dngs, "-o", syn_ref)
+    synth_sizes = {n: os.path.getsize(os.path.join(syn_ref, n)) for n in os.listdir(syn_ref)}
 
     counts = Counts()
     case_dir = os.path.join(work, "case")
@@ -243,7 +343,7 @@ def main():
         os.makedirs(case_dir)
         out = os.path.join(case_dir, "out")
         os.makedirs(out)
-        kind = rng.choice(["pack", "pack", "rec", "rec", "dng", "dngdir", "args"])
+        kind = rng.choice(["pack", "pack", "rec", "rec", "dng", "dngdir", "args", "degenerate", "kill"])
         if kind == "pack":
             m, damaged, op = mutate(rng, good["pack"], "pack")
             mp = os.path.join(case_dir, "m.pack")
@@ -263,6 +363,7 @@ def main():
             code, _ = run(counts, binary, cmd, [mp, clean, held], damaged, f"pack/{op}")
             if code != 0 and sha(existing) != sha(pack):
                 counts.harmed.append(f"pack/{op}: a failed {cmd[0]} replaced an existing output")
+                counts.note(cmd[0], 3)
         elif kind == "rec":
             m, damaged, op = mutate(rng, good["rec"], "rec")
             mr = os.path.join(case_dir, "m.rec")
@@ -272,12 +373,16 @@ def main():
             code, _ = run(counts, binary, ["calibrate", "-q", mr, "-o", existing], [mr], damaged, f"rec/{op}")
             if code != 0 and sha(existing) != sha(pack):
                 counts.harmed.append(f"rec/{op}: a failed calibrate replaced the existing pack")
+                counts.note("calibrate", 3)
         elif kind == "dng":
             m, _, op = mutate(rng, good["dng"], "dng")
             damaged = None
             reg = dng_pixel_region(good["dng"])
             if op == "trunc" and reg and len(m) < reg[0] + reg[1]:
                 damaged = "cut inside its pixel data"
+            if rng.random() < 0.1:
+                bits = rng.choice([10, 12, 14])
+                m, op, damaged = set_bits(good["dng"], bits), "bits", f"16-bit data labelled {bits}-bit"
             md = os.path.join(case_dir, "m.dng")
             open(md, "wb").write(m)
             cmd = rng.choice([
@@ -296,6 +401,30 @@ def main():
             cmd = rng.choice([["calibrate", "-q", d, "-o", os.path.join(out, "p.pack")],
                               ["eval", "--pack", pack, d]])
             run(counts, binary, cmd, [d], None, f"dngdir/{op}")
+        elif kind == "degenerate":
+            d = os.path.join(case_dir, "dngs")
+            shutil.copytree(dngs, d)
+            how = rng.choice(["identical", "saturated", "black", "relabelled"])
+            first = open(os.path.join(dngs, dng_names[0]), "rb").read()
+            off, cnt = dng_pixel_region(first)
+            for n in dng_names:
+                f = os.path.join(d, n)
+                b = open(f, "rb").read()
+                if how == "identical":
+                    b = with_pixels(b, first[off:off + cnt])
+                elif how == "saturated":
+                    b = with_pixels(b, struct.pack("<H", 1023) * (cnt // 2))
+                elif how == "black":
+                    b = with_pixels(b, struct.pack("<H", 64) * (cnt // 2))
+                open(f, "wb").write(b)
+            if how == "relabelled":
+                victim = os.path.join(d, rng.choice(dng_names))
+                b = set_bits(open(victim, "rb").read(), rng.choice([10, 12, 14]))
+                open(victim, "wb").write(b)
+            run(counts, binary, ["calibrate", "-q", d, "-o", os.path.join(out, "p.pack")], [d],
+                f"a degenerate capture folder ({how})", f"degenerate/{how}")
+        elif kind == "kill":
+            kill_case(counts, rng, binary, out, rec, pack, dngs, synth_sizes)
         else:
             absurd = rng.choice(["0", "-1", "4294967295", "99999999999", "nan", "1e308", "", "x", "0,0,0,0",
                                  "1000000", "65536"])
@@ -318,19 +447,34 @@ def main():
                 ["--threads", absurd, "inspect", pack],
                 ["inspect", "/dev/zero"],
                 ["calibrate", "/dev/null", "-o", os.path.join(out, "p.pack")],
+                ["demo", "-q", "--out", os.path.join(out, "demo"), "--width", absurd, "--height", "16", "--frames", "2"],
+                ["demo", "-q", "--out", os.path.join(out, "demo"), "--width", "16", "--height", "16", "--frames", absurd],
+                ["demo", "-q", "--out", clean, "--width", "16", "--height", "16", "--frames", "2"],
             ])
             run(counts, binary, cmd, [pack, rec, dngs, clean, held], None, "args")
         if counts.cases % 250 == 0:
             print(f"{counts.cases} cases, {time.time() - t_start:.0f} s: aborts {len(counts.aborts)}, hangs "
-                  f"{len(counts.hangs)}, harmed {len(counts.harmed)}, silent {len(counts.silent)}", file=sys.stderr)
+                  f"{len(counts.hangs)}, harmed {len(counts.harmed)}, silent {len(counts.silent)}, orphans "
+                  f"{len(counts.orphans)}", file=sys.stderr)
 
-    print(f"cases {counts.cases} in {time.time() - t_start:.0f} s; per command {counts.by_cmd}")
-    for name in ("aborts", "hangs", "harmed", "silent"):
+    print(f"cases {counts.cases} in {time.time() - t_start:.0f} s")
+    print(f"{'command':<10} {'cases':>6} {'aborts':>6} {'hangs':>6} {'harmed':>6} {'silent':>6}")
+    for c in sorted(counts.table):
+        print(f"{c:<10} " + " ".join(f"{v:>6}" for v in counts.table[c]))
+    print(f"kill -9 cases {counts.kills}, {counts.kill_temps} of them leaving a temporary file; not swept by the "
+          f"next run: {len(counts.orphans)}")
+    for name in ("aborts", "hangs", "harmed", "silent", "orphans"):
         items = getattr(counts, name)
         print(f"{name}: {len(items)}")
+        by_label = {}
+        for it in items:
+            label = it.split(":", 1)[0]
+            by_label[label] = by_label.get(label, 0) + 1
+        for label, n in sorted(by_label.items(), key=lambda kv: -kv[1]):
+            print(f"  {n:5}  {label}")
         for it in items[:15]:
             print(f"  {it}")
-    bad = len(counts.aborts) + len(counts.hangs) + len(counts.harmed) + len(counts.silent)
+    bad = len(counts.aborts) + len(counts.hangs) + len(counts.harmed) + len(counts.silent) + len(counts.orphans)
     sys.exit(1 if bad else 0)
 
 
