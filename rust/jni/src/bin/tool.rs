@@ -43,9 +43,16 @@ fn write_rec(args: &[String]) -> Fallible<()> {
     let seed = option(args, "--seed")?.map(|v| parse("--seed", v)).transpose()?.unwrap_or(1);
     let stride = option(args, "--row-stride")?.map(|v| parse("--row-stride", v)).transpose()?.unwrap_or(2 * w as usize);
     let synth = Synth::new(w, h, seed);
-    let file = std::fs::File::create(out).map_err(|e| format!("cannot create {out}: {e}"))?;
-    let frames = write_recording(std::io::BufWriter::new(file), &synth, &Plan::default(), stride)
-        .map_err(|e| format!("writing {out} failed: {e}"))?;
+    // Atomic like every other writer (issue 13): a failed or killed run leaves no partial
+    // recording under `out`.
+    let failed = |e: std::io::Error| format!("writing {out} failed: {e}");
+    let mut file =
+        noisecal_io::AtomicFile::create(std::path::Path::new(out)).map_err(|e| format!("cannot create {out}: {e}"))?;
+    let mut buffered = std::io::BufWriter::new(&mut file);
+    let frames = write_recording(&mut buffered, &synth, &Plan::default(), stride).map_err(failed)?;
+    std::io::Write::flush(&mut buffered).map_err(failed)?;
+    drop(buffered);
+    file.commit().map_err(failed)?;
     println!("wrote {out}: {frames} frames {w}×{h}, row stride {stride} bytes");
     Ok(())
 }
