@@ -2,31 +2,43 @@
 
 use crate::model::pmf::Pmf;
 
+/// One cell of a standardised quantile function: over `u ∈ [u0, u1]` it runs linearly from `z0`
+/// with `slope` (the slope is computed once per cell, not at every evaluation).
+#[derive(Debug, Clone, Copy)]
+struct Cell {
+    u0: f64,
+    u1: f64,
+    z0: f64,
+    slope: f64,
+}
+
+impl Cell {
+    /// The quantile at `u`, linear within the cell (clamped to it).
+    fn at(&self, u: f64) -> f64 {
+        self.z0 + self.slope * (u - self.u0).clamp(0.0, self.u1 - self.u0)
+    }
+}
+
 /// Piecewise-linear quantile function of a PMF read as piecewise-uniform unit cells,
-/// standardised to zero mean and unit variance: `(u0, u1, z0, z1)` per cell with mass.
-fn standard_quantile(p: &Pmf) -> Vec<(f64, f64, f64, f64)> {
+/// standardised to zero mean and unit variance: one [`Cell`] per cell with mass.
+fn standard_quantile(p: &Pmf) -> Vec<Cell> {
     let (m, v) = p.moments();
     let s = (v + 1.0 / 12.0).sqrt();
     let mut u = 0.0;
-    let mut out = Vec::with_capacity(p.p.len());
+    let mut out: Vec<Cell> = Vec::with_capacity(p.p.len());
     for (i, &q) in p.p.iter().enumerate() {
         if q <= 0.0 {
             continue;
         }
         let x = (p.first + i as i32) as f64;
-        out.push((u, u + q, (x - 0.5 - m) / s, (x + 0.5 - m) / s));
+        // A cell one code wide: `z` rises by `1/s` over its mass `q`.
+        out.push(Cell { u0: u, u1: u + q, z0: (x - 0.5 - m) / s, slope: 1.0 / (s * q) });
         u += q;
     }
     if let Some(last) = out.last_mut() {
-        last.1 = 1.0;
+        last.u1 = 1.0;
     }
     out
-}
-
-/// The value of a standardised quantile function at `u`, linear within the segment `seg`.
-fn eval_seg(seg: &(f64, f64, f64, f64), u: f64) -> f64 {
-    let (u0, u1, z0, z1) = *seg;
-    if u1 > u0 { z0 + (z1 - z0) * ((u - u0) / (u1 - u0)).clamp(0.0, 1.0) } else { z0 }
 }
 
 /// Blends the standardised quantile functions of `a` and `b` (`(1 − t)·Q_a + t·Q_b`), then maps
@@ -44,7 +56,7 @@ pub fn blend_quantiles(a: &Pmf, b: &Pmf, t: f64, mu: f64, var: f64) -> Pmf {
     // Both quantile functions' cell ends ascend: merged in one pass (what sorting them gives).
     let mut knots: Vec<f64> = Vec::with_capacity(qa.len() + qb.len() + 1);
     knots.push(0.0);
-    let (mut ea, mut eb) = (qa.iter().map(|s| s.1).peekable(), qb.iter().map(|s| s.1).peekable());
+    let (mut ea, mut eb) = (qa.iter().map(|c| c.u1).peekable(), qb.iter().map(|c| c.u1).peekable());
     while let (Some(&x), Some(&y)) = (ea.peek(), eb.peek()) {
         let from_a = x.total_cmp(&y).is_le();
         knots.push(if from_a { x } else { y });
@@ -57,14 +69,14 @@ pub fn blend_quantiles(a: &Pmf, b: &Pmf, t: f64, mu: f64, var: f64) -> Pmf {
     for w in knots.windows(2) {
         let (u0, u1) = (w[0], w[1]);
         let mid = 0.5 * (u0 + u1);
-        while ia + 1 < qa.len() && qa[ia].1 < mid {
+        while ia + 1 < qa.len() && qa[ia].u1 < mid {
             ia += 1;
         }
-        while ib + 1 < qb.len() && qb[ib].1 < mid {
+        while ib + 1 < qb.len() && qb[ib].u1 < mid {
             ib += 1;
         }
-        let z0 = (1.0 - t) * eval_seg(&qa[ia], u0) + t * eval_seg(&qb[ib], u0);
-        let z1 = (1.0 - t) * eval_seg(&qa[ia], u1) + t * eval_seg(&qb[ib], u1);
+        let z0 = (1.0 - t) * qa[ia].at(u0) + t * qb[ib].at(u0);
+        let z1 = (1.0 - t) * qa[ia].at(u1) + t * qb[ib].at(u1);
         segs.push((u1 - u0, z0, z1));
     }
     let mean: f64 = segs.iter().map(|(m, z0, z1)| m * 0.5 * (z0 + z1)).sum();
@@ -90,13 +102,14 @@ pub fn blend_quantiles(a: &Pmf, b: &Pmf, t: f64, mu: f64, var: f64) -> Pmf {
         }
         let k0 = (x0 + 0.5).floor() as i32;
         let k1 = (x1 + 0.5).floor() as i32;
+        let density = m / (x1 - x0);
         for kc in k0..=k1 {
             let c0 = (kc as f64 - 0.5).max(x0);
             let c1 = (kc as f64 + 0.5).min(x1);
             if c1 > c0
                 && let Some(slot) = out.get_mut((kc - first) as usize)
             {
-                *slot += m * (c1 - c0) / (x1 - x0);
+                *slot += density * (c1 - c0);
             }
         }
     }
