@@ -42,6 +42,7 @@ fi
 # under target/fuzz-crashes/. Longer runs: docs/fuzzing.md. NOISECAL_FUZZ_SECONDS=0: seeds only.
 echo "== fuzz: dng, recording, pack, jni-frame (${NOISECAL_FUZZ_SECONDS:-45} s each)" >&2
 cargo build --profile test -q -p noisecal-fuzz
-# A 20 s per-input limit in CI (2 s by default): on a loaded shared runner some fuzzed
-# recordings replay in ~3 s (an open finding, tests/fuzz-corpus/open/); hangs still fail.
+# A 20 s per-input limit in CI (2 s by default), for a loaded shared runner; hangs still fail.
+# (Two fuzzed recordings that took ~3 s, a session estimating ISOs it then left out, now replay
+# in ~2 ms and are seeds in tests/fuzz-corpus/recording/.)
 target/debug/noisecal-fuzz all --seconds "${NOISECAL_FUZZ_SECONDS:-45}" --seed "${NOISECAL_FUZZ_SEED:-$(date +%s)}" --limit-ms "${NOISECAL_FUZZ_LIMIT_MS:-20000}"

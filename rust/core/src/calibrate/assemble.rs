@@ -34,6 +34,16 @@ impl CalibrationSession {
             if self.config.plain { Pooling::Plain } else { self.config.pooling.map_or(Pooling::Auto, Pooling::Fixed) };
         let levels: Vec<BinLevels> = (0..POSITIONS).map(|p| BinLevels::new(&self.binning, p)).collect();
         let jobs: Vec<(u32, usize)> = self.isos.keys().flat_map(|&iso| (0..POSITIONS).map(move |p| (iso, p))).collect();
+        // An ISO with a position no sample reached is left out below: none of its positions is
+        // estimated (estimation is the costly part of finishing).
+        let unreached: std::collections::BTreeMap<u32, Option<usize>> = self
+            .isos
+            .iter()
+            .map(|(&iso, acc)| {
+                let empty = |p: &usize| acc.folds_of(*p).iter().all(|f| f.iter().all(|h| h.total() == 0));
+                (iso, (0..POSITIONS).find(empty))
+            })
+            .collect();
         // Every (ISO, position) is estimated on its own: in parallel, collected in order.
         let estimates: Vec<_> = jobs
             .par_iter()
@@ -41,32 +51,24 @@ impl CalibrationSession {
                 let acc = &self.isos[&iso];
                 let folds = acc.folds_of(p);
                 let shifts = acc.shifts_of(p);
-                let empty = folds.iter().all(|f| f.iter().all(|h| h.total() == 0));
                 let range = output_range(&acc.codes[p], self.layout.white);
                 let levels = levels[p].clone().with_range([range.floor, range.saturation]);
-                (!empty).then(|| estimate_position(&folds, &shifts, &levels, pooling))
+                unreached[&iso].is_none().then(|| estimate_position(&folds, &shifts, &levels, pooling))
             })
             .collect();
         let mut isos = Vec::new();
         for (i, (&iso, acc)) in self.isos.iter().enumerate() {
-            let mut positions = Vec::with_capacity(POSITIONS);
-            let mut missing = None;
-            for p in 0..POSITIONS {
-                match &estimates[i * POSITIONS + p] {
-                    Some(e) => positions.push(PositionModel { bins: e.bins.clone(), estimate: Some(e.report.clone()) }),
-                    None => {
-                        missing = Some(p);
-                        break;
-                    }
-                }
-            }
-            if let Some(p) = missing {
+            if let Some(p) = unreached[&iso] {
                 warnings.push(format!(
                     "ISO {iso}: no flat pixel at CFA position {p} ({}) gave a sample; the ISO is left out — capture more frames",
                     self.layout.cfa.position_name(p),
                 ));
                 continue;
             }
+            let positions: Vec<PositionModel> = (0..POSITIONS)
+                .filter_map(|p| estimates[i * POSITIONS + p].as_ref())
+                .map(|e| PositionModel { bins: e.bins.clone(), estimate: Some(e.report.clone()) })
+                .collect();
             // Real raw noise is never below quantisation's 1/12 DN²: none at all means copied frames.
             // Only clipped bins with most codes at white mean nothing below the clip was seen:
             // saturated frames. (Copies of a flat frame also give only clipped bins, their one code
