@@ -12,8 +12,14 @@ fn noisecal(args: &[&str]) -> (bool, String) {
     (out.status.success(), stderr)
 }
 
+/// The 64×48 test session (ISOs 200 and 800, EV −1 and +1, 3 frames a burst) as DNGs in
+/// `dir/dngs`.
 fn simulate(dir: &Path) {
-    let dngs = dir.join("dngs");
+    simulate_as(&dir.join("dngs"), "--dngs");
+}
+
+/// The same session written by `simulate` to `out` as `kind` (`--dngs` or `--rec`).
+fn simulate_as(out: &Path, kind: &str) {
     let (ok, err) = noisecal(&[
         "simulate",
         "--width",
@@ -25,8 +31,8 @@ fn simulate(dir: &Path) {
         "--isos",
         "200,800",
         "--ev=-1,1",
-        "--dngs",
-        dngs.to_str().unwrap(),
+        kind,
+        out.to_str().unwrap(),
     ]);
     assert!(ok, "{err}");
 }
@@ -368,21 +374,7 @@ fn flags_folders_and_quiet_do_what_they_say() {
 
     // A recording cut short calibrates with a warning, which -q keeps off stderr.
     let rec = dir.path().join("s.rec");
-    let (ok, err) = noisecal(&[
-        "simulate",
-        "--width",
-        "64",
-        "--height",
-        "48",
-        "--frames",
-        "3",
-        "--isos",
-        "200,800",
-        "--ev=-1,1",
-        "--rec",
-        &s(&rec),
-    ]);
-    assert!(ok, "{err}");
+    simulate_as(&rec, "--rec");
     let bytes = std::fs::read(&rec).unwrap();
     let cut = dir.path().join("cut.rec");
     std::fs::write(&cut, &bytes[..bytes.len() - 2000]).unwrap();
