@@ -55,10 +55,9 @@ pub fn bin_stats(binning: &Binning, model: &IsoModel, pos: usize) -> Vec<BinStat
             // The PMF's moments: for calibrated bins the estimator's (own samples, pooled where
             // held-out frames favoured it), which are steadier than a sparse bin's own moments.
             let (mean, var) = bm.moments();
-            let pmf = bm.pmf();
             let lo_level = black + bin as f64 * bw;
             let hi_level = (lo_level + bw).min(white);
-            let clipped = lo_level.round() + pmf.quantile(0.001) < 0.5 || hi_level + pmf.quantile(0.999) > white - 0.5;
+            let clipped = lo_level.round() + bm.quantile(0.001) < 0.5 || hi_level + bm.quantile(0.999) > white - 0.5;
             BinStat {
                 bin,
                 level_above_black: (bin as f64 + 0.5) * bw,

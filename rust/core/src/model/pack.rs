@@ -203,6 +203,24 @@ impl BinModel {
         crate::model::histogram::moments(self.first, self.counts.iter().map(|&c| c as f64))
     }
 
+    /// `self.pmf().quantile(u)` without building the PMF (the same arithmetic on the counts).
+    pub fn quantile(&self, u: f64) -> f64 {
+        let t: f64 = self.counts.iter().map(|&c| c as f64).sum();
+        let Some(last) = self.counts.iter().rposition(|&c| c > 0).filter(|_| t > 0.0) else {
+            return self.pmf().quantile(u);
+        };
+        let mut acc = 0.0;
+        for (i, &c) in self.counts.iter().enumerate() {
+            let p = c as f64 / t;
+            if acc + p >= u && p > 0.0 {
+                let frac = ((u - acc) / p).clamp(0.0, 1.0);
+                return self.first as f64 + i as f64 - 0.5 + frac;
+            }
+            acc += p;
+        }
+        self.first as f64 + last as f64 + 0.5
+    }
+
     /// Weights from a derived PMF (interpolated or parametric), with a fixed total so such bins
     /// serialise deterministically. `filled` marks a PMF that stands on no measured bin.
     pub fn from_pmf(p: &Pmf, samples: u64, filled: bool) -> Self {
@@ -408,5 +426,42 @@ impl ModelPack {
             }
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `BinModel::quantile` gives exactly `pmf().quantile`, zeros at either end and inside, and
+    /// an all-zero bin, included.
+    #[test]
+    fn bin_quantile_is_the_pmfs() {
+        let mut state = 0x9E37_79B9_7F4A_7C15u64;
+        let mut next = move || {
+            state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+            let mut z = state;
+            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+            z ^ (z >> 31)
+        };
+        let mut cases: Vec<Vec<u64>> = vec![vec![0, 0, 0], vec![0, 5, 0], vec![7], vec![0, 0, 3, 0, 1, 0, 0]];
+        for _ in 0..200 {
+            let n = 1 + (next() % 40) as usize;
+            cases.push((0..n).map(|_| if next() % 3 == 0 { 0 } else { next() % 1_000_000 }).collect());
+        }
+        for counts in cases {
+            let b = BinModel {
+                first: -(counts.len() as i32) / 2,
+                counts,
+                samples: 1,
+                source: BinSource::Measured,
+                measured: None,
+                clipped: false,
+            };
+            for u in [0.0, 1e-3, 0.25, 0.5, 0.999, 1.0] {
+                assert_eq!(b.quantile(u).to_bits(), b.pmf().quantile(u).to_bits(), "{:?} at {u}", b.counts);
+            }
+        }
     }
 }
