@@ -312,7 +312,7 @@ fn degenerate_sessions_are_refused_by_name() {
         (texture + noise) as u16
     };
     type Pixels<'a> = &'a dyn Fn(usize, usize, usize) -> u16;
-    let cases: [(&str, Pixels, &str); 4] = [
+    let cases: [(&str, Pixels<'_>, &str); 4] = [
         ("saturated", &|_, _, _| 1023, "are saturated"),
         ("flat", &|_, _, _| 500, "carry no noise at all"),
         ("black", &|_, _, _| 64, "frames are dark, at the black level"),
@@ -407,4 +407,33 @@ fn flags_folders_and_quiet_do_what_they_say() {
     let (ok, err) = noisecal(&["eval", "--pack", &s(&pack), &s(&held)]);
     assert!(!ok && err.contains("eval only scores ISOs the pack models"), "{err}");
     assert!(!err.contains("--extrapolate"), "eval suggested a flag it lacks: {err}");
+}
+
+/// A session that measured almost nothing (a 4×4 region of interest: 4 pixels a position) still
+/// calibrates, but its pack says by name, per position, that its noise is mostly filled in; a
+/// full session's pack does not.
+#[test]
+fn a_sparse_session_is_warned_about_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    simulate(dir.path());
+    let dngs = dir.path().join("dngs");
+    let inspect = |pack: &Path| -> String {
+        let out =
+            Command::new(env!("CARGO_BIN_EXE_noisecal")).args(["inspect", pack.to_str().unwrap()]).output().unwrap();
+        assert!(out.status.success());
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    let sparse = dir.path().join("sparse.pack");
+    let (ok, err) =
+        noisecal(&["calibrate", dngs.to_str().unwrap(), "--roi", "20,20,24,24", "-o", sparse.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    let text = inspect(&sparse);
+    for name in ["R", "Gr", "Gb", "B"] {
+        assert!(text.contains(&format!("ISO 800 {name}: only ")), "no sparse warning for {name}: {text}");
+    }
+    assert!(text.contains("samples were measured"), "{text}");
+    let full = dir.path().join("full.pack");
+    let (ok, err) = noisecal(&["calibrate", dngs.to_str().unwrap(), "-o", full.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    assert!(!inspect(&full).contains("samples were measured"));
 }

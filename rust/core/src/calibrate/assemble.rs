@@ -22,6 +22,10 @@ pub const PATTERN_RELEVANCE: f64 = 0.01;
 /// A gain ratio further than this from 1 is reported prominently: more likely a capture problem
 /// than a sensor property.
 pub const FAR_GAIN_RATIO: f64 = 0.10;
+/// Fewer measured samples than this at a CFA position of an ISO is a sparse session (a tiny
+/// region of interest, a chart mostly masked): most of its bins stand on the noise law, not on
+/// measurements, and the pack says so.
+pub const SPARSE_POSITION_SAMPLES: u64 = 1000;
 
 impl CalibrationSession {
     /// Builds the model pack from everything folded in so far: per ISO and position, the
@@ -95,6 +99,15 @@ impl CalibrationSession {
             let gain_ratio: [f64; POSITIONS] = std::array::from_fn(|p| {
                 if acc.reference_sum[p] > 0.0 { acc.target_sum[p] / acc.reference_sum[p] } else { 1.0 }
             });
+            for (p, pm) in positions.iter().enumerate() {
+                let measured: u64 = pm.bins.iter().map(|b| b.samples).sum();
+                if measured < SPARSE_POSITION_SAMPLES {
+                    warnings.push(format!(
+                        "ISO {iso} {}: only {measured} samples were measured (a pack wants ≥ {SPARSE_POSITION_SAMPLES} per position, and real sessions give millions); most of its noise is filled in from the noise law, not measured. Widen the region of interest or capture more frames",
+                        self.layout.cfa.position_name(p)
+                    ));
+                }
+            }
             for (p, g) in gain_ratio.iter().enumerate() {
                 let name = self.layout.cfa.position_name(p);
                 if (g - 1.0).abs() > FAR_GAIN_RATIO {
