@@ -28,6 +28,12 @@ pub struct BinLevels {
 }
 
 impl BinLevels {
+    /// The largest noise value the sensor's codes can show: a sample and its clean level both lie
+    /// in `[floor, white]`, so `|n| < reach`.
+    pub fn reach(&self) -> i32 {
+        (self.white - self.floor).max(1) + 1
+    }
+
     pub fn new(binning: &Binning, pos: usize) -> Self {
         let n = binning.bins(pos);
         let black = binning.black[pos] as f64;

@@ -149,7 +149,7 @@ pub(super) fn cross_validate(
                 } else {
                     clip_own = f64::NEG_INFINITY;
                 }
-                let prior = laplace_pmf(mu, var);
+                let prior = laplace_pmf(mu, var, levels.reach());
                 pool_bin(&data, b, false, &POOLING_CANDIDATES, FILL_MIN_SAMPLES, |c, acc, cum| {
                     clip_law[c] += loglik_clamped(
                         held,

@@ -86,6 +86,7 @@ impl Law {
         let (gv_lo, gm_lo) = trend(false);
         let (m_first, v_first) = local(first_level);
         let (m_last, v_last) = local(last_level);
+        let span = levels.reach() as f64;
         let mut mean = Vec::with_capacity(nbins);
         let mut var = Vec::with_capacity(nbins);
         for &x in &levels.center {
@@ -113,8 +114,10 @@ impl Law {
             } else {
                 local(x).0
             };
-            mean.push(m);
-            var.push(v.max(MIN_VAR));
+            // Noise wider than the codes the sensor writes is all clipping: bounding the law
+            // there bounds every prior PMF built on it (a damaged capture's law can be absurd).
+            mean.push(m.clamp(-span, span));
+            var.push(v.max(MIN_VAR).min(span * span));
         }
         Self { mean, var }
     }

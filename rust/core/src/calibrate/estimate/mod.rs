@@ -294,7 +294,7 @@ pub fn estimate_position(
             if acc.total > 0.0 {
                 mix.add(&Pmf { first: acc.first, p: acc.w.iter().map(|w| w / acc.total).collect() }, 1.0 - eps);
             }
-            mix.add(&laplace_pmf(mu, var), eps);
+            mix.add(&laplace_pmf(mu, var, levels.reach()), eps);
             let own = data.stats[b];
             let pooled_from_others = cum > own.n || (clipped[b] && !own_only);
             let source = if own.n == 0 || (clipped[b] && !own_only) {

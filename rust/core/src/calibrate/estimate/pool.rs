@@ -54,23 +54,39 @@ impl Acc {
     }
 }
 
-/// Discretised Laplace law with mean `mu` and variance `var`: `P(n)`.
-pub(super) fn laplace_mass(n: i32, mu: f64, var: f64) -> f64 {
+/// The CDF of the Laplace law with mean `mu` and variance `var`.
+fn laplace_cdf(mu: f64, var: f64) -> impl Fn(f64) -> f64 {
     let s = (var.max(MIN_VAR) / 2.0).sqrt();
-    let cdf = |x: f64| {
+    move |x: f64| {
         let z = (x - mu) / s;
         if z < 0.0 { 0.5 * z.exp() } else { 1.0 - 0.5 * (-z).exp() }
-    };
+    }
+}
+
+/// Discretised Laplace law with mean `mu` and variance `var`: `P(n)`.
+pub(super) fn laplace_mass(n: i32, mu: f64, var: f64) -> f64 {
+    let cdf = laplace_cdf(mu, var);
     (cdf(n as f64 + 0.5) - cdf(n as f64 - 0.5)).max(0.0)
 }
 
-/// The Laplace prior as a PMF over ±12 standard deviations (the mass beyond is below 10⁻⁷).
-pub(super) fn laplace_pmf(mu: f64, var: f64) -> Pmf {
+/// The Laplace prior as a PMF over ±12 standard deviations (the mass beyond is below 10⁻⁷),
+/// within the noise values the sensor's codes can show (`|n| < reach`, [`BinLevels::reach`]):
+/// a damaged capture's law can be as wide as the range, and ±12 of its SDs were 280 000 cells a
+/// bin.
+pub(super) fn laplace_pmf(mu: f64, var: f64, reach: i32) -> Pmf {
     let sd = var.max(MIN_VAR).sqrt();
-    let lo = (mu - 12.0 * sd).floor() as i32 - 1;
-    let hi = (mu + 12.0 * sd).ceil() as i32 + 1;
-    Pmf::from_weights(lo, (lo..=hi).map(|n| laplace_mass(n, mu, var)))
-        .unwrap_or(Pmf { first: mu.round() as i32, p: vec![1.0] })
+    let lo = ((mu - 12.0 * sd).floor() as i32 - 1).max(-reach);
+    let hi = ((mu + 12.0 * sd).ceil() as i32 + 1).min(reach);
+    // Each cell edge's CDF once (what `laplace_mass` gives cell by cell, with half the `exp`s).
+    let cdf = laplace_cdf(mu, var);
+    let mut below = cdf(lo as f64 - 0.5);
+    let masses = (lo..=hi).map(|n| {
+        let above = cdf(n as f64 + 0.5);
+        let m = (above - below).max(0.0);
+        below = above;
+        m
+    });
+    Pmf::from_weights(lo, masses).unwrap_or(Pmf { first: mu.round() as i32, p: vec![1.0] })
 }
 
 /// Everything the pooling needs about one data set (all samples, or the training folds).
@@ -214,5 +230,26 @@ pub(super) fn pool_bin(
     while k < thresholds.len() {
         visit(k, &acc, cum);
         k += 1;
+    }
+}
+
+#[cfg(test)]
+mod laplace_tests {
+    use super::*;
+
+    /// The PMF's cells are `laplace_mass`'s, bit for bit, and its support stays within the
+    /// sensor's reach however wide the law.
+    #[test]
+    fn laplace_pmf_is_the_cell_masses_within_reach() {
+        for (mu, var) in [(0.0, 1.0), (3.7, 42.5), (-12.25, 900.0), (0.5, 1e-6)] {
+            let p = laplace_pmf(mu, var, 1 << 20);
+            for (i, &x) in p.p.iter().enumerate() {
+                let n = p.first + i as i32;
+                let t: f64 = (p.first..=p.last()).map(|k| laplace_mass(k, mu, var)).sum();
+                assert_eq!(x.to_bits(), (laplace_mass(n, mu, var) / t).to_bits(), "mu {mu} var {var} n {n}");
+            }
+        }
+        let wide = laplace_pmf(100.0, 1.4e8, 1024);
+        assert!(wide.first >= -1024 && wide.last() <= 1024, "{} ..= {}", wide.first, wide.last());
     }
 }
