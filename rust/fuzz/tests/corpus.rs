@@ -1,6 +1,8 @@
 //! Every input of the seed corpus (tests/fuzz-corpus/<target>/, where each crash the fuzzer
-//! found is kept as a regression input) and a short deterministic mutation run per target go
-//! through the targets without a panic and within the time limit.
+//! found is kept as a regression input), every regression input kept out of the seeds
+//! (tests/fuzz-corpus/regressions/<target>/: inputs whose mutants are slow to run, which would
+//! take the fuzzer's time) and a short deterministic mutation run per target go through the
+//! targets without a panic and within the time limit.
 
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -9,15 +11,17 @@ use noisecal_fuzz::Target;
 use noisecal_fuzz::mutate::{Rng, mutate};
 
 fn corpus(target: Target) -> Vec<(String, Vec<u8>)> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/fuzz-corpus").join(target.name());
-    let mut v: Vec<(String, Vec<u8>)> = std::fs::read_dir(&dir)
-        .map(|rd| {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/fuzz-corpus");
+    let mut v: Vec<(String, Vec<u8>)> = [root.join(target.name()), root.join("regressions").join(target.name())]
+        .iter()
+        .filter_map(|dir| std::fs::read_dir(dir).ok())
+        .flat_map(|rd| {
             rd.flatten()
                 .filter(|e| e.path().is_file())
-                .map(|e| (e.file_name().to_string_lossy().into_owned(), std::fs::read(e.path()).expect("read seed")))
-                .collect()
+                .map(|e| (e.path().display().to_string(), std::fs::read(e.path()).expect("read seed")))
+                .collect::<Vec<_>>()
         })
-        .unwrap_or_default();
+        .collect();
     v.sort();
     if target == Target::JniFrame {
         v.extend(noisecal_fuzz::jni_seeds().into_iter().enumerate().map(|(i, s)| (format!("built-in {i}"), s)));
@@ -47,7 +51,9 @@ fn the_corpus_and_its_regressions_run_clean() {
 #[test]
 fn a_short_mutation_run_runs_clean() {
     for t in Target::ALL {
-        let seeds: Vec<Vec<u8>> = corpus(t).into_iter().map(|(_, s)| s).collect();
+        // Seeds only, as the fuzzer takes them (not the slow regression inputs).
+        let seeds: Vec<Vec<u8>> =
+            corpus(t).into_iter().filter(|(n, _)| !n.contains("regressions")).map(|(_, s)| s).collect();
         let mut rng = Rng::new(20261123);
         for i in 0..150 {
             let a = &seeds[rng.below(seeds.len())];
