@@ -69,8 +69,10 @@ impl CalibrationSession {
                 ));
                 continue;
             }
-            let positions: Vec<PositionModel> = (0..POSITIONS)
-                .filter_map(|p| estimates[i * POSITIONS + p].as_ref())
+            // Every position of a reached ISO was estimated.
+            let positions: Vec<PositionModel> = estimates[i * POSITIONS..(i + 1) * POSITIONS]
+                .iter()
+                .flatten()
                 .map(|e| PositionModel { bins: e.bins.clone(), estimate: Some(e.report.clone()) })
                 .collect();
             // Real raw noise is never below quantisation's 1/12 DN²: none at all means copied frames.
@@ -100,10 +102,10 @@ impl CalibrationSession {
                 if acc.reference_sum[p] > 0.0 { acc.target_sum[p] / acc.reference_sum[p] } else { 1.0 }
             });
             for (p, pm) in positions.iter().enumerate() {
-                let measured: u64 = pm.bins.iter().map(|b| b.samples).sum();
-                if measured < SPARSE_POSITION_SAMPLES {
+                let samples: u64 = pm.bins.iter().map(|b| b.samples).sum();
+                if samples < SPARSE_POSITION_SAMPLES {
                     warnings.push(format!(
-                        "ISO {iso} {}: only {measured} samples were measured (a pack wants ≥ {SPARSE_POSITION_SAMPLES} per position, and real sessions give millions); most of its noise is filled in from the noise law, not measured. Widen the region of interest or capture more frames",
+                        "ISO {iso} {}: only {samples} samples were measured (a pack wants ≥ {SPARSE_POSITION_SAMPLES} per position, and real sessions give millions); most of its noise is filled in from the noise law, not measured. Widen the region of interest or capture more frames",
                         self.layout.cfa.position_name(p)
                     ));
                 }
