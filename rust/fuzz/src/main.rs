@@ -8,7 +8,11 @@
 //! ```
 //! Each input runs under `catch_unwind`; a panic, or a run longer than `--limit-ms` (2000), is a
 //! failure: the input is saved to `<crashes>/<target>/` and the exit status is 1. A run stuck 5×
-//! past the limit is saved by a watchdog, which then ends the process (status 2).
+//! past the limit is saved by a watchdog, which then ends the process (status 2). An input that
+//! aborts the process (a failed allocation, a stack overflow) is saved as
+//! `<crashes>/<target>/abort.bin` by a SIGABRT handler (see `abort.rs`).
+
+mod abort;
 
 use std::panic::{self, AssertUnwindSafe};
 use std::path::{Path, PathBuf};
@@ -151,6 +155,8 @@ fn fuzz(target: Target, o: &Options) -> bool {
     let mut outcomes = std::collections::HashSet::new();
     let mut rng = Rng::new(o.seed ^ (target as u64).wrapping_mul(0x1000_0000_01b3));
     let deadline = Instant::now() + Duration::from_secs_f64(o.seconds.max(0.0));
+    eprintln!("fuzz {}: seed {}, {} s", target.name(), o.seed, o.seconds);
+    abort::arm(&o.crashes, target.name());
 
     // The watchdog: an input stuck far past the limit is saved, then the process ends.
     let current = Arc::new(Mutex::new(Vec::<u8>::new()));
@@ -193,7 +199,9 @@ fn fuzz(target: Target, o: &Options) -> bool {
         }
         let t0 = Instant::now();
         started.store((t0 - epoch).as_nanos().max(1) as u64, Ordering::Relaxed);
+        abort::running(&input);
         let result = panic::catch_unwind(AssertUnwindSafe(|| target.run(&input)));
+        abort::finished();
         let took = t0.elapsed();
         started.store(0, Ordering::Relaxed);
         execs += 1;

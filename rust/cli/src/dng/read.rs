@@ -472,8 +472,21 @@ fn ascii(ifds: &[&IFD], t: Tag) -> String {
 // ---------------------------------------------------------------------------------------------
 // Structure
 
+/// Tags of a chain IFD whose values rawler 0.8 follows as sub-IFDs, one level deep
+/// (`GenericTiffReader::wellknown_sub_ifd_tags`): SubIFDs, ExifIFD, GPSInfo and InterColorProfile.
+const RAWLER_SUB_IFD_TAGS: [u16; 4] = [330, 34665, 34853, 34675];
+/// rawler 0.8 reads at most this many entries of an IFD.
+const RAWLER_MAX_IFD_ENTRIES: usize = 4096;
+
 /// Walks the IFD structure before rawler does: rejects non-TIFF data, IFD loops and tags whose
-/// size exceeds the file (rawler would allocate them blindly).
+/// size exceeds the file, which rawler would allocate blindly — a count of 2³² DOUBLEs is a 32 GB
+/// allocation whose failure aborts the process, and no `catch_unwind` stops an abort.
+///
+/// Two walks. The strict one follows the chain and its SubIFDs/ExifIFD pointers and refuses an IFD
+/// that is empty or runs past the file. The second mirrors where rawler 0.8 itself goes: the chain
+/// IFDs' [`RAWLER_SUB_IFD_TAGS`], whatever their type (a LONG's values, an UNDEFINED value's own
+/// offset, an unknown type's first byte). rawler ignores errors in those IFDs — an ICC profile read
+/// as an IFD is not one — so only the sizes it would allocate are checked there.
 fn check_structure(buf: &[u8]) -> Result<(), String> {
     let big = match &buf[..4] {
         b"II\x2a\0" => false,
@@ -486,20 +499,35 @@ fn check_structure(buf: &[u8]) -> Result<(), String> {
         }
     };
     let rd16 = |o: usize| -> Option<u16> {
-        let b: [u8; 2] = buf.get(o..o + 2)?.try_into().ok()?;
+        let b: [u8; 2] = buf.get(o..o.checked_add(2)?)?.try_into().ok()?;
         Some(if big { u16::from_be_bytes(b) } else { u16::from_le_bytes(b) })
     };
     let rd32 = |o: usize| -> Option<u32> {
-        let b: [u8; 4] = buf.get(o..o + 4)?.try_into().ok()?;
+        let b: [u8; 4] = buf.get(o..o.checked_add(4)?)?.try_into().ok()?;
         Some(if big { u32::from_be_bytes(b) } else { u32::from_le_bytes(b) })
+    };
+    // The bytes rawler allocates for an entry: count << shift of its type (unknown types are bytes).
+    let rawler_size = |ty: u16, count: u32| -> u64 {
+        let shift = match ty {
+            3 | 8 => 1,
+            4 | 9 | 11 => 2,
+            5 | 10 | 12 => 3,
+            _ => 0,
+        };
+        (count as u64) << shift
+    };
+    let too_big = |t: u16, size: u64, off: usize| {
+        format!("tag {t} in the IFD at offset {off} claims {size} bytes in a {}-byte file (corrupt)", buf.len())
     };
     let first = rd32(4).unwrap_or(0) as usize;
     if first == 0 || first >= buf.len() {
         return Err(format!("the first IFD offset {first} lies outside the {}-byte file (truncated?)", buf.len()));
     }
     let mut visited = HashSet::new();
-    // (offset, depth, is_chain)
+    // (offset, depth): depth 0 is the chain.
     let mut todo = vec![(first, 0u32)];
+    // IFDs rawler follows from a chain IFD: (offset, the tag that points there).
+    let mut rawler_subs: Vec<(usize, u16)> = Vec::new();
     while let Some((off, depth)) = todo.pop() {
         if !visited.insert(off) {
             return Err(format!("IFD at offset {off} is referenced twice (corrupt IFD links)"));
@@ -517,27 +545,41 @@ fn check_structure(buf: &[u8]) -> Result<(), String> {
         }
         for i in 0..n {
             let e = off + 2 + 12 * i;
-            let (t, ty) = (Tag::from_u16(rd16(e).unwrap_or(0)), rd16(e + 2).unwrap_or(0));
-            let count = rd32(e + 4).unwrap_or(0) as u64;
+            let (tag, ty) = (rd16(e).unwrap_or(0), rd16(e + 2).unwrap_or(0));
+            let count = rd32(e + 4).unwrap_or(0);
             let unit: u64 = match ty {
                 3 | 8 => 2,
                 4 | 9 | 11 | 13 => 4,
                 5 | 10 | 12 => 8,
                 _ => 1,
             };
-            let size = count.saturating_mul(unit);
+            let size = (count as u64).saturating_mul(unit).max(rawler_size(ty, count));
             if size > buf.len() as u64 {
-                return Err(format!("tag {} claims {size} bytes in a {}-byte file (corrupt)", t.to_u16(), buf.len()));
+                return Err(too_big(tag, size, off));
             }
-            if (t == Tag::SubIfds || t == Tag::ExifIfd) && depth < 4 && (unit == 4) {
-                let at = if size <= 4 { Some(e + 8) } else { rd32(e + 8).map(|o| o as usize) };
-                if let Some(at) = at {
-                    for k in 0..count as usize {
-                        match rd32(at + 4 * k) {
-                            Some(o) if o != 0 => todo.push((o as usize, depth + 1)),
-                            _ => {}
-                        }
+            let at = if size <= 4 { Some(e + 8) } else { rd32(e + 8).map(|o| o as usize) };
+            let t = Tag::from_u16(tag);
+            if (t == Tag::SubIfds || t == Tag::ExifIfd)
+                && depth < 4
+                && unit == 4
+                && let Some(at) = at
+            {
+                for k in 0..count as usize {
+                    match rd32(at + 4 * k) {
+                        Some(o) if o != 0 => todo.push((o as usize, depth + 1)),
+                        _ => {}
                     }
+                }
+            }
+            if depth == 0 && RAWLER_SUB_IFD_TAGS.contains(&tag) {
+                match (ty, at) {
+                    (4, Some(at)) => rawler_subs
+                        .extend((0..count as usize).filter_map(|k| rd32(at + 4 * k)).map(|o| (o as usize, tag))),
+                    (7, Some(at)) => rawler_subs.push((at, tag)),
+                    (0 | 13.., Some(at)) if count > 0 => {
+                        rawler_subs.extend(buf.get(at).map(|&o| (o as usize, tag)));
+                    }
+                    _ => {}
                 }
             }
         }
@@ -546,6 +588,21 @@ fn check_structure(buf: &[u8]) -> Result<(), String> {
             && next != 0
         {
             todo.push((next as usize, 0));
+        }
+    }
+    for (off, via) in rawler_subs {
+        let Some(n) = rd16(off) else { continue };
+        for i in 0..(n as usize).min(RAWLER_MAX_IFD_ENTRIES) {
+            let e = off + 2 + 12 * i;
+            let (Some(tag), Some(ty), Some(count)) = (rd16(e), rd16(e + 2), rd32(e + 4)) else { break };
+            let size = rawler_size(ty, count);
+            // rawler reads the value's offset, refuses u32::MAX, then allocates.
+            if size > 4 && rd32(e + 8).is_none_or(|o| o == u32::MAX) {
+                continue;
+            }
+            if size > buf.len() as u64 {
+                return Err(format!("{} (reached through tag {via})", too_big(tag, size, off)));
+            }
         }
     }
     Ok(())
@@ -909,6 +966,50 @@ mod tests {
                 c[at] = rng.next() as u8;
             }
             let _ = decode_dng(&c, name);
+        }
+    }
+
+    /// rawler follows a chain IFD's GPSInfo and InterColorProfile tags as IFDs, of any type (an
+    /// UNDEFINED value is read as the IFD itself), and allocates each entry's count before reading
+    /// it: one DOUBLE tag of count 2³² − 16 there was a 32 GB allocation that aborted the fuzzer in
+    /// CI. Such tags are refused by name before rawler runs; a sane one still decodes.
+    #[test]
+    fn huge_tags_in_the_ifds_rawler_follows_are_refused_before_it_allocates() {
+        let (_, pixels) = valid();
+        let layout = SensorLayout { width: 24, height: 16, cfa: CfaPattern::Grbg, black: [64.0; 4], white: 1023 };
+        let spec = DngSpec {
+            layout,
+            meta: FrameMeta::new(400, 10_000_000),
+            make: "M".into(),
+            model: "N".into(),
+            color: ColorTags::default(),
+        };
+        // An IFD of one entry: tag 33434, type `ty`, `count`, value offset 8; no next IFD.
+        let ifd = |ty: u16, count: u32| -> Vec<u8> {
+            let mut b = 1u16.to_le_bytes().to_vec();
+            b.extend(33434u16.to_le_bytes());
+            b.extend(ty.to_le_bytes());
+            b.extend(count.to_le_bytes());
+            b.extend(8u32.to_le_bytes());
+            b.extend([0u8; 8]);
+            b
+        };
+        for via in [34853u16, 34675] {
+            for (ty, count) in [(12u16, 0xFFFF_FFF0u32), (5, 0x8000_0000), (3, 0x4000_0000), (99, 0x1000_0000)] {
+                let mut tiff = dng_tiff(&spec, &pixels).expect("build");
+                tiff.chain[0].set(Tag::from_u16(via), TagValue::Undefined(ifd(ty, count)));
+                let bytes = tiff.to_bytes().expect("bytes");
+                assert_eq!(&bytes[..2], b"II");
+                let e = decode_dng_meta(&bytes, Path::new("crafted.dng")).expect_err("huge tag").to_string();
+                assert!(
+                    e.contains("crafted.dng") && e.contains("tag 33434") && e.contains(&format!("through tag {via}")),
+                    "{e}"
+                );
+            }
+            let mut tiff = dng_tiff(&spec, &pixels).expect("build");
+            tiff.chain[0].set(Tag::from_u16(via), TagValue::Undefined(ifd(12, 1)));
+            let img = decode_dng(&tiff.to_bytes().expect("bytes"), Path::new("sane.dng")).expect("a sane tag decodes");
+            assert_eq!(img.pixels, pixels);
         }
     }
 
