@@ -45,4 +45,8 @@ cargo build --profile test -q -p noisecal-fuzz
 # A 20 s per-input limit in CI (2 s by default), for a loaded shared runner; hangs still fail.
 # (Two fuzzed recordings that took ~3 s, a session estimating ISOs it then left out, now replay
 # in ~2 ms and are seeds in tests/fuzz-corpus/recording/.)
-target/debug/noisecal-fuzz all --seconds "${NOISECAL_FUZZ_SECONDS:-45}" --seed "${NOISECAL_FUZZ_SEED:-$(date +%s)}" --limit-ms "${NOISECAL_FUZZ_LIMIT_MS:-20000}"
+# The seed is the commit's (its first 8 hex digits), so a failure replays from the log on any
+# machine (each target prints its seed) and every commit still mutates differently; an input
+# that aborts the process is saved as target/fuzz-crashes/<target>/abort.bin.
+fuzz_seed=$((16#$(git rev-parse --short=8 HEAD 2>/dev/null || echo 1)))
+target/debug/noisecal-fuzz all --seconds "${NOISECAL_FUZZ_SECONDS:-45}" --seed "${NOISECAL_FUZZ_SEED:-$fuzz_seed}" --limit-ms "${NOISECAL_FUZZ_LIMIT_MS:-20000}"
