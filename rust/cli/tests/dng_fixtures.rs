@@ -511,3 +511,70 @@ fn writer_output_is_what_android_readers_expect() {
     assert_eq!(ifd0.get(tag::CFA_PATTERN), Some(&TagValue::Byte(vec![0, 1, 1, 2])));
     assert!(ifd0.get(tag::DNG_VERSION).is_some() && ifd0.get(tag::COLOR_MATRIX_1).is_some());
 }
+
+/// A tile as wide and long as the TIFF allows makes rawler allocate the padded image
+/// (⌈width / TileWidth⌉ · TileWidth × ⌈height / TileLength⌉ · TileLength pixels) before it reads a
+/// byte: 2²⁰ × 2²⁰ tiles on a 97 × 65 image were a 2 TB allocation whose failure aborts. Tiles larger
+/// than the image they pad are refused by name.
+#[test]
+fn tiles_far_larger_than_the_image_are_refused() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (w, h) = (97u32, 65u32);
+    let pixels = random_pixels(w as usize, h as usize, 4095, 5);
+    // (TileWidth, TileLength, refused): the last is one tile padding the image to 128 × 96.
+    for (tw, th, refused) in
+        [(1u32 << 20, 1u32 << 20, true), (16, 1 << 24, true), (1 << 18, 16, true), (128, 96, false)]
+    {
+        let mut raw = cfa_ifd(w, h, 16, [0, 1, 1, 2]);
+        raw.set(tag::WHITE_LEVEL, TagValue::Short(vec![4095]))
+            .set(tag::ISO_SPEED_RATINGS, TagValue::Short(vec![100]))
+            .set(tag::EXPOSURE_TIME, TagValue::Rational(vec![(1, 100)]));
+        let mut tile = vec![0u16; 128 * 96];
+        for ((y, x), &v) in pixels.indexed_iter() {
+            tile[y * 128 + x] = v;
+        }
+        raw.image = Some(ImageData::Tiles { tile_width: tw, tile_length: th, tiles: vec![u16_bytes(&tile, false)] });
+        let tiff = TiffBuilder { big_endian: false, chain: vec![raw] };
+        let name = format!("tiles-{tw}x{th}.dng");
+        let path = save(dir.path(), &name, &tiff);
+        if refused {
+            let e = read_dng(&path).expect_err("a tile far larger than the image").to_string();
+            assert!(e.contains(&name) && e.contains("TileWidth"), "{e}");
+        } else {
+            assert_eq!(read_dng(&path).expect("one tile padding the image").pixels, pixels);
+        }
+    }
+}
+
+/// JPEG XL raw data (DNG 1.7): a lossless 32 × 16 tile decodes to its samples (the codestream was
+/// written by libjxl through imagecodecs), and a codestream whose image is larger than the tile it
+/// fills is refused by name before rawler sizes buffers from it.
+#[test]
+fn jpeg_xl_tiles_decode_and_oversized_ones_are_refused() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data");
+    let samples: Vec<u16> = std::fs::read(data.join("random-32x16.u16le"))
+        .expect("samples")
+        .chunks_exact(2)
+        .map(|b| u16::from_le_bytes([b[0], b[1]]))
+        .collect();
+    let expected = Array2::from_shape_vec((16, 32), samples).expect("shape");
+    for (name, file) in [("jxl.dng", "random-32x16.jxl"), ("jxl-oversized.dng", "flat-256x64.jxl")] {
+        let mut raw = cfa_ifd(32, 16, 16, [0, 1, 1, 2]);
+        raw.set(tag::COMPRESSION, TagValue::Short(vec![52546]))
+            .set(tag::WHITE_LEVEL, TagValue::Short(vec![4095]))
+            .set(tag::ISO_SPEED_RATINGS, TagValue::Short(vec![100]))
+            .set(tag::EXPOSURE_TIME, TagValue::Rational(vec![(1, 100)]));
+        let tile = std::fs::read(data.join(file)).expect("codestream");
+        raw.image = Some(ImageData::Tiles { tile_width: 32, tile_length: 16, tiles: vec![tile] });
+        let path = save(dir.path(), name, &TiffBuilder { big_endian: false, chain: vec![raw] });
+        match read_dng(&path) {
+            Ok(img) if name == "jxl.dng" => assert_eq!(img.pixels, expected),
+            Err(e) if name != "jxl.dng" => {
+                let e = e.to_string();
+                assert!(e.contains(name) && e.contains("JPEG XL segment 0") && e.contains("256×64"), "{e}");
+            }
+            other => panic!("{name}: {other:?}"),
+        }
+    }
+}

@@ -21,6 +21,7 @@
 mod edit;
 mod error;
 mod profile;
+mod jxl;
 mod read;
 mod tags;
 pub mod tiff;

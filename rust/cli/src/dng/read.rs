@@ -21,6 +21,7 @@ const PHOTOMETRIC_CFA: u64 = 32803;
 const PHOTOMETRIC_LINEAR_RAW: u64 = 34892;
 const COMPRESSION_LOSSY_JPEG: u64 = 34892;
 const COMPRESSION_LOSSLESS_JPEG: u64 = 7;
+const COMPRESSION_JPEG_XL: u64 = 52546;
 
 /// The largest file [`read_dng`] reads: 1 GiB. The largest raw image accepted (256 MP of 16-bit
 /// samples) takes 512 MiB; the rest leaves room for previews and metadata.
@@ -195,6 +196,19 @@ fn parse(src: Src<'_>, path: &Path, decode_pixels: bool) -> Result<DngImage, Dng
             return Err(DngError::decode(path, format!("{} of the raw image is 0", tag_name(t))));
         }
     }
+    // rawler allocates the image padded to whole tiles before it reads a byte: bound that too.
+    if let (Some(tw), Some(th)) = (int_tag(Tag::TileWidth)?, int_tag(Tag::TileLength)?) {
+        let (pw, ph) = ((width as u64).div_ceil(tw) * tw, (height as u64).div_ceil(th) * th);
+        if pw > 65535 + 65535 || ph > 65535 + 65535 || pw * ph > 1 << 28 {
+            return Err(DngError::decode(
+                path,
+                format!(
+                    "TileWidth × TileLength {tw}×{th} pads the {width}×{height} raw image to {pw}×{ph} pixels; \
+                     tiles that much larger than the image are corrupt"
+                ),
+            ));
+        }
+    }
     let spp = int_tag(Tag::SamplesPerPixel)?.unwrap_or(1);
     if spp != 1 {
         return Err(DngError::unsupported(
@@ -332,6 +346,11 @@ fn decode(
     // into the active area; the rest goes through the decoder.
     if let Some(pixels) = super::edit::read_active_16(src.buf(), (width, height), (top, left, bottom, right)) {
         return Ok(pixels);
+    }
+    if uint(raw, Tag::Compression) == Some(COMPRESSION_JPEG_XL) {
+        let segments = jxl_segments(path, raw, src.buf(), (width, height))?;
+        guarded(path, "checking the JPEG XL data", || super::jxl::check_segments(&segments))?
+            .map_err(|e| DngError::decode(path, e))?;
     }
     let copy;
     let src = match src {
@@ -785,6 +804,40 @@ fn black_levels(path: &Path, raw: &IFD, aw: usize, ah: usize) -> Result<[f32; 4]
 }
 
 /// Clear error for a truncated file, before the decoder sees the data. Returns the data's size.
+/// The tiles or strips of JPEG XL raw data, each with the pixels it fills (checked to lie in the
+/// file by [`check_data_within_file`]).
+fn jxl_segments<'a>(
+    path: &Path,
+    raw: &IFD,
+    buf: &'a [u8],
+    (width, height): (usize, usize),
+) -> Result<Vec<super::jxl::Segment<'a>>, DngError> {
+    let dim = |t: Tag| uint(raw, t).map(|v| v as usize);
+    let strips = has(raw, Tag::StripOffsets);
+    let (offs, counts) = if strips {
+        (value(raw, Tag::StripOffsets), value(raw, Tag::StripByteCounts))
+    } else {
+        (value(raw, Tag::TileOffsets), value(raw, Tag::TileByteCounts))
+    };
+    let rows = dim(Tag::RowsPerStrip).unwrap_or(height).clamp(1, height);
+    let (tw, th) = (dim(Tag::TileWidth).unwrap_or(width), dim(Tag::TileLength).unwrap_or(height));
+    let sizes = |i: usize| if strips { (width, rows.min(height.saturating_sub(i * rows))) } else { (tw, th) };
+    let (Some(offs), Some(counts)) = (offs, counts) else {
+        return Err(DngError::decode(path, "the raw image has no strip/tile byte counts"));
+    };
+    (0..offs.count().min(counts.count()))
+        .map(|i| {
+            let (o, c) = (num(offs, i).unwrap_or(f64::NAN), num(counts, i).unwrap_or(f64::NAN));
+            let data = (o.is_finite() && c.is_finite())
+                .then(|| buf.get(o as usize..(o + c) as usize))
+                .flatten()
+                .ok_or_else(|| DngError::decode(path, format!("JPEG XL segment {i} lies outside the file")))?;
+            let (width, height) = sizes(i);
+            Ok(super::jxl::Segment { data, width, height })
+        })
+        .collect()
+}
+
 fn check_data_within_file(path: &Path, raw: &IFD, file_len: usize) -> Result<u64, DngError> {
     let (offs, counts) = if has(raw, Tag::StripOffsets) {
         (value(raw, Tag::StripOffsets), value(raw, Tag::StripByteCounts))
