@@ -49,4 +49,12 @@ cargo build --profile test -q -p noisecal-fuzz
 # machine (each target prints its seed) and every commit still mutates differently; an input
 # that aborts the process is saved as target/fuzz-crashes/<target>/abort.bin.
 fuzz_seed=$((16#$(git rev-parse --short=8 HEAD 2>/dev/null || echo 1)))
-target/debug/noisecal-fuzz all --seconds "${NOISECAL_FUZZ_SECONDS:-45}" --seed "${NOISECAL_FUZZ_SEED:-$fuzz_seed}" --limit-ms "${NOISECAL_FUZZ_LIMIT_MS:-20000}"
+# A failing input is also printed (base64), since a CI machine does not outlive its log.
+if ! target/debug/noisecal-fuzz all --seconds "${NOISECAL_FUZZ_SECONDS:-45}" --seed "${NOISECAL_FUZZ_SEED:-$fuzz_seed}" --limit-ms "${NOISECAL_FUZZ_LIMIT_MS:-20000}"; then
+    for f in target/fuzz-crashes/*/*.bin; do
+        [ -f "$f" ] || continue
+        echo "== failing fuzz input $f ($(wc -c <"$f") bytes), base64:" >&2
+        head -c 262144 "$f" | base64 -w 120 >&2
+    done
+    exit 1
+fi
