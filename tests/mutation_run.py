@@ -150,7 +150,8 @@ def mutate(rng, b, kind):
     """A mutated copy and, when the damage is certain to be detectable, why."""
     b = bytearray(b)
     op = rng.choice(["flip", "set", "trunc", "splice", "field", "repaired", "repaired", "crafted"]
-                    + (["remove", "dup"] if kind == "rec" else []))
+                    + (["remove", "dup"] if kind == "rec" else [])
+                    + (["tag", "tag"] if kind == "dng" else []))
     damaged = None
     if op == "flip" or op == "set":
         i = rng.randrange(len(b))
@@ -188,6 +189,8 @@ def mutate(rng, b, kind):
         i = rng.randrange(max(1, len(b) - 8))
         b[i:i + 8] = rng.choice([struct.pack("<d", 1e10), struct.pack("<d", float("nan")),
                                  struct.pack("<d", -1.0), struct.pack("<Q", 2 ** 63), struct.pack("<f", 1e30) * 2])
+    elif op == "tag":
+        b = bytearray(dng_tag_mutation(rng, bytes(b)))
     elif op in ("remove", "dup"):
         frames = [r for r in rec_records(bytes(b)) if r[0] == 2]
         if frames:
@@ -220,6 +223,35 @@ def dng_pixel_region(b):
         return (off, cnt) if off is not None and cnt is not None else None
     except struct.error:
         return None
+
+
+# Tags that lead the decoder elsewhere or size its buffers: IFD pointers rawler follows (SubIFDs,
+# ExifIFD, GPSInfo, InterColorProfile), strip/tile geometry, sizes, compression.
+STRUCTURAL_TAGS = [330, 34665, 34853, 34675, 256, 257, 258, 259, 273, 278, 279, 322, 323, 324, 325, 50829]
+
+
+def dng_tag_mutation(rng, b):
+    """One IFD0 entry of a little-endian DNG rewritten to a structural tag with an absurd type,
+    count or value, often pointing at an IFD appended at the end whose one entry claims a huge
+    count (rawler allocates a tag's count before reading it). How CI's fuzzer found a 32 GB
+    allocation behind GPSInfo."""
+    if b[:2] != b"II":
+        return b
+    b = bytearray(b)
+    ifd = struct.unpack_from("<I", b, 4)[0]
+    n = struct.unpack_from("<H", b, ifd)[0]
+    at = ifd + 2 + 12 * rng.randrange(n)
+    tag = rng.choice(STRUCTURAL_TAGS)
+    typ = rng.choice([1, 2, 3, 4, 5, 7, 12, 13, 0, 99])
+    count = rng.choice([0, 1, 2, 4, 16, 65536, 0x7FFFFFFF, 0xFFFFFFF0])
+    # An appended IFD: one entry of a random type with a huge count.
+    sub = len(b) + (len(b) & 1)
+    b += b"\0" * (sub - len(b))
+    b += struct.pack("<HHHII", 1, rng.choice([33434, 271, 305]), rng.choice([2, 3, 5, 12, 99]),
+                     rng.choice([0xFFFFFFF0, 0x40000000, 0x10000000]), 8) + b"\0" * 20
+    value = rng.choice([sub, sub, rng.randrange(len(b)), 0xFFFFFFFF, 1 << 20, 52546, 7])
+    struct.pack_into("<HHII", b, at, tag, typ, count, value)
+    return bytes(b)
 
 
 def set_bits(b, bits):

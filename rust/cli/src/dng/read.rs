@@ -598,6 +598,10 @@ fn check_structure(buf: &[u8]) -> Result<(), String> {
                     (0 | 13.., Some(at)) if count > 0 => {
                         rawler_subs.extend(buf.get(at).map(|&o| (o as usize, tag)));
                     }
+                    // rawler indexes the first value of an unknown type here, and has none.
+                    (0 | 13.., _) => {
+                        return Err(format!("tag {tag} (an IFD pointer) in the IFD at offset {off} has no value"));
+                    }
                     _ => {}
                 }
             }
