@@ -943,7 +943,7 @@ mod tests {
         }
     }
 
-    fn valid() -> (Vec<u8>, Array2<u16>) {
+    fn valid_spec() -> (DngSpec, Array2<u16>) {
         let layout = SensorLayout { width: 24, height: 16, cfa: CfaPattern::Grbg, black: [64.0; 4], white: 1023 };
         let mut rng = Rng(99);
         let pixels = Array2::from_shape_fn((16, 24), |_| (rng.next() % 1024) as u16);
@@ -954,6 +954,11 @@ mod tests {
             model: "N".into(),
             color: ColorTags::default(),
         };
+        (spec, pixels)
+    }
+
+    fn valid() -> (Vec<u8>, Array2<u16>) {
+        let (spec, pixels) = valid_spec();
         (dng_tiff(&spec, &pixels).expect("build").to_bytes().expect("bytes"), pixels)
     }
 
@@ -1040,15 +1045,7 @@ mod tests {
     /// CI. Such tags are refused by name before rawler runs; a sane one still decodes.
     #[test]
     fn huge_tags_in_the_ifds_rawler_follows_are_refused_before_it_allocates() {
-        let (_, pixels) = valid();
-        let layout = SensorLayout { width: 24, height: 16, cfa: CfaPattern::Grbg, black: [64.0; 4], white: 1023 };
-        let spec = DngSpec {
-            layout,
-            meta: FrameMeta::new(400, 10_000_000),
-            make: "M".into(),
-            model: "N".into(),
-            color: ColorTags::default(),
-        };
+        let (spec, pixels) = valid_spec();
         // An IFD of one entry: tag 33434, type `ty`, `count`, value offset 8; no next IFD.
         let ifd = |ty: u16, count: u32| -> Vec<u8> {
             let mut b = 1u16.to_le_bytes().to_vec();
