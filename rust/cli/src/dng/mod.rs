@@ -20,8 +20,8 @@
 
 mod edit;
 mod error;
-mod profile;
 mod jxl;
+mod profile;
 mod read;
 mod tags;
 pub mod tiff;
