@@ -591,6 +591,9 @@ fn check_structure(buf: &[u8]) -> Result<(), String> {
                 }
             }
             if depth == 0 && RAWLER_SUB_IFD_TAGS.contains(&tag) {
+                // Where rawler finds the value: inline when its own size is ≤ 4 bytes (type 13
+                // is one byte a value to rawler, four to us).
+                let at = if rawler_size(ty, count) <= 4 { Some(e + 8) } else { rd32(e + 8).map(|o| o as usize) };
                 match (ty, at) {
                     (4, Some(at)) => rawler_subs
                         .extend((0..count as usize).filter_map(|k| rd32(at + 4 * k)).map(|o| (o as usize, tag))),
