@@ -52,12 +52,12 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let level = if cli.quiet { "error" } else { "warn" };
     env_logger::Builder::from_env(env_logger::Env::default().default_filter_or(level)).format_timestamp(None).init();
+    let cap = max_threads();
     if let Some(n) = cli.threads
-        && n > max_threads()
+        && n > cap
     {
         eprintln!(
-            "noisecal: --threads {n} is more than the {} worker threads allowed on this machine (16 per core); results do not depend on it, so leave it out to use every core",
-            max_threads()
+            "noisecal: --threads {n} is more than the {cap} worker threads allowed on this machine (16 per core); results do not depend on it, so leave it out to use every core"
         );
         return ExitCode::from(2);
     }

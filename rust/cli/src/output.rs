@@ -9,10 +9,16 @@ use anyhow::Context;
 
 /// Writes `bytes` to `path` atomically, creating the parent directories first.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    std::fs::create_dir_all(dir).with_context(|| format!("cannot create directory {}", dir.display()))?;
+    create_parent(path).with_context(|| format!("cannot create the directory of {}", path.display()))?;
     noisecal_io::write_bytes_atomic(path, bytes).with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// Creates the directory an output file goes into when it is missing. Every CLI writer does this
+/// (DNGs, packs, recordings, reports); `noisecal_io` itself refuses a missing directory, as the
+/// app's checkpoints want.
+pub fn create_parent(path: &Path) -> std::io::Result<()> {
+    match path.parent() {
+        Some(dir) if !dir.as_os_str().is_empty() => std::fs::create_dir_all(dir),
+        _ => Ok(()),
+    }
 }

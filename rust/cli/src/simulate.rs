@@ -142,9 +142,8 @@ impl SimSession {
         }
         let mut writer = match rec {
             Some(p) => {
-                if let Some(parent) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
-                    std::fs::create_dir_all(parent)?;
-                }
+                crate::output::create_parent(p)
+                    .with_context(|| format!("cannot create the directory of {}", p.display()))?;
                 // Streamed into a temporary file renamed over `p` at the end: a kill leaves no
                 // partial recording (the next write into the folder removes the temporary file).
                 let f = noisecal_io::AtomicFile::create(p).with_context(|| format!("cannot create {}", p.display()))?;

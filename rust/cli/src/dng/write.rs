@@ -337,14 +337,9 @@ fn write_spec(path: &Path, spec: &DngSpec, pixels: &Array2<u16>) -> Result<(), D
     noisecal_io::write_bytes_atomic(path, &bytes).map_err(|e| DngError::io(path, e))
 }
 
-/// Creates the folder an output DNG goes into when it is missing, as every command's other
-/// outputs do ([`crate::output::write_atomic`]); issue 13 item 14: `synth` and `renoise` failed
-/// on a missing output folder.
+/// The output DNG's folder, created when missing (as for every CLI output).
 fn create_parent(path: &Path) -> Result<(), DngError> {
-    match path.parent() {
-        Some(dir) if !dir.as_os_str().is_empty() => std::fs::create_dir_all(dir).map_err(|e| DngError::io(path, e)),
-        _ => Ok(()),
-    }
+    crate::output::create_parent(path).map_err(|e| DngError::io(path, e))
 }
 
 fn color_code(c: CfaColor) -> u8 {

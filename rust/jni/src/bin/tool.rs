@@ -46,12 +46,10 @@ fn write_rec(args: &[String]) -> Fallible<()> {
     // Atomic like every other writer (issue 13): a failed or killed run leaves no partial
     // recording under `out`.
     let failed = |e: std::io::Error| format!("writing {out} failed: {e}");
+    // AtomicFile buffers its writes itself.
     let mut file =
         noisecal_io::AtomicFile::create(std::path::Path::new(out)).map_err(|e| format!("cannot create {out}: {e}"))?;
-    let mut buffered = std::io::BufWriter::new(&mut file);
-    let frames = write_recording(&mut buffered, &synth, &Plan::default(), stride).map_err(failed)?;
-    std::io::Write::flush(&mut buffered).map_err(failed)?;
-    drop(buffered);
+    let frames = write_recording(&mut file, &synth, &Plan::default(), stride).map_err(failed)?;
     file.commit().map_err(failed)?;
     println!("wrote {out}: {frames} frames {w}×{h}, row stride {stride} bytes");
     Ok(())

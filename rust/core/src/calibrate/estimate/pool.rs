@@ -70,7 +70,7 @@ pub(super) fn laplace_mass(n: i32, mu: f64, var: f64) -> f64 {
 }
 
 /// The Laplace prior as a PMF over ±12 standard deviations (the mass beyond is below 10⁻⁷),
-/// within the noise values the sensor's codes can show (`|n| < reach`, [`BinLevels::reach`]):
+/// cut at `±reach` ([`BinLevels::reach`]; the sensor's codes show only `|n| < reach`):
 /// a damaged capture's law can be as wide as the range, and ±12 of its SDs were 280 000 cells a
 /// bin.
 pub(super) fn laplace_pmf(mu: f64, var: f64, reach: i32) -> Pmf {
