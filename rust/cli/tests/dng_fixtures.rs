@@ -578,3 +578,34 @@ fn jpeg_xl_tiles_decode_and_oversized_ones_are_refused() {
         }
     }
 }
+
+/// A lossless-JPEG tile whose frame header claims far more samples than the tile holds: rawler
+/// decodes the whole frame into a buffer of the header's size first (a fuzzed tile doing so ran
+/// for minutes), so it is refused by name; a frame the tile's size still decodes.
+#[test]
+fn lossless_jpeg_frames_far_larger_than_their_tile_are_refused() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (w, h) = (16usize, 8usize);
+    for (fw, fh, refused) in [(128usize, 96usize, true), (w, h, false)] {
+        let pixels = random_pixels(fw, fh, 4095, 22);
+        let v: Vec<u16> = pixels.iter().copied().collect();
+        let jpeg = rawler::ljpeg92::LjpegCompressor::new(&v, fw / 2, fh, 2, 12, 1, 0, 0)
+            .expect("compressor")
+            .encode()
+            .expect("encode");
+        let mut ifd = cfa_ifd(w as u32, h as u32, 12, [0, 1, 1, 2]);
+        ifd.set(tag::COMPRESSION, TagValue::Short(vec![7]))
+            .set(tag::WHITE_LEVEL, TagValue::Short(vec![4095]))
+            .set(tag::EXPOSURE_TIME, TagValue::Rational(vec![(1, 50)]))
+            .set(tag::ISO_SPEED_RATINGS, TagValue::Short(vec![200]));
+        ifd.image = Some(ImageData::Tiles { tile_width: w as u32, tile_length: h as u32, tiles: vec![jpeg] });
+        let name = format!("ljpeg-{fw}x{fh}.dng");
+        let path = save(dir.path(), &name, &TiffBuilder { big_endian: false, chain: vec![ifd] });
+        if refused {
+            let e = read_dng(&path).expect_err("a frame far larger than its tile").to_string();
+            assert!(e.contains(&name) && e.contains("lossless-JPEG segment 0") && e.contains("128×96"), "{e}");
+        } else {
+            assert_eq!(read_dng(&path).expect("a frame the tile's size").pixels, pixels);
+        }
+    }
+}

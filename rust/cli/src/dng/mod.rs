@@ -18,9 +18,9 @@
 //! * [`Tag`] names every TIFF/DNG tag the reader and the writer use.
 //! * [`scan_folder`] lists the DNGs of a folder.
 
+mod compressed;
 mod edit;
 mod error;
-mod jxl;
 mod profile;
 mod read;
 mod tags;

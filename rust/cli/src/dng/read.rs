@@ -14,6 +14,7 @@ use rawler::formats::tiff::reader::TiffReader;
 use rawler::formats::tiff::{GenericTiffReader, IFD, Value};
 use rawler::rawsource::RawSource;
 
+use super::compressed::{Codec, Segment, check_segments};
 use super::tags::Tag;
 use super::{Bytes, ColorTags, DngError, DngFile, DngImage};
 
@@ -347,9 +348,14 @@ fn decode(
     if let Some(pixels) = super::edit::read_active_16(src.buf(), (width, height), (top, left, bottom, right)) {
         return Ok(pixels);
     }
-    if uint(raw, Tag::Compression) == Some(COMPRESSION_JPEG_XL) {
-        let segments = jxl_segments(path, raw, src.buf(), (width, height))?;
-        guarded(path, "checking the JPEG XL data", || super::jxl::check_segments(&segments))?
+    let codec = match uint(raw, Tag::Compression) {
+        Some(COMPRESSION_LOSSLESS_JPEG) => Some(Codec::LosslessJpeg),
+        Some(COMPRESSION_JPEG_XL) => Some(Codec::JpegXl),
+        _ => None,
+    };
+    if let Some(codec) = codec {
+        let segments = segments(path, raw, src.buf(), (width, height))?;
+        guarded(path, "checking the compressed data", || check_segments(codec, &segments))?
             .map_err(|e| DngError::decode(path, e))?;
     }
     let copy;
@@ -525,16 +531,18 @@ fn check_structure(buf: &[u8]) -> Result<(), String> {
         let b: [u8; 4] = buf.get(o..o.checked_add(4)?)?.try_into().ok()?;
         Some(if big { u32::from_be_bytes(b) } else { u32::from_le_bytes(b) })
     };
-    // The bytes rawler allocates for an entry: count << shift of its type (unknown types are bytes).
-    let rawler_size = |ty: u16, count: u32| -> u64 {
-        let shift = match ty {
-            3 | 8 => 1,
-            4 | 9 | 11 => 2,
-            5 | 10 | 12 => 3,
-            _ => 0,
-        };
-        (count as u64) << shift
+    // Bytes a value of each TIFF type takes (IFD, type 13, is a LONG; unknown types are bytes).
+    let unit = |ty: u16| -> u64 {
+        match ty {
+            3 | 8 => 2,
+            4 | 9 | 11 | 13 => 4,
+            5 | 10 | 12 => 8,
+            _ => 1,
+        }
     };
+    // The bytes rawler allocates for an entry: the same, except that type 13 is unknown to it (a
+    // byte a value), so never more than `count · unit`.
+    let rawler_size = |ty: u16, count: u32| -> u64 { count as u64 * if ty == 13 { 1 } else { unit(ty) } };
     let too_big = |t: u16, size: u64, off: usize| {
         format!("tag {t} in the IFD at offset {off} claims {size} bytes in a {}-byte file (corrupt)", buf.len())
     };
@@ -566,13 +574,7 @@ fn check_structure(buf: &[u8]) -> Result<(), String> {
             let e = off + 2 + 12 * i;
             let (tag, ty) = (rd16(e).unwrap_or(0), rd16(e + 2).unwrap_or(0));
             let count = rd32(e + 4).unwrap_or(0);
-            let unit: u64 = match ty {
-                3 | 8 => 2,
-                4 | 9 | 11 | 13 => 4,
-                5 | 10 | 12 => 8,
-                _ => 1,
-            };
-            let size = (count as u64).saturating_mul(unit).max(rawler_size(ty, count));
+            let size = count as u64 * unit(ty);
             if size > buf.len() as u64 {
                 return Err(too_big(tag, size, off));
             }
@@ -580,7 +582,7 @@ fn check_structure(buf: &[u8]) -> Result<(), String> {
             let t = Tag::from_u16(tag);
             if (t == Tag::SubIfds || t == Tag::ExifIfd)
                 && depth < 4
-                && unit == 4
+                && unit(ty) == 4
                 && let Some(at) = at
             {
                 for k in 0..count as usize {
@@ -819,14 +821,14 @@ fn black_levels(path: &Path, raw: &IFD, aw: usize, ah: usize) -> Result<[f32; 4]
 }
 
 /// Clear error for a truncated file, before the decoder sees the data. Returns the data's size.
-/// The tiles or strips of JPEG XL raw data, each with the pixels it fills (checked to lie in the
+/// The tiles or strips of compressed raw data, each with the pixels it fills (checked to lie in the
 /// file by [`check_data_within_file`]).
-fn jxl_segments<'a>(
+fn segments<'a>(
     path: &Path,
     raw: &IFD,
     buf: &'a [u8],
     (width, height): (usize, usize),
-) -> Result<Vec<super::jxl::Segment<'a>>, DngError> {
+) -> Result<Vec<Segment<'a>>, DngError> {
     let dim = |t: Tag| uint(raw, t).map(|v| v as usize);
     let strips = has(raw, Tag::StripOffsets);
     let (offs, counts) = if strips {
@@ -846,9 +848,9 @@ fn jxl_segments<'a>(
             let data = (o.is_finite() && c.is_finite())
                 .then(|| buf.get(o as usize..(o + c) as usize))
                 .flatten()
-                .ok_or_else(|| DngError::decode(path, format!("JPEG XL segment {i} lies outside the file")))?;
+                .ok_or_else(|| DngError::decode(path, format!("compressed segment {i} lies outside the file")))?;
             let (width, height) = sizes(i);
-            Ok(super::jxl::Segment { data, width, height })
+            Ok(Segment { data, width, height })
         })
         .collect()
 }
