@@ -4,6 +4,8 @@
 use std::path::Path;
 use std::process::Command;
 
+mod support;
+
 fn noisecal(args: &[&str]) -> (bool, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(args).arg("-q").output().expect("run noisecal");
     let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
@@ -20,20 +22,8 @@ fn simulate(dir: &Path) {
 
 /// The same session written by `simulate` to `out` as `kind` (`--dngs` or `--rec`).
 fn simulate_as(out: &Path, kind: &str) {
-    let (ok, err) = noisecal(&[
-        "simulate",
-        "--width",
-        "64",
-        "--height",
-        "48",
-        "--frames",
-        "3",
-        "--isos",
-        "200,800",
-        "--ev=-1,1",
-        kind,
-        out.to_str().unwrap(),
-    ]);
+    let (ok, err) =
+        noisecal(&support::simulate(("64", "48"), "3", "200,800", "--ev=-1,1", &[kind, out.to_str().unwrap()]));
     assert!(ok, "{err}");
 }
 
@@ -88,20 +78,8 @@ fn bad_inputs_get_clear_errors() {
 
     // A frame of another size in the folder.
     let other = dir.path().join("other");
-    let (ok, e) = noisecal(&[
-        "simulate",
-        "--width",
-        "32",
-        "--height",
-        "32",
-        "--frames",
-        "1",
-        "--isos",
-        "200",
-        "--ev=0",
-        "--dngs",
-        other.to_str().unwrap(),
-    ]);
+    let (ok, e) =
+        noisecal(&support::simulate(("32", "32"), "1", "200", "--ev=0", &["--dngs", other.to_str().unwrap()]));
     assert!(ok, "{e}");
     std::fs::copy(other.join("f00000.dng"), dngs.join("zz_other.dng")).unwrap();
     let (ok, err) = noisecal(&["calibrate", dngs.to_str().unwrap(), "-o", pack.to_str().unwrap()]);
@@ -387,22 +365,14 @@ fn flags_folders_and_quiet_do_what_they_say() {
 
     // Held-out frames at an ISO beyond the pack: eval says what to do without a flag it lacks.
     let held = dir.path().join("held");
-    let (ok, err) = noisecal(&[
-        "simulate",
-        "--width",
-        "64",
-        "--height",
-        "48",
-        "--frames",
+    let held_dir = s(&held);
+    let (ok, err) = noisecal(&support::simulate(
+        ("64", "48"),
         "2",
-        "--isos",
         "3200",
         "--ev=0",
-        "--index-offset",
-        "100000",
-        "--dngs",
-        &s(&held),
-    ]);
+        &["--index-offset", "100000", "--dngs", &held_dir],
+    ));
     assert!(ok, "{err}");
     let (ok, err) = noisecal(&["eval", "--pack", &s(&pack), &s(&held)]);
     assert!(!ok && err.contains("eval only scores ISOs the pack models"), "{err}");

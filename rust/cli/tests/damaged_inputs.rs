@@ -8,6 +8,8 @@ use std::time::{Duration, Instant, SystemTime};
 
 use noisecal_core::format::recording::{Record, RecordingReader, RecordingWriter};
 
+mod support;
+
 fn run(args: &[&str]) -> (bool, String, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(args).output().expect("run noisecal");
     let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
@@ -23,21 +25,7 @@ fn s(p: &Path) -> &str {
 /// A 64×48 session as a recording: 2 EV steps, 3 frames per burst, ISOs 200 and 800.
 fn simulate_rec(dir: &Path) -> PathBuf {
     let rec = dir.join("s.rec");
-    let (ok, _, err) = run(&[
-        "simulate",
-        "-q",
-        "--width",
-        "64",
-        "--height",
-        "48",
-        "--frames",
-        "3",
-        "--isos",
-        "200,800",
-        "--ev=-1,1",
-        "--rec",
-        s(&rec),
-    ]);
+    let (ok, _, err) = run(&support::simulate(("64", "48"), "3", "200,800", "--ev=-1,1", &["-q", "--rec", s(&rec)]));
     assert!(ok, "{err}");
     rec
 }
@@ -250,23 +238,13 @@ fn messages_say_what_is_wrong() {
     assert!(ok && !out.contains('\u{1b}'), "{out:?}");
     // `eval` names the pack's camera too.
     let held = dir.path().join("held");
-    let (ok, _, err) = run(&[
-        "simulate",
-        "-q",
-        "--width",
-        "64",
-        "--height",
-        "48",
-        "--frames",
+    let (ok, _, err) = run(&support::simulate(
+        ("64", "48"),
         "2",
-        "--isos",
         "200",
         "--ev=0",
-        "--index-offset",
-        "100000",
-        "--dngs",
-        s(&held),
-    ]);
+        &["-q", "--index-offset", "100000", "--dngs", s(&held)],
+    ));
     assert!(ok, "{err}");
     let (ok, out, err) = run(&["eval", "-q", "--pack", s(&pack), s(&held)]);
     assert!(ok, "{err}");

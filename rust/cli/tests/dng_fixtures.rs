@@ -197,18 +197,21 @@ fn packed_bit_depths() {
     }
 }
 
+/// A 12-bit CFA tile as lossless JPEG, encoded as dnglab / Adobe DNG Converter do: a
+/// 2-component image of half the width.
+fn ljpeg_tile(pixels: &Array2<u16>) -> Vec<u8> {
+    let v: Vec<u16> = pixels.iter().copied().collect();
+    let (h, w) = pixels.dim();
+    rawler::ljpeg92::LjpegCompressor::new(&v, w / 2, h, 2, 12, 1, 0, 0).expect("compressor").encode().expect("encode")
+}
+
 /// Lossless JPEG (compression 7) tiles as dnglab / Adobe DNG Converter write them.
 #[test]
 fn lossless_jpeg_tiles() {
     let dir = tempfile::tempdir().expect("tempdir");
     let (w, h) = (64usize, 48usize);
     let pixels = random_pixels(w, h, 4095, 21);
-    let v: Vec<u16> = pixels.iter().copied().collect();
-    // A CFA tile is encoded as a 2-component image of half the width.
-    let jpeg = rawler::ljpeg92::LjpegCompressor::new(&v, w / 2, h, 2, 12, 1, 0, 0)
-        .expect("compressor")
-        .encode()
-        .expect("encode");
+    let jpeg = ljpeg_tile(&pixels);
     let mut ifd = cfa_ifd(w as u32, h as u32, 12, [1, 2, 0, 1]);
     ifd.set(tag::COMPRESSION, TagValue::Short(vec![7]))
         .set(tag::WHITE_LEVEL, TagValue::Short(vec![4095]))
@@ -588,11 +591,7 @@ fn lossless_jpeg_frames_far_larger_than_their_tile_are_refused() {
     let (w, h) = (16usize, 8usize);
     for (fw, fh, refused) in [(128usize, 96usize, true), (w, h, false)] {
         let pixels = random_pixels(fw, fh, 4095, 22);
-        let v: Vec<u16> = pixels.iter().copied().collect();
-        let jpeg = rawler::ljpeg92::LjpegCompressor::new(&v, fw / 2, fh, 2, 12, 1, 0, 0)
-            .expect("compressor")
-            .encode()
-            .expect("encode");
+        let jpeg = ljpeg_tile(&pixels);
         let mut ifd = cfa_ifd(w as u32, h as u32, 12, [0, 1, 1, 2]);
         ifd.set(tag::COMPRESSION, TagValue::Short(vec![7]))
             .set(tag::WHITE_LEVEL, TagValue::Short(vec![4095]))

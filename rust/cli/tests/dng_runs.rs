@@ -7,6 +7,8 @@ use std::process::Command;
 use noisecal_cli::dng::tiff::{Ifd, ImageData, TagValue, TiffBuilder, tag};
 use noisecal_cli::dng::{DngError, read_dng};
 
+mod support;
+
 fn noisecal(args: &[&str]) -> (bool, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(args).output().expect("noisecal runs");
     (out.status.success(), String::from_utf8_lossy(&out.stderr).into_owned())
@@ -21,21 +23,8 @@ fn a_folder_run_names_the_failing_file_and_keeps_what_was_written() {
     let dir = tempfile::tempdir().expect("temp dir");
     let d = dir.path();
     let (cal, pack, input, output) = (d.join("cal"), d.join("p.pack"), d.join("in"), d.join("out"));
-    let (ok, err) = noisecal(&[
-        "-q",
-        "simulate",
-        "--dngs",
-        s(&cal),
-        "--width",
-        "64",
-        "--height",
-        "48",
-        "--frames",
-        "2",
-        "--isos",
-        "100,400",
-        "--ev=-2,0,2",
-    ]);
+    let (ok, err) =
+        noisecal(&support::simulate(("64", "48"), "2", "100,400", "--ev=-2,0,2", &["-q", "--dngs", s(&cal)]));
     assert!(ok, "{err}");
     let (ok, err) = noisecal(&["-q", "calibrate", s(&cal), "-o", s(&pack)]);
     assert!(ok, "{err}");
