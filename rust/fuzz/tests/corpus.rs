@@ -10,23 +10,36 @@ use std::time::{Duration, Instant};
 use noisecal_fuzz::Target;
 use noisecal_fuzz::mutate::{Rng, mutate};
 
-fn corpus(target: Target) -> Vec<(String, Vec<u8>)> {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/fuzz-corpus");
-    let mut v: Vec<(String, Vec<u8>)> = [root.join(target.name()), root.join("regressions").join(target.name())]
-        .iter()
-        .filter_map(|dir| std::fs::read_dir(dir).ok())
-        .flat_map(|rd| {
+/// The files of one corpus folder, named by path and sorted.
+fn files(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut v: Vec<(String, Vec<u8>)> = std::fs::read_dir(dir)
+        .map(|rd| {
             rd.flatten()
                 .filter(|e| e.path().is_file())
                 .map(|e| (e.path().display().to_string(), std::fs::read(e.path()).expect("read seed")))
-                .collect::<Vec<_>>()
+                .collect()
         })
-        .collect();
+        .unwrap_or_default();
     v.sort();
+    v
+}
+
+fn root() -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/fuzz-corpus")
+}
+
+/// The seeds the fuzzer starts from (the jni-frame target's built-in ones included).
+fn seeds(target: Target) -> Vec<(String, Vec<u8>)> {
+    let mut v = files(&root().join(target.name()));
     if target == Target::JniFrame {
         v.extend(noisecal_fuzz::jni_seeds().into_iter().enumerate().map(|(i, s)| (format!("built-in {i}"), s)));
     }
     v
+}
+
+/// The regression inputs kept out of the seeds.
+fn regressions(target: Target) -> Vec<(String, Vec<u8>)> {
+    files(&root().join("regressions").join(target.name()))
 }
 
 fn run_timed(target: Target, name: &str, input: &[u8]) {
@@ -40,9 +53,9 @@ fn run_timed(target: Target, name: &str, input: &[u8]) {
 #[test]
 fn the_corpus_and_its_regressions_run_clean() {
     for t in Target::ALL {
-        let seeds = corpus(t);
+        let seeds = seeds(t);
         assert!(!seeds.is_empty(), "no seeds for {}", t.name());
-        for (name, input) in &seeds {
+        for (name, input) in seeds.iter().chain(&regressions(t)) {
             run_timed(t, name, input);
         }
     }
@@ -52,8 +65,7 @@ fn the_corpus_and_its_regressions_run_clean() {
 fn a_short_mutation_run_runs_clean() {
     for t in Target::ALL {
         // Seeds only, as the fuzzer takes them (not the slow regression inputs).
-        let seeds: Vec<Vec<u8>> =
-            corpus(t).into_iter().filter(|(n, _)| !n.contains("regressions")).map(|(_, s)| s).collect();
+        let seeds: Vec<Vec<u8>> = seeds(t).into_iter().map(|(_, s)| s).collect();
         let mut rng = Rng::new(20261123);
         for i in 0..150 {
             let a = &seeds[rng.below(seeds.len())];
