@@ -108,6 +108,15 @@ pub(super) fn candidates(
     } else {
         origin_text(&model.origin)
     };
+    let inner =
+        cal.len() >= 3 && pack.iso(iso).is_some_and(|m| m.is_calibrated()) && iso > cal[0] && iso < cal[cal.len() - 1];
+    let loo = leave_one_out && inner;
+    let without = loo.then(|| {
+        let mut p = pack.clone();
+        p.isos.retain(|m| m.iso != iso);
+        p.structure.retain(|s| s.iso != iso);
+        p
+    });
     let candidate = |kind: CandidateKind, label: String, origin: String, m: &IsoModel| Candidate {
         kind,
         label,
@@ -116,6 +125,12 @@ pub(super) fn candidates(
         sampler: match kind {
             // Held-out clean images are means of this sensor's frames: they carry its pattern.
             CandidateKind::Noisecal => IsoSampler::with_components(pack, m, Components::ON_OWN_CAPTURES),
+            // Like with like: the interpolated model gets the same components as the calibrated
+            // one, themselves derived from the other ISOs (with its pixel PMFs alone, the
+            // calibrated row carried row, column and frame offsets the interpolated one did not).
+            CandidateKind::NoisecalLoo => {
+                IsoSampler::with_components(without.as_ref().unwrap_or(pack), m, Components::ON_OWN_CAPTURES)
+            }
             _ => IsoSampler::with_components(pack, m, Components::PIXEL),
         },
         synth: (0..seeds).map(|_| fresh()).collect(),
@@ -134,14 +149,6 @@ pub(super) fn candidates(
             spatial: (0..seeds).map(|_| SpatialSamples::new()).collect(),
         });
     }
-    let inner =
-        cal.len() >= 3 && pack.iso(iso).is_some_and(|m| m.is_calibrated()) && iso > cal[0] && iso < cal[cal.len() - 1];
-    let loo = leave_one_out && inner;
-    let without = loo.then(|| {
-        let mut p = pack.clone();
-        p.isos.retain(|m| m.iso != iso);
-        p
-    });
     // Baseline PMFs take a while to tabulate (PG sums Poisson terms): build them in parallel.
     let kinds: Vec<CandidateKind> =
         CandidateKind::ALL[1..].iter().copied().filter(|k| loo || !k.is_leave_one_out()).collect();
@@ -204,7 +211,12 @@ fn build(
             interp::interpolate_with(w, iso, false, &interp::InterpOptions::default())
                 .map(|(m, plan)| {
                     let from = format!("interpolated from {:?} (ISO {iso} left out)", plan.neighbours);
-                    ("noisecal interpolated (leave-one-out)".to_string(), from, m, Some(plan.neighbours))
+                    (
+                        "noisecal interpolated (leave-one-out; same components as the calibrated row)".to_string(),
+                        from,
+                        m,
+                        Some(plan.neighbours),
+                    )
                 })
                 .map_err(|e| format!("leave-one-out at ISO {iso}: {e}"))
         }),

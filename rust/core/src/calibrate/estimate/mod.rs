@@ -57,7 +57,7 @@ use crate::model::pack::{BinModel, BinSource};
 use crate::model::pmf::Pmf;
 use clip::clip_flags;
 use cv::cross_validate;
-use pool::{Acc, Data, laplace_pmf, pool_bin};
+use pool::{Acc, Data, laplace_pmf, pool_bin, pool_clipped};
 
 /// Folds of the cross-validation: target frames of an ISO take turns.
 pub const FOLDS: usize = 4;
@@ -286,7 +286,18 @@ pub fn estimate_position(
         .map(|b| {
             let own_only = clipped[b] && clip_mode == ClipMode::Own && data.stats[b].n > 0;
             let mut out: Option<(Acc, u64)> = None;
-            pool_bin(&data, b, own_only, &[per_bin[b]], FILL_MIN_SAMPLES, |_, acc, cum| out = Some((acc.clone(), cum)));
+            if own_only {
+                // Its own samples and, while they are fewer than the pooling asks, its neighbours
+                // on the side away from the clip.
+                pool_clipped(&data, b, clipped_at_top(levels, b), &[per_bin[b]], |_, acc, cum| {
+                    out = Some((acc.clone(), cum))
+                });
+            }
+            if out.as_ref().is_none_or(|(acc, _)| acc.total <= 0.0) {
+                pool_bin(&data, b, false, &[per_bin[b]], FILL_MIN_SAMPLES, |_, acc, cum| {
+                    out = Some((acc.clone(), cum))
+                });
+            }
             let (acc, cum) = out.unwrap_or_default();
             let (mu, var) = (data.law.mean[b], data.law.var[b]);
             let eps = 1.0 / (cum as f64 + 1.0);
@@ -321,6 +332,11 @@ pub fn estimate_position(
         heldout_samples: heldout,
     };
     PositionEstimate { bins, report }
+}
+
+/// Whether bin `b` lies nearer the top of the output range than its floor (the clip it touches).
+pub(crate) fn clipped_at_top(levels: &BinLevels, b: usize) -> bool {
+    levels.white - levels.hi[b] < levels.lo[b] - levels.floor
 }
 
 /// The index of the largest value (the first on ties).
