@@ -65,6 +65,10 @@ pub enum SessionError {
         "{kind} frame at ISO {iso}, exposure {exposure_ns} ns is {departure_pct:+.1} % off the brightness of its burst: more than flicker (normalised only up to ±{max_pct:.0} %). It belongs to another setting, or the light changed; the frame is refused"
     )]
     Drift { kind: &'static str, iso: u32, exposure_ns: u64, departure_pct: f64, max_pct: f64 },
+    #[error(
+        "target frame at ISO {iso}, exposure {exposure_ns} ns (EV step {step}) moved {shift_px:.2} px against its reference burst (at most {max_px:.1} px is measured around): the chart or the phone moved between frames. Use a sturdier mount, turn optical stabilisation off where the camera allows it, trigger remotely (no touch), and capture this burst again; the frame is refused"
+    )]
+    Moved { iso: u32, exposure_ns: u64, step: u32, shift_px: f64, max_px: f64 },
     #[error("frame metadata is invalid: {0}")]
     Metadata(String),
     #[error("per-frame black level {black} at position {pos} is not below white {white}")]

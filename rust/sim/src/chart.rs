@@ -281,21 +281,7 @@ impl Chart {
         let x = col as f32 + 0.5 - jitter.0;
         let y = row as f32 + 0.5 - jitter.1;
         let c = color_index(color);
-        let mut s = self.background[c];
-        for i in 0..self.grid_rows {
-            let (y0, y1) = self.row_span(i);
-            let fy = band(y, y0, y1, self.edge_blur_px);
-            if fy == 0.0 {
-                continue;
-            }
-            for j in 0..self.grid_cols {
-                let (x0, x1) = self.col_span(j);
-                s += (self.patches[i * self.grid_cols + j][c] - self.background[c])
-                    * fy
-                    * band(x, x0, x1, self.edge_blur_px);
-            }
-        }
-        self.lamp_electrons_per_s[c] * self.vignette(row, col) * s
+        self.lamp_electrons_per_s[c] * self.vignette(row, col) * self.reflectance_at(x, y, c)
     }
 
     /// Illumination factor of the vignetting at a pixel (1 at the centre).
@@ -324,6 +310,38 @@ impl Chart {
         Array2::from_shape_vec((h, w), v).expect("w × h values")
     }
 
+    /// Per-frame tables for row rendering of the scene shifted by `jitter`, rotated by
+    /// `rotation` (radians) and scaled by `scale` about the image centre. A pure shift keeps the
+    /// separable tables; a rotation or scale evaluates the chart per pixel.
+    pub(crate) fn prepare_posed(&self, jitter: (f32, f32), rotation: f32, scale: f32) -> Prepared<'_> {
+        let mut p = self.prepare(jitter);
+        if rotation != 0.0 || scale != 1.0 {
+            p.pose = Some(Pose { dx: jitter.0, dy: jitter.1, cos: rotation.cos(), sin: rotation.sin(), scale });
+        }
+        p
+    }
+
+    /// Electron rate of the chart (before lamp and vignetting) for colour `c` at chart
+    /// coordinates `(x, y)`.
+    fn reflectance_at(&self, x: f32, y: f32, c: usize) -> f32 {
+        let mut s = self.background[c];
+        for i in 0..self.grid_rows {
+            let (y0, y1) = self.row_span(i);
+            let fy = band(y, y0, y1, self.edge_blur_px);
+            if fy == 0.0 {
+                continue;
+            }
+            for j in 0..self.grid_cols {
+                let (x0, x1) = self.col_span(j);
+                let fx = band(x, x0, x1, self.edge_blur_px);
+                if fx != 0.0 {
+                    s += (self.patches[i * self.grid_cols + j][c] - self.background[c]) * fy * fx;
+                }
+            }
+        }
+        s
+    }
+
     /// Per-frame tables for fast row rendering.
     pub(crate) fn prepare(&self, jitter: (f32, f32)) -> Prepared<'_> {
         let (w, h) = (self.width as usize, self.height as usize);
@@ -347,8 +365,19 @@ impl Chart {
         let (vxf, vyf) = self.vignette_axes();
         let vx = (0..w).map(|x| self.vignetting * vxf(x)).collect();
         let vy = (0..h).map(|y| self.vignetting * vyf(y)).collect();
-        Prepared { chart: self, fx, fy, vx, vy }
+        Prepared { chart: self, fx, fy, vx, vy, pose: None }
     }
+}
+
+/// A frame's scene pose beyond a shift: the chart point a pixel sees is the pixel centre
+/// minus the shift, rotated back and unscaled about the image centre.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Pose {
+    dx: f32,
+    dy: f32,
+    cos: f32,
+    sin: f32,
+    scale: f32,
 }
 
 /// Separable tables of one frame's scene position.
@@ -360,12 +389,27 @@ pub(crate) struct Prepared<'a> {
     fy: Vec<f32>,
     vx: Vec<f32>,
     vy: Vec<f32>,
+    /// Rotation or scale: the chart is evaluated per pixel.
+    pose: Option<Pose>,
 }
 
 impl Prepared<'_> {
     /// Electron rates of row `y`; `colors` are the colour indices of even and odd columns.
     pub(crate) fn row_rates(&self, y: usize, colors: [usize; 2], out: &mut [f32]) {
         let ch = self.chart;
+        if let Some(p) = self.pose {
+            let (cx, cy) = (ch.width as f32 / 2.0, ch.height as f32 / 2.0);
+            let vy = self.vy[y];
+            let v = y as f32 + 0.5 - cy - p.dy;
+            for (x, o) in out.iter_mut().enumerate() {
+                let c = colors[x & 1];
+                let u = x as f32 + 0.5 - cx - p.dx;
+                let xs = cx + (p.cos * u + p.sin * v) / p.scale;
+                let ys = cy + (-p.sin * u + p.cos * v) / p.scale;
+                *o = ch.lamp_electrons_per_s[c] * (1.0 - self.vx[x] - vy) * ch.reflectance_at(xs, ys, c);
+            }
+            return;
+        }
         let (gc, gr) = (ch.grid_cols, ch.grid_rows);
         // coef[k][j] = Σ_i (ρ_ij − bg) · fy_i(y) for the row's two colours.
         let mut coef = vec![0.0f32; 2 * gc];

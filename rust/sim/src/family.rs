@@ -38,7 +38,7 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::chart::Chart;
 use crate::error::SimError;
-use crate::model::{DualGain, OffsetShape, ReadNoiseShape, SensorModel};
+use crate::model::{DualGain, Flicker, Motion, OffsetShape, ReadNoiseShape, SensorModel};
 use crate::noise::{mix64, uniform_open};
 use crate::plan::SessionPlan;
 use crate::sim::{MID_RANGE_FRACTION, Simulator};
@@ -150,12 +150,19 @@ pub struct SessionSpec {
     pub non_gaussian: bool,
     /// A short human description of the session.
     pub description: String,
+    /// Edge blur of the calibration chart (sigma, pixels); `None` for the chart's default.
+    pub edge_blur_px: Option<f32>,
 }
 
 impl SessionSpec {
-    /// The calibration scene: a colour checker of the session's size.
+    /// The calibration scene: a colour checker of the session's size (and blur).
     pub fn chart(&self) -> Result<Chart, SimError> {
-        Chart::color_checker(self.width, self.height)
+        let mut chart = Chart::color_checker(self.width, self.height)?;
+        if let Some(b) = self.edge_blur_px {
+            chart.edge_blur_px = b;
+            chart.validate()?;
+        }
+        Ok(chart)
     }
 
     /// The calibration simulator for `sensor` with noise seed `noise_seed`.
@@ -174,9 +181,13 @@ impl SessionSpec {
 
     /// The held-out simulator: same sensor and noise seed (capture with
     /// [`HeldOutSpec::index_offset`] added to the frame index for fresh noise), the held-out
-    /// image size.
+    /// image size, and a scene that does not move (no [`Motion`], no flicker: the truth a
+    /// moving calibration is judged against).
     pub fn heldout_simulator(&self, sensor: &SensorModel, noise_seed: u64) -> Result<Simulator, SimError> {
-        Simulator::new(sensor.clone(), Chart::color_checker(self.heldout.width, self.heldout.height)?, noise_seed)
+        let mut still = sensor.clone();
+        still.motion = None;
+        still.flicker = None;
+        Simulator::new(still, Chart::color_checker(self.heldout.width, self.heldout.height)?, noise_seed)
     }
 
     /// The held-out plan: the calibration plan's ISOs and base exposure, the held-out frames
@@ -349,6 +360,7 @@ pub fn random_sensor(seed: u64) -> RandomSensor {
         dual_gain,
         flicker: None,
         jitter_px,
+        motion: None,
         poisson_exact_below: 1000.0,
         report_dynamic_black,
     };
@@ -661,7 +673,81 @@ pub fn random_session_scaled(seed: u64, sensor: &SensorModel, scale: SessionScal
         clips_white,
         non_gaussian,
         description,
+        edge_blur_px: None,
     }
+}
+
+const MOTION_SALT: u64 = 0x4D4F_5649_4E47_5343; // "MOVINGSC"
+
+/// What a calibration capture on a real phone adds to a still scene: the chart moves between
+/// frames, its edges are blurred, and the lamp may flicker. [`random_moving_scene`] draws one;
+/// [`MovingScene::apply`] puts it on a sensor and a session.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MovingScene {
+    /// The scene's motion between frames.
+    pub motion: Motion,
+    /// Flicker of the lamp (`None`: steady).
+    pub flicker: Option<Flicker>,
+    /// Edge blur of the chart (sigma, pixels).
+    pub edge_blur_px: f32,
+}
+
+impl MovingScene {
+    /// `sensor` and `session` with this scene: motion and flicker on the sensor (the held-out
+    /// simulator leaves both out), the blur on the session's chart.
+    pub fn apply(&self, sensor: &mut SensorModel, session: &mut SessionSpec) {
+        sensor.motion = Some(self.motion.clone());
+        sensor.flicker = self.flicker.clone();
+        session.edge_blur_px = Some(self.edge_blur_px);
+        session.description.push_str(&format!("; {}", self.describe()));
+    }
+
+    /// A short description, e.g. `moves ≤ 0.42 px (step 0.08, 5 % jumps), rotation ≤ 0.0010 rad,
+    /// breathing ±0.08 %, blur 1.3 px, flicker 20 % of frames ±0.5 %`.
+    pub fn describe(&self) -> String {
+        let m = &self.motion;
+        let mut s = format!(
+            "moves ≤ {:.2} px (step {:.2}, {:.0} % jumps), rotation ≤ {:.4} rad, breathing ±{:.2} %, blur {:.1} px",
+            m.max_shift_px,
+            m.step_px,
+            m.jump_probability * 100.0,
+            m.max_rotation_rad,
+            m.breathing * 100.0,
+            self.edge_blur_px
+        );
+        if let Some(f) = &self.flicker {
+            s.push_str(&format!(", flicker {:.0} % of frames ±{:.2} %", f.probability * 100.0, f.amplitude * 100.0));
+        }
+        s
+    }
+}
+
+/// Draws a moving scene from `seed` (a stream of its own: the sensor and session drawn from the
+/// same seed stay what they were).
+///
+/// | trait | range |
+/// |---|---|
+/// | translation | bound 0.05–0.6 px per axis; walk step 5–40 % of the bound per frame; jumps in 0–10 % of frames |
+/// | rotation | bound 0–0.0015 rad about the centre (≤ 0.2 px at the corners of a 256 × 192 image) |
+/// | breathing | scale 1 ± 0–0.1 % |
+/// | blur | chart edges 0.5–2 px (sigma) |
+/// | flicker | 1 in 3: 5–30 % of frames ±0.2–1 % |
+pub fn random_moving_scene(seed: u64) -> MovingScene {
+    let mut d = Draw::new(seed, MOTION_SALT);
+    let max_shift_px = round_to(d.uniform(0.05, 0.6), 3);
+    let motion = Motion {
+        max_shift_px,
+        step_px: round_to(max_shift_px as f64 * d.uniform(0.05, 0.4), 3),
+        jump_probability: round_to(d.uniform(0.0, 0.1), 3),
+        max_rotation_rad: round_to(d.uniform(0.0, 0.0015), 5),
+        breathing: round_to(d.uniform(0.0, 0.001), 5),
+    };
+    let edge_blur_px = round_to(d.uniform(0.5, 2.0), 2);
+    let flicker = d.chance(1.0 / 3.0).then(|| Flicker {
+        probability: round_to(d.uniform(0.05, 0.3), 2),
+        amplitude: round_to(d.uniform(0.002, 0.01), 4),
+    });
+    MovingScene { motion, flicker, edge_blur_px }
 }
 
 /// Whether the brightest spot of the chart (at [`MID_RANGE_FRACTION`] of the range at EV 0 and

@@ -33,10 +33,10 @@ pub use bytes::{to_padded_le_bytes, try_to_padded_le_bytes};
 pub use chart::{Chart, PatchRect};
 pub use error::SimError;
 pub use family::{
-    FAMILY_MAX_ISO_FACTOR, HeldOutSpec, RandomSensor, SessionScale, SessionSpec, random_sensor,
-    random_sensor_structured, random_session, random_session_scaled,
+    FAMILY_MAX_ISO_FACTOR, HeldOutSpec, MovingScene, RandomSensor, SessionScale, SessionSpec, random_moving_scene,
+    random_sensor, random_sensor_structured, random_session, random_session_scaled,
 };
-pub use model::{DualGain, Flicker, IsoSettings, OffsetShape, ReadNoiseShape, SensorModel};
+pub use model::{DualGain, Flicker, IsoSettings, MOTION_BLOCK, Motion, OffsetShape, ReadNoiseShape, SensorModel};
 pub use plan::{PlannedFrame, SessionPlan};
 pub use sim::{FrameEffects, MID_RANGE_FRACTION, Simulator};
 pub use truth::StructuredTruth;

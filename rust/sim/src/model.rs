@@ -201,6 +201,32 @@ pub struct Flicker {
     pub amplitude: f32,
 }
 
+/// Motion of the scene between frames, as a phone on a tripod shows it: optical image
+/// stabilisation re-centring, shutter and focus-motor shake, a swaying tripod, and focus
+/// breathing. The pose of frame `t` (its capture index) follows a random walk over the frames
+/// of a block of [`MOTION_BLOCK`] consecutive indices (a session's bursts are consecutive
+/// indices): each frame moves by a Gaussian step or, with `jump_probability`, jumps to a fresh
+/// position; every coordinate is kept within its bound by reflection. Rotation and scale are
+/// about the image centre.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Motion {
+    /// Bound of the translation on each axis (pixels).
+    pub max_shift_px: f32,
+    /// RMS step of the translation walk per frame (pixels, per axis).
+    pub step_px: f32,
+    /// Probability per frame of a jump to a uniformly drawn pose within the bounds.
+    pub jump_probability: f32,
+    /// Bound of the rotation about the image centre (radians); its walk steps by a sixth of it.
+    pub max_rotation_rad: f32,
+    /// Bound of the focus breathing: the scene scaled by `1 ± breathing` (e.g. 0.001 = 0.1 %);
+    /// its walk steps by a sixth of it.
+    pub breathing: f32,
+}
+
+/// Frames per block of the motion walk ([`Motion`]): the pose of a frame is found by walking
+/// from the block's start, so a frame costs at most this many draws whatever its index.
+pub const MOTION_BLOCK: u64 = 64;
+
 /// All parameters of a simulated phone raw sensor. Every field is public; start from a preset
 /// ([`SensorModel::phone_10bit`], [`SensorModel::phone_12bit`], [`SensorModel::phone_14bit`])
 /// and change what a test needs, then [`SensorModel::validate`] (the simulator does it too).
@@ -283,6 +309,9 @@ pub struct SensorModel {
     pub flicker: Option<Flicker>,
     /// RMS of the per-frame sub-pixel misalignment of the scene (pixels, per axis).
     pub jitter_px: f32,
+    /// Scene motion between frames (a random walk with jumps, rotation and breathing), on top of
+    /// the jitter; `None` (the presets) for a scene that only jitters.
+    pub motion: Option<Motion>,
     /// Mean electron count from which shot noise uses a Gaussian approximation instead of the
     /// exact Poisson draw.
     pub poisson_exact_below: f32,
@@ -328,6 +357,7 @@ impl SensorModel {
             dual_gain: None,
             flicker: None,
             jitter_px: 0.08,
+            motion: None,
             poisson_exact_below: 1000.0,
             report_dynamic_black: false,
         }
@@ -373,6 +403,7 @@ impl SensorModel {
             }),
             flicker: None,
             jitter_px: 0.08,
+            motion: None,
             poisson_exact_below: 1000.0,
             report_dynamic_black: false,
         }
@@ -418,6 +449,7 @@ impl SensorModel {
             }),
             flicker: None,
             jitter_px: 0.08,
+            motion: None,
             poisson_exact_below: 1000.0,
             report_dynamic_black: false,
         }
@@ -598,6 +630,21 @@ impl SensorModel {
             }
             if !(dg.full_well_e.is_finite() && dg.full_well_e > 0.0) {
                 return Err(bad("DualGain::full_well_e", dg.full_well_e, "must be a positive number of electrons"));
+            }
+        }
+        if let Some(m) = &self.motion {
+            let ok = |v: f32, hi: f32| v.is_finite() && (0.0..=hi).contains(&v);
+            if !(ok(m.max_shift_px, 8.0)
+                && ok(m.step_px, 8.0)
+                && ok(m.jump_probability, 1.0)
+                && ok(m.max_rotation_rad, 0.05)
+                && ok(m.breathing, 0.05))
+            {
+                return Err(bad(
+                    "SensorModel::motion",
+                    format!("{m:?}"),
+                    "shifts and steps must be in [0, 8] px, the jump probability in [0, 1], rotation in [0, 0.05] rad and breathing in [0, 0.05]",
+                ));
             }
         }
         if let Some(f) = &self.flicker

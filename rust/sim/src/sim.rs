@@ -12,7 +12,7 @@ use rayon::prelude::*;
 use crate::chart::{Chart, color_index};
 use crate::error::SimError;
 use crate::model::ReadNoiseShape;
-use crate::model::{IsoSettings, SensorModel};
+use crate::model::{IsoSettings, MOTION_BLOCK, Motion, SensorModel};
 use crate::noise::{StudentT, TukeyLambda, UnitNoise, hashed_unit, mix64, normal, poisson, round_clamp, uniform_open};
 use crate::truth::StructuredTruth;
 
@@ -25,8 +25,12 @@ pub const MID_RANGE_FRACTION: f64 = 0.35;
 pub struct FrameEffects {
     /// Brightness multiplier of the frame (1 without flicker).
     pub flicker: f32,
-    /// Scene shift `(dx, dy)` in pixels.
+    /// Scene shift `(dx, dy)` in pixels (the motion's translation plus the jitter).
     pub jitter: (f32, f32),
+    /// Scene rotation about the image centre (radians; 0 without [`Motion`](crate::Motion)).
+    pub rotation: f32,
+    /// Scene scale about the image centre (1 without [`Motion`](crate::Motion)).
+    pub scale: f32,
 }
 
 /// The per-pixel signal chain at one ISO and CFA position.
@@ -317,7 +321,7 @@ impl Simulator {
     pub fn frame_effects(&self, iso: u32, exposure_ns: u64, frame_index: u64) -> FrameEffects {
         let mut rng = Self::stream(self.frame_key(iso, exposure_ns, frame_index), 0);
         let j = self.model.jitter_px as f64;
-        let jitter = ((j * normal(&mut rng)) as f32, (j * normal(&mut rng)) as f32);
+        let mut jitter = ((j * normal(&mut rng)) as f32, (j * normal(&mut rng)) as f32);
         let (u, sign) = (uniform_open(&mut rng), uniform_open(&mut rng));
         let flicker = match &self.model.flicker {
             Some(f) if u < f.probability as f64 => {
@@ -329,7 +333,37 @@ impl Simulator {
             }
             _ => 1.0,
         };
-        FrameEffects { flicker, jitter }
+        let (mut rotation, mut scale) = (0.0, 1.0);
+        if let Some(m) = &self.model.motion {
+            let [dx, dy, rot, breath] = self.motion_pose(m, frame_index);
+            jitter = ((jitter.0 as f64 + dx) as f32, (jitter.1 as f64 + dy) as f32);
+            rotation = rot as f32;
+            scale = (1.0 + breath) as f32;
+        }
+        FrameEffects { flicker, jitter, rotation, scale }
+    }
+
+    /// The motion's pose `[dx, dy, rotation, breathing]` at capture index `index`: a walk from
+    /// the start of its block of [`MOTION_BLOCK`] indices (seeded by the simulator's seed and
+    /// the block, not by the ISO or exposure: frames captured one after the other move
+    /// together whatever their settings).
+    fn motion_pose(&self, m: &Motion, index: u64) -> [f64; 4] {
+        let block = index / MOTION_BLOCK;
+        let mut rng = Self::stream(mix64(mix64(self.seed ^ 0x4D4F_5449_4F4E_5741) ^ block), 0);
+        let bounds = [m.max_shift_px as f64, m.max_shift_px as f64, m.max_rotation_rad as f64, m.breathing as f64];
+        let steps = [m.step_px as f64, m.step_px as f64, bounds[2] / 6.0, bounds[3] / 6.0];
+        let fresh =
+            |rng: &mut Pcg64Mcg| -> [f64; 4] { std::array::from_fn(|k| bounds[k] * (2.0 * uniform_open(rng) - 1.0)) };
+        let mut pose = fresh(&mut rng);
+        for _ in block * MOTION_BLOCK..index {
+            let jump = uniform_open(&mut rng) < m.jump_probability as f64;
+            let next = fresh(&mut rng);
+            for k in 0..4 {
+                let walked = reflect(pose[k] + steps[k] * normal(&mut rng), bounds[k]);
+                pose[k] = if jump { next[k] } else { walked };
+            }
+        }
+        pose
     }
 
     /// One raw frame at `iso` and `exposure_ns`; `frame_index` tells frames of a burst apart.
@@ -361,7 +395,7 @@ impl Simulator {
         let chains = self.chains(&s);
         let fx = self.frame_effects(iso, exposure_ns, frame_index);
         let key = self.frame_key(iso, exposure_ns, frame_index);
-        let prepared = self.chart.prepare(fx.jitter);
+        let prepared = self.chart.prepare_posed(fx.jitter, fx.rotation, fx.scale);
         let t = exposure_ns as f64 * 1e-9 * fx.flicker as f64;
         let (w, h) = (self.width(), self.height());
         let colors = self.model.cfa.colors().map(color_index);
@@ -563,4 +597,14 @@ impl Simulator {
 #[inline]
 fn layout_pos(row: usize, col: usize) -> usize {
     noisecal_core::model::layout::position(row, col)
+}
+
+/// `v` reflected into `[−bound, bound]` (0 when the bound is 0).
+fn reflect(v: f64, bound: f64) -> f64 {
+    if bound <= 0.0 {
+        return 0.0;
+    }
+    let period = 4.0 * bound;
+    let u = (v + bound).rem_euclid(period);
+    if u <= 2.0 * bound { u - bound } else { 3.0 * bound - u }
 }

@@ -467,3 +467,67 @@ fn predicted_variance_holds_on_random_family_sensors() {
     }
     assert_eq!(checked, 24);
 }
+
+#[test]
+fn motion_walks_within_its_bounds_and_moves_frames_captured_together() {
+    let mut model = SensorModel::phone_10bit();
+    model.jitter_px = 0.0;
+    let motion =
+        Motion { max_shift_px: 0.5, step_px: 0.1, jump_probability: 0.05, max_rotation_rad: 0.001, breathing: 0.001 };
+    model.motion = Some(motion.clone());
+    let sim = Simulator::new(model.clone(), Chart::color_checker(96, 72).expect("chart"), 7).expect("simulator");
+    let poses: Vec<FrameEffects> = (0..300).map(|i| sim.frame_effects(100, 1_000_000, i)).collect();
+    let mut steps = Vec::new();
+    for (i, p) in poses.iter().enumerate() {
+        assert!(p.jitter.0.abs() <= 0.5 + 1e-6 && p.jitter.1.abs() <= 0.5 + 1e-6, "frame {i}: {:?}", p.jitter);
+        assert!(p.rotation.abs() <= 0.001 + 1e-7 && (p.scale - 1.0).abs() <= 0.001 + 1e-7, "frame {i}");
+        // The same capture index at another ISO and exposure is where the scene was then.
+        let other = sim.frame_effects(800, 125_000, i as u64);
+        assert_eq!((other.jitter, other.rotation, other.scale), (p.jitter, p.rotation, p.scale));
+        if i > 0 && (i as u64) % MOTION_BLOCK != 0 {
+            steps
+                .push(((p.jitter.0 - poses[i - 1].jitter.0) as f64).hypot((p.jitter.1 - poses[i - 1].jitter.1) as f64));
+        }
+    }
+    // A walk: most steps near the step size, some jumps, never frozen.
+    steps.sort_by(f64::total_cmp);
+    let median = steps[steps.len() / 2];
+    assert!((0.05..0.25).contains(&median), "median step {median:.3} px for 0.1 px per axis");
+    assert!(steps.iter().filter(|&&s| s == 0.0).count() == 0);
+    let spread = poses.iter().map(|p| p.jitter.0 as f64).fold((f64::MAX, f64::MIN), |(a, b), x| (a.min(x), b.max(x)));
+    assert!(spread.1 - spread.0 > 0.6, "the walk covers its range: {spread:?}");
+    // Without motion nothing changes: the pose is the jitter alone.
+    model.motion = None;
+    let still = Simulator::new(model, Chart::color_checker(96, 72).expect("chart"), 7).expect("simulator");
+    let p = still.frame_effects(100, 1_000_000, 3);
+    assert_eq!((p.jitter, p.rotation, p.scale), ((0.0, 0.0), 0.0, 1.0));
+}
+
+#[test]
+fn a_rotated_scene_is_the_chart_seen_through_the_rotation() {
+    // The posed (per-pixel) render equals the separable one for a pure shift, and a rotation
+    // moves an edge far from the centre by rotation × distance.
+    let chart = Chart::color_checker(192, 144).expect("chart");
+    let colors = [0usize, 1];
+    let shifted = chart.prepare((0.3, -0.2));
+    let posed = chart.prepare_posed((0.3, -0.2), 1e-9, 1.0);
+    let (mut a, mut b) = (vec![0.0f32; 192], vec![0.0f32; 192]);
+    for y in [10usize, 40, 77, 130] {
+        shifted.row_rates(y, colors, &mut a);
+        posed.row_rates(y, colors, &mut b);
+        for x in 0..192 {
+            assert!((a[x] - b[x]).abs() <= 1e-3 * a[x].abs() + 1e-2, "row {y} col {x}: {} vs {}", a[x], b[x]);
+        }
+    }
+    // Rotating by θ about the centre shifts row y by θ·(y − cy) along x: the same as a shift.
+    let theta = 0.004f32;
+    // Row 31 is mid-way down the first patch row (11 px from its horizontal edges).
+    let y = 31usize;
+    let dx = -theta * (y as f32 + 0.5 - 72.0);
+    let rotated = chart.prepare_posed((0.0, 0.0), theta, 1.0);
+    let moved = chart.prepare((dx, 0.0));
+    rotated.row_rates(y, colors, &mut a);
+    moved.row_rates(y, colors, &mut b);
+    let worst = a.iter().zip(&b).map(|(p, q)| (p - q).abs() / q.abs().max(1.0)).fold(0.0f32, f32::max);
+    assert!(worst < 0.02, "rotation vs the shift it makes at row {y}: {worst:.4}");
+}

@@ -1,5 +1,7 @@
 //! Shared helpers of the end-to-end tests: small simulated sessions pushed through a session.
 
+pub mod moments;
+
 use ndarray::Array2;
 use noisecal_core::calibrate::flat::NOT_FLAT;
 use noisecal_core::{CalibrationSession, FrameView, ModelPack, SessionConfig};

@@ -9,6 +9,7 @@ use crate::calibrate::drift::{BrightnessSums, Transform};
 use crate::calibrate::estimate::FOLDS;
 use crate::calibrate::flat::NOT_FLAT;
 use crate::calibrate::frame::FrameView;
+use crate::calibrate::motion::{FrameMotion, MotionProbe, NEGLIGIBLE_MOTION_PX};
 use crate::calibrate::reference::CleanImage;
 use crate::calibrate::structure::{CELLS, FrameSums, LineSums, StructureAccumulator};
 use crate::model::histogram::NoiseHistogram;
@@ -32,6 +33,35 @@ pub(crate) struct IsoAccumulator {
     pub(crate) reference_sum: [f64; POSITIONS],
     /// Row, column and frame means of the noise, for the structured components.
     pub(crate) structure: StructureAccumulator,
+    /// How the target frames moved against their clean images.
+    pub(crate) motion: MotionTally,
+}
+
+/// How the target frames of one ISO moved against their reference bursts, and what that cost.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub(crate) struct MotionTally {
+    /// Frames registered.
+    pub(crate) frames: u64,
+    /// Each registered frame's largest displacement (pixels), in arrival order (at most
+    /// [`MotionTally::KEPT`] kept; the maximum is kept apart).
+    pub(crate) shifts: Vec<f32>,
+    /// The largest displacement of any frame (pixels).
+    pub(crate) max_shift: f64,
+    /// Flat samples left out because the frame's motion changed their level.
+    pub(crate) left_out: u64,
+    /// Flat samples offered (kept or left out).
+    pub(crate) offered: u64,
+}
+
+impl MotionTally {
+    /// Displacements kept for the median.
+    pub(crate) const KEPT: usize = 4096;
+
+    /// The median displacement of the registered frames (pixels).
+    pub(crate) fn median_shift(&self) -> f64 {
+        let v: Vec<f64> = self.shifts.iter().map(|&s| s as f64).collect();
+        if v.is_empty() { 0.0 } else { crate::math::stats::median(&v) }
+    }
 }
 
 impl IsoAccumulator {
@@ -48,6 +78,7 @@ impl IsoAccumulator {
             target_sum: [0.0; POSITIONS],
             reference_sum: [0.0; POSITIONS],
             structure: StructureAccumulator::default(),
+            motion: MotionTally::default(),
         }
     }
 
@@ -85,7 +116,8 @@ impl IsoAccumulator {
     }
 
     /// Folds one target frame of EV step `step` in, its raw values mapped by `tf`, its
-    /// brightness sums already taken (`scale` normalised them). Returns the samples added.
+    /// brightness sums already taken (`scale` normalised them), the flat pixels its `motion`
+    /// changes left out. Returns the samples added.
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn add_frame(
         &mut self,
@@ -96,7 +128,17 @@ impl IsoAccumulator {
         tf: &Transform,
         sums: &BrightnessSums,
         scale: f64,
+        motion: Option<&FrameMotion>,
     ) -> u64 {
+        let moving = motion.filter(|m| m.max_shift() > NEGLIGIBLE_MOTION_PX);
+        if let Some(m) = motion {
+            self.motion.frames += 1;
+            self.motion.max_shift = self.motion.max_shift.max(m.max_shift());
+            if self.motion.shifts.len() < MotionTally::KEPT {
+                self.motion.shifts.push(m.max_shift() as f32);
+            }
+        }
+
         let (w, h, white) = (image.width, image.height, binning.white);
         let luts: [Vec<u16>; POSITIONS] = std::array::from_fn(|p| binning.lut(p));
         let fold = (self.frames % FOLDS as u64) as usize;
@@ -113,11 +155,24 @@ impl IsoAccumulator {
         // Line sums leave out levels near white, where clipping moves lines from frame to frame.
         let black = tf.black.iter().cloned().fold(f32::INFINITY, f32::min);
         let line_top = (black + 0.9 * (white as f32 - black)).clamp(0.0, white as f32) as u16;
-        let ((s0, rows0, cols0), (s1, rows1, cols1)) = rayon::join(
-            || fold_rows(0, frame, clean, w, h, &luts, even, codes_even, tf, white, line_top),
-            || fold_rows(1, frame, clean, w, h, &luts, odd, codes_odd, tf, white, line_top),
+        let ((s0, l0, rows0, cols0), (s1, l1, rows1, cols1)) = rayon::join(
+            || fold_rows(0, frame, clean, w, h, &luts, even, codes_even, tf, white, line_top, &image.probe, moving),
+            || fold_rows(1, frame, clean, w, h, &luts, odd, codes_odd, tf, white, line_top, &image.probe, moving),
         );
         let samples = s0 + s1;
+        // A sample left out takes its clean level's selection back out of the frame's sums:
+        // they describe exactly the samples the histograms hold.
+        let left = l0.len() + l1.len();
+        for &(pos, level) in l0.iter().chain(&l1) {
+            let (pos, level) = (pos as usize, level as usize);
+            let [d, a] = image.level_selection[pos].get(level).copied().unwrap_or([0.0; 2]);
+            let s = &mut self.shift[fold][pos][luts[pos][level] as usize];
+            s[0] -= d;
+            s[1] -= d * d;
+            s[2] -= a;
+        }
+        self.motion.left_out += left as u64;
+        self.motion.offered += samples + left as u64;
         let mut lines = FrameSums::new(w, h, tf.black);
         for (parity, rows) in [(0, rows0), (1, rows1)] {
             for (i, r) in rows.into_iter().enumerate() {
@@ -140,9 +195,18 @@ impl IsoAccumulator {
     }
 }
 
+/// What [`fold_rows`] returns: the samples added, the (position, clean level) of each sample
+/// left out, the line sums per row (by cell) and per column (by half).
+type FoldedRows = (u64, Vec<(u8, u16)>, Vec<[LineSums; CELLS]>, Vec<[LineSums; 2]>);
+
 /// Folds the rows of one parity into that parity's two positions' histograms and code counts.
-/// Returns the samples, and the sums of `n` and of the clean level per row (by cell) and per
-/// column (by half).
+/// With `motion` (a frame that moved), the flat pixels whose level the motion changes by more
+/// than their tolerance are left out of the histograms, and the line sums take the motion's
+/// predicted change out of every pixel's `n`; the line sums never hold pixels whose gradient is
+/// beyond the probe's range (`probe`), moving or not, so that every frame of a burst sums the
+/// same pixels into each line. Returns the samples, the (position, clean level) of each sample
+/// left out, and the sums of `n` and of the clean level per row (by cell) and per column (by
+/// half).
 #[allow(clippy::too_many_arguments)]
 fn fold_rows(
     parity: usize,
@@ -156,19 +220,21 @@ fn fold_rows(
     tf: &Transform,
     white: u16,
     line_top: u16,
-) -> (u64, Vec<[LineSums; CELLS]>, Vec<[LineSums; 2]>) {
+    probe: &MotionProbe,
+    motion: Option<&FrameMotion>,
+) -> FoldedRows {
     let mut samples = 0u64;
+    let mut left_out: Vec<(u8, u16)> = Vec::new();
+    let (mut keep, mut correction) = match motion {
+        Some(_) => (vec![true; w], vec![0i32; w]),
+        None => (Vec::new(), Vec::new()),
+    };
     let mut row_sums = Vec::with_capacity(h / 2 + 1);
     // Per column, by half (`⌊y/2⌋` parity).
     let mut cols: Vec<[LineSums; 2]> = vec![[[0; 3]; 2]; w];
     let mut buf = vec![0u16; w];
     let identity = tf.identity();
-    let (h0, h1) = hists.split_at_mut(1);
-    let (hist0, hist1) = (&mut h0[0], &mut h1[0]);
-    let (c0, c1) = codes.split_at_mut(1);
-    let (codes0, codes1) = (&mut c0[0][..], &mut c1[0][..]);
     let top = white as usize;
-    let (lut0, lut1) = (&luts[parity * 2], &luts[parity * 2 + 1]);
     for y in (parity..h).step_by(2) {
         let row: &[u16] = match frame.row(y) {
             std::borrow::Cow::Borrowed(r) => r,
@@ -178,50 +244,34 @@ fn fold_rows(
             }
         };
         let crow = &clean[y * w..y * w + w];
+        let grow = &probe.gradient[y * w..y * w + w];
+        if let Some(m) = motion {
+            m.row_effects(probe, y, crow, &mut keep, &mut correction);
+        }
         let mut rs: [LineSums; CELLS] = [[0; 3]; CELLS];
         let half = (y >> 1) & 1;
-        if identity {
-            for (x, (&v, &c)) in row.iter().zip(crow).enumerate() {
-                if c == NOT_FLAT {
-                    continue;
-                }
-                let n = v as i32 - c as i32;
-                if c <= line_top {
-                    line_add(&mut rs[x & 3], &mut cols[x][half], n, c);
-                }
-                if x & 1 == 0 {
-                    hist0[lut0[c as usize] as usize].add(n);
-                    codes0[(v as usize).min(top)] += 1;
-                } else {
-                    hist1[lut1[c as usize] as usize].add(n);
-                    codes1[(v as usize).min(top)] += 1;
-                }
-                samples += 1;
+        for (x, (&v, &c)) in row.iter().zip(crow).enumerate() {
+            if c == NOT_FLAT {
+                continue;
             }
-        } else {
-            for (x, (&v, &c)) in row.iter().zip(crow).enumerate() {
-                if c == NOT_FLAT {
-                    continue;
-                }
-                let pos = parity * 2 + (x & 1);
-                let t = tf.apply(pos, v).round().clamp(0.0, white as f32) as i32;
-                let n = t - c as i32;
-                if c <= line_top {
-                    line_add(&mut rs[x & 3], &mut cols[x][half], n, c);
-                }
-                if x & 1 == 0 {
-                    hist0[lut0[c as usize] as usize].add(n);
-                    codes0[(v as usize).min(top)] += 1;
-                } else {
-                    hist1[lut1[c as usize] as usize].add(n);
-                    codes1[(v as usize).min(top)] += 1;
-                }
-                samples += 1;
+            let pos = parity * 2 + (x & 1);
+            let t = if identity { v as i32 } else { tf.apply(pos, v).round().clamp(0.0, white as f32) as i32 };
+            let n = t - c as i32;
+            codes[x & 1][(v as usize).min(top)] += 1;
+            if c <= line_top && (grow[x][0] != i8::MIN) {
+                let nl = if motion.is_some() { n - correction[x] } else { n };
+                line_add(&mut rs[x & 3], &mut cols[x][half], nl, c);
             }
+            if motion.is_some() && !keep[x] {
+                left_out.push((pos as u8, c));
+                continue;
+            }
+            hists[x & 1][luts[pos][c as usize] as usize].add(n);
+            samples += 1;
         }
         row_sums.push(rs);
     }
-    (samples, row_sums, cols)
+    (samples, left_out, row_sums, cols)
 }
 
 #[inline(always)]

@@ -5,12 +5,17 @@
 use crate::calibrate::codes::{detect, output_range};
 use crate::calibrate::dark::difference;
 use crate::calibrate::estimate::{BinLevels, Pooling, estimate_position};
+use crate::calibrate::motion::MOTION_TOLERANCE;
 use crate::calibrate::session::CalibrationSession;
 use crate::error::SessionError;
 use crate::model::check::self_check;
 use crate::model::layout::POSITIONS;
 use crate::model::pack::{IsoModel, ModelOrigin, ModelPack, PositionModel};
 use crate::model::structure::{FixedPattern, IsoStructure};
+
+/// Target frames that moved further than this (pixels) against their reference bursts are
+/// reported in the pack's warnings.
+pub const MOTION_WORTH_SAYING_PX: f64 = 0.05;
 
 /// Measured noise variance (DN²) below which an ISO has no noise at all.
 pub const NO_NOISE_VARIANCE: f64 = 1e-3;
@@ -124,6 +129,16 @@ impl CalibrationSession {
                         (g - 1.0) * 100.0
                     ));
                 }
+            }
+            let mt = &acc.motion;
+            if mt.frames > 0 && mt.max_shift > MOTION_WORTH_SAYING_PX {
+                warnings.push(format!(
+                    "ISO {iso}: the chart moved between frames: target frames were up to {:.2} px (median {:.2} px) off their reference bursts; {:.2} % of flat samples were left out where that motion changed the level by more than {:.2} SD of the noise (it is not noise). Over about 0.3 px, a sturdier mount, optical stabilisation off or a remote trigger gives more samples",
+                    mt.max_shift,
+                    mt.median_shift(),
+                    100.0 * mt.left_out as f64 / mt.offered.max(1) as f64,
+                    MOTION_TOLERANCE,
+                ));
             }
             isos.push(IsoModel {
                 iso,

@@ -86,17 +86,21 @@ pub fn selection(hist: &[u64], var_e: impl Fn(f64) -> f64) -> Vec<Selection> {
     out
 }
 
+/// [`bin_sums`]: per position and bin `[Σδ, Σδ², Σa]`, per position and level `[δ, a]`.
+pub type SelectionSums = ([Vec<[f64; 3]>; 4], [Vec<[f64; 2]>; 4]);
+
 /// Per bin, `[Σδ, Σδ², Σa]` over the flat pixels of one frame ([`Selection`]): `clean` holds
 /// clean levels (or `not_flat`), row-major with CFA position `(y % 2)·2 + x % 2`; `var_e(pos,
 /// level)` is the variance of the clean image's error; `bin_of[pos][level]` maps a level to its
-/// bin. Returns `[pos][bin]`.
+/// bin. Returns `[pos][bin]`, and `[pos][level]` the `[δ, a]` of one pixel at each level (what a
+/// sample left out of a frame takes back out of the sums).
 pub fn bin_sums(
     clean: &[u16],
     width: usize,
     not_flat: u16,
     var_e: impl Fn(usize, f64) -> f64,
     bin_of: &[Vec<u16>; 4],
-) -> [Vec<[f64; 3]>; 4] {
+) -> SelectionSums {
     let levels = bin_of[0].len();
     let mut hists = [vec![0u64; levels], vec![0u64; levels], vec![0u64; levels], vec![0u64; levels]];
     for (i, &c) in clean.iter().enumerate() {
@@ -107,11 +111,11 @@ pub fn bin_sums(
         let pos = ((y & 1) << 1) | (x & 1);
         hists[pos][(c as usize).min(levels - 1)] += 1;
     }
-    std::array::from_fn(|pos| {
-        let sel = selection(&hists[pos], |c| var_e(pos, c));
+    let sel: [Vec<Selection>; 4] = std::array::from_fn(|pos| selection(&hists[pos], |c| var_e(pos, c)));
+    let sums = std::array::from_fn(|pos| {
         let bins = bin_of[pos].iter().map(|&b| b as usize).max().map_or(0, |b| b + 1);
         let mut sums = vec![[0.0f64; 3]; bins];
-        for (c, (&n, s)) in hists[pos].iter().zip(&sel).enumerate() {
+        for (c, (&n, s)) in hists[pos].iter().zip(&sel[pos]).enumerate() {
             if n > 0 {
                 let e = &mut sums[bin_of[pos][c] as usize];
                 let n = n as f64;
@@ -121,7 +125,9 @@ pub fn bin_sums(
             }
         }
         sums
-    })
+    });
+    let per_level = std::array::from_fn(|pos| sel[pos].iter().map(|s| [s.shift, s.lost_variance]).collect());
+    (sums, per_level)
 }
 
 #[cfg(test)]

@@ -142,6 +142,20 @@ pub struct FlatReport {
     /// The same per level group ([`GROUPS`] per position, [`Groups::group`]) where the group
     /// had enough differences (NaN elsewhere): near a saturated level it falls to nothing.
     pub mean_noise_groups: Vec<f32>,
+    /// Pixels per position left out because their own spread over the burst is beyond what the
+    /// noise at their level allows ([`unsteady_limit`]): motion, moving dust, a flickering LED.
+    pub unsteady: [u64; POSITIONS],
+}
+
+/// The largest ratio of a pixel's variance over an `m`-frame burst to the noise variance at its
+/// level that pure noise exceeds once in a thousand pixels (Gaussian noise: `(m − 1)·s²/σ²` is
+/// χ² with `m − 1` degrees of freedom; its 99.9 % quantile by Wilson–Hilferty, within 3 % for
+/// one degree of freedom and closer above). A pixel beyond it did not hold still.
+pub fn unsteady_limit(m: u32) -> f64 {
+    let k = m.saturating_sub(1).max(1) as f64;
+    let z = 3.090_232; // the standard normal's 99.9 % quantile
+    let c = 2.0 / (9.0 * k);
+    (1.0 - c + z * c.sqrt()).powi(3)
 }
 
 impl FlatReport {
@@ -167,6 +181,10 @@ impl FlatReport {
 #[derive(Debug)]
 pub struct CleanInputs<'a> {
     pub sum: &'a [u32],
+    /// The burst's first frame.
+    pub first: &'a [u16],
+    /// Per pixel, Σ(frame − first frame)² (saturating).
+    pub squares: &'a [u32],
     pub frames: u32,
     pub width: usize,
     pub height: usize,
@@ -253,18 +271,66 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
     }
     drop(diffs);
 
-    // Threshold per (position, level) as a lookup over integer levels.
+    // Threshold per (position, level) as a lookup over integer levels. Its temporal part is the
+    // robust line: frame-to-frame differences at edges that moved inflate the plain fit, and
+    // an inflated threshold takes the edges for flat.
+    let robust_of =
+        |pos: usize, x: f64| -> f64 { if inp.frames >= 2 { poly_eval(&robust[pos], x).max(0.0) / m } else { 0.0 } };
     let thresholds: Vec<Vec<f32>> = (0..POSITIONS)
         .map(|pos| {
             (0..=inp.white as u32)
                 .map(|l| {
                     let x = (l as f64 - inp.black[pos] as f64).max(0.0);
-                    let var = temporal_of(pos, x) + poly_eval(&spatial[pos], x).max(0.0);
+                    let var = robust_of(pos, x) + poly_eval(&spatial[pos], x).max(0.0);
                     (inp.k * (2.0 * var).sqrt() + 0.5) as f32
                 })
                 .collect()
         })
         .collect();
+    // A pixel's own variance over the burst may exceed its level's noise variance by at most
+    // `unsteady_limit`. The level's noise variance is the median of its pixels' burst variances
+    // (per position and level group; edges that moved are a minority of any populated level)
+    // over the median of χ²ₖ/k; where a group holds few pixels, the robust line of the
+    // frame-to-frame differences (at least a quarter DN², quantisation's scale).
+    let k = inp.frames.saturating_sub(1).max(1) as f64;
+    let median_factor = (1.0 - 2.0 / (9.0 * k)).powi(3);
+    let limit = unsteady_limit(inp.frames);
+    let pixel_var = |i: usize| -> f64 {
+        let mf = inp.frames as i64;
+        let sum_d = inp.sum[i] as i64 - mf * inp.first[i] as i64;
+        let sq = inp.squares[i];
+        if sq == u32::MAX {
+            return f64::INFINITY;
+        }
+        (sq as f64 - (sum_d * sum_d) as f64 / mf as f64) / (mf - 1) as f64
+    };
+    let mut group_medians = vec![f64::NAN; POSITIONS * GROUPS];
+    if inp.frames >= 2 {
+        let mut vars: Vec<Vec<f32>> = vec![Vec::new(); POSITIONS * GROUPS];
+        for y in (0..h).step_by(row_step * 2).flat_map(|y| [y, y + 1]).filter(|&y| y < h) {
+            for x in 0..w {
+                let i = y * w + x;
+                let pos = position(y, x);
+                vars[pos * GROUPS + groups.group(pos, mean(i) as f32)].push(pixel_var(i) as f32);
+            }
+        }
+        for (gm, v) in group_medians.iter_mut().zip(vars.iter_mut()) {
+            if v.len() >= 32 {
+                let mid = v.len() / 2;
+                let (_, med, _) = v.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
+                *gm = *med as f64 / median_factor;
+            }
+        }
+    }
+    let measured = report.clone();
+    let spread_limit = |pos: usize, level: f64| -> f64 {
+        let g = groups.group(pos, level as f32);
+        let var = match group_medians[pos * GROUPS + g] {
+            v if v.is_finite() => v,
+            _ => measured.mean_noise_at(&groups, pos, level) * m,
+        };
+        limit * var.max(0.0625)
+    };
 
     let mut clean = vec![NOT_FLAT; w * h];
     for y in 0..h {
@@ -299,6 +365,10 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
             if y + 2 < h {
                 check(i + 2 * w);
             }
+            if flat && neighbours >= 2 && inp.frames >= 2 && pixel_var(i) > spread_limit(pos, a) {
+                flat = false;
+                report.unsteady[pos] += 1;
+            }
             if flat && neighbours >= 2 {
                 clean[i] = level;
                 report.flat[pos] += 1;
@@ -306,4 +376,50 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
         }
     }
     (clean, report)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::{Distribution, Normal, StudentT};
+
+    /// Share of pixels of pure noise (`m` frames each) whose burst variance exceeds
+    /// `unsteady_limit(m)` times the noise variance.
+    fn false_positives(m: u32, noise: impl Fn(&mut ChaCha8Rng) -> f64, var: f64, pixels: usize) -> f64 {
+        let mut rng = ChaCha8Rng::seed_from_u64(m as u64);
+        let limit = unsteady_limit(m) * var;
+        let mut over = 0;
+        for _ in 0..pixels {
+            let v: Vec<f64> = (0..m).map(|_| noise(&mut rng)).collect();
+            let mean = v.iter().sum::<f64>() / m as f64;
+            let s2 = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (m - 1) as f64;
+            if s2 > limit {
+                over += 1;
+            }
+        }
+        over as f64 / pixels as f64
+    }
+
+    #[test]
+    fn unsteady_pixels_of_pure_noise_are_one_in_a_thousand() {
+        // Gaussian noise: the limit is χ²'s 99.9 % point (Wilson–Hilferty), so 0.1 % of pixels
+        // (400 000 pixels: SD 0.005 %) exceed it at every burst length.
+        for m in [2u32, 3, 4, 8, 16, 32] {
+            let g = Normal::new(0.0, 3.0).expect("normal");
+            let fp = false_positives(m, |r| g.sample(r), 9.0, 400_000);
+            assert!((0.0007..0.0013).contains(&fp), "M = {m}: {fp:.5} of pure Gaussian noise left out");
+        }
+        // Heavy tails (Student-t, 5 dof, unit variance) leave more out, and a limit twice as
+        // high would miss motion: still under 2 % for a 16-frame burst.
+        let t = StudentT::new(5.0).expect("t");
+        let fp = false_positives(16, |r| t.sample(r) / (5.0f64 / 3.0).sqrt(), 1.0, 200_000);
+        assert!(fp < 0.02, "Student-t: {fp:.4}");
+        // A pixel on an edge that moved by ±0.3 px with a gradient of 10 σ/px is caught.
+        let g = Normal::new(0.0, 1.0).expect("normal");
+        let moved =
+            false_positives(8, |r| g.sample(r) + if rand::RngExt::random::<bool>(r) { 3.0 } else { -3.0 }, 1.0, 20_000);
+        assert!(moved > 0.95, "a moving edge pixel is left out: {moved:.3}");
+    }
 }

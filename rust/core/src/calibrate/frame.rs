@@ -118,6 +118,18 @@ impl<'a> FrameView<'a> {
         }
     }
 
+    /// The sample at row `y`, column `x` (both in range).
+    #[inline]
+    pub fn get(&self, y: usize, x: usize) -> u16 {
+        match self.samples {
+            Samples::U16(d) => d[y * self.row_stride + x],
+            Samples::LeBytes(d) => {
+                let i = y * self.row_stride + 2 * x;
+                u16::from_le_bytes([d[i], d[i + 1]])
+            }
+        }
+    }
+
     /// Reads row `y` into `out` (length ≥ width) without allocating.
     #[inline]
     pub fn read_row(&self, y: usize, out: &mut [u16]) {

@@ -8,6 +8,8 @@
 //! - [`step`]: which EV step a frame belongs to (the step tolerance).
 //! - [`flat`], [`drift`], [`deselect`]: the flat test, frame brightness, and the clean image's
 //!   own error.
+//! - [`motion`]: each target frame registered on its clean image; the flat pixels its motion
+//!   changes are left out of that frame.
 //! - [`estimate`]: histograms → per-bin PMFs; [`codes`]: the codes a sensor writes.
 //! - [`dark`]: dark (lens-covered) frames → the fixed pattern per ISO.
 
@@ -21,6 +23,7 @@ pub mod estimate;
 pub mod flat;
 pub mod frame;
 pub mod meta;
+pub mod motion;
 pub mod reference;
 pub mod session;
 pub mod step;

@@ -17,6 +17,7 @@ use crate::calibrate::drift::{
 use crate::calibrate::flat::{CleanInputs, FlatReport, GROUPS, Groups, NOT_FLAT, Roi, TemporalStats, clean_and_mask};
 use crate::calibrate::frame::FrameView;
 use crate::calibrate::meta::FrameMeta;
+use crate::calibrate::motion::MotionProbe;
 use crate::error::SessionError;
 use crate::model::layout::{Binning, POSITIONS, SensorLayout};
 
@@ -31,6 +32,8 @@ pub struct ReferenceBurst {
     frames: u32,
     sum: Vec<u32>,
     first: Vec<u16>,
+    /// Per pixel, Σ(frame − first frame)² (saturating): the pixel's own spread over the burst.
+    squares: Vec<u32>,
     temporal: TemporalStats,
     drift: DriftTracker,
 }
@@ -58,6 +61,11 @@ pub struct CleanImage {
     /// Per position and bin, `[Σδ, Σδ², Σa]` of the clean image's selection over its flat pixels
     /// ([`deselect::bin_sums`]): what one target frame adds to its ISO's sums.
     pub selection: [Vec<[f64; 3]>; POSITIONS],
+    /// Per position and clean level, `[δ, a]` of one flat pixel: what a sample left out of a
+    /// frame (motion) takes back out of that frame's selection sums.
+    pub level_selection: [Vec<[f64; 2]>; POSITIONS],
+    /// What registering a target frame on this image, and the motion test, read of it.
+    pub probe: MotionProbe,
 }
 
 impl CleanImage {
@@ -73,8 +81,8 @@ impl CleanImage {
     }
 }
 
-/// One row of the sums and of the first frame, with its index.
-type RowPair<'a> = (usize, &'a mut [u32], &'a mut [u16]);
+/// One row of the sums, of the first frame and of the squares, with its index.
+type RowPair<'a> = (usize, &'a mut [u32], &'a mut [u16], &'a mut [u32]);
 
 impl ReferenceBurst {
     /// An empty burst for frames of `layout` taken with `exposure_ns`.
@@ -86,6 +94,7 @@ impl ReferenceBurst {
             frames: 0,
             sum: vec![0; n],
             first: vec![0; n],
+            squares: vec![0; n],
             temporal: TemporalStats::default(),
             drift: DriftTracker::default(),
         }
@@ -143,14 +152,16 @@ impl ReferenceBurst {
         let first_frame = self.frames == 0;
         let stats_rows = if h > 512 { 4 } else { 1 };
         let mut rows: [Vec<RowPair<'_>>; 2] = [Vec::new(), Vec::new()];
-        for (y, (s, f)) in self.sum.chunks_mut(w).zip(self.first.chunks_mut(w)).enumerate() {
-            rows[y & 1].push((y, s, f));
+        for (y, ((s, f), q)) in
+            self.sum.chunks_mut(w).zip(self.first.chunks_mut(w)).zip(self.squares.chunks_mut(w)).enumerate()
+        {
+            rows[y & 1].push((y, s, f, q));
         }
         let [even_rows, odd_rows] = rows;
         let work = |rows: Vec<RowPair<'_>>| {
             let mut acc = vec![[0.0f64; 3]; POSITIONS * GROUPS];
             let mut row_buf = vec![0u16; w];
-            for (y, sum_row, first_row) in rows {
+            for (y, sum_row, first_row, square_row) in rows {
                 frame.read_row(y, &mut row_buf);
                 let take_stats = (y / 2) % stats_rows == 0;
                 for x in 0..w {
@@ -163,9 +174,13 @@ impl ReferenceBurst {
                     sum_row[x] += v;
                     if first_frame {
                         first_row[x] = v as u16;
-                    } else if take_stats {
-                        let f0 = first_row[x];
-                        let d = v as f64 - f0 as f64;
+                        continue;
+                    }
+                    let f0 = first_row[x];
+                    let di = v as i64 - f0 as i64;
+                    square_row[x] = square_row[x].saturating_add((di * di).min(u32::MAX as i64) as u32);
+                    if take_stats {
+                        let d = di as f64;
                         let a = &mut acc[pos * GROUPS + groups.group(pos, f0 as f32)];
                         a[0] += 1.0;
                         a[1] += d;
@@ -197,6 +212,8 @@ impl ReferenceBurst {
         }
         let (levels, flat) = clean_and_mask(&CleanInputs {
             sum: &self.sum,
+            first: &self.first,
+            squares: &self.squares,
             frames: self.frames,
             width: w,
             height: h,
@@ -211,7 +228,12 @@ impl ReferenceBurst {
         }
         let luts: [Vec<u16>; POSITIONS] = std::array::from_fn(|p| binning.lut(p));
         let groups = Groups { black: self.layout.black, white: self.layout.white };
-        let selection = deselect::bin_sums(&levels, w, NOT_FLAT, |pos, c| flat.mean_noise_at(&groups, pos, c), &luts);
-        Ok(CleanImage { levels, width: w, height: h, frames: self.frames, flat, selection })
+        let (selection, level_selection) =
+            deselect::bin_sums(&levels, w, NOT_FLAT, |pos, c| flat.mean_noise_at(&groups, pos, c), &luts);
+        let m = self.frames as f64;
+        let mean: Vec<u16> =
+            self.sum.iter().map(|&s| (s as f64 / m).round().clamp(0.0, self.layout.white as f64) as u16).collect();
+        let probe = MotionProbe::new(mean, &levels, w, h, self.frames, &flat, &groups, clip_level(&self.layout));
+        Ok(CleanImage { levels, width: w, height: h, frames: self.frames, flat, selection, level_selection, probe })
     }
 }

@@ -17,6 +17,7 @@ use crate::calibrate::drift::{DriftPolicy, DriftTracker, DriftVerdict, Transform
 use crate::calibrate::flat::{FlatReport, Roi};
 use crate::calibrate::frame::FrameView;
 use crate::calibrate::meta::FrameMeta;
+use crate::calibrate::motion::{FrameMotion, MAX_MOTION_PX, register};
 use crate::calibrate::reference::{CleanImage, ReferenceBurst};
 use crate::calibrate::step::{STEP_TOLERANCE, StepKey};
 use crate::error::{CodecError, SessionError};
@@ -27,8 +28,9 @@ use crate::model::pack::NoiseProfile;
 use crate::model::structure::FixedPattern;
 
 pub const CHECKPOINT_MAGIC: &[u8; 8] = b"NCALCKPT";
-/// Version 3 adds the structured-noise sums; version 4 the dark frames.
-pub const CHECKPOINT_VERSION: u16 = 4;
+/// Version 3 adds the structured-noise sums; version 4 the dark frames; version 5 the motion
+/// probe of the clean image and the per-ISO motion figures.
+pub const CHECKPOINT_VERSION: u16 = 5;
 
 /// How a session calibrates.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -115,6 +117,9 @@ pub struct FrameReport {
     pub drift_normalised: bool,
     /// Samples added (target frames).
     pub samples: u64,
+    /// A target frame's motion against its reference burst, when registered (method.md,
+    /// "Motion between frames").
+    pub motion: Option<FrameMotion>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -312,7 +317,7 @@ impl CalibrationSession {
         let burst = slot.get_or_insert_with(|| DarkBurst::new(layout, meta.iso));
         burst.push(frame, &black)?;
         self.dark_frames += 1;
-        Ok(FrameReport { kind: FrameKind::Dark, departure: 0.0, drift_normalised: false, samples: 0 })
+        Ok(FrameReport { kind: FrameKind::Dark, departure: 0.0, drift_normalised: false, samples: 0, motion: None })
     }
 
     /// The dark burst in progress.
@@ -406,6 +411,7 @@ impl CalibrationSession {
             departure: r.verdict.departure,
             drift_normalised: r.normalised,
             samples: 0,
+            motion: None,
         })
     }
 
@@ -427,9 +433,18 @@ impl CalibrationSession {
         let image = burst.close(&self.binning, self.config.roi, self.config.flat_k)?;
         let (frames, index) = (image.frames, step.index);
         let considered: u64 = image.flat.considered.iter().sum();
+        let unsteady: u64 = image.flat.unsteady.iter().sum();
         self.note(format!(
-            "EV step {index}: reference burst of {frames} frames, {:.1} % of pixels flat",
-            100.0 * image.flat.total_flat() as f64 / considered.max(1) as f64
+            "EV step {index}: reference burst of {frames} frames, {:.1} % of pixels flat{}",
+            100.0 * image.flat.total_flat() as f64 / considered.max(1) as f64,
+            if unsteady > 0 {
+                format!(
+                    " ({:.2} % left out: their spread over the burst is beyond the noise at their level)",
+                    100.0 * unsteady as f64 / considered.max(1) as f64
+                )
+            } else {
+                String::new()
+            }
         ));
         if let Some(step) = self.step.as_mut() {
             step.phase = Phase::Targets(Box::new(TargetPhase { image, drift: BTreeMap::new() }));
@@ -467,9 +482,23 @@ impl CalibrationSession {
         };
         let scale = if verdict.drifted && policy.normalise { verdict.scale } else { 1.0 };
         let tf = Transform { scale: scale as f32, ..ident };
+        // Registered on the clean image: a frame that moved too far is refused, and the flat
+        // pixels its motion changes are left out of it (method.md, "Motion between frames").
+        let motion = register(&tp.image.probe, frame, &tf, w, h, clip);
+        if let Some(m) = &motion
+            && m.max_shift() > MAX_MOTION_PX
+        {
+            return Err(SessionError::Moved {
+                iso: meta.iso,
+                exposure_ns: meta.exposure_ns,
+                step,
+                shift_px: m.max_shift(),
+                max_px: MAX_MOTION_PX,
+            });
+        }
         let binning = &self.binning;
         let acc = self.isos.entry(meta.iso).or_insert_with(|| IsoAccumulator::new(binning));
-        let samples = acc.add_frame(step, frame, &tp.image, binning, &tf, &sums, scale);
+        let samples = acc.add_frame(step, frame, &tp.image, binning, &tf, &sums, scale, motion.as_ref());
         if verdict.drifted {
             acc.drift_frames += 1;
             self.drift_frames += 1;
@@ -486,6 +515,7 @@ impl CalibrationSession {
             departure: verdict.departure,
             drift_normalised: scale != 1.0,
             samples,
+            motion,
         })
     }
 

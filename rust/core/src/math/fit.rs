@@ -58,8 +58,9 @@ fn sse(x: &[f64], y: &[f64], w: &[f64], c: &[f64]) -> f64 {
     x.iter().zip(y).zip(w).map(|((&x, &y), &w)| w * (poly_eval(c, x) - y).powi(2)).sum()
 }
 
-/// Gaussian elimination with partial pivoting on an augmented matrix.
-fn solve(mut a: Vec<Vec<f64>>) -> Option<Vec<f64>> {
+/// Solves the augmented system `a = [A | b]` (n rows of n + 1) by Gauss–Jordan elimination with
+/// partial pivoting; `None` when `A` is singular.
+pub(crate) fn solve(mut a: Vec<Vec<f64>>) -> Option<Vec<f64>> {
     let n = a.len();
     for col in 0..n {
         let piv = (col..n).max_by(|&i, &j| a[i][col].abs().total_cmp(&a[j][col].abs()))?;

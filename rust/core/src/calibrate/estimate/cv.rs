@@ -2,8 +2,8 @@
 //! for every fold, PMFs from the other folds scored on the held-out fold's samples.
 
 use crate::calibrate::estimate::clip::BinLevels;
-use crate::calibrate::estimate::pool::{Acc, Data, laplace_mass, laplace_pmf, pool_bin, pool_clipped};
-use crate::calibrate::estimate::{FILL_MIN_SAMPLES, POOLING_CANDIDATES, argmax, clipped_at_top};
+use crate::calibrate::estimate::pool::{Acc, Data, laplace_mass, laplace_pmf, pool_bin};
+use crate::calibrate::estimate::{FILL_MIN_SAMPLES, POOLING_CANDIDATES, argmax};
 use crate::model::histogram::NoiseHistogram;
 use crate::model::pmf::Pmf;
 
@@ -124,7 +124,7 @@ pub(super) fn cross_validate(
     let mut bin_heldout = vec![0u64; nbins];
     let mut heldout = 0u64;
     // Clipped bins: scored per candidate in both modes, then read at the chosen pooling.
-    let mut clip_own = vec![0.0; POOLING_CANDIDATES.len()];
+    let mut clip_own = 0.0;
     let mut clip_law = vec![0.0; POOLING_CANDIDATES.len()];
     let mut clip_samples = 0u64;
     let mut clip_scored = false;
@@ -140,16 +140,14 @@ pub(super) fn cross_validate(
             let (mu, var) = (data.law.mean[b], data.law.var[b]);
             if clipped[b] {
                 clip_samples += nh;
-                // Own mode: the bin's samples, pooled with its neighbours away from the clip as
-                // the estimate does, at every pooling candidate.
                 if data.stats[b].n > 0 {
+                    let mut own = 0.0;
+                    let prior = prior_on(held, mu, var);
+                    pool_bin(&data, b, true, &[0], 0, |_, acc, cum| own = loglik(held, &prior, acc, cum));
+                    clip_own += own;
                     clip_scored = true;
-                    let own_prior = prior_on(held, mu, var);
-                    pool_clipped(&data, b, clipped_at_top(levels, b), &POOLING_CANDIDATES, |c, acc, cum| {
-                        clip_own[c] += loglik(held, &own_prior, acc, cum);
-                    });
                 } else {
-                    clip_own.iter_mut().for_each(|x| *x = f64::NEG_INFINITY);
+                    clip_own = f64::NEG_INFINITY;
                 }
                 let prior = laplace_pmf(mu, var, levels.reach());
                 pool_bin(&data, b, false, &POOLING_CANDIDATES, FILL_MIN_SAMPLES, |c, acc, cum| {
@@ -181,7 +179,7 @@ pub(super) fn cross_validate(
         bin_ll,
         bin_heldout,
         heldout,
-        clip_ll: (clip_samples > 0 && clip_scored).then_some([clip_own[best], clip_law[best]]),
+        clip_ll: (clip_samples > 0 && clip_scored).then_some([clip_own, clip_law[best]]),
         clip_samples,
     }
 }

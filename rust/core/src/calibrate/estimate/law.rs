@@ -7,7 +7,7 @@ use crate::math::fit::{nn_poly_fit, poly_eval, wls};
 
 /// The local-linear law's variance window holds at least this many samples and
 /// [`LAW_MIN_BINS`] bins …
-const LAW_MIN_SAMPLES: f64 = 8192.0;
+pub(super) const LAW_MIN_SAMPLES: f64 = 8192.0;
 const LAW_MIN_BINS: usize = 4;
 /// … and its mean window four times as many bins: what is left of the clean image's selection
 /// shift ([`crate::calibrate::deselect`]) swings the mean from bin to bin across a cluster of levels, and a

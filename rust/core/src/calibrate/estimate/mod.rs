@@ -57,7 +57,7 @@ use crate::model::pack::{BinModel, BinSource};
 use crate::model::pmf::Pmf;
 use clip::clip_flags;
 use cv::cross_validate;
-use pool::{Acc, Data, laplace_pmf, pool_bin, pool_clipped};
+use pool::{Acc, Data, laplace_pmf, pool_bin};
 
 /// Folds of the cross-validation: target frames of an ISO take turns.
 pub const FOLDS: usize = 4;
@@ -210,6 +210,13 @@ pub fn estimate_position(
     // Per bin, the pooling it uses: the position's choice, or a smaller one where the bin's own
     // held-out samples decide for it by more than `OVERRIDE_NATS`.
     let per_bin: Vec<u64>;
+    // The law mode gives clipped bins what the noise law, fitted on unclipped bins, predicts:
+    // with fewer unclipped samples than one window of the law, nothing measured stands behind
+    // it (a high ISO whose noise reaches the floor from every level: a 96 × 72 session at 50 ×
+    // its base ISO drew every bin with 3 × the measured variance in law mode), and the clipped
+    // bins keep their own samples.
+    let unclipped: u64 = (0..nbins).filter(|&b| !clipped[b]).map(|b| total[b].total()).sum();
+    let law_supported = unclipped as f64 >= law::LAW_MIN_SAMPLES;
     let (m, clip_mode, choice, candidates, clip_scores, heldout) = match pooling {
         Pooling::Fixed(m) => {
             per_bin = vec![m; nbins];
@@ -281,23 +288,13 @@ pub fn estimate_position(
             }
         })
         .collect();
+    let clip_mode = if law_supported { clip_mode } else { ClipMode::Own };
     let data = Data::new(&total, &clipped, levels).deselected(&deselect, levels);
     let bins = (0..nbins)
         .map(|b| {
             let own_only = clipped[b] && clip_mode == ClipMode::Own && data.stats[b].n > 0;
             let mut out: Option<(Acc, u64)> = None;
-            if own_only {
-                // Its own samples and, while they are fewer than the pooling asks, its neighbours
-                // on the side away from the clip.
-                pool_clipped(&data, b, clipped_at_top(levels, b), &[per_bin[b]], |_, acc, cum| {
-                    out = Some((acc.clone(), cum))
-                });
-            }
-            if out.as_ref().is_none_or(|(acc, _)| acc.total <= 0.0) {
-                pool_bin(&data, b, false, &[per_bin[b]], FILL_MIN_SAMPLES, |_, acc, cum| {
-                    out = Some((acc.clone(), cum))
-                });
-            }
+            pool_bin(&data, b, own_only, &[per_bin[b]], FILL_MIN_SAMPLES, |_, acc, cum| out = Some((acc.clone(), cum)));
             let (acc, cum) = out.unwrap_or_default();
             let (mu, var) = (data.law.mean[b], data.law.var[b]);
             let eps = 1.0 / (cum as f64 + 1.0);
@@ -332,11 +329,6 @@ pub fn estimate_position(
         heldout_samples: heldout,
     };
     PositionEstimate { bins, report }
-}
-
-/// Whether bin `b` lies nearer the top of the output range than its floor (the clip it touches).
-pub(crate) fn clipped_at_top(levels: &BinLevels, b: usize) -> bool {
-    levels.white - levels.hi[b] < levels.lo[b] - levels.floor
 }
 
 /// The index of the largest value (the first on ties).

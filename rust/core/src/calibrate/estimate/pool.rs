@@ -94,9 +94,6 @@ pub(super) struct Data<'a> {
     pub(super) stats: Vec<Stat>,
     pub(super) pmfs: Vec<Option<Pmf>>,
     pub(super) law: Law,
-    /// The moments of the clipped bins as measured (clamp included), smoothed over the level
-    /// like the law: what moves one clipped bin's samples onto another's.
-    pub(super) clamped: Option<Law>,
     pub(super) clipped: &'a [bool],
 }
 
@@ -111,8 +108,7 @@ impl<'a> Data<'a> {
             })
             .collect();
         let law = Law::fit(&stats, clipped, levels);
-        let clamped = Self::clamped_law(&stats, clipped, levels);
-        Self { stats, pmfs, law, clamped, clipped }
+        Self { stats, pmfs, law, clipped }
     }
 
     /// The same data with the clean image's selection undone in every unclipped bin: its mean
@@ -143,15 +139,6 @@ impl<'a> Data<'a> {
             self.law = Law::fit(&self.stats, self.clipped, levels);
         }
         self
-    }
-
-    /// The smoothed moments of the clipped bins (None without any).
-    fn clamped_law(stats: &[Stat], clipped: &[bool], levels: &BinLevels) -> Option<Law> {
-        if !clipped.iter().zip(stats).any(|(&c, s)| c && s.n >= 2) {
-            return None;
-        }
-        let unclipped: Vec<bool> = clipped.iter().map(|c| !c).collect();
-        Some(Law::fit(stats, &unclipped, levels))
     }
 
     /// Moves bin `j`'s PMF onto bin `b` by the law (identity for `j == b`).
@@ -199,60 +186,6 @@ impl<'a> Data<'a> {
             }
         }
         rings
-    }
-}
-
-/// Pools a clipped bin in own mode: itself, then its neighbours on the side away from the clip
-/// it touches (below a bin clipped at the top, above one clipped at the floor), clipped or not,
-/// each moved onto `b` by the law's change of mean and variance, until the pool holds
-/// `thresholds[k]` samples (ascending; `visit(k, pool, samples)` as in [`pool_bin`]). Those
-/// neighbours' clamped values lie beyond `b`'s own clip (their levels are further from it), where
-/// synthesis clamps them back onto the clip: a pool of them is what `b` would have shown. Keeping
-/// a sparse clipped bin's own histogram instead kept a few hundred samples' mean and variance as
-/// measured: on the demo sensor at ISO 3200, bins 4 DN apart differed by up to 45 DN in mean and
-/// ±30 % in variance (method.md, "Estimation" 6). A bin with at least `thresholds[k]` samples of
-/// its own stays its own histogram.
-pub(super) fn pool_clipped(
-    data: &Data<'_>,
-    b: usize,
-    top: bool,
-    thresholds: &[u64],
-    mut visit: impl FnMut(usize, &Acc, u64),
-) {
-    let nb = data.stats.len();
-    let mut acc = Acc::default();
-    let mut cum = 0u64;
-    let mut k = 0usize;
-    for d in 0..=MAX_RADIUS {
-        let j = if top { b.checked_sub(d) } else { (b + d < nb).then_some(b + d) };
-        let Some(j) = j else { break };
-        let Some(p) = data.pmfs[j].as_ref().filter(|_| data.stats[j].n > 0) else { continue };
-        // A clipped neighbour moves by the clipped bins' smoothed moments (the unclipped law is
-        // extrapolated there, and far from what clamped samples show), an unclipped one by the law.
-        let law = match &data.clamped {
-            Some(c) if data.clipped[j] => c,
-            _ => &data.law,
-        };
-        let moved = if j == b {
-            p.clone()
-        } else {
-            let s = data.stats[j];
-            let ratio = law.var[b] / law.var[j].max(MIN_VAR);
-            p.rescaled(s.mean + law.mean[b] - law.mean[j], (s.var * ratio).max(MIN_VAR))
-        };
-        acc.add(&moved, data.stats[j].n as f64);
-        cum += data.stats[j].n;
-        while k < thresholds.len() && cum >= thresholds[k] {
-            visit(k, &acc, cum);
-            k += 1;
-        }
-        if k == thresholds.len() {
-            return;
-        }
-    }
-    while k < thresholds.len() {
-        visit(k, &acc, cum);
-        k += 1;
     }
 }
 

@@ -1,0 +1,687 @@
+//! Motion between frames is not noise (method.md, "Motion between frames").
+//!
+//! A chart on a tripod moves by a fraction of a pixel between frames (optical stabilisation,
+//! shutter and focus shake, a swaying tripod, focus breathing). A flat pixel near a blurred edge
+//! then changes by `∇I · u` between frames, which `n = noisy − clean` would count as noise.
+//!
+//! - [`MotionProbe`]: made when a reference burst closes: the burst's mean at every pixel, a set
+//!   of edge samples to register frames on, and each flat pixel's gradient in units of the motion
+//!   error it may carry.
+//! - [`register`]: a target frame's motion against the clean image, an affine field
+//!   `u(p) = t + A·(p − c)` (shift, rotation, scale, shear) with a gain and an offset per CFA
+//!   position, by Gauss–Newton on the edge samples (bilinear on each colour's own lattice,
+//!   Huber-weighted).
+//! - [`FrameMotion::moved_row`]: which flat pixels of a row the frame's motion changes by more
+//!   than [`MOTION_TOLERANCE`] of the noise at their level; calibration leaves those samples out
+//!   of that frame (never resamples the frame: interpolation would correlate its noise).
+
+use serde::{Deserialize, Serialize};
+
+use crate::calibrate::drift::Transform;
+use crate::calibrate::flat::{FlatReport, Groups, NOT_FLAT};
+use crate::calibrate::frame::FrameView;
+use crate::math::fit::{poly_eval, solve};
+use crate::model::layout::{POSITIONS, position};
+
+/// A flat pixel is left out of a frame when the frame's motion changes its clean level by more
+/// than this many standard deviations of one frame's noise at its level (a motion error of at
+/// most a quarter SD adds at most 6 % to the variance of the pixels kept, and on average far
+/// less: most kept pixels are far from edges).
+pub const MOTION_TOLERANCE: f64 = 0.25;
+
+/// A frame that moved further than this (pixels, anywhere in the image) against its reference
+/// burst is refused: a sturdier mount, OIS off or a remote trigger is needed.
+pub const MAX_MOTION_PX: f64 = 2.0;
+
+/// Below this (pixels, anywhere in the image) a frame's motion changes nothing worth a pass.
+pub const NEGLIGIBLE_MOTION_PX: f64 = 0.005;
+
+/// Gradients are stored in units of `tolerance / GRADIENT_UNITS` per pixel: an i8 then holds
+/// up to 16 tolerances (4 SD of a reference frame's noise) per pixel, more than the flat test
+/// lets a flat pixel have, at a resolution that misjudges a 2 px motion by at most 1/8 of the
+/// tolerance.
+const GRADIENT_UNITS: f32 = 8.0;
+
+/// Most edge samples a registration reads.
+const MAX_EDGE_SAMPLES: usize = 32_768;
+
+/// Most anchor samples (flat pixels: they pin each position's gain and offset).
+const MAX_ANCHOR_SAMPLES: usize = 8_192;
+
+/// Gauss–Newton iterations at most.
+const MAX_ITERATIONS: usize = 8;
+
+/// What registration and the motion test read of a clean image.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MotionProbe {
+    /// The burst's mean, rounded, at every pixel (the clean image without its flat mask).
+    pub mean: Vec<u16>,
+    /// Pixels registration reads (row-major indices): strong edges, then flat anchors.
+    pub samples: Vec<u32>,
+    /// The first anchor in `samples` (the edges come before it).
+    pub anchors_from: usize,
+    /// Per anchor, one reference frame's noise SD at its level (DN): a target frame's anchors
+    /// measure how much noisier it is.
+    pub anchor_sd: Vec<f32>,
+    /// Per pixel, the clean level's gradient `[∂x, ∂y]` in units of the pixel's tolerance
+    /// ([`MOTION_TOLERANCE`] SD of one frame's noise at its level) per 8 px: a shift `u`
+    /// changes the pixel by more than its tolerance when `|g · u| > 8`. `[i8::MIN, 0]` where the
+    /// gradient is beyond the range (more than 16 tolerances per pixel); `[0, 0]` for pixels not
+    /// flat.
+    pub gradient: Vec<[i8; 2]>,
+    /// Per position and clean level, the tolerance (DN): [`MOTION_TOLERANCE`] SD of one
+    /// reference frame's noise there.
+    pub tolerance: [Vec<f32>; POSITIONS],
+}
+
+/// One frame of samples for registration: frame value, position, pixel coordinates.
+struct Sample {
+    x: usize,
+    y: usize,
+    pos: usize,
+    value: f64,
+    /// A reference frame's noise SD at the sample's level, for an anchor (flat pixel).
+    anchor_sd: Option<f32>,
+}
+
+/// A frame's motion against the clean image: `frame(p) ≈ gain · clean(p + u(p)) + offset` per
+/// CFA position, `u(p) = t + A·(p − c)/r` with `c` the image centre and `r` half its diagonal.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct FrameMotion {
+    /// Translation at the image centre (pixels, x and y).
+    pub t: [f64; 2],
+    /// Linear part, per unit of `(p − c)/r`: `[[a_xx, a_xy], [a_yx, a_yy]]` (pixels).
+    pub a: [[f64; 2]; 2],
+    centre: [f64; 2],
+    radius: f64,
+    /// Robust standard deviation of the registration's residuals (DN).
+    pub residual_sd: f64,
+    /// The frame's noise SD over a reference frame's at the same levels (≥ 1; from the flat
+    /// anchors' residuals): a target ISO's noise is wider, so its tolerance to motion is too.
+    pub noise_scale: f64,
+    /// Samples the registration used.
+    pub samples: usize,
+}
+
+impl FrameMotion {
+    /// No motion, for a `width × height` image.
+    pub fn still(width: usize, height: usize) -> Self {
+        let centre = [width as f64 / 2.0, height as f64 / 2.0];
+        let radius = (centre[0].hypot(centre[1])).max(1.0);
+        Self { t: [0.0; 2], a: [[0.0; 2]; 2], centre, radius, residual_sd: 0.0, noise_scale: 1.0, samples: 0 }
+    }
+
+    /// The displacement at pixel `(x, y)` (pixels).
+    #[inline]
+    pub fn at(&self, x: f64, y: f64) -> [f64; 2] {
+        let (dx, dy) = ((x - self.centre[0]) / self.radius, (y - self.centre[1]) / self.radius);
+        [self.t[0] + self.a[0][0] * dx + self.a[0][1] * dy, self.t[1] + self.a[1][0] * dx + self.a[1][1] * dy]
+    }
+
+    /// The largest displacement anywhere in the image (an affine field is largest at a corner).
+    pub fn max_shift(&self) -> f64 {
+        let (w, h) = (2.0 * self.centre[0], 2.0 * self.centre[1]);
+        [(0.0, 0.0), (w, 0.0), (0.0, h), (w, h)]
+            .iter()
+            .map(|&(x, y)| {
+                let u = self.at(x, y);
+                u[0].hypot(u[1])
+            })
+            .fold(0.0, f64::max)
+    }
+
+    /// The rotation (radians, counter-clockwise in image coordinates) of the field.
+    pub fn rotation(&self) -> f64 {
+        (self.a[1][0] - self.a[0][1]) / (2.0 * self.radius)
+    }
+
+    /// The relative scale change of the field (focus breathing).
+    pub fn scale(&self) -> f64 {
+        (self.a[0][0] + self.a[1][1]) / (2.0 * self.radius)
+    }
+
+    /// What this motion does to the flat pixels of row `y` (`row`: the clean levels of that
+    /// row): `keep[x]` is false where it changes the level by more than the pixel's tolerance
+    /// ([`MOTION_TOLERANCE`] SD of this frame's noise), and `correction[x]` is the change it
+    /// predicts (DN, rounded; 0 where the gradient is beyond the probe's range).
+    pub fn row_effects(&self, probe: &MotionProbe, y: usize, row: &[u16], keep: &mut [bool], correction: &mut [i32]) {
+        let w = row.len();
+        let u0 = self.at(0.5, y as f64 + 0.5);
+        let step = [self.a[0][0] / self.radius, self.a[1][0] / self.radius];
+        let units = GRADIENT_UNITS as f64;
+        let p0 = (y & 1) * 2;
+        for (x, &c) in row.iter().enumerate() {
+            keep[x] = true;
+            correction[x] = 0;
+            if c == NOT_FLAT {
+                continue;
+            }
+            let g = probe.gradient[y * w + x];
+            let (ux, uy) = (u0[0] + step[0] * x as f64, u0[1] + step[1] * x as f64);
+            if g[0] == i8::MIN {
+                // More than 16 tolerances per pixel: a motion of 1/16 px matters.
+                keep[x] = 16.0 * ux.hypot(uy) <= self.noise_scale;
+                continue;
+            }
+            // The change in units of the reference tolerance.
+            let e = (g[0] as f64 * ux + g[1] as f64 * uy) / units;
+            keep[x] = e.abs() <= self.noise_scale;
+            let tol = probe.tolerance[p0 + (x & 1)].get(c as usize).copied().unwrap_or(0.0) as f64;
+            correction[x] = (e * tol).round() as i32;
+        }
+    }
+}
+
+/// One frame's noise standard deviation at a level and position, as the reference burst measured
+/// it (frame-to-frame differences; for a one-frame burst, the spatial spread of the clean image),
+/// never below a quarter DN (quantisation).
+fn frame_sd(flat: &FlatReport, groups: &Groups, frames: u32, pos: usize, level: f64) -> f64 {
+    let var = if frames >= 2 {
+        flat.mean_noise_at(groups, pos, level) * frames as f64
+    } else {
+        poly_eval(&flat.clean_variance[pos], (level - groups.black[pos] as f64).max(0.0))
+    };
+    var.max(0.0625).sqrt()
+}
+
+/// The gradient of `mean` at `(x, y)` on the pixel's own colour lattice (Sobel over ±2 px,
+/// clamped at the borders), DN per pixel.
+#[inline]
+fn sobel(mean: &[u16], w: usize, h: usize, x: usize, y: usize) -> [f64; 2] {
+    let col = |dx: isize| lattice(x, dx, w);
+    let row = |dy: isize| lattice(y, dy, h);
+    let v = |yy: usize, xx: usize| mean[yy * w + xx] as f64;
+    let (xm, xp, ym, yp) = (col(-2), col(2), row(-2), row(2));
+    let dxs = if xp > xm { (xp - xm) as f64 } else { 1.0 };
+    let dys = if yp > ym { (yp - ym) as f64 } else { 1.0 };
+    let gx = (v(ym, xp) - v(ym, xm) + 2.0 * (v(y, xp) - v(y, xm)) + v(yp, xp) - v(yp, xm)) / (4.0 * dxs);
+    let gy = (v(yp, xm) - v(ym, xm) + 2.0 * (v(yp, x) - v(ym, x)) + v(yp, xp) - v(ym, xp)) / (4.0 * dys);
+    [gx, gy]
+}
+
+/// `i + d` kept on `i`'s parity inside `[0, n)`.
+#[inline]
+fn lattice(i: usize, d: isize, n: usize) -> usize {
+    let j = i as isize + d;
+    if j < 0 {
+        i & 1
+    } else if j as usize >= n {
+        let last = n - 1;
+        if last & 1 == i & 1 { last } else { last - 1 }
+    } else {
+        j as usize
+    }
+}
+
+impl MotionProbe {
+    /// The probe of a closed reference burst: `mean` is its rounded mean at every pixel,
+    /// `levels` the clean image with [`NOT_FLAT`] where not flat, `flat` what the flat test
+    /// measured, `clip` the level above which values bend.
+    pub fn new(
+        mean: Vec<u16>,
+        levels: &[u16],
+        width: usize,
+        height: usize,
+        frames: u32,
+        flat: &FlatReport,
+        groups: &Groups,
+        clip: f32,
+    ) -> Self {
+        let (w, h) = (width, height);
+        let mut gradient = vec![[0i8; 2]; w * h];
+        let mut edges: Vec<(u32, f64)> = Vec::new();
+        let mut anchors: Vec<(u32, f32)> = Vec::new();
+        // Registration reads every fourth row pair of large frames.
+        let row_step = if h > 512 { 4 } else { 1 };
+        let margin = 4;
+        for y in 0..h {
+            let sampled = (y / 2) % row_step == 0 && y >= margin && y + margin < h;
+            for x in 0..w {
+                let i = y * w + x;
+                let pos = position(y, x);
+                let c = levels[i];
+                let need_gradient = c != NOT_FLAT || sampled;
+                if !need_gradient {
+                    continue;
+                }
+                let m = mean[i] as f64;
+                let g = sobel(&mean, w, h, x, y);
+                let sd = frame_sd(flat, groups, frames, pos, m);
+                if c != NOT_FLAT {
+                    let tol = MOTION_TOLERANCE * sd;
+                    let q = [g[0] / tol * GRADIENT_UNITS as f64, g[1] / tol * GRADIENT_UNITS as f64];
+                    gradient[i] = if q[0].abs() > 127.0 || q[1].abs() > 127.0 {
+                        [i8::MIN, 0]
+                    } else {
+                        [q[0].round() as i8, q[1].round() as i8]
+                    };
+                }
+                if sampled && x >= margin && x + margin < w && (m as f32) < clip {
+                    // An edge: a gradient far above what the mean's own noise makes (a Sobel
+                    // difference of means of `frames` frames has SD ≈ 0.22 · sd / √frames).
+                    let noise = 0.22 * sd / (frames.max(1) as f64).sqrt();
+                    let mag = g[0].hypot(g[1]);
+                    if mag > (8.0 * noise).max(0.5) {
+                        edges.push((i as u32, mag));
+                    } else if c != NOT_FLAT {
+                        anchors.push((i as u32, sd as f32));
+                    }
+                }
+            }
+        }
+        let mut samples: Vec<u32> = thin(edges.into_iter().map(|e| e.0).collect(), MAX_EDGE_SAMPLES);
+        let anchors_from = samples.len();
+        let anchors = thin(anchors, MAX_ANCHOR_SAMPLES);
+        samples.extend(anchors.iter().map(|a| a.0));
+        let anchor_sd = anchors.iter().map(|a| a.1).collect();
+        let tolerance = std::array::from_fn(|pos| {
+            (0..=groups.white as usize)
+                .map(|l| (MOTION_TOLERANCE * frame_sd(flat, groups, frames, pos, l as f64)) as f32)
+                .collect()
+        });
+        Self { mean, samples, anchors_from, anchor_sd, gradient, tolerance }
+    }
+
+    /// Whether registration has edges to work with.
+    pub fn has_edges(&self) -> bool {
+        !self.samples.is_empty()
+    }
+
+    /// The mean and its gradient at `(x + ux, y + uy)` on the colour lattice of `(x, y)`
+    /// (bilinear between the four nearest same-colour pixels).
+    #[inline]
+    fn warp(&self, w: usize, h: usize, x: usize, y: usize, u: [f64; 2]) -> (f64, [f64; 2]) {
+        let along = |p: usize, d: f64, n: usize| -> (usize, f64) {
+            let parity = p & 1;
+            let cells = (n - parity - 1) / 2; // lattice points 0..=cells
+            let f = ((p as f64 + d) - parity as f64) / 2.0;
+            let i = (f.floor().max(0.0) as usize).min(cells.saturating_sub(1));
+            (parity + 2 * i, (f - i as f64).clamp(-0.5, 1.5))
+        };
+        let (x0, a) = along(x, u[0], w);
+        let (y0, b) = along(y, u[1], h);
+        let (x1, y1) = ((x0 + 2).min(w - 1), (y0 + 2).min(h - 1));
+        let v = |yy: usize, xx: usize| self.mean[yy * w + xx] as f64;
+        let (v00, v01, v10, v11) = (v(y0, x0), v(y0, x1), v(y1, x0), v(y1, x1));
+        let top = v00 + a * (v01 - v00);
+        let bottom = v10 + a * (v11 - v10);
+        let value = top + b * (bottom - top);
+        let gx = ((v01 - v00) * (1.0 - b) + (v11 - v10) * b) / 2.0;
+        let gy = (bottom - top) / 2.0;
+        (value, [gx, gy])
+    }
+}
+
+/// Every k-th of `v` so that at most `max` remain.
+fn thin<T>(v: Vec<T>, max: usize) -> Vec<T> {
+    if v.len() <= max {
+        return v;
+    }
+    let k = v.len().div_ceil(max);
+    v.into_iter().step_by(k).collect()
+}
+
+/// Parameters: 6 of the motion field, then gain and offset per position.
+const PARAMS: usize = 6 + 2 * POSITIONS;
+
+/// A motion is kept when it is this many times the difference between the two halves' fits.
+const HALVES_AGREE: f64 = 2.0;
+
+/// χ²'s 99.9 % points with 2, 4 and 6 degrees of freedom.
+const CHI2_2_999: f64 = 13.816;
+const CHI2_4_999: f64 = 18.467;
+const CHI2_6_999: f64 = 22.458;
+
+/// The inverse of a small square matrix (`None` when singular).
+fn invert(a: &[Vec<f64>]) -> Option<Vec<Vec<f64>>> {
+    let n = a.len();
+    let cols: Option<Vec<Vec<f64>>> = (0..n)
+        .map(|k| {
+            let aug: Vec<Vec<f64>> = a
+                .iter()
+                .enumerate()
+                .map(|(r, row)| {
+                    let mut v = row.clone();
+                    v.push(if r == k { 1.0 } else { 0.0 });
+                    v
+                })
+                .collect();
+            solve(aug)
+        })
+        .collect();
+    let cols = cols?;
+    Some((0..n).map(|r| (0..n).map(|c| cols[c][r]).collect()).collect())
+}
+
+/// One Gauss–Newton fit of a frame on the clean image.
+struct Fit {
+    motion: FrameMotion,
+    gain: [f64; POSITIONS],
+    offset: [f64; POSITIONS],
+    /// Robust SD of the residuals (DN).
+    scale: f64,
+    /// The normal matrix of the last iteration.
+    normal: Vec<Vec<f64>>,
+    /// Per anchor, squared residual over a reference frame's noise variance.
+    anchor_ratios: Vec<f64>,
+}
+
+/// Huber's loss of a residual at `scale` (quadratic within 3 SDs).
+#[inline]
+fn huber(r: f64, scale: f64) -> f64 {
+    let z = (r / scale).abs();
+    scale * scale * if z <= 3.0 { 0.5 * z * z } else { 3.0 * z - 4.5 }
+}
+
+/// Fits gain and offset per position and, when `free_motion`, the motion field, starting from
+/// `start` (or from no motion, gain 1, offset 0). Huber-weighted at the previous iteration's
+/// robust scale, or at `fixed_scale` when given.
+fn fit(
+    probe: &MotionProbe,
+    samples: &[Sample],
+    w: usize,
+    h: usize,
+    free_motion: bool,
+    start: Option<&Fit>,
+    fixed_scale: Option<f64>,
+) -> Option<Fit> {
+    let mut m = start.map_or_else(|| FrameMotion::still(w, h), |f| f.motion);
+    let mut gain = start.map_or([1.0; POSITIONS], |f| f.gain);
+    let mut offset = start.map_or([0.0; POSITIONS], |f| f.offset);
+    let mut scale = fixed_scale.or(start.map(|f| f.scale)).unwrap_or(f64::INFINITY);
+    let mut normal = Vec::new();
+    let mut anchor_ratios = Vec::new();
+    for _ in 0..MAX_ITERATIONS {
+        anchor_ratios.clear();
+        let mut a = vec![vec![0.0f64; PARAMS + 1]; PARAMS];
+        let mut residuals = Vec::with_capacity(samples.len());
+        for s in samples {
+            let (dx, dy) = ((s.x as f64 - m.centre[0]) / m.radius, (s.y as f64 - m.centre[1]) / m.radius);
+            let u = m.at(s.x as f64, s.y as f64);
+            let (v, g) = probe.warp(w, h, s.x, s.y, u);
+            let r = s.value - (gain[s.pos] * v + offset[s.pos]);
+            residuals.push(r.abs());
+            if let Some(sd) = s.anchor_sd {
+                anchor_ratios.push(r * r / (sd as f64 * sd as f64).max(1e-6));
+            }
+            // Huber weights at 3 robust SDs: edge samples that did something else (dust,
+            // a reflection) do not pull the fit.
+            let wgt = if r.abs() <= 3.0 * scale { 1.0 } else { 3.0 * scale / r.abs() };
+            let (gx, gy) = (gain[s.pos] * g[0], gain[s.pos] * g[1]);
+            let mut j = [0.0f64; PARAMS];
+            if free_motion {
+                j[0] = gx;
+                j[1] = gy;
+                j[2] = gx * dx;
+                j[3] = gx * dy;
+                j[4] = gy * dx;
+                j[5] = gy * dy;
+            }
+            j[6 + 2 * s.pos] = v;
+            j[7 + 2 * s.pos] = 1.0;
+            let nz: [usize; 8] = [0, 1, 2, 3, 4, 5, 6 + 2 * s.pos, 7 + 2 * s.pos];
+            for &r1 in &nz {
+                for &c1 in &nz {
+                    a[r1][c1] += wgt * j[r1] * j[c1];
+                }
+                a[r1][PARAMS] += wgt * j[r1] * r;
+            }
+        }
+        // A tiny ridge keeps fixed parameters and positions without samples (a mono crop)
+        // solvable.
+        for (k, row) in a.iter_mut().enumerate() {
+            row[k] += 1e-9 * (1.0 + row[k]);
+        }
+        normal = a.iter().map(|r| r[..PARAMS].to_vec()).collect();
+        let d = solve(a)?;
+        m.t[0] += d[0];
+        m.t[1] += d[1];
+        m.a[0][0] += d[2];
+        m.a[0][1] += d[3];
+        m.a[1][0] += d[4];
+        m.a[1][1] += d[5];
+        for p in 0..POSITIONS {
+            gain[p] += d[6 + 2 * p];
+            offset[p] += d[7 + 2 * p];
+        }
+        if fixed_scale.is_none() && !residuals.is_empty() {
+            let mid = residuals.len() / 2;
+            residuals.select_nth_unstable_by(mid, f64::total_cmp);
+            scale = (1.4826 * residuals[mid]).max(0.25);
+        }
+        if !m.t.iter().chain(m.a.iter().flatten()).chain(&gain).chain(&offset).all(|v| v.is_finite()) {
+            return None;
+        }
+        let change = d[..6]
+            .iter()
+            .chain(&d[6..].iter().step_by(2).copied().collect::<Vec<_>>())
+            .fold(0.0f64, |a, v| a.max(v.abs()));
+        if change < 1e-3 {
+            break;
+        }
+    }
+    m.residual_sd = scale;
+    m.samples = samples.len();
+    Some(Fit { motion: m, gain, offset, scale, normal, anchor_ratios })
+}
+
+/// The Huber objective of a fit at `scale`.
+fn objective(probe: &MotionProbe, samples: &[Sample], w: usize, h: usize, f: &Fit, scale: f64) -> f64 {
+    samples
+        .iter()
+        .map(|s| {
+            let u = f.motion.at(s.x as f64, s.y as f64);
+            let (v, _) = probe.warp(w, h, s.x, s.y, u);
+            huber(s.value - (f.gain[s.pos] * v + f.offset[s.pos]), scale)
+        })
+        .sum()
+}
+
+/// A frame's motion against the clean image whose probe is `probe` (`None` when the clean image
+/// has no edges to register on, or the fit is singular). `tf` maps the frame's raw values onto
+/// the session's black level; values above `clip` are not used.
+///
+/// Motion is claimed only where the frame shows it: the fit with motion must beat the fit
+/// without (gain and offset alone) by a likelihood ratio beyond χ²₆'s 99.9 % point; then the
+/// translation and the linear part (rotation, scale, shear) are each kept when their Wald
+/// statistic passes χ²'s 99.9 % point and when they are at least twice the difference between
+/// fits on the two halves of the samples (alternate row pairs). A noisy frame on a small chart
+/// otherwise "moves" by its noise: a still 96 × 72 session at 50 × its base ISO registered up to
+/// 1 px in a few frames by the Wald test alone, and a still 128 × 96 session with heavy-tailed
+/// read noise and row noise passed the likelihood ratio in most frames (its residuals are not
+/// independent: row noise), with motions of 0.2–1.7 px that left samples out for nothing.
+pub(crate) fn register(
+    probe: &MotionProbe,
+    frame: &FrameView<'_>,
+    tf: &Transform,
+    width: usize,
+    height: usize,
+    clip: f32,
+) -> Option<FrameMotion> {
+    let (w, h) = (width, height);
+    if probe.samples.len() < 64 {
+        return None;
+    }
+    let samples: Vec<Sample> = probe
+        .samples
+        .iter()
+        .enumerate()
+        .filter_map(|(k, &i)| {
+            let (y, x) = (i as usize / w, i as usize % w);
+            let pos = position(y, x);
+            let value = tf.apply(pos, frame.get(y, x)) as f64;
+            let anchor_sd = k.checked_sub(probe.anchors_from).and_then(|a| probe.anchor_sd.get(a).copied());
+            (value < clip as f64).then_some(Sample { x, y, pos, value, anchor_sd })
+        })
+        .collect();
+    let still = fit(probe, &samples, w, h, false, None, None)?;
+    let moved = fit(probe, &samples, w, h, true, Some(&still), None)?;
+    let s0 = still.scale;
+    let ratio =
+        2.0 * (objective(probe, &samples, w, h, &still, s0) - objective(probe, &samples, w, h, &moved, s0)) / (s0 * s0);
+    let significant = ratio > CHI2_6_999;
+    let mut out = if significant { moved } else { still };
+    if significant {
+        // The same motion must show in both halves of the samples (alternate row pairs: their
+        // row noise, and any other misfit of the model, is their own).
+        let (even, odd): (Vec<Sample>, Vec<Sample>) = samples.into_iter().partition(|s| (s.y / 2) % 2 == 0);
+        let half_a = fit(probe, &even, w, h, true, Some(&out), None)?;
+        let half_b = fit(probe, &odd, w, h, true, Some(&out), None)?;
+        let m = &mut out.motion;
+        let corners = [(0.0, 0.0), (w as f64, 0.0), (0.0, h as f64), (w as f64, h as f64)];
+        let linear = |f: &FrameMotion, x: f64, y: f64| {
+            let u = f.at(x, y);
+            [u[0] - f.t[0], u[1] - f.t[1]]
+        };
+        let dist = |a: [f64; 2], b: [f64; 2]| (a[0] - b[0]).hypot(a[1] - b[1]);
+        let t_gap = dist(half_a.motion.t, half_b.motion.t);
+        let a_gap = corners
+            .iter()
+            .map(|&(x, y)| dist(linear(&half_a.motion, x, y), linear(&half_b.motion, x, y)))
+            .fold(0.0, f64::max);
+        let a_size = corners.iter().map(|&(x, y)| dist(linear(m, x, y), [0.0; 2])).fold(0.0, f64::max);
+        let cov = invert(&out.normal)?;
+        let sc = out.scale;
+        let cov = |i: usize, j: usize| cov[i][j] * sc * sc;
+        let m = &mut out.motion;
+        let theta = [m.t[0], m.t[1], m.a[0][0], m.a[0][1], m.a[1][0], m.a[1][1]];
+        let wald = |idx: &[usize]| -> f64 {
+            let sub: Vec<Vec<f64>> = idx.iter().map(|&i| idx.iter().map(|&j| cov(i, j)).collect()).collect();
+            match invert(&sub) {
+                Some(inv) => idx
+                    .iter()
+                    .enumerate()
+                    .map(|(r, &i)| idx.iter().enumerate().map(|(c, &j)| theta[i] * inv[r][c] * theta[j]).sum::<f64>())
+                    .sum(),
+                None => 0.0,
+            }
+        };
+        // The halves' difference has twice the variance of one half's, four times the whole's:
+        // the whole's error is about half the gap, and a motion is kept at twice the gap.
+        if wald(&[0, 1]) < CHI2_2_999 || m.t[0].hypot(m.t[1]) < HALVES_AGREE * t_gap {
+            m.t = [0.0; 2];
+        }
+        if wald(&[2, 3, 4, 5]) < CHI2_4_999 || a_size < HALVES_AGREE * a_gap {
+            m.a = [[0.0; 2]; 2];
+        }
+    }
+    // The anchors' squared residuals over a reference frame's noise variance: their median is
+    // 0.455 of the variance ratio for Gaussian noise (χ²₁'s median), and the same ratio holds
+    // for any one shape of noise at both ISOs.
+    let mut ratios = std::mem::take(&mut out.anchor_ratios);
+    if ratios.len() >= 32 {
+        let mid = ratios.len() / 2;
+        ratios.select_nth_unstable_by(mid, f64::total_cmp);
+        out.motion.noise_scale = (ratios[mid] / 0.455).sqrt().clamp(1.0, 1e3);
+    }
+    Some(out.motion)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::layout::SensorLayout;
+
+    /// A smooth test scene: blurred vertical and horizontal edges (a grid of patches), at
+    /// `(x, y)` shifted by `u` (the scene moves by `−u`: frame(p) = scene(p + u)).
+    fn scene(x: f64, y: f64) -> f64 {
+        let edge = |t: f64, at: f64| 0.5 * (1.0 + ((t - at) / 1.2).tanh());
+        let mut v = 200.0;
+        for k in 0..6 {
+            let at = 10.0 + 20.0 * k as f64;
+            v += 150.0 * (edge(x, at) - edge(x, at + 10.0));
+            v += 120.0 * (edge(y, at + 3.0) - edge(y, at + 12.0));
+        }
+        v
+    }
+
+    fn probe_of(w: usize, h: usize) -> (MotionProbe, Groups) {
+        let mean: Vec<u16> =
+            (0..h).flat_map(|y| (0..w).map(move |x| scene(x as f64, y as f64).round() as u16)).collect();
+        let levels = mean.clone();
+        let groups = Groups { black: [0.0; POSITIONS], white: 1023 };
+        let mut flat = FlatReport::default();
+        flat.mean_noise = [[1.0 / 8.0, 0.0, 0.0]; POSITIONS];
+        flat.mean_noise_groups = vec![f32::NAN; POSITIONS * crate::calibrate::flat::GROUPS];
+        (MotionProbe::new(mean, &levels, w, h, 8, &flat, &groups, 1000.0), groups)
+    }
+
+    #[test]
+    fn registration_recovers_shifts_rotation_and_gain() {
+        let (w, h) = (160usize, 128usize);
+        let (probe, _) = probe_of(w, h);
+        let layout = SensorLayout {
+            width: w as u32,
+            height: h as u32,
+            cfa: crate::CfaPattern::Rggb,
+            black: [0.0; POSITIONS],
+            white: 1023,
+        };
+        let meta = crate::FrameMeta { iso: 100, exposure_ns: 1, black: None };
+        let tf = Transform::of(&layout, &meta, 1.0);
+        for (tx, ty, rot, gain) in
+            [(0.3, -0.2, 0.0, 1.0), (-0.55, 0.45, 0.002, 1.05), (0.0, 0.0, 0.0, 0.97), (1.1, -0.8, -0.001, 1.0)]
+        {
+            let (cx, cy) = (w as f64 / 2.0, h as f64 / 2.0);
+            let frame: Vec<u16> = (0..h)
+                .flat_map(|y| {
+                    (0..w).map(move |x| {
+                        let (dx, dy) = (x as f64 - cx, y as f64 - cy);
+                        let (ux, uy) = (tx - rot * dy, ty + rot * dx);
+                        (gain * scene(x as f64 + ux, y as f64 + uy)).round() as u16
+                    })
+                })
+                .collect();
+            let view = FrameView::from_u16(&frame, w, h, w).expect("view");
+            let m = register(&probe, &view, &tf, w, h, 1000.0).expect("registered");
+            let u = m.at(cx, cy);
+            assert!((u[0] - tx).abs() < 0.03 && (u[1] - ty).abs() < 0.03, "shift {u:?} vs ({tx}, {ty})");
+            assert!((m.rotation() - rot).abs() < 3e-4, "rotation {} vs {rot}", m.rotation());
+            let corner = m.at(0.0, 0.0);
+            let want = [tx - rot * (-cy), ty + rot * (-cx)];
+            assert!((corner[0] - want[0]).abs() < 0.05 && (corner[1] - want[1]).abs() < 0.05, "{corner:?} vs {want:?}");
+        }
+    }
+
+    #[test]
+    fn moved_pixels_are_those_whose_level_the_motion_changes() {
+        let (w, h) = (160usize, 128usize);
+        let (probe, _) = probe_of(w, h);
+        let mut m = FrameMotion::still(w, h);
+        // Row 28 is 5 px from the nearest horizontal edges; vertical edges cross it.
+        let y = 28;
+        let row: Vec<u16> = probe.mean[y * w..(y + 1) * w].to_vec();
+        let (mut keep, mut correction) = (vec![true; w], vec![0i32; w]);
+        let left_out = |keep: &[bool]| keep.iter().filter(|&&k| !k).count();
+        m.row_effects(&probe, y, &row, &mut keep, &mut correction);
+        assert_eq!(left_out(&keep), 0, "a still frame leaves nothing out");
+        assert!(correction.iter().all(|&c| c == 0), "and corrects nothing");
+        m.t = [0.5, 0.0];
+        m.row_effects(&probe, y, &row, &mut keep, &mut correction);
+        let left = left_out(&keep);
+        // Per-frame noise SD 1 DN, tolerance 0.25 DN: a pixel is left out when its x-gradient
+        // exceeds 0.5 DN/px; the Sobel gradient of the scene decides which.
+        let mut want = 0;
+        for x in 0..w {
+            let g = sobel(&probe.mean, w, h, x, y);
+            if (g[0] * 0.5).abs() > 0.25 * 1.01 {
+                want += 1;
+            }
+        }
+        assert!(left > 10, "edges cross row {y}");
+        assert!((left as i64 - want as i64).abs() <= 4, "left out {left}, gradient says {want}");
+        // A kept pixel's correction is its predicted change, within rounding and the gradient's
+        // quantisation (1/64 of the tolerance per px).
+        for x in 0..w {
+            if keep[x] {
+                let g = sobel(&probe.mean, w, h, x, y);
+                assert!(
+                    (correction[x] as f64 - g[0] * 0.5).abs() <= 0.5 + 0.01,
+                    "x {x}: {} vs {}",
+                    correction[x],
+                    g[0] * 0.5
+                );
+            }
+        }
+    }
+}
