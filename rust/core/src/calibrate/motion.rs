@@ -354,6 +354,7 @@ fn invert(a: &[Vec<f64>]) -> Option<Vec<Vec<f64>>> {
 }
 
 /// One Gauss–Newton fit of a frame on the clean image.
+#[derive(Clone)]
 struct Fit {
     motion: FrameMotion,
     gain: [f64; POSITIONS],
@@ -395,18 +396,16 @@ fn fit(
         anchor_ratios.clear();
         let mut a = vec![vec![0.0f64; PARAMS + 1]; PARAMS];
         let mut residuals = Vec::with_capacity(samples.len());
+        // Each row has an offset of its own (row noise: one offset per row and frame, several
+        // DN at a high ISO): rows are fixed effects, taken out of the residuals and of the
+        // Jacobian by demeaning within the row. A vertical motion moves a row's edges, not the
+        // row as a whole, so it stays identified where a row crosses both patches and gaps.
+        let mut rows: Vec<(usize, f64, [f64; PARAMS], f64)> = Vec::with_capacity(samples.len());
         for s in samples {
             let (dx, dy) = ((s.x as f64 - m.centre[0]) / m.radius, (s.y as f64 - m.centre[1]) / m.radius);
             let u = m.at(s.x as f64, s.y as f64);
             let (v, g) = probe.warp(w, h, s.x, s.y, u);
             let r = s.value - (gain[s.pos] * v + offset[s.pos]);
-            residuals.push(r.abs());
-            if let Some(sd) = s.anchor_sd {
-                anchor_ratios.push(r * r / (sd as f64 * sd as f64).max(1e-6));
-            }
-            // Huber weights at 3 robust SDs: edge samples that did something else (dust,
-            // a reflection) do not pull the fit.
-            let wgt = if r.abs() <= 3.0 * scale { 1.0 } else { 3.0 * scale / r.abs() };
             let (gx, gy) = (gain[s.pos] * g[0], gain[s.pos] * g[1]);
             let mut j = [0.0f64; PARAMS];
             if free_motion {
@@ -418,10 +417,28 @@ fn fit(
                 j[5] = gy * dy;
             }
             j[6 + 2 * s.pos] = v;
-            j[7 + 2 * s.pos] = 1.0;
-            let nz: [usize; 8] = [0, 1, 2, 3, 4, 5, 6 + 2 * s.pos, 7 + 2 * s.pos];
-            for &r1 in &nz {
-                for &c1 in &nz {
+            // The row effects hold each row's first position's offset: only the second
+            // position's offset (its difference) is a parameter.
+            if s.pos & 1 == 1 {
+                j[7 + 2 * s.pos] = 1.0;
+            }
+            rows.push((s.y, 1.0, j, r));
+        }
+        demean_rows(&mut rows);
+        for (k, s) in samples.iter().enumerate() {
+            let (_, _, j, r) = &rows[k];
+            residuals.push(r.abs());
+            if let Some(sd) = s.anchor_sd {
+                anchor_ratios.push(r * r / (sd as f64 * sd as f64).max(1e-6));
+            }
+            // Huber weights at 3 robust SDs: edge samples that did something else (dust,
+            // a reflection) do not pull the fit.
+            let wgt = if r.abs() <= 3.0 * scale { 1.0 } else { 3.0 * scale / r.abs() };
+            for r1 in 0..PARAMS {
+                if j[r1] == 0.0 {
+                    continue;
+                }
+                for c1 in 0..PARAMS {
                     a[r1][c1] += wgt * j[r1] * j[c1];
                 }
                 a[r1][PARAMS] += wgt * j[r1] * r;
@@ -465,16 +482,47 @@ fn fit(
     Some(Fit { motion: m, gain, offset, scale, normal, anchor_ratios })
 }
 
-/// The Huber objective of a fit at `scale`.
+/// The Huber objective of a fit at `scale`, each row's mean residual (its row offset) taken out.
 fn objective(probe: &MotionProbe, samples: &[Sample], w: usize, h: usize, f: &Fit, scale: f64) -> f64 {
-    samples
+    let mut rows: Vec<(usize, f64, [f64; PARAMS], f64)> = samples
         .iter()
         .map(|s| {
             let u = f.motion.at(s.x as f64, s.y as f64);
             let (v, _) = probe.warp(w, h, s.x, s.y, u);
-            huber(s.value - (f.gain[s.pos] * v + f.offset[s.pos]), scale)
+            (s.y, 1.0, [0.0; PARAMS], s.value - (f.gain[s.pos] * v + f.offset[s.pos]))
         })
-        .sum()
+        .collect();
+    demean_rows(&mut rows);
+    rows.iter().map(|r| huber(r.3, scale)).sum()
+}
+
+/// Takes each row's mean (weights `.1`) out of the Jacobian rows `.2` and residuals `.3` of its
+/// samples (`.0`: the row; samples of a row are contiguous, as the probe lists them).
+fn demean_rows(rows: &mut [(usize, f64, [f64; PARAMS], f64)]) {
+    let mut start = 0;
+    while start < rows.len() {
+        let y = rows[start].0;
+        let end = start + rows[start..].iter().take_while(|r| r.0 == y).count();
+        let group = &mut rows[start..end];
+        let wsum: f64 = group.iter().map(|r| r.1).sum();
+        if wsum > 0.0 {
+            let mut mj = [0.0f64; PARAMS];
+            let mut mr = 0.0;
+            for r in group.iter() {
+                for k in 0..PARAMS {
+                    mj[k] += r.1 * r.2[k];
+                }
+                mr += r.1 * r.3;
+            }
+            for r in group.iter_mut() {
+                for k in 0..PARAMS {
+                    r.2[k] -= mj[k] / wsum;
+                }
+                r.3 -= mr / wsum;
+            }
+        }
+        start = end;
+    }
 }
 
 /// A frame's motion against the clean image whose probe is `probe` (`None` when the clean image
@@ -502,7 +550,7 @@ pub(crate) fn register(
     if probe.samples.len() < 64 {
         return None;
     }
-    let samples: Vec<Sample> = probe
+    let mut samples: Vec<Sample> = probe
         .samples
         .iter()
         .enumerate()
@@ -514,19 +562,23 @@ pub(crate) fn register(
             (value < clip as f64).then_some(Sample { x, y, pos, value, anchor_sd })
         })
         .collect();
+    // Rows together: each row's offset is a fixed effect of the fits.
+    samples.sort_by_key(|s| (s.y, s.x));
     let still = fit(probe, &samples, w, h, false, None, None)?;
     let moved = fit(probe, &samples, w, h, true, Some(&still), None)?;
     let s0 = still.scale;
     let ratio =
         2.0 * (objective(probe, &samples, w, h, &still, s0) - objective(probe, &samples, w, h, &moved, s0)) / (s0 * s0);
     let significant = ratio > CHI2_6_999;
-    let mut out = if significant { moved } else { still };
+    let mut out = if significant { moved } else { still.clone() };
     if significant {
         // The same motion must show in both halves of the samples (alternate row pairs: their
-        // row noise, and any other misfit of the model, is their own).
+        // row noise, and any other misfit of the model, is their own), each found from no
+        // motion: started from the whole's, both halves stayed in its basin when that was a
+        // local optimum (a still sensor with 8 DN of row noise "moved" 2.2 px).
         let (even, odd): (Vec<Sample>, Vec<Sample>) = samples.into_iter().partition(|s| (s.y / 2) % 2 == 0);
-        let half_a = fit(probe, &even, w, h, true, Some(&out), None)?;
-        let half_b = fit(probe, &odd, w, h, true, Some(&out), None)?;
+        let half_a = fit(probe, &even, w, h, true, Some(&still), None)?;
+        let half_b = fit(probe, &odd, w, h, true, Some(&still), None)?;
         let m = &mut out.motion;
         let corners = [(0.0, 0.0), (w as f64, 0.0), (0.0, h as f64), (w as f64, h as f64)];
         let linear = |f: &FrameMotion, x: f64, y: f64| {
@@ -582,15 +634,17 @@ mod tests {
     use super::*;
     use crate::model::layout::SensorLayout;
 
-    /// A smooth test scene: blurred vertical and horizontal edges (a grid of patches), at
-    /// `(x, y)` shifted by `u` (the scene moves by `−u`: frame(p) = scene(p + u)).
+    /// A smooth test scene: a grid of blurred rectangular patches (edges in x and y, a row
+    /// crossing patches and gaps), at `(x, y)`.
     fn scene(x: f64, y: f64) -> f64 {
         let edge = |t: f64, at: f64| 0.5 * (1.0 + ((t - at) / 1.2).tanh());
+        let band = |t: f64, at: f64| edge(t, at) - edge(t, at + 10.0);
         let mut v = 200.0;
-        for k in 0..6 {
-            let at = 10.0 + 20.0 * k as f64;
-            v += 150.0 * (edge(x, at) - edge(x, at + 10.0));
-            v += 120.0 * (edge(y, at + 3.0) - edge(y, at + 12.0));
+        for i in 0..8 {
+            for j in 0..6 {
+                let level = 150.0 + 40.0 * ((i * 5 + j * 3) % 7) as f64;
+                v += level * band(x, 10.0 + 20.0 * i as f64) * band(y, 13.0 + 20.0 * j as f64);
+            }
         }
         v
     }
@@ -635,11 +689,17 @@ mod tests {
             let view = FrameView::from_u16(&frame, w, h, w).expect("view");
             let m = register(&probe, &view, &tf, w, h, 1000.0).expect("registered");
             let u = m.at(cx, cy);
-            assert!((u[0] - tx).abs() < 0.03 && (u[1] - ty).abs() < 0.03, "shift {u:?} vs ({tx}, {ty})");
+            // Bilinear interpolation on a colour's 2-px lattice pulls a shift towards the
+            // lattice: within 15 % (+ 0.01 px) of the truth.
+            let tol = |t: f64| 0.15 * t.abs() + 0.01;
+            assert!((u[0] - tx).abs() < tol(tx) && (u[1] - ty).abs() < tol(ty), "shift {u:?} vs ({tx}, {ty})");
             assert!((m.rotation() - rot).abs() < 3e-4, "rotation {} vs {rot}", m.rotation());
             let corner = m.at(0.0, 0.0);
             let want = [tx - rot * (-cy), ty + rot * (-cx)];
-            assert!((corner[0] - want[0]).abs() < 0.05 && (corner[1] - want[1]).abs() < 0.05, "{corner:?} vs {want:?}");
+            assert!(
+                (corner[0] - want[0]).abs() < tol(want[0]) + 0.04 && (corner[1] - want[1]).abs() < tol(want[1]) + 0.04,
+                "{corner:?} vs {want:?}"
+            );
         }
     }
 
@@ -648,8 +708,9 @@ mod tests {
         let (w, h) = (160usize, 128usize);
         let (probe, _) = probe_of(w, h);
         let mut m = FrameMotion::still(w, h);
-        // Row 28 is 5 px from the nearest horizontal edges; vertical edges cross it.
-        let y = 28;
+        // Row 18 is mid-way down a row of patches (5 px from its horizontal edges); the patches'
+        // vertical edges cross it.
+        let y = 18;
         let row: Vec<u16> = probe.mean[y * w..(y + 1) * w].to_vec();
         let (mut keep, mut correction) = (vec![true; w], vec![0i32; w]);
         let left_out = |keep: &[bool]| keep.iter().filter(|&&k| !k).count();

@@ -10,7 +10,52 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
-use crate::synth::sampler::{BinTable, IsoSampler};
+use crate::synth::sampler::{BinTable, IsoSampler, fixed};
+use crate::synth::structure::ImageOffsets;
+
+/// Which brightness a clean image is given at (method.md, *Synthesis*).
+///
+/// A pack's bins are indexed by the **reference** ISO's level: calibration pairs a target burst
+/// with the reference burst of the same EV step (ISO × exposure equal), and a bin's PMF is
+/// `target − clean` at that clean level. Where the gain is not proportional to the ISO, the
+/// target frames are `g` times brighter above black (`g` = [`IsoModel::gain_ratio`]), and the
+/// PMFs carry that as a mean shift `(g − 1)·(level − black)`.
+///
+/// [`IsoModel::gain_ratio`]: crate::model::pack::IsoModel::gain_ratio
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum CleanAt {
+    /// The clean image is at the reference ISO's brightness for the same ISO × exposure (a
+    /// clean image averaged from base-ISO frames, as in calibration): the noisy image comes out
+    /// at the target ISO's brightness, the gain ratio applied. The default: it is what the pack
+    /// measures, and what every earlier release did (same bytes).
+    #[default]
+    Reference,
+    /// The clean image is already at the target ISO's brightness (the expected target capture:
+    /// averaged from target-ISO frames, or rendered to the output brightness): the noise has no
+    /// gain shift, each level drawing the noise of the reference level `black + (level −
+    /// black)/g`.
+    Target,
+}
+
+impl CleanAt {
+    /// `"reference"` or `"target"`.
+    pub fn parse(s: &str) -> Result<Self, String> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "reference" | "ref" => Ok(CleanAt::Reference),
+            "target" => Ok(CleanAt::Target),
+            other => Err(format!(
+                "clean-at {other:?}: use \"reference\" (the clean image is at the reference ISO's brightness, the default) or \"target\" (it is already at the target ISO's brightness)"
+            )),
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            CleanAt::Reference => "reference",
+            CleanAt::Target => "target",
+        }
+    }
+}
 
 /// Rows per RNG stream.
 pub const BAND_ROWS: usize = 16;
@@ -77,8 +122,11 @@ fn band_filler<'a>(
     seed: u64,
     origin: (usize, usize),
 ) -> BandFiller<'a> {
+    if sampler.target_tables(0).is_some() {
+        return structured_filler::<true>(sampler, sampler.structure(), clean, seed, origin);
+    }
     if let Some(st) = sampler.structure() {
-        return structured_filler(sampler, st, clean, seed, origin);
+        return structured_filler::<false>(sampler, Some(st), clean, seed, origin);
     }
     let w = clean.dim().1;
     let (row0, col0) = (origin.0 & 1, origin.1 & 1);
@@ -127,16 +175,24 @@ fn band_filler<'a>(
 /// and per column an offset, per sensor pixel its fixed pattern ([`structure`](mod@structure)),
 /// each pixel adding their sum dithered onto the integers. The pixel draws use the band streams
 /// as without components; the dither draws follow them in the same stream.
-fn structured_filler<'a>(
+///
+/// `TARGET`: the clean image is at the target ISO's brightness ([`CleanAt::Target`]): each
+/// level draws from the bin of its reference level and adds the level's offset that takes the
+/// gain shift out, dithered with the structured offsets (`st` may then be `None`: no
+/// structured components, only that offset).
+fn structured_filler<'a, const TARGET: bool>(
     sampler: &'a IsoSampler,
-    st: &structure::StructureSampler,
+    st: Option<&structure::StructureSampler>,
     clean: ArrayView2<'a, u16>,
     seed: u64,
     origin: (usize, usize),
 ) -> BandFiller<'a> {
     let (h, w) = clean.dim();
     let (row0, col0) = (origin.0 & 1, origin.1 & 1);
-    let offsets = st.draw(seed, h, w, origin);
+    let offsets = match st {
+        Some(st) => st.draw(seed, h, w, origin),
+        None => ImageOffsets { frame: [0.0; crate::POSITIONS], rows: vec![0.0; h], columns: vec![0.0; w] },
+    };
     // Per row parity, per column: the column's offset plus its position's frame offset, in
     // 2⁻³² DN (fixed point: a pixel's integer offset is then one add and one shift).
     let columns: [Vec<i64>; 2] = std::array::from_fn(|r| {
@@ -144,7 +200,7 @@ fn structured_filler<'a>(
         offsets.columns.iter().enumerate().map(|(x, c)| fixed(c + offsets.frame[parity | ((x + col0) & 1)])).collect()
     });
     // The fixed pattern varies from pixel to pixel: each row's offsets are then built anew.
-    let pattern = st.has_pattern().then(|| st.clone());
+    let pattern = st.filter(|st| st.has_pattern()).cloned();
     {
         Box::new(move |band: usize, chunk: &mut [u16]| {
             let mut rng = band_rng(seed, band);
@@ -156,6 +212,16 @@ fn structured_filler<'a>(
                 let (even, odd) = (parity | col0, parity | (col0 ^ 1));
                 let (lut0, tab0) = sampler.position_tables(even);
                 let (lut1, tab1) = sampler.position_tables(odd);
+                // At the target brightness: the bins of the reference levels, and the offsets
+                // that take the gain shift out (none otherwise).
+                let ((lut0, sh0), (lut1, sh1)) = if TARGET {
+                    (
+                        sampler.target_tables(even).expect("a target sampler"),
+                        sampler.target_tables(odd).expect("a target sampler"),
+                    )
+                } else {
+                    ((lut0, &[][..]), (lut1, &[][..]))
+                };
                 let finish = sampler.needs_finish(even) || sampler.needs_finish(odd);
                 let white = sampler.white as i32;
                 let ry = fixed(offsets.rows[y]);
@@ -170,8 +236,9 @@ fn structured_filler<'a>(
                 };
                 // `⌊o⌋ + [v < o − ⌊o⌋]` for the offset `o` and a uniform 32-bit `v`, as
                 // `⌊(o·2³² + v) / 2³²⌋`.
-                let draw = |lut: &[u16], tab: &[BinTable], c: u16, u: u32, v: u32, k: i64| -> i32 {
+                let draw = |lut: &[u16], sh: &[i64], tab: &[BinTable], c: u16, u: u32, v: u32, k: i64| -> i32 {
                     let l = (c as usize).min(lut.len() - 1);
+                    let k = if TARGET { k + sh[l] } else { k };
                     c as i32 + tab[lut[l] as usize].sample_u32(u) + ((k + ry + v as i64) >> 32) as i32
                 };
                 // Dither draws from a xorshift64* stream seeded by the band's stream per row (a
@@ -187,8 +254,8 @@ fn structured_filler<'a>(
                 if finish {
                     for (i, ((o, c), k)) in pairs.enumerate() {
                         let (u, v) = (rng.next_u64(), dither());
-                        let a = draw(lut0, tab0, c[0], u as u32, v as u32, k[0]);
-                        let b = draw(lut1, tab1, c[1], (u >> 32) as u32, (v >> 32) as u32, k[1]);
+                        let a = draw(lut0, sh0, tab0, c[0], u as u32, v as u32, k[0]);
+                        let b = draw(lut1, sh1, tab1, c[1], (u >> 32) as u32, (v >> 32) as u32, k[1]);
                         let alt = (i + (y >> 1)) & 1 == 1;
                         o[0] = sampler.finish(even, a, alt);
                         o[1] = sampler.finish(odd, b, alt);
@@ -196,8 +263,8 @@ fn structured_filler<'a>(
                 } else {
                     for ((o, c), k) in pairs {
                         let (u, v) = (rng.next_u64(), dither());
-                        let a = draw(lut0, tab0, c[0], u as u32, v as u32, k[0]);
-                        let b = draw(lut1, tab1, c[1], (u >> 32) as u32, (v >> 32) as u32, k[1]);
+                        let a = draw(lut0, sh0, tab0, c[0], u as u32, v as u32, k[0]);
+                        let b = draw(lut1, sh1, tab1, c[1], (u >> 32) as u32, (v >> 32) as u32, k[1]);
                         o[0] = a.clamp(0, white) as u16;
                         o[1] = b.clamp(0, white) as u16;
                     }
@@ -205,17 +272,12 @@ fn structured_filler<'a>(
                 if w % 2 == 1 {
                     let (u, v) = (rng.next_u64(), dither());
                     let alt = ((w >> 1) + (y >> 1)) & 1 == 1;
-                    let a = draw(lut0, tab0, src[w - 1], u as u32, v as u32, cols[w - 1]);
+                    let a = draw(lut0, sh0, tab0, src[w - 1], u as u32, v as u32, cols[w - 1]);
                     row[w - 1] = sampler.finish(even, a, alt);
                 }
             }
         })
     }
-}
-
-/// An offset in DN as a fixed-point number of 2⁻³² DN.
-fn fixed(o: f64) -> i64 {
-    (o * 4294967296.0).round() as i64
 }
 
 /// Row `y` of the clean image as a slice (borrowed when the view is contiguous).

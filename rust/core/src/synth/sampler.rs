@@ -7,6 +7,7 @@ use crate::model::codes::Snap;
 use crate::model::layout::{Binning, POSITIONS};
 use crate::model::pack::{BinModel, IsoModel, ModelPack};
 use crate::model::structure::Components;
+use crate::synth::CleanAt;
 use crate::synth::structure::StructureSampler;
 
 const ONE: u64 = 1 << 32;
@@ -125,6 +126,22 @@ pub struct IsoSampler {
     /// The row, column and frame offsets added on top (when the pack has significant ones and
     /// they were asked for); the tables then hold the PMFs with them taken out.
     structure: Option<StructureSampler>,
+    /// For clean images at the target ISO's brightness ([`CleanAt::Target`]): per position and
+    /// clean level, the bin of its reference level and the offset that takes the PMF's gain
+    /// shift back out. `None`: the clean image is at the reference brightness, as the pack's
+    /// bins are.
+    target: Option<Box<TargetMap>>,
+}
+
+/// What a sampler for clean images at the target ISO's brightness adds to the bin lookup.
+#[derive(Debug, Clone)]
+struct TargetMap {
+    /// Per position, clean level → bin of the reference level `black + (level − black)/g`.
+    luts: [Vec<u16>; POSITIONS],
+    /// Per position, clean level → offset in 2⁻³² DN added to the draw (dithered onto the
+    /// integers with the structured components' offsets).
+    shifts: [Vec<i64>; POSITIONS],
+    gains: [f64; POSITIONS],
 }
 
 impl IsoSampler {
@@ -154,7 +171,73 @@ impl IsoSampler {
             let c = c.min(white);
             [f.min(c) as i32, c as i32]
         });
-        Self { iso: model.iso, white, binning, luts, tables, snaps, range, structure }
+        Self { iso: model.iso, white, binning, luts, tables, snaps, range, structure, target: None }
+    }
+
+    /// The same sampler for clean images at the brightness `clean_at` says
+    /// ([`CleanAt`]; method.md, *Synthesis*). [`CleanAt::Reference`] returns it unchanged (the
+    /// pack's own convention, byte for byte). [`CleanAt::Target`]: a clean level `c` at position
+    /// `p` stands for the reference level `x = black + (c − black)/g[p]` (clamped to
+    /// `[0, white]`); the noise is drawn from the bin of `round(x)` and, when the tables carry
+    /// the gain shift `(g − 1)·(x − black)` in their means (`pmfs_carry_gain`: the calibrated
+    /// and interpolated models; the parametric baselines are zero-mean), that shift is taken
+    /// back out, dithered onto the integers: `noisy = c + n − (g − 1)·(x − black)`, which is
+    /// `x + n` inside the range. `black` is the pack's, `gains` the ISO's gain ratios
+    /// ([`IsoModel::gain_ratio`]; an interpolated ISO's are interpolated in log ISO).
+    pub fn clean_at(
+        mut self,
+        clean_at: CleanAt,
+        black: [f32; POSITIONS],
+        gains: [f64; POSITIONS],
+        pmfs_carry_gain: bool,
+    ) -> Result<Self, String> {
+        if clean_at == CleanAt::Reference {
+            self.target = None;
+            return Ok(self);
+        }
+        if let Some((p, g)) = gains.iter().enumerate().find(|(_, g)| !(g.is_finite() && **g > 0.0)) {
+            return Err(format!(
+                "clean-at target: the gain ratio of ISO {} at CFA position {p} is {g}, not a positive number: \
+                 recalibrate, or give the clean image at the reference brightness (clean-at reference)",
+                self.iso
+            ));
+        }
+        let luts = std::array::from_fn(|p| {
+            let lut = &self.luts[p];
+            let top = (lut.len() - 1) as f64;
+            let b = black[p] as f64;
+            (0..lut.len()).map(|c| lut[(b + (c as f64 - b) / gains[p]).clamp(0.0, top).round() as usize]).collect()
+        });
+        let shifts = std::array::from_fn(|p| {
+            let n = self.luts[p].len();
+            let top = (n - 1) as f64;
+            let (b, g) = (black[p] as f64, gains[p]);
+            (0..n)
+                .map(|c| {
+                    let x = (b + (c as f64 - b) / g).clamp(0.0, top);
+                    if pmfs_carry_gain { fixed(-(g - 1.0) * (x - b)) } else { 0 }
+                })
+                .collect()
+        });
+        self.target = Some(Box::new(TargetMap { luts, shifts, gains }));
+        Ok(self)
+    }
+
+    /// Which brightness this sampler takes clean images at.
+    pub fn clean_at_mode(&self) -> CleanAt {
+        if self.target.is_some() { CleanAt::Target } else { CleanAt::Reference }
+    }
+
+    /// The gain ratios a [`CleanAt::Target`] sampler divides clean levels by.
+    pub fn target_gains(&self) -> Option<[f64; POSITIONS]> {
+        self.target.as_ref().map(|t| t.gains)
+    }
+
+    /// Level → bin map and per-level offset (2⁻³² DN) of a position for clean images at the
+    /// target brightness (`None` for a [`CleanAt::Reference`] sampler).
+    #[inline]
+    pub fn target_tables(&self, pos: usize) -> Option<(&[u16], &[i64])> {
+        self.target.as_ref().map(|t| (t.luts[pos].as_slice(), t.shifts[pos].as_slice()))
     }
 
     /// The structured components this sampler adds, if any.
@@ -227,6 +310,11 @@ impl IsoSampler {
         let n = self.table(pos, level).sample_u32(u);
         self.finish(pos, level as i32 + n, alternate)
     }
+}
+
+/// An offset in DN as a fixed-point number of 2⁻³² DN.
+pub(crate) fn fixed(o: f64) -> i64 {
+    (o * 4294967296.0).round() as i64
 }
 
 #[cfg(test)]

@@ -80,6 +80,24 @@ pub fn model_for(pack: &ModelPack, iso: u32, extrapolate: bool) -> Result<(Cow<'
     Ok((Cow::Owned(interpolate(pack, iso, extrapolate)?), true))
 }
 
+/// The gain ratios (target/reference brightness per CFA position, [`IsoModel::gain_ratio`]) of
+/// `iso`: the pack's model's when it has one, else those [`interpolate`] would give (linear in
+/// log ISO between the bracketing calibrated ISOs), without building the rest of the model.
+pub fn gain_ratio_at(pack: &ModelPack, iso: u32, extrapolate: bool) -> Result<[f64; POSITIONS], ModelError> {
+    if let Some(m) = pack.iso(iso) {
+        return Ok(m.gain_ratio);
+    }
+    let plan = plan(pack, iso, extrapolate)?;
+    let nb: Vec<&IsoModel> = plan.neighbours.iter().filter_map(|&k| pack.iso(k)).collect();
+    Ok(planned_gain_ratio(&nb, iso as f64))
+}
+
+/// Gain ratios at ISO `j` from the neighbours: linear in log ISO (brightness against ISO is a
+/// power law where the gain is not ∝ ISO, so `g` is close to linear in `log ISO`).
+fn planned_gain_ratio(nb: &[&IsoModel], j: f64) -> [f64; POSITIONS] {
+    std::array::from_fn(|pos| log_lerp(nb, j, &|m: &IsoModel| m.gain_ratio[pos]))
+}
+
 /// Builds the model a plan describes. Panics only if the plan does not come from this pack.
 pub fn interpolate_planned(pack: &ModelPack, plan: &InterpPlan) -> IsoModel {
     let binning = pack.binning();
@@ -134,7 +152,7 @@ pub fn interpolate_planned(pack: &ModelPack, plan: &InterpPlan) -> IsoModel {
         })
         .collect();
     let lerp = |f: &dyn Fn(&IsoModel) -> f64| -> f64 { log_lerp(&nb, j, f) };
-    let gain_ratio = std::array::from_fn(|pos| lerp(&|m: &IsoModel| m.gain_ratio[pos]));
+    let gain_ratio = planned_gain_ratio(&nb, j);
     let noise_profile = if nb.iter().all(|m| m.noise_profile.is_some()) {
         Some(NoiseProfile(std::array::from_fn(|pos| {
             std::array::from_fn(|c| {
