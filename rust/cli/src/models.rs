@@ -6,6 +6,9 @@ use anyhow::bail;
 use noisecal_core::derive::baselines::{self, BaselineKind};
 use noisecal_core::derive::interp;
 use noisecal_core::model::pack::{IsoModel, ModelOrigin};
+use noisecal_core::model::structure::Components;
+use noisecal_core::synth::CleanAt;
+use noisecal_core::synth::sampler::{IsoSampler, carried_gain_ratio};
 use noisecal_core::{BlackAlignment, ModelPack, SensorLayout};
 
 /// Which noise model to synthesize with.
@@ -61,6 +64,31 @@ pub fn resolve_model(
             Ok((m, Some(format!("synthesizing with the {} baseline ({}) at ISO {iso}", b.name(), b.label()))))
         }
     }
+}
+
+/// The sampler of a resolved model ([`resolve_model`]) with the components `which`, for clean
+/// images at the brightness `clean_at` says. At the target brightness the levels are divided by
+/// the ISO's gain ratios (the model's own, or the pack's at that ISO for a baseline:
+/// [`interp::gain_ratio_at`]) to pick their bins; the shift the non-parametric model's PMFs
+/// carry ([`carried_gain_ratio`]) is taken back out (the baselines are zero-mean: nothing to
+/// take out).
+pub fn sampler_for(
+    pack: &ModelPack,
+    model: &IsoModel,
+    kind: ModelKind,
+    which: Components,
+    clean_at: CleanAt,
+    extrapolate: bool,
+) -> anyhow::Result<IsoSampler> {
+    let sampler = IsoSampler::with_components(pack, model, which);
+    if clean_at == CleanAt::Reference {
+        return Ok(sampler);
+    }
+    let (gains, carried) = match kind {
+        ModelKind::Noisecal => (model.gain_ratio, Some(carried_gain_ratio(pack, model))),
+        _ => (interp::gain_ratio_at(pack, model.iso, extrapolate)?, None),
+    };
+    sampler.clean_at(clean_at, pack.layout.black, gains, carried).map_err(anyhow::Error::msg)
 }
 
 /// Where an ISO model comes from, as reports and tables say it.

@@ -9,10 +9,10 @@ use noisecal_core::SensorLayout;
 use noisecal_core::model::pack::{IsoModel, NoiseProfile};
 use noisecal_core::model::structure::Components;
 use noisecal_core::synth::sampler::IsoSampler;
-use noisecal_core::synth::{synthesize, synthesize_bands};
+use noisecal_core::synth::{CleanAt, synthesize, synthesize_bands};
 
 use crate::dng;
-use crate::models::{ModelKind, align_input, check_layout_matches, resolve_model};
+use crate::models::{ModelKind, align_input, check_layout_matches, resolve_model, sampler_for};
 use crate::support::MAX_PACK_BYTES;
 
 #[derive(clap::Args, Debug)]
@@ -40,6 +40,14 @@ pub struct Args {
     /// carry it already.
     #[arg(long, value_parser = parse_components)]
     pub components: Option<Components>,
+    /// The brightness the clean image is at. `reference` (default): the reference ISO's
+    /// brightness for the same ISO × exposure, as the pack measured it (a clean image averaged
+    /// from base-ISO frames); the output gets the target ISO's brightness, its gain ratio
+    /// applied (`noisecal inspect` lists them). `target`: the clean image is already at the
+    /// target ISO's brightness (averaged from frames at that ISO, or rendered to the output
+    /// brightness); the noise then has no mean shift.
+    #[arg(long, value_parser = parse_clean_at, default_value = "reference")]
+    pub clean_at: CleanAt,
     /// A clean raw DNG, or a folder of them.
     pub input: PathBuf,
     /// Output DNG, or a folder when the input is a folder.
@@ -61,6 +69,10 @@ fn parse_components(s: &str) -> Result<Components, String> {
     Components::parse(s)
 }
 
+fn parse_clean_at(s: &str) -> Result<CleanAt, String> {
+    CleanAt::parse(s).map_err(|e| format!("{e} (--clean-at reference|target)"))
+}
+
 pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
     crate::support::refuse_overwriting_inputs(&args.output, &[&args.input, &args.pack])?;
     let folder = args.input.is_dir();
@@ -78,7 +90,17 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
             ModelKind::Noisecal => args.components.unwrap_or(Components::ALL),
             _ => Components::PIXEL,
         };
-        let sampler = IsoSampler::with_components(&pack, &model, which);
+        let sampler = sampler_for(&pack, &model, args.model, which, args.clean_at, args.extrapolate)?;
+        if args.clean_at == CleanAt::Target
+            && !quiet
+            && let Some(g) = sampler.target_gains()
+            && g.iter().any(|g| (g - 1.0).abs() > 0.02)
+        {
+            eprintln!(
+                "clean image at ISO {}'s brightness (--clean-at target): levels above black divided by the gain ratios {:.3?} to pick their noise",
+                args.iso, g
+            );
+        }
         let jobs: Vec<(PathBuf, PathBuf)> = if folder {
             let files = dng::scan_folder(&args.input)?;
             if files.is_empty() {

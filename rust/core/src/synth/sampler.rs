@@ -179,23 +179,27 @@ impl IsoSampler {
     /// pack's own convention, byte for byte). [`CleanAt::Target`]: a clean level `c` at position
     /// `p` stands for the reference level `x = black + (c − black)/g[p]` (clamped to
     /// `[0, white]`); the noise is drawn from the bin of `round(x)` and, when the tables carry
-    /// the gain shift `(g − 1)·(x − black)` in their means (`pmfs_carry_gain`: the calibrated
-    /// and interpolated models; the parametric baselines are zero-mean), that shift is taken
-    /// back out, dithered onto the integers: `noisy = c + n − (g − 1)·(x − black)`, which is
+    /// the gain shift `(g − 1)·(x − black)` in their means (the calibrated and interpolated
+    /// models; the parametric baselines are zero-mean), that shift is taken back out, dithered
+    /// onto the integers: `noisy = c + n − (g − 1)·(x − black)`, which is
     /// `x + n` inside the range. `black` is the pack's, `gains` the ISO's gain ratios
-    /// ([`IsoModel::gain_ratio`]; an interpolated ISO's are interpolated in log ISO).
+    /// ([`IsoModel::gain_ratio`]; an interpolated ISO's are interpolated in log ISO) that pick
+    /// the bin; `carried` the gain ratios the tables' means carry ([`carried_gain_ratio`]), whose
+    /// shift `(carried − 1)·(x − black)` is taken out, or `None` for zero-mean tables.
     pub fn clean_at(
         mut self,
         clean_at: CleanAt,
         black: [f32; POSITIONS],
         gains: [f64; POSITIONS],
-        pmfs_carry_gain: bool,
+        carried: Option<[f64; POSITIONS]>,
     ) -> Result<Self, String> {
         if clean_at == CleanAt::Reference {
             self.target = None;
             return Ok(self);
         }
-        if let Some((p, g)) = gains.iter().enumerate().find(|(_, g)| !(g.is_finite() && **g > 0.0)) {
+        let all = gains.iter().chain(carried.iter().flatten());
+        if let Some((p, g)) = all.enumerate().find(|(_, g)| !(g.is_finite() && **g > 0.0)) {
+            let p = p % POSITIONS;
             return Err(format!(
                 "clean-at target: the gain ratio of ISO {} at CFA position {p} is {g}, not a positive number: \
                  recalibrate, or give the clean image at the reference brightness (clean-at reference)",
@@ -215,7 +219,7 @@ impl IsoSampler {
             (0..n)
                 .map(|c| {
                     let x = (b + (c as f64 - b) / g).clamp(0.0, top);
-                    if pmfs_carry_gain { fixed(-(g - 1.0) * (x - b)) } else { 0 }
+                    carried.map_or(0, |k| fixed(-(k[p] - 1.0) * (x - b)))
                 })
                 .collect()
         });
@@ -310,6 +314,42 @@ impl IsoSampler {
         let n = self.table(pos, level).sample_u32(u);
         self.finish(pos, level as i32 + n, alternate)
     }
+}
+
+/// The gain ratio per position that a model's PMF means carry, `mean ≈ (g − 1)·(level −
+/// black)`: a calibrated model's measured [`IsoModel::gain_ratio`]; for a derived model, the
+/// weighted (samples/σ²) regression through black of its bins' means on their levels, over the
+/// filled bins whose noise stays clear (4 σ) of the output range. An interpolated ISO's means
+/// are fitted per bin by a line in ISO ([`crate::derive::interp`]) while its gain ratio is
+/// interpolated in log ISO; where the gain is not ∝ ISO the two differ (0.825 against 0.786 at
+/// ISO 566 on the sensor of `tests/synth_clean_at.rs`), and it is this one that a clean image
+/// at the target brightness must have taken out.
+pub fn carried_gain_ratio(pack: &ModelPack, model: &IsoModel) -> [f64; POSITIONS] {
+    if model.is_calibrated() {
+        return model.gain_ratio;
+    }
+    let binning = pack.binning();
+    std::array::from_fn(|p| {
+        let black = pack.layout.black[p] as f64;
+        let [lo, hi] = model.range[p].map(|v| v as f64);
+        let (mut num, mut den) = (0.0, 0.0);
+        for (b, bin) in model.positions[p].bins.iter().enumerate() {
+            let l = binning.center(p, b) as f64 - black;
+            if !bin.filled() || l <= 0.0 {
+                continue;
+            }
+            let (m, v) = bin.moments();
+            let sd = v.max(0.0).sqrt();
+            let out = black + l + m;
+            if !(m.is_finite() && v.is_finite()) || out - 4.0 * sd <= lo || out + 4.0 * sd >= hi {
+                continue;
+            }
+            let w = bin.samples.max(1) as f64 / v.max(1e-3);
+            num += w * m * l;
+            den += w * l * l;
+        }
+        if den > 0.0 { 1.0 + num / den } else { model.gain_ratio[p] }
+    })
 }
 
 /// An offset in DN as a fixed-point number of 2⁻³² DN.
