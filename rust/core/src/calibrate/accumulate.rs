@@ -202,9 +202,9 @@ type FoldedRows = (u64, Vec<(u8, u16)>, Vec<[LineSums; CELLS]>, Vec<[LineSums; 2
 /// Folds the rows of one parity into that parity's two positions' histograms and code counts.
 /// With `motion` (a frame that moved), the flat pixels whose level the motion changes by more
 /// than their tolerance are left out of the histograms, and the line sums take the motion's
-/// predicted change out of every pixel's `n`; the line sums never hold pixels whose gradient is
-/// beyond the probe's range (`probe`), moving or not, so that every frame of a burst sums the
-/// same pixels into each line. Returns the samples, the (position, clean level) of each sample
+/// predicted change out of every pixel's `n` (`probe`: the clean image's gradients); the line
+/// sums keep every flat pixel, so that every frame of a burst sums the same pixels into each
+/// line. Returns the samples, the (position, clean level) of each sample
 /// left out, and the sums of `n` and of the clean level per row (by cell) and per column (by
 /// half).
 #[allow(clippy::too_many_arguments)]
@@ -235,6 +235,11 @@ fn fold_rows(
     let mut buf = vec![0u16; w];
     let identity = tf.identity();
     let top = white as usize;
+    let (h0, h1) = hists.split_at_mut(1);
+    let (hist0, hist1) = (&mut h0[0], &mut h1[0]);
+    let (c0, c1) = codes.split_at_mut(1);
+    let (codes0, codes1) = (&mut c0[0][..], &mut c1[0][..]);
+    let (lut0, lut1) = (&luts[parity * 2], &luts[parity * 2 + 1]);
     for y in (parity..h).step_by(2) {
         let row: &[u16] = match frame.row(y) {
             std::borrow::Cow::Borrowed(r) => r,
@@ -244,30 +249,70 @@ fn fold_rows(
             }
         };
         let crow = &clean[y * w..y * w + w];
-        let grow = &probe.gradient[y * w..y * w + w];
-        if let Some(m) = motion {
-            m.row_effects(probe, y, crow, &mut keep, &mut correction);
-        }
         let mut rs: [LineSums; CELLS] = [[0; 3]; CELLS];
         let half = (y >> 1) & 1;
-        for (x, (&v, &c)) in row.iter().zip(crow).enumerate() {
-            if c == NOT_FLAT {
-                continue;
+        if let Some(m) = motion {
+            // A frame that moved: the pixels its motion changes are left out of the
+            // histograms, and its predicted change comes out of the line sums.
+            m.row_effects(probe, y, crow, &mut keep, &mut correction);
+            for (x, (&v, &c)) in row.iter().zip(crow).enumerate() {
+                if c == NOT_FLAT {
+                    continue;
+                }
+                let pos = parity * 2 + (x & 1);
+                let t = if identity { v as i32 } else { tf.apply(pos, v).round().clamp(0.0, white as f32) as i32 };
+                let n = t - c as i32;
+                if c <= line_top {
+                    line_add(&mut rs[x & 3], &mut cols[x][half], n - correction[x], c);
+                }
+                let (hist, lut, codes) =
+                    if x & 1 == 0 { (&mut *hist0, lut0, &mut *codes0) } else { (&mut *hist1, lut1, &mut *codes1) };
+                codes[(v as usize).min(top)] += 1;
+                if !keep[x] {
+                    left_out.push((pos as u8, c));
+                    continue;
+                }
+                hist[lut[c as usize] as usize].add(n);
+                samples += 1;
             }
-            let pos = parity * 2 + (x & 1);
-            let t = if identity { v as i32 } else { tf.apply(pos, v).round().clamp(0.0, white as f32) as i32 };
-            let n = t - c as i32;
-            codes[x & 1][(v as usize).min(top)] += 1;
-            if c <= line_top && (grow[x][0] != i8::MIN) {
-                let nl = if motion.is_some() { n - correction[x] } else { n };
-                line_add(&mut rs[x & 3], &mut cols[x][half], nl, c);
+        } else if identity {
+            for (x, (&v, &c)) in row.iter().zip(crow).enumerate() {
+                if c == NOT_FLAT {
+                    continue;
+                }
+                let n = v as i32 - c as i32;
+                if c <= line_top {
+                    line_add(&mut rs[x & 3], &mut cols[x][half], n, c);
+                }
+                if x & 1 == 0 {
+                    hist0[lut0[c as usize] as usize].add(n);
+                    codes0[(v as usize).min(top)] += 1;
+                } else {
+                    hist1[lut1[c as usize] as usize].add(n);
+                    codes1[(v as usize).min(top)] += 1;
+                }
+                samples += 1;
             }
-            if motion.is_some() && !keep[x] {
-                left_out.push((pos as u8, c));
-                continue;
+        } else {
+            for (x, (&v, &c)) in row.iter().zip(crow).enumerate() {
+                if c == NOT_FLAT {
+                    continue;
+                }
+                let pos = parity * 2 + (x & 1);
+                let t = tf.apply(pos, v).round().clamp(0.0, white as f32) as i32;
+                let n = t - c as i32;
+                if c <= line_top {
+                    line_add(&mut rs[x & 3], &mut cols[x][half], n, c);
+                }
+                if x & 1 == 0 {
+                    hist0[lut0[c as usize] as usize].add(n);
+                    codes0[(v as usize).min(top)] += 1;
+                } else {
+                    hist1[lut1[c as usize] as usize].add(n);
+                    codes1[(v as usize).min(top)] += 1;
+                }
+                samples += 1;
             }
-            hists[x & 1][luts[pos][c as usize] as usize].add(n);
-            samples += 1;
         }
         row_sums.push(rs);
     }

@@ -461,7 +461,12 @@ impl CalibrationSession {
             return Err(SessionError::NoStep);
         };
         let step = *index;
-        let sums = brightness_sums(frame, &tp.image.levels, &ident, clip, w, h);
+        // Registered on the clean image while its brightness is measured: the registration fits
+        // each position's gain, so a drift normalisation does not change the motion it finds.
+        let (sums, motion) = rayon::join(
+            || brightness_sums(frame, &tp.image.levels, &ident, clip, w, h),
+            || register(&tp.image.probe, frame, &ident, w, h, clip),
+        );
         let verdict = match sums.brightness() {
             Some(fb) => {
                 let tracker = tp.drift.entry(meta.iso).or_default();
@@ -482,9 +487,8 @@ impl CalibrationSession {
         };
         let scale = if verdict.drifted && policy.normalise { verdict.scale } else { 1.0 };
         let tf = Transform { scale: scale as f32, ..ident };
-        // Registered on the clean image: a frame that moved too far is refused, and the flat
-        // pixels its motion changes are left out of it (method.md, "Motion between frames").
-        let motion = register(&tp.image.probe, frame, &tf, w, h, clip);
+        // A frame that moved too far is refused, and the flat pixels its motion changes are left
+        // out of it (method.md, "Motion between frames").
         if let Some(m) = &motion
             && m.max_shift() > MAX_MOTION_PX
         {
