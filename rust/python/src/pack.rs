@@ -10,19 +10,19 @@ use numpy::{PyArray1, PyArray2, PyArray3, PyArrayDyn, PyReadonlyArrayDyn};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
 
-use noisecal_cli::models::{ModelKind, resolve_model};
+use noisecal_cli::models::{ModelKind, resolve_model, sampler_for};
 use noisecal_core::derive::interp::{self, InterpOptions};
 use noisecal_core::model::layout::{BlackAlignment, position};
 use noisecal_core::model::structure::Components;
 use noisecal_core::renoise::{Method, Renoiser};
 use noisecal_core::synth::sampler::IsoSampler;
-use noisecal_core::synth::synthesize_at;
+use noisecal_core::synth::{CleanAt, synthesize_at};
 use noisecal_core::{ModelPack, POSITIONS};
 
 use crate::errors::{err, guarded, to_py};
 
-/// A sampler cache key: ISO, model, extrapolate, components.
-type SamplerKey = (u32, ModelKind, bool, Components);
+/// A sampler cache key: ISO, model, extrapolate, components, brightness of the clean image.
+type SamplerKey = (u32, ModelKind, bool, Components, CleanAt);
 
 /// A calibrated noise model of one camera (a `.pack` file).
 #[derive(Debug)]
@@ -42,14 +42,21 @@ impl Pack {
 
     /// The sampler of `iso` for a model kind and noise components, built once per pack. The
     /// parametric baselines are pixel-independent models: they get no structured components.
-    fn sampler(&self, iso: u32, kind: ModelKind, extrapolate: bool, which: Components) -> PyResult<Arc<IsoSampler>> {
+    fn sampler(
+        &self,
+        iso: u32,
+        kind: ModelKind,
+        extrapolate: bool,
+        which: Components,
+        clean_at: CleanAt,
+    ) -> PyResult<Arc<IsoSampler>> {
         let which = if kind == ModelKind::Noisecal { which } else { Components::PIXEL };
-        let key = (iso, kind, extrapolate, which);
+        let key = (iso, kind, extrapolate, which, clean_at);
         if let Some(s) = self.samplers.lock().map_err(|_| err("a sampler cache was poisoned"))?.get(&key) {
             return Ok(s.clone());
         }
         let (m, _) = resolve_model(&self.inner, iso, kind, extrapolate).map_err(to_py)?;
-        let s = Arc::new(IsoSampler::with_components(&self.inner, &m, which));
+        let s = Arc::new(sampler_for(&self.inner, &m, kind, which, clean_at, extrapolate).map_err(to_py)?);
         self.samplers.lock().map_err(|_| err("a sampler cache was poisoned"))?.insert(key, s.clone());
         Ok(s)
     }
@@ -61,6 +68,11 @@ fn parse_components(which: Option<&str>) -> PyResult<Components> {
         None => Ok(Components::ALL),
         Some(s) => Components::parse(s).map_err(err),
     }
+}
+
+/// `clean_at="reference"|"target"`.
+fn parse_clean_at(s: &str) -> PyResult<CleanAt> {
+    CleanAt::parse(s).map_err(|e| err(e.replace("clean-at", "clean_at")))
 }
 
 fn parse_model(name: &str) -> PyResult<ModelKind> {
@@ -230,8 +242,12 @@ impl Pack {
     /// Adds noise at `iso` to clean raw images (uint16 DN, black included), `(H, W)` or
     /// `(N, H, W)`; image `i` of a batch uses seed `seed + i`, as a folder run of `noisecal synth`.
     /// `components` chooses the noise components (`"pixel,row,column,frame,fpn"`; default: all the
-    /// pack calibrated), as `noisecal synth --components`.
-    #[pyo3(signature = (clean, iso, seed=0, *, model="noisecal", black_level=None, cfa_origin=(0, 0), extrapolate=false, components=None))]
+    /// pack calibrated), as `noisecal synth --components`. `clean_at` is the brightness the clean
+    /// image is at, as `noisecal synth --clean-at`: `"reference"` (default: the reference ISO's
+    /// brightness for the same ISO × exposure; the output gets the target ISO's, its gain ratios
+    /// `gain_ratios(iso)` applied) or `"target"` (already at the target ISO's brightness: the
+    /// noise has no mean shift).
+    #[pyo3(signature = (clean, iso, seed=0, *, model="noisecal", black_level=None, cfa_origin=(0, 0), extrapolate=false, components=None, clean_at="reference"))]
     #[allow(clippy::too_many_arguments)]
     fn synth<'py>(
         &self,
@@ -244,16 +260,18 @@ impl Pack {
         cfa_origin: (usize, usize),
         extrapolate: bool,
         components: Option<&str>,
+        clean_at: &str,
     ) -> PyResult<Bound<'py, PyArrayDyn<u16>>> {
         let kind = parse_model(model)?;
         let which = parse_components(components)?;
+        let clean_at = parse_clean_at(clean_at)?;
         let black = black_levels(&self.inner, black_level)?;
         let view = clean.as_array();
         let (imgs, batch) = images(&view, "clean")?;
         let pack = &*self.inner;
         let outs = py.detach(|| {
             guarded("Pack.synth", || {
-                let sampler = self.sampler(iso, kind, extrapolate, which)?;
+                let sampler = self.sampler(iso, kind, extrapolate, which, clean_at)?;
                 per_image(&imgs, seed, |img, s| Ok(synth_one(pack, &sampler, img, &black, s, cfa_origin)))
             })
         })?;
@@ -262,7 +280,8 @@ impl Pack {
 
     /// As `synth`, for float32 images normalised by black and white (`(DN − black)/(white −
     /// black)` per CFA position, the usual torch input): the result is normalised the same way.
-    #[pyo3(signature = (clean, iso, seed=0, *, model="noisecal", cfa_origin=(0, 0), extrapolate=false, components=None))]
+    /// `clean_at` as in `synth`.
+    #[pyo3(signature = (clean, iso, seed=0, *, model="noisecal", cfa_origin=(0, 0), extrapolate=false, components=None, clean_at="reference"))]
     #[allow(clippy::too_many_arguments)]
     fn synth_float<'py>(
         &self,
@@ -274,9 +293,11 @@ impl Pack {
         cfa_origin: (usize, usize),
         extrapolate: bool,
         components: Option<&str>,
+        clean_at: &str,
     ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
         let kind = parse_model(model)?;
         let which = parse_components(components)?;
+        let clean_at = parse_clean_at(clean_at)?;
         let view = clean.as_array();
         let (imgs, batch) = images(&view, "clean")?;
         let pack = &*self.inner;
@@ -285,7 +306,7 @@ impl Pack {
         let scale: [f32; POSITIONS] = std::array::from_fn(|p| (white - black[p]).max(1.0));
         let outs = py.detach(|| {
             guarded("Pack.synth_float", || {
-                let sampler = self.sampler(iso, kind, extrapolate, which)?;
+                let sampler = self.sampler(iso, kind, extrapolate, which, clean_at)?;
                 let pos = |y: usize, x: usize| position(y + cfa_origin.0, x + cfa_origin.1);
                 per_image(&imgs, seed, |img, s| {
                     let dn = Array2::from_shape_fn(img.dim(), |(y, x)| {
@@ -353,6 +374,20 @@ impl Pack {
         })
     }
 
+    /// The gain ratios of `iso` per CFA position (CFA order): how much brighter above black the
+    /// ISO's captures are than the reference ISO's at the same ISO × exposure (1 = gain ∝ ISO).
+    /// A calibrated ISO's are measured; an uncalibrated one's are interpolated in log ISO.
+    /// `synth(..., clean_at="target")` divides clean levels by them to pick their noise.
+    #[pyo3(signature = (iso, *, extrapolate=false))]
+    fn gain_ratios(&self, py: Python<'_>, iso: u32, extrapolate: bool) -> PyResult<Vec<f64>> {
+        let pack = &*self.inner;
+        py.detach(|| {
+            guarded("Pack.gain_ratios", || {
+                interp::gain_ratio_at(pack, iso, extrapolate).map(|g| g.to_vec()).map_err(to_py)
+            })
+        })
+    }
+
     /// The sampler's tables at `iso`, for samplers on other devices (`noisecal.torch`):
     /// `lut[p, level]` is the bin of a clean level at CFA position `p`; `cdf[p, bin, i]` the
     /// cumulative weights (units of 2⁻³², padded with 2³²) over noise values `first[p, bin] + i`;
@@ -360,13 +395,30 @@ impl Pack {
     /// `first + searchsorted(cdf, u, right=True)`. `lattice` tells where the core also snaps to a
     /// code lattice (not reproduced by table samplers). The tables are the pixel-independent
     /// model, `synth(..., components="pixel")`: the row, column and frame offsets of a version 3
-    /// pack are not in them.
-    #[pyo3(signature = (iso, *, model="noisecal", extrapolate=false))]
-    fn tables<'py>(&self, py: Python<'py>, iso: u32, model: &str, extrapolate: bool) -> PyResult<Bound<'py, PyDict>> {
+    /// pack are not in them. `gain_ratio[p]` is the ISO's gain ratio per position
+    /// (`gain_ratios`). With `clean_at="target"`, `lut` maps a level at the target brightness to
+    /// the bin of its reference level and `shift[p, level]` (DN, float64) is added to the draw,
+    /// dithered onto the integers (`floor(shift + U[0, 1))`): the gain shift taken out. With
+    /// `"reference"` `shift` is all zeros.
+    #[pyo3(signature = (iso, *, model="noisecal", extrapolate=false, clean_at="reference"))]
+    fn tables<'py>(
+        &self,
+        py: Python<'py>,
+        iso: u32,
+        model: &str,
+        extrapolate: bool,
+        clean_at: &str,
+    ) -> PyResult<Bound<'py, PyDict>> {
         let kind = parse_model(model)?;
+        let clean_at = parse_clean_at(clean_at)?;
         let pack = &*self.inner;
-        let sampler =
-            py.detach(|| guarded("Pack.tables", || self.sampler(iso, kind, extrapolate, Components::PIXEL)))?;
+        let (sampler, gains) = py.detach(|| {
+            guarded("Pack.tables", || {
+                let s = self.sampler(iso, kind, extrapolate, Components::PIXEL, clean_at)?;
+                let g = interp::gain_ratio_at(pack, iso, extrapolate).map_err(to_py)?;
+                Ok((s, g))
+            })
+        })?;
         let levels = pack.layout.white as usize + 1;
         let nbins = (0..POSITIONS).map(|p| sampler.tables(p).len()).max().unwrap_or(0);
         let len = (0..POSITIONS).flat_map(|p| sampler.tables(p).iter().map(|t| t.cdf().len())).max().unwrap_or(1);
@@ -374,10 +426,15 @@ impl Pack {
         let mut cdf = Array3::<u64>::from_elem((POSITIONS, nbins, len), 1u64 << 32);
         let mut first = Array2::<i32>::zeros((POSITIONS, nbins));
         let mut range = Array2::<i32>::zeros((POSITIONS, 2));
+        let mut shift = Array2::<f64>::zeros((POSITIONS, levels));
         for p in 0..POSITIONS {
             let (l, tabs) = sampler.position_tables(p);
+            let (l, sh) = sampler.target_tables(p).unwrap_or((l, &[]));
             for (lv, &b) in l.iter().enumerate().take(levels) {
                 lut[(p, lv)] = b as i64;
+            }
+            for (lv, &k) in sh.iter().enumerate().take(levels) {
+                shift[(p, lv)] = k as f64 / 4294967296.0;
             }
             for (b, t) in tabs.iter().enumerate() {
                 first[(p, b)] = t.first();
@@ -398,6 +455,9 @@ impl Pack {
         d.set_item("range", PyArray2::from_owned_array(py, range))?;
         d.set_item("lattice", PyArray1::from_vec(py, lattice))?;
         d.set_item("white", pack.layout.white)?;
+        d.set_item("gain_ratio", gains.to_vec())?;
+        d.set_item("clean_at", clean_at.name())?;
+        d.set_item("shift", PyArray2::from_owned_array(py, shift))?;
         Ok(d)
     }
 }

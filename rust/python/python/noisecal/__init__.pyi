@@ -10,6 +10,7 @@ __version__: str
 
 Model = Literal["noisecal", "hg", "pg", "noiseprofile"]
 Method = Literal["bridge", "quantile", "denoised", "naive"]
+CleanAt = Literal["reference", "target"]
 
 class NoisecalError(ValueError): ...
 
@@ -29,6 +30,9 @@ class Tables(TypedDict):
     range: npt.NDArray[np.int32]
     lattice: npt.NDArray[np.bool_]
     white: int
+    gain_ratio: list[float]
+    clean_at: CleanAt
+    shift: npt.NDArray[np.float64]
 
 class Pack:
     @staticmethod
@@ -62,6 +66,7 @@ class Pack:
         cfa_origin: tuple[int, int] = (0, 0),
         extrapolate: bool = False,
         components: str | None = None,
+        clean_at: CleanAt = "reference",
     ) -> npt.NDArray[np.uint16]: ...
     def synth_float(
         self,
@@ -73,6 +78,7 @@ class Pack:
         cfa_origin: tuple[int, int] = (0, 0),
         extrapolate: bool = False,
         components: str | None = None,
+        clean_at: CleanAt = "reference",
     ) -> npt.NDArray[np.float32]: ...
     def renoise(
         self,
@@ -85,7 +91,10 @@ class Pack:
         extrapolate: bool = False,
     ) -> npt.NDArray[np.uint16]: ...
     def interp(self, isos: Sequence[int], *, extrapolate: bool = False) -> Pack: ...
-    def tables(self, iso: int, *, model: Model = "noisecal", extrapolate: bool = False) -> Tables: ...
+    def gain_ratios(self, iso: int, *, extrapolate: bool = False) -> list[float]: ...
+    def tables(
+        self, iso: int, *, model: Model = "noisecal", extrapolate: bool = False, clean_at: CleanAt = "reference"
+    ) -> Tables: ...
 
 def calibrate(
     path: str | PathLike[str],

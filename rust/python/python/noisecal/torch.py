@@ -6,7 +6,9 @@ uniform 32-bit draw ``u`` picks ``first + i`` for the first ``i`` with ``cdf[i] 
 ``searchsorted`` over all tables laid end to end. The core's RNG streams are not reproduced (use
 ``Pack.synth`` for byte-identical output), nor its snapping onto a code lattice for sensors that
 skip codes (``tables["lattice"]`` says where that applies); the output is clamped to the codes the
-sensor writes.
+sensor writes. ``clean_at="target"`` takes clean images at the target ISO's brightness, as
+``Pack.synth(..., clean_at="target")``: the tables' ``lut`` then picks each level's reference bin
+and their ``shift`` (the gain shift taken out) is added, dithered onto the integers.
 
 Torch is optional: importing this module without it raises ImportError with the fix.
 """
@@ -31,9 +33,17 @@ class NoiseSynth(torch.nn.Module):
     Move it with ``.to(device)`` like any module; the generator passed to ``forward`` must live on
     the same device."""
 
-    def __init__(self, pack: Pack, iso: int, *, model: str = "noisecal", extrapolate: bool = False):
+    def __init__(
+        self,
+        pack: Pack,
+        iso: int,
+        *,
+        model: str = "noisecal",
+        extrapolate: bool = False,
+        clean_at: str = "reference",
+    ):
         super().__init__()
-        self._load(pack.tables(iso, model=model, extrapolate=extrapolate))
+        self._load(pack.tables(iso, model=model, extrapolate=extrapolate, clean_at=clean_at))
 
     @classmethod
     def from_tables(cls, tables: dict) -> NoiseSynth:
@@ -55,6 +65,14 @@ class NoiseSynth(torch.nn.Module):
         self.register_buffer("hi", rng[:, 1].clone())
         self.bins, self.k, self.white = bins, k, int(t["white"])
         self.iso = int(t["iso"]) if "iso" in t else None
+        # Tables saved before the clean_at option have no shift: the reference brightness.
+        self.clean_at = str(t["clean_at"]) if "clean_at" in t else "reference"
+        shift = t["shift"] if "shift" in t else None
+        self.has_shift = self.clean_at == "target" and shift is not None
+        if self.has_shift:
+            self.register_buffer("shift", torch.as_tensor(shift).to(torch.float64))
+        else:
+            self.shift = None
 
     def uniform(self, shape: tuple[int, ...], generator: torch.Generator | None, device: torch.device) -> torch.Tensor:
         """Uniform 32-bit draws in ``[0, 2^32)`` (int64), the unit of the tables' CDFs."""
@@ -88,5 +106,9 @@ class NoiseSynth(torch.nn.Module):
         u = self.uniform((n, h, w), generator, dev)
         idx = torch.searchsorted(self.flat, u + row * _ROW, right=True)
         value = self.first[row] + (idx - row * self.k)
+        if self.has_shift:
+            # The gain shift taken out, dithered onto the integers: floor(shift + U[0, 1)).
+            d = torch.rand((n, h, w), generator=generator, device=dev, dtype=torch.float64)
+            value = value + torch.floor(self.shift[pos, level.clamp(max=self.white)] + d).long()
         out = torch.maximum(torch.minimum(level + value, self.hi[pos]), self.lo[pos]).to(torch.int32)
         return out[0] if single else out
