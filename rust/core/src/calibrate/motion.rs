@@ -718,7 +718,8 @@ mod tests {
             let want = [tx - rot * (-cy), ty + rot * (-cx)];
             let slack = if dropped { 0.04 + rot.abs() * cx.hypot(cy) } else { 0.04 };
             assert!(
-                (corner[0] - want[0]).abs() < tol(want[0]) + slack && (corner[1] - want[1]).abs() < tol(want[1]) + slack,
+                (corner[0] - want[0]).abs() < tol(want[0]) + slack
+                    && (corner[1] - want[1]).abs() < tol(want[1]) + slack,
                 "{corner:?} vs {want:?}"
             );
         }
