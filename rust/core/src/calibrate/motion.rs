@@ -275,7 +275,7 @@ impl MotionProbe {
         let anchors_from = samples.len();
         let anchors = thin(anchors, MAX_ANCHOR_SAMPLES);
         samples.extend(anchors.iter().map(|a| a.0));
-        let anchor_sd = anchors.iter().map(|a| a.1).collect();
+        let anchor_sd: Vec<f32> = anchors.iter().map(|a| a.1).collect();
         let tolerance = std::array::from_fn(|pos| {
             (0..=groups.white as usize)
                 .map(|l| (MOTION_TOLERANCE * frame_sd(flat, groups, frames, pos, l as f64)) as f32)
@@ -326,10 +326,14 @@ fn thin<T>(v: Vec<T>, max: usize) -> Vec<T> {
 /// Parameters: 6 of the motion field, then gain and offset per position.
 const PARAMS: usize = 6 + 2 * POSITIONS;
 
+/// A motion component is kept only when its standard error is at most this (pixels).
+const MAX_MOTION_SE: f64 = 0.1;
+
 /// A motion is kept when it is this many times the difference between the two halves' fits.
 const HALVES_AGREE: f64 = 2.0;
 
-/// χ²'s 99.9 % points with 2, 4 and 6 degrees of freedom.
+/// χ²'s 99.9 % points with 1, 2, 4 and 6 degrees of freedom.
+const CHI2_1_999: f64 = 10.828;
 const CHI2_2_999: f64 = 13.816;
 const CHI2_4_999: f64 = 18.467;
 const CHI2_6_999: f64 = 22.458;
@@ -627,12 +631,32 @@ pub(crate) fn register(
         };
         // The halves' difference has twice the variance of one half's, four times the whole's:
         // the whole's error is about half the gap, and a motion is kept at twice the gap.
-        if wald(&[0, 1]) < CHI2_2_999 || m.t[0].hypot(m.t[1]) < HALVES_AGREE * t_gap {
-            m.t = [0.0; 2];
-        }
-        if wald(&[2, 3, 4, 5]) < CHI2_4_999 || a_size < HALVES_AGREE * a_gap {
-            m.a = [[0.0; 2]; 2];
-        }
+        let keep_t = wald(&[0, 1]) >= CHI2_2_999 && m.t[0].hypot(m.t[1]) >= HALVES_AGREE * t_gap;
+        let keep_a = wald(&[2, 3, 4, 5]) >= CHI2_4_999 && a_size >= HALVES_AGREE * a_gap;
+        // And each component on its own: a scene whose edges all run one way (vertical bands)
+        // says nothing of a motion along them, and that component, free in the fit, is noise
+        // whatever the others show (a still ramp of bands "moved" 2.6 px along them).
+        let (ha, hb) = (&half_a.motion, &half_b.motion);
+        let halves = [ha.t[0], ha.t[1], ha.a[0][0], ha.a[0][1], ha.a[1][0], ha.a[1][1]];
+        let halves_b = [hb.t[0], hb.t[1], hb.a[0][0], hb.a[0][1], hb.a[1][0], hb.a[1][1]];
+        // A component is kept only when the frame pins it within 0.1 px (its standard error).
+        // Along a direction the scene does not vary in, the fit drifts on the clean image's own
+        // noise — its gradient correlates with the residual that holds the same error — and is
+        // "significant" by every test above: a still ramp of horizontal bands moved 2.4 px down
+        // in both halves, with a standard error of 0.36 px.
+        let alone: [bool; 6] = std::array::from_fn(|k| {
+            let var = cov(k, k);
+            var > 0.0
+                && var <= MAX_MOTION_SE * MAX_MOTION_SE
+                && theta[k] * theta[k] / var >= CHI2_1_999
+                && theta[k].abs() >= HALVES_AGREE * (halves[k] - halves_b[k]).abs()
+        });
+        let kept: [f64; 6] = std::array::from_fn(|k| {
+            let block = if k < 2 { keep_t } else { keep_a };
+            if block && alone[k] { theta[k] } else { 0.0 }
+        });
+        m.t = [kept[0], kept[1]];
+        m.a = [[kept[2], kept[3]], [kept[4], kept[5]]];
     }
     // The anchors' squared residuals over a reference frame's noise variance: their median is
     // 0.455 of the variance ratio for Gaussian noise (χ²₁'s median), and the same ratio holds
