@@ -44,6 +44,26 @@ pub fn push_plan(s: &Setup, session: &mut CalibrationSession) {
     }
 }
 
+/// Calibrates `plan` on `sim` as the CLI would: the frames the session refuses (a burst whose
+/// brightness is off, a frame that moved too far) are left out. Returns the session (make
+/// "sim") and its pack.
+pub fn calibrate_lenient(sim: &Simulator, plan: &SessionPlan) -> (CalibrationSession, ModelPack) {
+    let mut config = SessionConfig::new(plan.reference_iso);
+    config.make = "sim".into();
+    let mut session = CalibrationSession::new(sim.layout(), config).expect("session");
+    let mut step = None;
+    for f in plan.frames() {
+        if step != Some(f.step) {
+            session.begin_step(plan.exposure_ns(f.step, plan.reference_iso)).expect("step");
+            step = Some(f.step);
+        }
+        let (px, meta) = sim.capture(f.iso, f.exposure_ns, f.index).expect("capture");
+        let _ = session.push_frame(&FrameView::from_array(&px).expect("view"), &meta);
+    }
+    let pack = session.finish().expect("a pack");
+    (session, pack)
+}
+
 /// Held-out clean image at an exposure (reference burst of `m` frames from frame index `base`):
 /// levels, and which pixels are flat.
 pub fn heldout_clean(s: &Setup, exposure_ns: u64, m: u64, base: u64, bin_width: u16) -> (Array2<u16>, Vec<bool>) {
@@ -86,6 +106,60 @@ impl IsoScores {
     }
 }
 
+/// A held-out target frame with its step's clean image: `(frame, clean levels (0 where not
+/// flat), flat mask, captured frame)`.
+pub type HeldOutFrame<'a> = (&'a noisecal_sim::PlannedFrame, &'a Array2<u16>, &'a Array2<bool>, &'a Array2<u16>);
+
+/// Simulates a held-out set (`plan` on `sim`, frame indices shifted by `index_offset`) and hands
+/// every target frame to `visit` with its EV step's clean image and flat mask (method.md,
+/// "Measuring fidelity"): the step's reference burst, closed at its first target frame, gives
+/// them (levels binned by `bin_width`); a refused reference frame is left out, and a step whose
+/// burst gives no clean image is skipped.
+pub fn for_each_heldout_frame(
+    sim: &Simulator,
+    plan: &SessionPlan,
+    index_offset: u64,
+    bin_width: u16,
+    mut visit: impl FnMut(HeldOutFrame<'_>),
+) {
+    let layout = sim.layout();
+    let (w, h) = (layout.width as usize, layout.height as usize);
+    let mut session: Option<CalibrationSession> = None;
+    let mut clean: Option<(Array2<u16>, Array2<bool>)> = None;
+    let mut step = None;
+    for f in plan.frames() {
+        if step != Some(f.step) {
+            let mut c = SessionConfig::new(plan.reference_iso);
+            c.bin_width = Some(bin_width);
+            let mut s = CalibrationSession::new(layout.clone(), c).expect("session");
+            s.begin_step(plan.exposure_ns(f.step, plan.reference_iso)).expect("step");
+            session = Some(s);
+            clean = None;
+            step = Some(f.step);
+        }
+        let (px, meta) = sim.capture(f.iso, f.exposure_ns, f.index + index_offset).expect("capture");
+        if f.is_reference {
+            if let Some(s) = session.as_mut() {
+                let _ = s.push_frame(&FrameView::from_array(&px).expect("view"), &meta);
+            }
+            continue;
+        }
+        if clean.is_none() {
+            let Some(s) = session.as_mut() else { continue };
+            if s.close_reference_burst().is_err() {
+                continue;
+            }
+            let raw = s.clean_image().expect("clean image of a closed burst");
+            let c16 = Array2::from_shape_vec((h, w), raw.iter().map(|&c| if c == NOT_FLAT { 0 } else { c }).collect())
+                .expect("shape");
+            let mask = Array2::from_shape_vec((h, w), raw.iter().map(|&c| c != NOT_FLAT).collect()).expect("shape");
+            clean = Some((c16, mask));
+        }
+        let Some((c16, mask)) = clean.as_ref() else { continue };
+        visit((&f, c16, mask, &px));
+    }
+}
+
 /// Simulates a held-out set (`plan` on `sim`, frame indices shifted by `index_offset`) and
 /// scores each model on it (method.md, "Measuring fidelity"): per EV step the reference burst
 /// gives the clean image and flat mask, every target frame gives real noise on the flat pixels,
@@ -104,47 +178,14 @@ pub fn score_heldout(
     use noisecal_core::synth::synthesize;
     use std::collections::BTreeMap;
 
-    let layout = sim.layout();
-    let (w, h) = (layout.width as usize, layout.height as usize);
     let samplers: Vec<BTreeMap<u32, IsoSampler>> =
         models.iter().map(|(_, ms, pack)| ms.iter().map(|m| (m.iso, IsoSampler::new(pack, m))).collect()).collect();
     let new_samples = || NoiseSamples::new(binning, DEFAULT_GROUP_BINS);
     // Per ISO: real, real halves, and one synthetic accumulator per model.
     let mut acc: BTreeMap<u32, (NoiseSamples, [NoiseSamples; 2], Vec<NoiseSamples>)> = BTreeMap::new();
-    let mut session: Option<CalibrationSession> = None;
-    let mut clean: Option<(Array2<u16>, Array2<f32>, Array2<bool>)> = None;
-    let mut step = None;
     let mut count: BTreeMap<u32, u64> = BTreeMap::new();
-    for f in plan.frames() {
-        if step != Some(f.step) {
-            let mut c = SessionConfig::new(plan.reference_iso);
-            c.bin_width = Some(binning.bin_width);
-            let mut s = CalibrationSession::new(layout.clone(), c).expect("session");
-            s.begin_step(plan.exposure_ns(f.step, plan.reference_iso)).expect("step");
-            session = Some(s);
-            clean = None;
-            step = Some(f.step);
-        }
-        let (px, meta) = sim.capture(f.iso, f.exposure_ns, f.index + index_offset).expect("capture");
-        if f.is_reference {
-            if let Some(s) = session.as_mut() {
-                // A refused reference frame (drift) is left out, as calibration would.
-                let _ = s.push_frame(&FrameView::from_array(&px).expect("view"), &meta);
-            }
-            continue;
-        }
-        if clean.is_none() {
-            let Some(s) = session.as_mut() else { continue };
-            if s.close_reference_burst().is_err() {
-                continue;
-            }
-            let raw = s.clean_image().expect("clean image of a closed burst");
-            let c16 = Array2::from_shape_vec((h, w), raw.iter().map(|&c| if c == NOT_FLAT { 0 } else { c }).collect())
-                .expect("shape");
-            let mask = Array2::from_shape_vec((h, w), raw.iter().map(|&c| c != NOT_FLAT).collect()).expect("shape");
-            clean = Some((c16.clone(), c16.mapv(|v| v as f32), mask));
-        }
-        let Some((c16, cf, mask)) = clean.as_ref() else { continue };
+    for_each_heldout_frame(sim, plan, index_offset, binning.bin_width, |(f, c16, mask, px)| {
+        let cf = c16.mapv(|v| v as f32);
         let e = acc.entry(f.iso).or_insert_with(|| {
             (new_samples(), [new_samples(), new_samples()], models.iter().map(|_| new_samples()).collect())
         });
@@ -158,7 +199,7 @@ pub fn score_heldout(
             }
         }
         *k += 1;
-    }
+    });
     acc.into_iter()
         .map(|(iso, (real, halves, syn))| {
             let floor = compare(&halves[0], &halves[1]);

@@ -5,13 +5,13 @@
 
 use std::collections::BTreeMap;
 
-use ndarray::Array2;
-use noisecal_core::calibrate::flat::NOT_FLAT;
+use noisecal_core::ModelPack;
 use noisecal_core::model::structure::Components;
 use noisecal_core::synth::sampler::IsoSampler;
 use noisecal_core::synth::synthesize;
-use noisecal_core::{CalibrationSession, FrameView, ModelPack, SessionConfig};
 use noisecal_sim::{SessionPlan, Simulator};
+
+use crate::for_each_heldout_frame;
 
 /// Moments of real and synthetic noise at one (ISO, EV step).
 #[derive(Debug, Clone)]
@@ -78,37 +78,9 @@ pub fn heldout_moments(
     // Per (ISO, step), per frame: the noise images (real, synthetic) as i32, for line means.
     let mut lines: BTreeMap<(u32, i32), NoiseImages> = BTreeMap::new();
     let mut masks: BTreeMap<i32, Vec<bool>> = BTreeMap::new();
-    let mut session: Option<CalibrationSession> = None;
-    let mut clean: Option<(Array2<u16>, Vec<bool>)> = None;
-    let mut step = None;
-    for f in plan.frames() {
-        if step != Some(f.step) {
-            let mut c = SessionConfig::new(plan.reference_iso);
-            c.bin_width = Some(pack.bin_width);
-            let mut s = CalibrationSession::new(layout.clone(), c).expect("session");
-            s.begin_step(plan.exposure_ns(f.step, plan.reference_iso)).expect("step");
-            session = Some(s);
-            clean = None;
-            step = Some(f.step);
-        }
-        let (px, meta) = sim.capture(f.iso, f.exposure_ns, f.index + index_offset).expect("capture");
-        if f.is_reference {
-            if let Some(s) = session.as_mut() {
-                let _ = s.push_frame(&FrameView::from_array(&px).expect("view"), &meta);
-            }
-            continue;
-        }
-        if clean.is_none() {
-            let Some(s) = session.as_mut() else { continue };
-            if s.close_reference_burst().is_err() {
-                continue;
-            }
-            let raw = s.clean_image().expect("clean image of a closed burst");
-            let c16 = Array2::from_shape_vec((h, w), raw.iter().map(|&c| if c == NOT_FLAT { 0 } else { c }).collect())
-                .expect("shape");
-            clean = Some((c16, raw.iter().map(|&c| c != NOT_FLAT).collect()));
-        }
-        let (Some((c16, mask)), Some(sampler)) = (clean.as_ref(), samplers.get(&f.iso)) else { continue };
+    for_each_heldout_frame(sim, plan, index_offset, pack.bin_width, |(f, c16, mask, px)| {
+        let Some(sampler) = samplers.get(&f.iso) else { return };
+        let mask = mask.as_slice().expect("standard layout");
         let syn = synthesize(sampler, c16.view(), 0x5EED_0000 ^ (f.index + index_offset).wrapping_mul(0x9E37_79B9));
         let e = noise.entry((f.iso, f.step)).or_default();
         let (mut nr, mut ns) = (vec![0i32; w * h], vec![0i32; w * h]);
@@ -120,11 +92,11 @@ pub fn heldout_moments(
                 ns[i] = s as i32 - c as i32;
             }
         }
-        masks.insert(f.step, mask.clone());
+        masks.insert(f.step, mask.to_vec());
         let l = lines.entry((f.iso, f.step)).or_default();
         l.0.push(nr);
         l.1.push(ns);
-    }
+    });
     noise
         .into_iter()
         .map(|((iso, step), (mut real, mut syn))| {

@@ -5,6 +5,7 @@
 //! of synthetic noise against real noise on held-out captures that do not move.
 
 use noisecal_core::model::structure::Components;
+use noisecal_e2e::calibrate_lenient;
 use noisecal_e2e::moments::{Moments, heldout_moments};
 use noisecal_sim::{random_moving_scene, random_sensor, random_session};
 use rayon::prelude::*;
@@ -24,20 +25,7 @@ fn calibrate(
     sim: &noisecal_sim::Simulator,
     plan: &noisecal_sim::SessionPlan,
 ) -> (noisecal_core::ModelPack, Vec<String>) {
-    let mut config = noisecal_core::SessionConfig::new(plan.reference_iso);
-    config.make = "sim".into();
-    let mut session = noisecal_core::CalibrationSession::new(sim.layout(), config).expect("session");
-    let mut step = None;
-    for f in plan.frames() {
-        if step != Some(f.step) {
-            session.begin_step(plan.exposure_ns(f.step, plan.reference_iso)).expect("step");
-            step = Some(f.step);
-        }
-        let (px, meta) = sim.capture(f.iso, f.exposure_ns, f.index).expect("capture");
-        // Frames the session refuses are left out, as the CLI does.
-        let _ = session.push_frame(&noisecal_core::FrameView::from_array(&px).expect("view"), &meta);
-    }
-    let pack = session.finish().expect("a pack");
+    let (session, pack) = calibrate_lenient(sim, plan);
     (pack, session.events().to_vec())
 }
 

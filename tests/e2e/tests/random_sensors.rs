@@ -6,7 +6,7 @@
 //! estimator of the same frames and the heteroscedastic Gaussian fitted on them.
 
 use noisecal_core::derive::baselines::{BaselineKind, fit};
-use noisecal_e2e::{IsoScores, plain_models, score_heldout};
+use noisecal_e2e::{IsoScores, calibrate_lenient, plain_models, score_heldout};
 use noisecal_sim::{random_sensor, random_session};
 use rayon::prelude::*;
 
@@ -34,20 +34,7 @@ fn calibrate(seed: u64) -> Calibrated {
     let spec = random_session(seed, &sensor.model);
     let sim = spec.simulator(&sensor.model, seed ^ 0xA5A5).expect("simulator");
     let plan = spec.plan(&sim).expect("plan");
-    let mut config = noisecal_core::SessionConfig::new(plan.reference_iso);
-    config.make = "sim".into();
-    let mut session = noisecal_core::CalibrationSession::new(sim.layout(), config).expect("session");
-    let mut step = None;
-    for f in plan.frames() {
-        if step != Some(f.step) {
-            session.begin_step(plan.exposure_ns(f.step, plan.reference_iso)).expect("step");
-            step = Some(f.step);
-        }
-        let (px, meta) = sim.capture(f.iso, f.exposure_ns, f.index).expect("capture");
-        // Frames the session refuses (a burst whose brightness is off) are left out, as the CLI does.
-        let _ = session.push_frame(&noisecal_core::FrameView::from_array(&px).expect("view"), &meta);
-    }
-    let pack = session.finish().expect("a pack");
+    let (session, pack) = calibrate_lenient(&sim, &plan);
     Calibrated { sensor, spec, plan, session, pack }
 }
 
