@@ -9,7 +9,7 @@ use std::process::Command;
 
 use ndarray::Array2;
 use noisecal_cli::dng;
-use noisecal_core::{CalibrationSession, FrameView, SessionConfig};
+use noisecal_core::{CalibrationSession, SessionConfig};
 use noisecal_sim::{Chart, SensorModel, SessionPlan, Simulator};
 
 fn noisecal(args: &[&str]) -> (bool, String) {
@@ -31,15 +31,10 @@ fn clean_at_target_adds_noise_without_mean_shift() {
     let sim = Simulator::new(model, Chart::color_checker(128, 96).expect("chart"), 4).expect("sim");
     let plan = SessionPlan::for_simulator(&sim, vec![800], 5).expect("plan");
     let mut session = CalibrationSession::new(sim.layout(), SessionConfig::new(plan.reference_iso)).expect("session");
-    let mut step = None;
-    for f in plan.frames() {
-        if step != Some(f.step) {
-            session.begin_step(plan.exposure_ns(f.step, plan.reference_iso)).expect("step");
-            step = Some(f.step);
-        }
-        let (px, meta) = sim.capture(f.iso, f.exposure_ns, f.index).expect("capture");
-        session.push_frame(&FrameView::from_array(&px).expect("view"), &meta).expect("push");
-    }
+    plan.feed(&sim, &mut session, |_, r| {
+        r.expect("push");
+    })
+    .expect("capture");
     let pack = session.finish().expect("finish");
     let g = pack.iso(800).expect("ISO 800").gain_ratio;
     assert!(g.iter().all(|g| (0.72..0.82).contains(g)), "gain ratios {g:?}");

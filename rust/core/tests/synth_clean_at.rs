@@ -16,7 +16,7 @@ use ndarray::Array2;
 use noisecal_core::model::structure::Components;
 use noisecal_core::synth::sampler::{IsoSampler, carried_gain_ratio};
 use noisecal_core::synth::{CleanAt, synthesize, synthesize_at};
-use noisecal_core::{CalibrationSession, FrameView, ModelPack, POSITIONS, SessionConfig, position};
+use noisecal_core::{CalibrationSession, ModelPack, POSITIONS, SessionConfig, position};
 use noisecal_sim::{Chart, SensorModel, SessionPlan, Simulator};
 
 const W: usize = 480;
@@ -31,15 +31,10 @@ fn calibrated() -> ModelPack {
     let sim = Simulator::new(model, chart, 21).expect("simulator");
     let plan = SessionPlan::for_simulator(&sim, vec![200, 800, 1600], 6).expect("plan").with_ev_steps(-4..=4);
     let mut session = CalibrationSession::new(sim.layout(), SessionConfig::new(plan.reference_iso)).expect("session");
-    let mut step = None;
-    for f in plan.frames() {
-        if step != Some(f.step) {
-            session.begin_step(plan.exposure_ns(f.step, plan.reference_iso)).expect("step");
-            step = Some(f.step);
-        }
-        let (px, meta) = sim.capture(f.iso, f.exposure_ns, f.index).expect("capture");
-        session.push_frame(&FrameView::from_array(&px).expect("view"), &meta).expect("push");
-    }
+    plan.feed(&sim, &mut session, |_, r| {
+        r.expect("push");
+    })
+    .expect("capture");
     session.finish().expect("finish")
 }
 

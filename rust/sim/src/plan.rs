@@ -178,6 +178,33 @@ impl SessionPlan {
         self.len() == 0
     }
 
+    /// Captures the plan's frames on `sim` and pushes them into `session` in capture order, a new
+    /// EV step (`begin_step`) where the step changes; each frame's outcome goes to `outcome`
+    /// (a session may refuse a frame: the caller decides whether that is a failure).
+    pub fn feed(
+        &self,
+        sim: &Simulator,
+        session: &mut noisecal_core::CalibrationSession,
+        mut outcome: impl FnMut(
+            &PlannedFrame,
+            Result<noisecal_core::calibrate::FrameReport, noisecal_core::error::SessionError>,
+        ),
+    ) -> Result<(), SimError> {
+        let mut step = None;
+        for f in self.frames() {
+            if step != Some(f.step) {
+                session
+                    .begin_step(self.exposure_ns(f.step, self.reference_iso))
+                    .expect("a planned exposure is positive");
+                step = Some(f.step);
+            }
+            let (px, meta) = sim.capture(f.iso, f.exposure_ns, f.index)?;
+            let view = noisecal_core::FrameView::from_array(&px).expect("a captured frame is contiguous");
+            outcome(&f, session.push_frame(&view, &meta));
+        }
+        Ok(())
+    }
+
     /// The frames in capture order: per EV step, the reference burst, then each target ISO's
     /// burst in `target_isos` order.
     pub fn frames(&self) -> impl Iterator<Item = PlannedFrame> + '_ {

@@ -31,17 +31,14 @@ pub fn calibrate(s: &Setup, tweak: impl FnOnce(&mut SessionConfig)) -> (Calibrat
     (session, pack)
 }
 
-/// Pushes the plan's frames into a session in capture order, one EV step after another.
+/// Pushes the plan's frames into a session in capture order, one EV step after another; every
+/// frame must be taken.
 pub fn push_plan(s: &Setup, session: &mut CalibrationSession) {
-    let mut step = None;
-    for f in s.plan.frames() {
-        if step != Some(f.step) {
-            session.begin_step(s.plan.exposure_ns(f.step, s.plan.reference_iso)).expect("step");
-            step = Some(f.step);
-        }
-        let (px, meta) = s.sim.capture(f.iso, f.exposure_ns, f.index).expect("capture");
-        session.push_frame(&FrameView::from_array(&px).expect("view"), &meta).expect("push");
-    }
+    s.plan
+        .feed(&s.sim, session, |_, r| {
+            r.expect("push");
+        })
+        .expect("capture");
 }
 
 /// Calibrates `plan` on `sim` as the CLI would: the frames the session refuses (a burst whose
@@ -51,15 +48,7 @@ pub fn calibrate_lenient(sim: &Simulator, plan: &SessionPlan) -> (CalibrationSes
     let mut config = SessionConfig::new(plan.reference_iso);
     config.make = "sim".into();
     let mut session = CalibrationSession::new(sim.layout(), config).expect("session");
-    let mut step = None;
-    for f in plan.frames() {
-        if step != Some(f.step) {
-            session.begin_step(plan.exposure_ns(f.step, plan.reference_iso)).expect("step");
-            step = Some(f.step);
-        }
-        let (px, meta) = sim.capture(f.iso, f.exposure_ns, f.index).expect("capture");
-        let _ = session.push_frame(&FrameView::from_array(&px).expect("view"), &meta);
-    }
+    plan.feed(sim, &mut session, |_, _| ()).expect("capture");
     let pack = session.finish().expect("a pack");
     (session, pack)
 }

@@ -322,15 +322,21 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
             }
         }
     }
-    let measured = report.clone();
-    let spread_limit = |pos: usize, level: f64| -> f64 {
-        let g = groups.group(pos, level as f32);
-        let var = match group_medians[pos * GROUPS + g] {
-            v if v.is_finite() => v,
-            _ => measured.mean_noise_at(&groups, pos, level) * m,
-        };
-        limit * var.max(0.0625)
-    };
+    // As a lookup over integer levels per position, like the thresholds.
+    let spread_limits: Vec<Vec<f32>> = (0..POSITIONS)
+        .map(|pos| {
+            (0..=inp.white as u32)
+                .map(|l| {
+                    let level = l as f64;
+                    let var = match group_medians[pos * GROUPS + groups.group(pos, l as f32)] {
+                        v if v.is_finite() => v,
+                        _ => report.mean_noise_at(&groups, pos, level) * m,
+                    };
+                    (limit * var.max(0.0625)) as f32
+                })
+                .collect()
+        })
+        .collect();
 
     let mut clean = vec![NOT_FLAT; w * h];
     for y in 0..h {
@@ -365,7 +371,7 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
             if y + 2 < h {
                 check(i + 2 * w);
             }
-            if flat && neighbours >= 2 && inp.frames >= 2 && pixel_var(i) > spread_limit(pos, a) {
+            if flat && neighbours >= 2 && inp.frames >= 2 && pixel_var(i) > spread_limits[pos][level as usize] as f64 {
                 flat = false;
                 report.unsteady[pos] += 1;
             }

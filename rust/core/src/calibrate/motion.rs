@@ -11,16 +11,18 @@
 //!   `u(p) = t + A·(p − c)` (shift, rotation, scale, shear) with a gain and an offset per CFA
 //!   position, by Gauss–Newton on the edge samples (bilinear on each colour's own lattice,
 //!   Huber-weighted).
-//! - [`FrameMotion::moved_row`]: which flat pixels of a row the frame's motion changes by more
-//!   than [`MOTION_TOLERANCE`] of the noise at their level; calibration leaves those samples out
-//!   of that frame (never resamples the frame: interpolation would correlate its noise).
+//! - [`FrameMotion::row_effects`]: which flat pixels of a row the frame's motion changes by more
+//!   than [`MOTION_TOLERANCE`] of the noise at their level (calibration leaves those samples out
+//!   of that frame, never resampling it: interpolation would correlate its noise), and the change
+//!   it predicts (taken out of the line sums).
 
 use serde::{Deserialize, Serialize};
 
 use crate::calibrate::drift::Transform;
 use crate::calibrate::flat::{FlatReport, Groups, NOT_FLAT};
 use crate::calibrate::frame::FrameView;
-use crate::math::fit::{poly_eval, solve};
+use crate::math::fit::{invert, poly_eval, solve};
+use crate::math::stats::median;
 use crate::model::layout::{POSITIONS, position};
 
 /// A flat pixel is left out of a frame when the frame's motion changes its clean level by more
@@ -230,6 +232,12 @@ impl MotionProbe {
         clip: f32,
     ) -> Self {
         let (w, h) = (width, height);
+        // One frame's noise SD per position and level, looked up per pixel below.
+        let tolerance: [Vec<f32>; POSITIONS] = std::array::from_fn(|pos| {
+            (0..=groups.white as usize)
+                .map(|l| (MOTION_TOLERANCE * frame_sd(flat, groups, frames, pos, l as f64)) as f32)
+                .collect()
+        });
         let mut gradient = vec![[0i8; 2]; w * h];
         let mut edges: Vec<(u32, f64)> = Vec::new();
         let mut anchors: Vec<(u32, f32)> = Vec::new();
@@ -248,7 +256,7 @@ impl MotionProbe {
                 }
                 let m = mean[i] as f64;
                 let g = sobel(&mean, w, h, x, y);
-                let sd = frame_sd(flat, groups, frames, pos, m);
+                let sd = tolerance[pos][mean[i] as usize] as f64 / MOTION_TOLERANCE;
                 if c != NOT_FLAT {
                     let tol = MOTION_TOLERANCE * sd;
                     let q = [g[0] / tol * GRADIENT_UNITS as f64, g[1] / tol * GRADIENT_UNITS as f64];
@@ -276,17 +284,7 @@ impl MotionProbe {
         let anchors = thin(anchors, MAX_ANCHOR_SAMPLES);
         samples.extend(anchors.iter().map(|a| a.0));
         let anchor_sd: Vec<f32> = anchors.iter().map(|a| a.1).collect();
-        let tolerance = std::array::from_fn(|pos| {
-            (0..=groups.white as usize)
-                .map(|l| (MOTION_TOLERANCE * frame_sd(flat, groups, frames, pos, l as f64)) as f32)
-                .collect()
-        });
         Self { mean, samples, anchors_from, anchor_sd, gradient, tolerance }
-    }
-
-    /// Whether registration has edges to work with.
-    pub fn has_edges(&self) -> bool {
-        !self.samples.is_empty()
     }
 
     /// The mean and its gradient at `(x + ux, y + uy)` on the colour lattice of `(x, y)`
@@ -338,27 +336,6 @@ const CHI2_2_999: f64 = 13.816;
 const CHI2_4_999: f64 = 18.467;
 const CHI2_6_999: f64 = 22.458;
 
-/// The inverse of a small square matrix (`None` when singular).
-fn invert(a: &[Vec<f64>]) -> Option<Vec<Vec<f64>>> {
-    let n = a.len();
-    let cols: Option<Vec<Vec<f64>>> = (0..n)
-        .map(|k| {
-            let aug: Vec<Vec<f64>> = a
-                .iter()
-                .enumerate()
-                .map(|(r, row)| {
-                    let mut v = row.clone();
-                    v.push(if r == k { 1.0 } else { 0.0 });
-                    v
-                })
-                .collect();
-            solve(aug)
-        })
-        .collect();
-    let cols = cols?;
-    Some((0..n).map(|r| (0..n).map(|c| cols[c][r]).collect()).collect())
-}
-
 /// One Gauss–Newton fit of a frame on the clean image.
 #[derive(Clone)]
 struct Fit {
@@ -381,8 +358,8 @@ fn huber(r: f64, scale: f64) -> f64 {
 }
 
 /// Fits gain and offset per position and, when `free_motion`, the motion field, starting from
-/// `start` (or from no motion, gain 1, offset 0). Huber-weighted at the previous iteration's
-/// robust scale, or at `fixed_scale` when given.
+/// `start` (or from no motion, gain 1, offset 0), Huber-weighted at the previous iteration's
+/// robust scale, for at most `iterations` Gauss–Newton steps.
 #[allow(clippy::too_many_arguments)]
 fn fit(
     probe: &MotionProbe,
@@ -391,13 +368,12 @@ fn fit(
     h: usize,
     free_motion: bool,
     start: Option<&Fit>,
-    fixed_scale: Option<f64>,
     iterations: usize,
 ) -> Option<Fit> {
     let mut m = start.map_or_else(|| FrameMotion::still(w, h), |f| f.motion);
     let mut gain = start.map_or([1.0; POSITIONS], |f| f.gain);
     let mut offset = start.map_or([0.0; POSITIONS], |f| f.offset);
-    let mut scale = fixed_scale.or(start.map(|f| f.scale)).unwrap_or(f64::INFINITY);
+    let mut scale = start.map_or(f64::INFINITY, |f| f.scale);
     let mut normal = Vec::new();
     let mut anchor_ratios = Vec::new();
     for _ in 0..iterations {
@@ -477,10 +453,8 @@ fn fit(
             gain[p] += d[6 + 2 * p];
             offset[p] += d[7 + 2 * p];
         }
-        if fixed_scale.is_none() && !residuals.is_empty() {
-            let mid = residuals.len() / 2;
-            residuals.select_nth_unstable_by(mid, f64::total_cmp);
-            scale = (1.4826 * residuals[mid]).max(0.25);
+        if !residuals.is_empty() {
+            scale = (1.4826 * median(&residuals)).max(0.25);
         }
         if !m.t.iter().chain(m.a.iter().flatten()).chain(&gain).chain(&offset).all(|v| v.is_finite()) {
             return None;
@@ -582,8 +556,8 @@ pub(crate) fn register(
     samples.sort_by_key(|s| (s.y, s.x));
     // Without motion the model is linear in gain and offset: two passes (the second at the
     // residuals' own scale) fit it.
-    let still = fit(probe, &samples, w, h, false, None, None, 2)?;
-    let moved = fit(probe, &samples, w, h, true, Some(&still), None, MAX_ITERATIONS)?;
+    let still = fit(probe, &samples, w, h, false, None, 2)?;
+    let moved = fit(probe, &samples, w, h, true, Some(&still), MAX_ITERATIONS)?;
     let s0 = still.scale;
     let ratio =
         2.0 * (objective(probe, &samples, w, h, &still, s0) - objective(probe, &samples, w, h, &moved, s0)) / (s0 * s0);
@@ -596,8 +570,8 @@ pub(crate) fn register(
         // local optimum (a still sensor with 8 DN of row noise "moved" 2.2 px).
         let (even, odd): (Vec<Sample>, Vec<Sample>) = samples.into_iter().partition(|s| (s.y / 2) % 2 == 0);
         let (half_a, half_b) = rayon::join(
-            || fit(probe, &even, w, h, true, Some(&still), None, MAX_ITERATIONS),
-            || fit(probe, &odd, w, h, true, Some(&still), None, MAX_ITERATIONS),
+            || fit(probe, &even, w, h, true, Some(&still), MAX_ITERATIONS),
+            || fit(probe, &odd, w, h, true, Some(&still), MAX_ITERATIONS),
         );
         let (half_a, half_b) = (half_a?, half_b?);
         let m = &mut out.motion;
@@ -661,11 +635,8 @@ pub(crate) fn register(
     // The anchors' squared residuals over a reference frame's noise variance: their median is
     // 0.455 of the variance ratio for Gaussian noise (χ²₁'s median), and the same ratio holds
     // for any one shape of noise at both ISOs.
-    let mut ratios = std::mem::take(&mut out.anchor_ratios);
-    if ratios.len() >= 32 {
-        let mid = ratios.len() / 2;
-        ratios.select_nth_unstable_by(mid, f64::total_cmp);
-        out.motion.noise_scale = (ratios[mid] / 0.455).sqrt().clamp(1.0, 1e3);
+    if out.anchor_ratios.len() >= 32 {
+        out.motion.noise_scale = (median(&out.anchor_ratios) / 0.455).sqrt().clamp(1.0, 1e3);
     }
     Some(out.motion)
 }

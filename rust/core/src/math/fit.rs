@@ -81,6 +81,27 @@ pub(crate) fn solve(mut a: Vec<Vec<f64>>) -> Option<Vec<f64>> {
     Some((0..n).map(|i| a[i][n] / a[i][i]).collect())
 }
 
+/// The inverse of a small square matrix (`None` when singular).
+pub(crate) fn invert(a: &[Vec<f64>]) -> Option<Vec<Vec<f64>>> {
+    let n = a.len();
+    let cols: Option<Vec<Vec<f64>>> = (0..n)
+        .map(|k| {
+            let aug: Vec<Vec<f64>> = a
+                .iter()
+                .enumerate()
+                .map(|(r, row)| {
+                    let mut v = row.clone();
+                    v.push(if r == k { 1.0 } else { 0.0 });
+                    v
+                })
+                .collect();
+            solve(aug)
+        })
+        .collect();
+    let cols = cols?;
+    Some((0..n).map(|r| (0..n).map(|c| cols[c][r]).collect()).collect())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
