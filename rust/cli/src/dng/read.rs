@@ -747,7 +747,8 @@ fn active_area(path: &Path, raw: &IFD, w: usize, h: usize) -> Result<(usize, usi
         return Err(DngError::decode(path, format!("ActiveArea {a:?} is not 4 non-negative numbers")));
     }
     let (t, l, b, r) = (a[0] as usize, a[1] as usize, a[2] as usize, a[3] as usize);
-    if t + 2 > b || l + 2 > r || b > h || r > w {
+    // Saturating: a huge value (an f64 far beyond usize) must fail here as not fitting, not overflow.
+    if t.saturating_add(2) > b || l.saturating_add(2) > r || b > h || r > w {
         return Err(DngError::decode(path, format!("ActiveArea {t},{l},{b},{r} does not fit the {w}×{h} image")));
     }
     Ok((t, l, b, r))
