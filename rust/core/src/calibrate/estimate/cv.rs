@@ -110,6 +110,9 @@ pub(super) struct CvResult {
     /// Held-out log-likelihood of clipped bins, own mode and law mode.
     pub(super) clip_ll: Option<[f64; 2]>,
     pub(super) clip_samples: u64,
+    /// The same per clipped bin (own mode; law mode per pooling candidate), zero elsewhere.
+    pub(super) clip_bin_own: Vec<f64>,
+    pub(super) clip_bin_law: Vec<Vec<f64>>,
 }
 
 pub(super) fn cross_validate(
@@ -128,6 +131,8 @@ pub(super) fn cross_validate(
     let mut clip_law = vec![0.0; POOLING_CANDIDATES.len()];
     let mut clip_samples = 0u64;
     let mut clip_scored = false;
+    let mut clip_bin_own = vec![0.0; nbins];
+    let mut clip_bin_law = vec![vec![0.0; POOLING_CANDIDATES.len()]; nbins];
     for &k in live {
         let train: Vec<NoiseHistogram> = total.iter().zip(folds[k].iter()).map(|(t, f)| subtract(t, f)).collect();
         let data = Data::new(&train, clipped, levels);
@@ -140,18 +145,22 @@ pub(super) fn cross_validate(
             let (mu, var) = (data.law.mean[b], data.law.var[b]);
             if clipped[b] {
                 clip_samples += nh;
+                bin_heldout[b] += nh;
                 if data.stats[b].n > 0 {
                     let mut own = 0.0;
                     let prior = prior_on(held, mu, var);
                     pool_bin(&data, b, true, &[0], 0, |_, acc, cum| own = loglik(held, &prior, acc, cum));
                     clip_own += own;
+                    clip_bin_own[b] += own;
                     clip_scored = true;
                 } else {
                     clip_own = f64::NEG_INFINITY;
+                    clip_bin_own[b] = f64::NEG_INFINITY;
                 }
                 let prior = laplace_pmf(mu, var, levels.reach());
+                let bl = &mut clip_bin_law[b];
                 pool_bin(&data, b, false, &POOLING_CANDIDATES, FILL_MIN_SAMPLES, |c, acc, cum| {
-                    clip_law[c] += loglik_clamped(
+                    let ll = loglik_clamped(
                         held,
                         acc,
                         cum,
@@ -160,6 +169,8 @@ pub(super) fn cross_validate(
                         levels.hi[b],
                         (levels.floor, levels.white),
                     );
+                    clip_law[c] += ll;
+                    bl[c] += ll;
                 });
                 continue;
             }
@@ -181,6 +192,8 @@ pub(super) fn cross_validate(
         heldout,
         clip_ll: (clip_samples > 0 && clip_scored).then_some([clip_own, clip_law[best]]),
         clip_samples,
+        clip_bin_own,
+        clip_bin_law,
     }
 }
 

@@ -29,11 +29,13 @@
 //!    built from the other folds and scored by the log-likelihood of the held-out fold's
 //!    samples; the `m` with the highest total wins. Because `m = 0` is among the candidates, the
 //!    pack only smooths where held-out frames say smoothing helps.
-//! 5. **Chooses the clip mode**: a clipped bin either keeps its own histogram
-//!    ([`ClipMode::Own`]) or takes the unclipped noise the law predicts there, pooled from the
-//!    nearest unclipped bins, and lets synthesis clip (`clean + n` clamped to the output range,
-//!    [`ClipMode::Law`]); held-out likelihood of the clipped bins decides (the law mode is
-//!    scored with the clipping applied at each integer level of the bin).
+//! 5. **Chooses the clip mode per bin**: a clipped bin takes the unclipped noise the law
+//!    predicts there, pooled from the nearest unclipped bins, and lets synthesis clip (`clean +
+//!    n` clamped to the output range, [`ClipMode::Law`]), unless its own held-out samples favour
+//!    its own histogram ([`ClipMode::Own`]) by more than [`OVERRIDE_NATS`] with at least
+//!    [`OVERRIDE_MIN_HELDOUT`] of them (the law mode is scored with the clipping applied at each
+//!    integer level of the bin). Saturated pixels at white, whose noise is nearly zero, keep
+//!    their own; the sparse bins below them follow the law smoothly.
 //! 6. **Overrides per bin**: a bin whose own histogram beats the chosen pooling on its held-out
 //!    samples by more than [`OVERRIDE_NATS`] (with at least [`OVERRIDE_MIN_HELDOUT`] of them)
 //!    keeps its own histogram, so no smoothing step loses to the raw histogram it smooths.
@@ -50,7 +52,7 @@ use serde::{Deserialize, Serialize};
 pub use clip::{BinLevels, CLIP_FRACTION, CLIP_SIGMAS, clip_fraction_in, clip_fraction_of};
 pub use cv::{OVERRIDE_MIN_HELDOUT, OVERRIDE_NATS};
 pub use law::Law;
-pub use pool::{FILL_MIN_SAMPLES, MAX_RADIUS};
+pub use pool::{FILL_MIN_SAMPLES, MAX_RADIUS, MEAN_LIMIT_SD, MEAN_LIMIT_SE};
 
 use crate::model::histogram::NoiseHistogram;
 use crate::model::pack::{BinModel, BinSource};
@@ -120,6 +122,9 @@ pub struct CandidateScore {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct EstimateReport {
     pub pooling: u64,
+    /// The clipped bins' mode: [`ClipMode::Law`] for those without clear held-out evidence for
+    /// their own histogram (a clipped bin that keeps its own is [`BinSource::Measured`], one in
+    /// law mode [`BinSource::Filled`]); [`ClipMode::Own`] for all when no law stands behind them.
     pub clip_mode: ClipMode,
     pub choice: Choice,
     /// Cross-validation scores of every pooling candidate (empty unless cross-validated).
@@ -210,6 +215,9 @@ pub fn estimate_position(
     // Per bin, the pooling it uses: the position's choice, or a smaller one where the bin's own
     // held-out samples decide for it by more than `OVERRIDE_NATS`.
     let per_bin: Vec<u64>;
+    // Per clipped bin, whether it keeps its own histogram: the bins the held-out samples clearly
+    // favour own mode for (see below); `None` when nothing was cross-validated.
+    let mut own_votes: Option<Vec<bool>> = None;
     // The law mode gives clipped bins what the noise law, fitted on unclipped bins, predicts:
     // with fewer unclipped samples than one window of the law, nothing measured stands behind
     // it (a high ISO whose noise reaches the floor from every level: a 96 × 72 session at 50 ×
@@ -248,6 +256,15 @@ pub fn estimate_position(
                 .zip(&cv.ll)
                 .map(|(&pooling, &ll)| CandidateScore { pooling, cross_entropy: -ll / n })
                 .collect();
+            own_votes = Some(
+                (0..nbins)
+                    .map(|b| {
+                        clipped[b]
+                            && cv.bin_heldout[b] >= OVERRIDE_MIN_HELDOUT
+                            && cv.clip_bin_own[b] - cv.clip_bin_law[b][best] > OVERRIDE_NATS
+                    })
+                    .collect(),
+            );
             let (mode, scores) = match cv.clip_ll {
                 Some([own, law]) if cv.clip_samples > 0 => {
                     let k = cv.clip_samples as f64;
@@ -288,15 +305,60 @@ pub fn estimate_position(
             }
         })
         .collect();
-    let clip_mode = if law_supported { clip_mode } else { ClipMode::Own };
+    // Clip mode per bin. Law mode is the smooth one (the law's noise, clamped by synthesis, moves
+    // with the level as the unclipped bins' does), so a clipped bin takes it unless its own
+    // held-out samples favour its own histogram by more than `OVERRIDE_NATS` (with at least
+    // `OVERRIDE_MIN_HELDOUT` of them), as for the pooling. One mode per position let the bins
+    // at white decide for all: on the demo's 10-bit phone a top bin of saturated pixels (48 450
+    // samples, noise ≈ 0) chose own mode for 145 clipped bins at ISO 3200, and bins of 10–30
+    // samples kept their own histograms, means from −51 to +27 DN beside −30 DN neighbours.
+    // Without a law to stand on (`law_supported`), every clipped bin keeps its own.
+    let own_mode: Vec<bool> = (0..nbins)
+        .map(|b| {
+            clipped[b]
+                && (!law_supported
+                    || match &own_votes {
+                        Some(v) => v[b],
+                        None => clip_mode == ClipMode::Own,
+                    })
+        })
+        .collect();
+    let clip_mode = if !law_supported || (own_votes.is_none() && clip_mode == ClipMode::Own) {
+        ClipMode::Own
+    } else {
+        ClipMode::Law
+    };
     let data = Data::new(&total, &clipped, levels).deselected(&deselect, levels);
+    // Bin means onto the law where bursts explain their distance, unless the user fixed the
+    // pooling (`--pooling 0` is each bin's own histogram, for comparisons).
+    let data = if matches!(pooling, Pooling::Fixed(_)) { data } else { data.means_on_law(levels) };
     let bins = (0..nbins)
         .map(|b| {
-            let own_only = clipped[b] && clip_mode == ClipMode::Own && data.stats[b].n > 0;
+            // Without a law to stand on, an empty bin takes the nearest measured bin's own
+            // histogram (as the plain estimator does): the law fitted on clipped bins alone is
+            // no prior (a 12-bit sensor at 50× its base ISO, every bin clipped, filled its
+            // empty dark bins with noise of mean +1600 DN beside measured bins at −110).
+            let nearest = (!law_supported && data.stats[b].n == 0)
+                .then(|| {
+                    (1..nbins)
+                        .flat_map(|d| [b.checked_sub(d), (b + d < nbins).then_some(b + d)])
+                        .flatten()
+                        .find(|&j| data.stats[j].n > 0)
+                })
+                .flatten();
+            let (src, own_only) = match nearest {
+                Some(j) => (j, true),
+                None => (b, own_mode[b] && data.stats[b].n > 0),
+            };
             let mut out: Option<(Acc, u64)> = None;
-            pool_bin(&data, b, own_only, &[per_bin[b]], FILL_MIN_SAMPLES, |_, acc, cum| out = Some((acc.clone(), cum)));
+            pool_bin(&data, src, own_only, &[per_bin[b]], FILL_MIN_SAMPLES, |_, acc, cum| {
+                out = Some((acc.clone(), cum))
+            });
             let (acc, cum) = out.unwrap_or_default();
-            let (mu, var) = (data.law.mean[b], data.law.var[b]);
+            let (mu, var) = match nearest {
+                Some(j) => (data.stats[j].mean, data.stats[j].var.max(MIN_VAR)),
+                None => (data.law.mean[b], data.law.var[b]),
+            };
             let eps = 1.0 / (cum as f64 + 1.0);
             let mut mix = Acc::default();
             if acc.total > 0.0 {
