@@ -133,7 +133,7 @@ def draw(synth, clean: np.ndarray, origins: list, seed: int = 0, origin_of=lambd
 
 def test_table_sampler_matches_the_core(setup, pack):
     NoiseSynth, tables, clean, origins, core = setup
-    synth = NoiseSynth(pack, ISO)
+    synth = NoiseSynth(pack, ISO, components="pixel")
     r = compare(tables, draw(synth, clean, origins), core, origins)
     print(f"\nNoiseSynth vs Pack.synth: {r}")
     # The core's own samples fit the exported tables (the tables are the core's whole sampler):
@@ -196,3 +196,20 @@ def test_mutations_fail_the_same_check(setup):
     # The comparison with the core alone (no knowledge of the exact tables) catches each of them.
     missed = [n for n, r in caught.items() if r["p_two"] > ALPHA / r["tests"]]
     assert not missed, f"mutations the two-sample test misses: {missed}"
+
+
+def test_components_it_does_not_draw_are_refused(pack):
+    from noisecal.torch import NoiseSynth
+
+    structure = pack.tables(ISO)["structure"]
+    # The simulated sensor has row noise (at least): the default set is more than pixel.
+    assert "row" in structure, structure
+    with pytest.raises(ValueError, match=r"NoiseSynth draws the pixel component alone, but the pack adds row"):
+        NoiseSynth(pack, ISO)
+    for bad in ("pixel,row", "all", "frame", ""):
+        with pytest.raises(ValueError, match=r"NoiseSynth draws the pixel component alone"):
+            NoiseSynth(pack, ISO, components=bad)
+    assert NoiseSynth(pack, ISO, components="pixel").iso == ISO
+    # A baseline model is pixel-only: nothing to refuse.
+    assert pack.tables(ISO, model="hg")["structure"] == []
+    NoiseSynth(pack, ISO, model="hg")
