@@ -99,26 +99,28 @@ pub fn write_dng<'py>(
     let pack = pack.map(|p| p.inner.clone());
     py.detach(|| {
         guarded("write_dng", || {
-            noisecal_cli::support::refuse_overwriting_inputs(&path, &[&template]).map_err(to_py)?;
-            let t = dng::read_dng_template(&template).map_err(to_py)?;
-            let layout = &t.image.layout;
-            let (h, w) = pixels.dim();
-            if (w as u32, h as u32) != (layout.width, layout.height) {
-                return Err(err(format!(
-                    "pixels are {w}×{h} but the template {} is {}×{}: give an image of the template's size",
-                    template.display(),
-                    layout.width,
-                    layout.height
-                )));
-            }
-            let profile = match &pack {
-                Some(pack) => {
-                    let (model, _) = resolve_model(pack, iso, ModelKind::Noisecal, false).map_err(to_py)?;
-                    dng::fitted_noise_profile(pack, &model, layout)
+            pool::run(|| {
+                noisecal_cli::support::refuse_overwriting_inputs(&path, &[&template]).map_err(to_py)?;
+                let t = dng::read_dng_template(&template).map_err(to_py)?;
+                let layout = &t.image.layout;
+                let (h, w) = pixels.dim();
+                if (w as u32, h as u32) != (layout.width, layout.height) {
+                    return Err(err(format!(
+                        "pixels are {w}×{h} but the template {} is {}×{}: give an image of the template's size",
+                        template.display(),
+                        layout.width,
+                        layout.height
+                    )));
                 }
-                None => None,
-            };
-            dng::write_derived(&path, &t, &pixels, iso, profile.as_ref()).map_err(to_py)
+                let profile = match &pack {
+                    Some(pack) => {
+                        let (model, _) = resolve_model(pack, iso, ModelKind::Noisecal, false).map_err(to_py)?;
+                        dng::fitted_noise_profile(pack, &model, layout)
+                    }
+                    None => None,
+                };
+                dng::write_derived(&path, &t, &pixels, iso, profile.as_ref()).map_err(to_py)
+            })
         })
     })
 }

@@ -176,9 +176,15 @@ impl Pack {
 
     /// Decodes a model pack from bytes.
     #[staticmethod]
-    fn from_bytes(data: &[u8]) -> PyResult<Self> {
-        guarded("Pack.from_bytes", || {
-            ModelPack::from_bytes(data).map(Self::new).map_err(|e| err(format!("cannot load the model pack: {e}")))
+    fn from_bytes(py: Python<'_>, data: &[u8]) -> PyResult<Self> {
+        py.detach(|| {
+            guarded("Pack.from_bytes", || {
+                pool::run(|| {
+                    ModelPack::from_bytes(data)
+                        .map(Self::new)
+                        .map_err(|e| err(format!("cannot load the model pack: {e}")))
+                })
+            })
         })
     }
 
@@ -464,7 +470,7 @@ impl Pack {
         let pack = &*self.inner;
         py.detach(|| {
             guarded("Pack.gain_ratios", || {
-                interp::gain_ratio_at(pack, iso, extrapolate).map(|g| g.to_vec()).map_err(to_py)
+                pool::run(|| interp::gain_ratio_at(pack, iso, extrapolate).map(|g| g.to_vec()).map_err(to_py))
             })
         })
     }

@@ -77,7 +77,7 @@ BAD_INPUTS = [
     ("synth: clean_at", lambda p: p.synth(C, 800, clean_at="nowhere"), noisecal.InputError, r"clean_at"),
     ("synth: out_of_range", lambda p: p.synth(C, 800, out_of_range="sometimes"), noisecal.InputError,
      r"out_of_range=\"sometimes\": use \"raise\" \(default\), \"warn\" or \"allow\""),
-    ("synth: negative seed", lambda p: p.synth(C, 800, -1), OverflowError, r"seed"),
+    ("synth: negative seed", lambda p: p.synth(C, 800, -1), OverflowError, r"can't convert negative int"),
     ("renoise: to_iso not above from_iso", lambda p: p.renoise(C, 800, 100), noisecal.InputError,
      r"to_iso must be above from_iso"),
     ("renoise: unknown method", lambda p: p.renoise(C, 100, 800, method="magic"), noisecal.InputError,
@@ -94,6 +94,15 @@ def test_bad_input_is_refused_by_name(pack, what, call, exc, pattern):
     with pytest.raises(exc, match=pattern) as e:
         call(pack)
     assert "--" not in str(e.value), f"a CLI flag in a Python message: {e.value}"
+
+
+def test_integer_arguments_are_named(pack):
+    # pyo3 names the argument in a note on the exception (shown in the traceback).
+    for kwargs, name in (({"seed": -1}, "seed"), ({"cfa_origin": (-1, 0)}, "cfa_origin"), ({"iso": -5}, "iso")):
+        args = {"iso": 800, **kwargs}
+        with pytest.raises(OverflowError) as e:
+            pack.synth(C, **args)
+        assert any(name in n for n in getattr(e.value, "__notes__", [])), (kwargs, e.value)
 
 
 def test_categories():
@@ -195,4 +204,5 @@ if __name__ == "__main__":  # the table for notes: what each bad input raises
             call(p)
             print(f"| {what} | (no error) |")
         except Exception as e:  # noqa: BLE001
-            print(f"| {what} | `{type(e).__name__}`: {e} |")
+            notes = "".join(f" [{n}]" for n in getattr(e, "__notes__", []))
+            print(f"| {what} | `{type(e).__name__}`: {e}{notes} |")

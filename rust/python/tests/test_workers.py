@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 import noisecal
-from workers import NoisyDataset, RaySynth, clean_image, synth_from_path, synth_with
+from workers import NoisyDataset, RaySynth, clean_image, renoise_file, synth_from_path, synth_with
 
 TIMEOUT = 120
 
@@ -65,16 +65,21 @@ def test_os_fork_after_the_parent_synthesized(pack):
 
 
 @pytest.mark.parametrize("method", ["fork", "spawn", "forkserver"])
-def test_multiprocessing_after_the_parent_synthesized(pack, session, method):
+def test_multiprocessing_after_the_parent_synthesized(pack, session, method, tmp_path):
     if method not in mp.get_all_start_methods():
         pytest.skip(f"start method {method} not available here")
     want = expected(pack, [1, 2, 3, 4])  # the parent uses the package first
+    src = str(sorted(session["cal"].glob("*.dng"))[100])
+    want_file = renoise_file(pack, src, str(tmp_path / "parent.dng"), 9)
     ctx = mp.get_context(method)
     with ctx.Pool(2) as pool:
         # The Pack itself is pickled to the workers (by its bytes), and a path works too.
         got = pool.starmap_async(synth_with, [(pack, s) for s in (1, 2, 3, 4)]).get(TIMEOUT)
         by_path = pool.starmap_async(synth_from_path, [(str(session["cli_pack"]), s) for s in (1, 2)]).get(TIMEOUT)
+        files = pool.starmap_async(renoise_file, [(pack, src, str(tmp_path / f"w{i}.dng"), 9) for i in (0, 1)])
+        files = files.get(TIMEOUT)
     assert got == want
+    assert files == [want_file, want_file]
     cli_pack = noisecal.Pack.load(session["cli_pack"])
     assert by_path == expected(cli_pack, [1, 2])
 

@@ -17,6 +17,15 @@ def synth_with(pack: noisecal.Pack, seed: int) -> bytes:
     return pack.synth(clean_image(seed), 800, seed).tobytes()
 
 
+def renoise_file(pack: noisecal.Pack, src: str, dst: str, seed: int) -> bytes:
+    """A DNG read, synthesized and written in a worker (every entry that runs in parallel)."""
+    clean, meta = noisecal.read_dng(src, pack=pack)
+    noisy = pack.synth(clean, 800, seed, black_level=meta["black"])
+    noisecal.write_dng(dst, noisy, template=src, iso=800, pack=pack)
+    with open(dst, "rb") as f:
+        return f.read()
+
+
 def synth_from_path(path: str, seed: int) -> bytes:
     return synth_with(noisecal.Pack.load(path), seed)
 
