@@ -9,7 +9,8 @@
 //!   on held-out captures (one file per job); [`models`] picks the model a command uses and
 //!   aligns inputs to the pack's black level; [`simulate`] writes simulated sessions.
 //! - **Out:** [`report`] renders the HTML report; [`output`] writes files atomically;
-//!   [`support`] holds what every command shares (loading a pack, progress, stdout).
+//!   [`support`] holds what every command shares (loading a pack, progress, stdout); [`seeds`]
+//!   the seed of each file of a folder run (the rule the Python package shares).
 //! - [`cmd`]: one module per subcommand, its arguments and its `run`.
 
 pub mod calibrate;
@@ -21,6 +22,7 @@ pub mod grouping;
 pub mod models;
 pub mod output;
 pub mod report;
+pub mod seeds;
 pub mod simulate;
 pub mod source;
 pub mod support;

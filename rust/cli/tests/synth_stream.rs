@@ -209,7 +209,8 @@ fn streamed_output_equals_the_in_memory_path() {
     let _ = Tag::from_u16(0);
 }
 
-/// A folder run streams each file and equals single-file runs with seed + index; a failed write
+/// A folder run streams each file and equals single-file runs with `seed_for(file name, seed)`
+/// (with `--seed-by index`, seed + index); a failed write
 /// (the output folder's file is a directory) leaves no temporary file behind.
 #[test]
 fn streamed_folder_runs_and_failures() {
@@ -226,16 +227,52 @@ fn streamed_folder_runs_and_failures() {
     let (ok, err) =
         noisecal(&["-q", "synth", "--pack", s(&pack), "--iso", "800", "--seed", "5", s(&input), "-o", s(&out)]);
     assert!(ok, "{err}");
+    let by_index = d.join("by_index");
+    let (ok, err) = noisecal(&[
+        "-q",
+        "synth",
+        "--pack",
+        s(&pack),
+        "--iso",
+        "800",
+        "--seed",
+        "5",
+        "--seed-by",
+        "index",
+        s(&input),
+        "-o",
+        s(&by_index),
+    ]);
+    assert!(ok, "{err}");
     for i in 0..3 {
-        let single = d.join(format!("single{i}.dng"));
-        let seed = (5 + i).to_string();
-        let f = input.join(format!("f{i}.dng"));
-        let (ok, err) =
-            noisecal(&["-q", "synth", "--pack", s(&pack), "--iso", "800", "--seed", &seed, s(&f), "-o", s(&single)]);
-        assert!(ok, "{err}");
-        let a = std::fs::read(out.join(format!("f{i}.dng"))).expect("folder output");
-        assert!(a == std::fs::read(&single).expect("single output"), "file {i}");
+        let name = format!("f{i}.dng");
+        let f = input.join(&name);
+        for (folder, seed) in [(&out, noisecal_cli::seeds::seed_for(name.as_bytes(), 5)), (&by_index, 5 + i as u64)] {
+            let single = d.join(format!("single{i}_{seed}.dng"));
+            let seed = seed.to_string();
+            let (ok, err) = noisecal(&[
+                "-q",
+                "synth",
+                "--pack",
+                s(&pack),
+                "--iso",
+                "800",
+                "--seed",
+                &seed,
+                s(&f),
+                "-o",
+                s(&single),
+            ]);
+            assert!(ok, "{err}");
+            let a = std::fs::read(folder.join(&name)).expect("folder output");
+            assert!(a == std::fs::read(&single).expect("single output"), "file {i} of {}", folder.display());
+        }
     }
+    assert!(
+        std::fs::read(out.join("f1.dng")).expect("by name")
+            != std::fs::read(by_index.join("f1.dng")).expect("by index"),
+        "the two rules give different seeds"
+    );
     // The output is a directory: refused, nothing left behind.
     let blocked = d.join("blocked");
     std::fs::create_dir_all(blocked.join("f0.dng")).expect("mkdir");

@@ -3,8 +3,9 @@
     python ray_renoise.py PACK ISO IN_DIR OUT_DIR [--address ray://head:10001] [--actors 4]
 
 Runs on this machine with ``ray.init()``, or on a cluster with ``--address`` (no other change).
-Each output equals ``noisecal synth --pack PACK --iso ISO --seed S IN -o OUT`` with
-``S = noisecal.seed_for(file name, --base-seed)``.
+The output folder equals ``noisecal synth --pack PACK --iso ISO --seed BASE IN_DIR -o OUT_DIR``
+(``BASE`` = ``--base-seed``; the folder rule of every noisecal tool): each file gets
+``S = noisecal.seed_for(file name, BASE)`` and equals ``noisecal synth ... --seed S`` on that file.
 """
 
 from __future__ import annotations

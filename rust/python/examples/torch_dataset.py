@@ -2,7 +2,9 @@
 
 Each sample gets its own RNG stream from (epoch, index) through ``noisecal.seed_for``: no state is
 shared between DataLoader workers, and the same (epoch, index) gives the same noisy crop in any
-worker, with any number of workers. Crops keep their CFA phase through ``cfa_origin``.
+worker, with any number of workers. Crops keep their CFA phase through ``cfa_origin``. Each file
+is checked against the pack's sensor (``read_dng(..., pack=...)``). The pack pickles and works in
+forked workers, so it may be loaded in the parent (and used there, e.g. ``ds[0]``) or lazily.
 
     python torch_dataset.py PACK CLEAN_DIR
 """
@@ -38,7 +40,7 @@ class NoisyRawCrops(Dataset):
     def __getitem__(self, i: int):
         seed = noisecal.seed_for(f"{self.epoch}:{i}")
         rng = np.random.default_rng(seed)
-        clean, meta = noisecal.read_dng(self.files[i])
+        clean, meta = noisecal.read_dng(self.files[i], pack=self.pack)
         h, w = clean.shape
         c = min(self.crop, h, w)
         y, x = int(rng.integers(0, h - c + 1)), int(rng.integers(0, w - c + 1))

@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use numpy::{PyArray2, PyReadonlyArray2};
+use numpy::PyArray2;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -11,8 +11,10 @@ use noisecal_cli::calibrate::{CalibrateOptions, calibrate_path};
 use noisecal_cli::dng;
 use noisecal_cli::models::{ModelKind, resolve_model};
 
-use crate::errors::{err, guarded, to_py};
+use crate::checks::{self, Mismatch};
+use crate::errors::{err, guarded, input, to_py};
 use crate::pack::Pack;
+use crate::pool;
 
 /// Builds a model pack from a folder of DNG bursts or a raw recording, as `noisecal calibrate`.
 #[pyfunction]
@@ -26,18 +28,33 @@ pub fn calibrate(
     plain: bool,
 ) -> PyResult<Pack> {
     if bin_width == Some(0) {
-        return Err(err("bin_width 0 is not a width: give levels per bin (1 or more), or leave it to the default"));
+        return Err(input("bin_width 0 is not a width: give levels per bin (1 or more), or leave it to the default"));
     }
     let opts = CalibrateOptions { reference_iso, bin_width, pooling, plain, ..Default::default() };
     py.detach(|| {
-        guarded("calibrate", || calibrate_path(&path, &opts, true).map(|(pack, _)| Pack::new(pack)).map_err(to_py))
+        guarded("calibrate", || {
+            pool::run(|| calibrate_path(&path, &opts, true).map(|(pack, _)| Pack::new(pack)).map_err(to_py))
+        })
     })
 }
 
-/// Reads a raw DNG: the CFA array (uint16, `(H, W)`) and its metadata.
+/// Reads a raw DNG: the CFA array (uint16, `(H, W)`) and its metadata. With `pack`, the image is
+/// checked against the pack's sensor as `noisecal synth` checks it: another CFA phase or white
+/// level (bit depth) raises `MismatchError` (`mismatch="warn"`: a warning instead; `"ignore"`: no
+/// check); another camera (make, model) gives a `NoisecalWarning`.
 #[pyfunction]
-pub fn read_dng<'py>(py: Python<'py>, path: PathBuf) -> PyResult<(Bound<'py, PyArray2<u16>>, Bound<'py, PyDict>)> {
-    let img = py.detach(|| guarded("read_dng", || dng::read_dng(&path).map_err(to_py)))?;
+#[pyo3(signature = (path, *, pack=None, mismatch="raise"))]
+pub fn read_dng<'py>(
+    py: Python<'py>,
+    path: PathBuf,
+    pack: Option<PyRef<'py, Pack>>,
+    mismatch: &str,
+) -> PyResult<(Bound<'py, PyArray2<u16>>, Bound<'py, PyDict>)> {
+    let policy = Mismatch::parse(mismatch)?;
+    let img = py.detach(|| guarded("read_dng", || pool::run(|| dng::read_dng(&path).map_err(to_py))))?;
+    if let Some(pack) = &pack {
+        checks::dng_matches(py, &path, &img.layout, &img.make, &img.model, &pack.inner, policy)?;
+    }
     let d = PyDict::new(py);
     d.set_item("iso", img.meta.iso)?;
     d.set_item("exposure_ns", img.meta.exposure_ns)?;
@@ -59,38 +76,51 @@ pub fn read_dng<'py>(py: Python<'py>, path: PathBuf) -> PyResult<(Bound<'py, PyA
 /// new pixels). `path` may not be the template.
 #[pyfunction]
 #[pyo3(signature = (path, pixels, *, template, iso, pack=None))]
-pub fn write_dng(
-    py: Python<'_>,
+pub fn write_dng<'py>(
+    py: Python<'py>,
     path: PathBuf,
-    pixels: PyReadonlyArray2<'_, u16>,
+    pixels: &Bound<'py, PyAny>,
     template: PathBuf,
     iso: u32,
-    pack: Option<PyRef<'_, Pack>>,
+    pack: Option<PyRef<'py, Pack>>,
 ) -> PyResult<()> {
-    let pixels = pixels.as_array().to_owned();
+    let pixels = checks::array::<u16>(pixels, "pixels", "uint16", |_| {
+        "raw DN, black included (what synth returns): np.rint(pixels).astype(np.uint16) within [0, white]".into()
+    })?;
+    let view = pixels.as_array();
+    let (imgs, batch) = checks::images(&view, "pixels")?;
+    if batch {
+        return Err(input(format!(
+            "pixels is a batch of {} images: write_dng writes one (H, W) image per file",
+            imgs.len()
+        )));
+    }
+    let pixels = imgs[0].to_owned();
     let pack = pack.map(|p| p.inner.clone());
     py.detach(|| {
         guarded("write_dng", || {
-            noisecal_cli::support::refuse_overwriting_inputs(&path, &[&template]).map_err(to_py)?;
-            let t = dng::read_dng_template(&template).map_err(to_py)?;
-            let layout = &t.image.layout;
-            let (h, w) = pixels.dim();
-            if (w as u32, h as u32) != (layout.width, layout.height) {
-                return Err(err(format!(
-                    "pixels are {w}×{h} but the template {} is {}×{}: give an image of the template's size",
-                    template.display(),
-                    layout.width,
-                    layout.height
-                )));
-            }
-            let profile = match &pack {
-                Some(pack) => {
-                    let (model, _) = resolve_model(pack, iso, ModelKind::Noisecal, false).map_err(to_py)?;
-                    dng::fitted_noise_profile(pack, &model, layout)
+            pool::run(|| {
+                noisecal_cli::support::refuse_overwriting_inputs(&path, &[&template]).map_err(to_py)?;
+                let t = dng::read_dng_template(&template).map_err(to_py)?;
+                let layout = &t.image.layout;
+                let (h, w) = pixels.dim();
+                if (w as u32, h as u32) != (layout.width, layout.height) {
+                    return Err(err(format!(
+                        "pixels are {w}×{h} but the template {} is {}×{}: give an image of the template's size",
+                        template.display(),
+                        layout.width,
+                        layout.height
+                    )));
                 }
-                None => None,
-            };
-            dng::write_derived(&path, &t, &pixels, iso, profile.as_ref()).map_err(to_py)
+                let profile = match &pack {
+                    Some(pack) => {
+                        let (model, _) = resolve_model(pack, iso, ModelKind::Noisecal, false).map_err(to_py)?;
+                        dng::fitted_noise_profile(pack, &model, layout)
+                    }
+                    None => None,
+                };
+                dng::write_derived(&path, &t, &pixels, iso, profile.as_ref()).map_err(to_py)
+            })
         })
     })
 }

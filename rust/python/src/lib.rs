@@ -5,21 +5,29 @@
 //! - [`pack::Pack`]: a model pack (load, properties, `synth`, `synth_float`, `renoise`,
 //!   `interp`, `tables`).
 //! - [`io`]: `calibrate`, `read_dng`, `write_dng` over the CLI's DNG and capture-set code.
-//! - [`errors`]: every failure is a `noisecal.NoisecalError` carrying the core's message; a Rust
-//!   panic is caught at the boundary and becomes one too.
+//! - [`checks`]: every input checked by name before the core sees it (dtype, shape, values
+//!   against the pack's black and white, NaN/inf, a DNG's sensor against the pack's).
+//! - [`errors`]: `NoisecalError(ValueError)` and its `InputError`, `MismatchError`; a wrong
+//!   dtype is a `TypeError`; a Rust panic is caught at the boundary and becomes an error too.
+//! - [`pool`]: the worker threads, one pool per process (so a forked child works).
 //!
 //! Arrays are read without copying, the GIL is released while the core works (`Python::detach`),
-//! and the core's rayon pool uses all cores; outputs depend only on inputs and seeds.
+//! and the core runs on a pool of all cores; outputs depend only on inputs and seeds.
 
+mod checks;
 mod errors;
 mod io;
 mod pack;
+mod pool;
 
 use pyo3::prelude::*;
 
 #[pymodule]
 fn _noisecal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("NoisecalError", m.py().get_type::<errors::NoisecalError>())?;
+    m.add("InputError", m.py().get_type::<errors::InputError>())?;
+    m.add("MismatchError", m.py().get_type::<errors::MismatchError>())?;
+    m.add("NoisecalWarning", m.py().get_type::<errors::NoisecalWarning>())?;
     m.add_class::<pack::Pack>()?;
     m.add_function(wrap_pyfunction!(io::calibrate, m)?)?;
     m.add_function(wrap_pyfunction!(io::read_dng, m)?)?;

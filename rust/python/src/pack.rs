@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 
 use ndarray::{Array2, Array3, ArrayD, ArrayView2, Axis};
-use numpy::{PyArray1, PyArray2, PyArray3, PyArrayDyn, PyReadonlyArrayDyn};
+use numpy::{PyArray1, PyArray2, PyArray3, PyArrayDyn};
 
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
@@ -19,7 +19,9 @@ use noisecal_core::synth::sampler::IsoSampler;
 use noisecal_core::synth::{CleanAt, synthesize_at};
 use noisecal_core::{ModelPack, POSITIONS};
 
-use crate::errors::{err, guarded, to_py};
+use crate::checks::{self, OutOfRange, images};
+use crate::errors::{err, guarded, input, to_py};
+use crate::pool;
 
 /// A sampler cache key: ISO, model, extrapolate, components, brightness of the clean image.
 type SamplerKey = (u32, ModelKind, bool, Components, CleanAt);
@@ -66,13 +68,13 @@ impl Pack {
 fn parse_components(which: Option<&str>) -> PyResult<Components> {
     match which {
         None => Ok(Components::ALL),
-        Some(s) => Components::parse(s).map_err(err),
+        Some(s) => Components::parse(s).map_err(input),
     }
 }
 
 /// `clean_at="reference"|"target"`.
 fn parse_clean_at(s: &str) -> PyResult<CleanAt> {
-    CleanAt::parse(s).map_err(|e| err(e.replace("clean-at", "clean_at")))
+    CleanAt::parse(s).map_err(|e| input(e.replace("clean-at", "clean_at")))
 }
 
 fn parse_model(name: &str) -> PyResult<ModelKind> {
@@ -81,17 +83,20 @@ fn parse_model(name: &str) -> PyResult<ModelKind> {
         "hg" => Ok(ModelKind::Hg),
         "pg" => Ok(ModelKind::Pg),
         "noiseprofile" => Ok(ModelKind::Noiseprofile),
-        _ => Err(err(format!("unknown model {name:?}: use \"noisecal\", \"hg\", \"pg\" or \"noiseprofile\""))),
+        _ => Err(input(format!("unknown model {name:?}: use \"noisecal\", \"hg\", \"pg\" or \"noiseprofile\""))),
     }
 }
 
 /// Per-position black levels for the input: the pack's, one number, or four (CFA order).
 fn black_levels(pack: &ModelPack, black_level: Option<Vec<f64>>) -> PyResult<[f32; POSITIONS]> {
+    if let Some(v) = &black_level {
+        checks::black_values(v, pack.layout.white)?;
+    }
     match black_level.as_deref() {
         None => Ok(pack.layout.black),
         Some([b]) => Ok([*b as f32; POSITIONS]),
         Some(v) if v.len() == POSITIONS => Ok(std::array::from_fn(|p| v[p] as f32)),
-        Some(v) => Err(err(format!(
+        Some(v) => Err(input(format!(
             "black_level has {} values: give one number, or four in CFA order (top-left, top-right, bottom-left, bottom-right)",
             v.len()
         ))),
@@ -118,13 +123,22 @@ fn synth_one(
     align.undo_at(synthesize_at(sampler, moved.view(), seed, origin).view(), white, origin)
 }
 
-/// `(H, W)` or `(N, H, W)` → views of each image, and whether there was a batch axis.
-fn images<'a, T>(a: &'a ndarray::ArrayViewD<'_, T>, what: &str) -> PyResult<(Vec<ArrayView2<'a, T>>, bool)> {
-    match a.ndim() {
-        2 => Ok((vec![a.view().into_dimensionality().map_err(to_py)?], false)),
-        3 => Ok((a.axis_iter(Axis(0)).map(|v| v.into_dimensionality().expect("2-D slices")).collect(), true)),
-        n => Err(err(format!("{what} has {n} dimensions: give one image (H, W) or a batch (N, H, W)"))),
+/// The structured components `synth` adds at `iso` by default (`components=None`), which the
+/// tables leave out: `row`, `column`, `frame`, `fpn` (none for the parametric baselines).
+fn structured_components(pack: &ModelPack, iso: u32, kind: ModelKind) -> Vec<&'static str> {
+    if kind != ModelKind::Noisecal {
+        return Vec::new();
     }
+    let Some(st) = noisecal_core::derive::structure::structure_at(pack, iso) else { return Vec::new() };
+    [
+        ((0..2).any(|p| st.row(p).is_some()), "row"),
+        ((0..2).any(|p| st.column(p).is_some()), "column"),
+        (st.frame().is_some(), "frame"),
+        (st.fixed_pattern().is_some(), "fpn"),
+    ]
+    .into_iter()
+    .filter_map(|(on, name)| on.then_some(name))
+    .collect()
 }
 
 /// `f(image, seed + i)` for image `i` of a batch (a folder run of the CLI numbers its files the
@@ -155,14 +169,22 @@ impl Pack {
     /// Loads a model pack from a file.
     #[staticmethod]
     fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
-        py.detach(|| guarded("Pack.load", || noisecal_cli::support::load_pack(&path).map(Self::new).map_err(to_py)))
+        py.detach(|| {
+            guarded("Pack.load", || pool::run(|| noisecal_cli::support::load_pack(&path).map(Self::new).map_err(to_py)))
+        })
     }
 
     /// Decodes a model pack from bytes.
     #[staticmethod]
-    fn from_bytes(data: &[u8]) -> PyResult<Self> {
-        guarded("Pack.from_bytes", || {
-            ModelPack::from_bytes(data).map(Self::new).map_err(|e| err(format!("cannot load the model pack: {e}")))
+    fn from_bytes(py: Python<'_>, data: &[u8]) -> PyResult<Self> {
+        py.detach(|| {
+            guarded("Pack.from_bytes", || {
+                pool::run(|| {
+                    ModelPack::from_bytes(data)
+                        .map(Self::new)
+                        .map_err(|e| err(format!("cannot load the model pack: {e}")))
+                })
+            })
         })
     }
 
@@ -239,20 +261,40 @@ impl Pack {
         )
     }
 
+    /// Pickling (multiprocessing with spawn, Ray, DataLoader workers): the pack's bytes, decoded
+    /// again by `noisecal.Pack.from_bytes` on the other side.
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyAny>, (Bound<'py, PyBytes>,))> {
+        let ctor = py.import("noisecal")?.getattr("_pack_from_bytes")?;
+        Ok((ctor, (self.to_bytes(py)?,)))
+    }
+
+    /// A pack is immutable: a copy shares its models (and builds its own samplers).
+    fn __copy__(&self) -> Self {
+        Self { inner: self.inner.clone(), samplers: Mutex::new(HashMap::new()) }
+    }
+
+    /// As `__copy__`: nothing in a pack can change, so sharing its models is a deep copy.
+    fn __deepcopy__(&self, _memo: &Bound<'_, PyAny>) -> Self {
+        self.__copy__()
+    }
+
     /// Adds noise at `iso` to clean raw images (uint16 DN, black included), `(H, W)` or
-    /// `(N, H, W)`; image `i` of a batch uses seed `seed + i`, as a folder run of `noisecal synth`.
-    /// `components` chooses the noise components (`"pixel,row,column,frame,fpn"`; default: all the
-    /// pack calibrated), as `noisecal synth --components`. `clean_at` is the brightness the clean
-    /// image is at, as `noisecal synth --clean-at`: `"reference"` (default: the reference ISO's
-    /// brightness for the same ISO × exposure; the output gets the target ISO's, its gain ratios
-    /// `gain_ratios(iso)` applied) or `"target"` (already at the target ISO's brightness: the
-    /// noise has no mean shift).
-    #[pyo3(signature = (clean, iso, seed=0, *, model="noisecal", black_level=None, cfa_origin=(0, 0), extrapolate=false, components=None, clean_at="reference"))]
+    /// `(N, H, W)`; image `i` of a batch uses seed `seed + i` (a folder's files are seeded by
+    /// name instead: `noisecal.seed_for`). `components` chooses the noise components
+    /// (`"pixel,row,column,frame,fpn"`; default: all the pack calibrated), as `noisecal synth
+    /// --components`. `clean_at` is the brightness the clean image is at, as `noisecal synth
+    /// --clean-at`: `"reference"` (default: the reference ISO's brightness for the same ISO ×
+    /// exposure; the output gets the target ISO's, its gain ratios `gain_ratios(iso)` applied) or
+    /// `"target"` (already at the target ISO's brightness: the noise has no mean shift).
+    /// Pixels above the pack's white level are refused (`out_of_range="raise"`); with `"warn"`
+    /// or `"allow"` they keep their level, draw from the top bin, and the output is clipped to
+    /// the sensor's codes (with another `black_level`, they are clipped to white first).
+    #[pyo3(signature = (clean, iso, seed=0, *, model="noisecal", black_level=None, cfa_origin=(0, 0), extrapolate=false, components=None, clean_at="reference", out_of_range="raise"))]
     #[allow(clippy::too_many_arguments)]
     fn synth<'py>(
         &self,
         py: Python<'py>,
-        clean: PyReadonlyArrayDyn<'py, u16>,
+        clean: &Bound<'py, PyAny>,
         iso: u32,
         seed: u64,
         model: &str,
@@ -261,18 +303,37 @@ impl Pack {
         extrapolate: bool,
         components: Option<&str>,
         clean_at: &str,
+        out_of_range: &str,
     ) -> PyResult<Bound<'py, PyArrayDyn<u16>>> {
+        let clean = checks::array::<u16>(clean, "clean", "uint16", |got| {
+            if got.contains("float") {
+                "raw DN as uint16 (np.rint(clean).astype(np.uint16)); for float32 levels normalised by black and white use synth_float".into()
+            } else {
+                "raw DN, black included: clean.astype(np.uint16) once its values are within [0, white]".into()
+            }
+        })?;
         let kind = parse_model(model)?;
         let which = parse_components(components)?;
         let clean_at = parse_clean_at(clean_at)?;
+        let policy = OutOfRange::parse(out_of_range)?;
         let black = black_levels(&self.inner, black_level)?;
         let view = clean.as_array();
         let (imgs, batch) = images(&view, "clean")?;
         let pack = &*self.inner;
+        checks::levels_in_range(
+            py,
+            &imgs,
+            "clean",
+            pack,
+            policy,
+            "synthesize them at their level (drawn from the top bin, the output clipped to the sensor's codes)",
+        )?;
         let outs = py.detach(|| {
             guarded("Pack.synth", || {
-                let sampler = self.sampler(iso, kind, extrapolate, which, clean_at)?;
-                per_image(&imgs, seed, |img, s| Ok(synth_one(pack, &sampler, img, &black, s, cfa_origin)))
+                pool::run(|| {
+                    let sampler = self.sampler(iso, kind, extrapolate, which, clean_at)?;
+                    per_image(&imgs, seed, |img, s| Ok(synth_one(pack, &sampler, img, &black, s, cfa_origin)))
+                })
             })
         })?;
         Ok(PyArrayDyn::from_owned_array(py, stack(outs, batch)))
@@ -280,13 +341,15 @@ impl Pack {
 
     /// As `synth`, for float32 images normalised by black and white (`(DN − black)/(white −
     /// black)` per CFA position, the usual torch input): the result is normalised the same way.
-    /// `clean_at` as in `synth`.
-    #[pyo3(signature = (clean, iso, seed=0, *, model="noisecal", cfa_origin=(0, 0), extrapolate=false, components=None, clean_at="reference"))]
+    /// `clean_at` as in `synth`. NaN and infinities are refused; levels outside the pack's codes
+    /// (below DN 0 or above white once denormalised) are refused (`out_of_range="raise"`), or
+    /// clamped to them with `"warn"` (and a warning with the counts) or `"allow"`.
+    #[pyo3(signature = (clean, iso, seed=0, *, model="noisecal", cfa_origin=(0, 0), extrapolate=false, components=None, clean_at="reference", out_of_range="raise"))]
     #[allow(clippy::too_many_arguments)]
     fn synth_float<'py>(
         &self,
         py: Python<'py>,
-        clean: PyReadonlyArrayDyn<'py, f32>,
+        clean: &Bound<'py, PyAny>,
         iso: u32,
         seed: u64,
         model: &str,
@@ -294,30 +357,43 @@ impl Pack {
         extrapolate: bool,
         components: Option<&str>,
         clean_at: &str,
+        out_of_range: &str,
     ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+        let clean = checks::array::<f32>(clean, "clean", "float32", |got| {
+            if got.contains("uint16") {
+                "for uint16 DN use synth; synth_float takes float32 levels normalised by black and white".into()
+            } else {
+                "pass clean.astype(np.float32), levels normalised by black and white: (DN − black)/(white − black)"
+                    .into()
+            }
+        })?;
         let kind = parse_model(model)?;
         let which = parse_components(components)?;
         let clean_at = parse_clean_at(clean_at)?;
+        let policy = OutOfRange::parse(out_of_range)?;
         let view = clean.as_array();
         let (imgs, batch) = images(&view, "clean")?;
         let pack = &*self.inner;
+        checks::floats_in_range(py, &imgs, "clean", pack, cfa_origin, policy)?;
         let black = pack.layout.black;
         let white = pack.layout.white as f32;
         let scale: [f32; POSITIONS] = std::array::from_fn(|p| (white - black[p]).max(1.0));
         let outs = py.detach(|| {
             guarded("Pack.synth_float", || {
-                let sampler = self.sampler(iso, kind, extrapolate, which, clean_at)?;
-                let pos = |y: usize, x: usize| position(y + cfa_origin.0, x + cfa_origin.1);
-                per_image(&imgs, seed, |img, s| {
-                    let dn = Array2::from_shape_fn(img.dim(), |(y, x)| {
-                        let p = pos(y, x);
-                        (img[(y, x)] * scale[p] + black[p]).round().clamp(0.0, white) as u16
-                    });
-                    let out = synthesize_at(&sampler, dn.view(), s, cfa_origin);
-                    Ok(Array2::from_shape_fn(out.dim(), |(y, x)| {
-                        let p = pos(y, x);
-                        (out[(y, x)] as f32 - black[p]) / scale[p]
-                    }))
+                pool::run(|| {
+                    let sampler = self.sampler(iso, kind, extrapolate, which, clean_at)?;
+                    let pos = |y: usize, x: usize| position(y + cfa_origin.0, x + cfa_origin.1);
+                    per_image(&imgs, seed, |img, s| {
+                        let dn = Array2::from_shape_fn(img.dim(), |(y, x)| {
+                            let p = pos(y, x);
+                            (img[(y, x)] * scale[p] + black[p]).round().clamp(0.0, white) as u16
+                        });
+                        let out = synthesize_at(&sampler, dn.view(), s, cfa_origin);
+                        Ok(Array2::from_shape_fn(out.dim(), |(y, x)| {
+                            let p = pos(y, x);
+                            (out[(y, x)] as f32 - black[p]) / scale[p]
+                        }))
+                    })
                 })
             })
         })?;
@@ -326,36 +402,45 @@ impl Pack {
 
     /// Turns captures at `from_iso` into captures at the higher `to_iso` (noise on noise), as
     /// `noisecal renoise` does; `method` is "bridge" (default), "quantile", "denoised" or "naive".
-    #[pyo3(signature = (noisy, from_iso, to_iso, seed=0, *, method="bridge", extrapolate=false))]
+    /// Pixels above the pack's white level are refused unless `out_of_range` is "warn" or "allow".
+    #[pyo3(signature = (noisy, from_iso, to_iso, seed=0, *, method="bridge", extrapolate=false, out_of_range="raise"))]
     #[allow(clippy::too_many_arguments)]
     fn renoise<'py>(
         &self,
         py: Python<'py>,
-        noisy: PyReadonlyArrayDyn<'py, u16>,
+        noisy: &Bound<'py, PyAny>,
         from_iso: u32,
         to_iso: u32,
         seed: u64,
         method: &str,
         extrapolate: bool,
+        out_of_range: &str,
     ) -> PyResult<Bound<'py, PyArrayDyn<u16>>> {
+        let noisy = checks::array::<u16>(noisy, "noisy", "uint16", |_| {
+            "raw DN of captures at from_iso, black included, as read_dng gives them".into()
+        })?;
         let method = Method::parse(method)
-            .ok_or_else(|| err(format!("unknown method {method:?}: use bridge, quantile, denoised or naive")))?;
+            .ok_or_else(|| input(format!("unknown method {method:?}: use bridge, quantile, denoised or naive")))?;
         if to_iso <= from_iso {
-            return Err(err(format!(
+            return Err(input(format!(
                 "cannot renoise ISO {from_iso} captures to ISO {to_iso}: noise on noise only adds noise, so to_iso must be above from_iso"
             )));
         }
+        let policy = OutOfRange::parse(out_of_range)?;
         let view = noisy.as_array();
         let (imgs, batch) = images(&view, "noisy")?;
         let pack = &*self.inner;
+        checks::levels_in_range(py, &imgs, "noisy", pack, policy, "re-noise them as they are")?;
         let outs = py.detach(|| {
             guarded("Pack.renoise", || {
-                let (source, _) = resolve_model(pack, from_iso, ModelKind::Noisecal, extrapolate)
-                    .map_err(|e| to_py(e.context(format!("no model for the source ISO {from_iso}"))))?;
-                let (target, _) = resolve_model(pack, to_iso, ModelKind::Noisecal, extrapolate)
-                    .map_err(|e| to_py(e.context(format!("no model for the target ISO {to_iso}"))))?;
-                let r = Renoiser::new(pack, &source, &target, method).map_err(to_py)?;
-                per_image(&imgs, seed, |img, s| r.apply(img, None, s).map(|o| o.image).map_err(to_py))
+                pool::run(|| {
+                    let (source, _) = resolve_model(pack, from_iso, ModelKind::Noisecal, extrapolate)
+                        .map_err(|e| to_py(e.context(format!("no model for the source ISO {from_iso}"))))?;
+                    let (target, _) = resolve_model(pack, to_iso, ModelKind::Noisecal, extrapolate)
+                        .map_err(|e| to_py(e.context(format!("no model for the target ISO {to_iso}"))))?;
+                    let r = Renoiser::new(pack, &source, &target, method).map_err(to_py)?;
+                    per_image(&imgs, seed, |img, s| r.apply(img, None, s).map(|o| o.image).map_err(to_py))
+                })
             })
         })?;
         Ok(PyArrayDyn::from_owned_array(py, stack(outs, batch)))
@@ -367,9 +452,11 @@ impl Pack {
         let pack = &*self.inner;
         py.detach(|| {
             guarded("Pack.interp", || {
-                interp::materialize(pack, &isos, extrapolate, &InterpOptions::default())
-                    .map(|(p, _)| Self::new(p))
-                    .map_err(to_py)
+                pool::run(|| {
+                    interp::materialize(pack, &isos, extrapolate, &InterpOptions::default())
+                        .map(|(p, _)| Self::new(p))
+                        .map_err(to_py)
+                })
             })
         })
     }
@@ -383,7 +470,7 @@ impl Pack {
         let pack = &*self.inner;
         py.detach(|| {
             guarded("Pack.gain_ratios", || {
-                interp::gain_ratio_at(pack, iso, extrapolate).map(|g| g.to_vec()).map_err(to_py)
+                pool::run(|| interp::gain_ratio_at(pack, iso, extrapolate).map(|g| g.to_vec()).map_err(to_py))
             })
         })
     }
@@ -395,7 +482,7 @@ impl Pack {
     /// `first + searchsorted(cdf, u, right=True)`. `lattice` tells where the core also snaps to a
     /// code lattice (not reproduced by table samplers). The tables are the pixel-independent
     /// model, `synth(..., components="pixel")`: the row, column and frame offsets of a version 3
-    /// pack are not in them. `gain_ratio[p]` is the ISO's gain ratio per position
+    /// pack are not in them (`structure` lists those `synth` adds at `iso` by default). `gain_ratio[p]` is the ISO's gain ratio per position
     /// (`gain_ratios`). With `clean_at="target"`, `lut` maps a level at the target brightness to
     /// the bin of its reference level and `shift[p, level]` (DN, float64) is added to the draw,
     /// dithered onto the integers (`floor(shift + U[0, 1))`): the gain shift taken out. With
@@ -412,11 +499,13 @@ impl Pack {
         let kind = parse_model(model)?;
         let clean_at = parse_clean_at(clean_at)?;
         let pack = &*self.inner;
-        let (sampler, gains) = py.detach(|| {
+        let (sampler, gains, structure) = py.detach(|| {
             guarded("Pack.tables", || {
-                let s = self.sampler(iso, kind, extrapolate, Components::PIXEL, clean_at)?;
-                let g = interp::gain_ratio_at(pack, iso, extrapolate).map_err(to_py)?;
-                Ok((s, g))
+                pool::run(|| {
+                    let s = self.sampler(iso, kind, extrapolate, Components::PIXEL, clean_at)?;
+                    let g = interp::gain_ratio_at(pack, iso, extrapolate).map_err(to_py)?;
+                    Ok((s, g, structured_components(pack, iso, kind)))
+                })
             })
         })?;
         let levels = pack.layout.white as usize + 1;
@@ -458,6 +547,7 @@ impl Pack {
         d.set_item("gain_ratio", gains.to_vec())?;
         d.set_item("clean_at", clean_at.name())?;
         d.set_item("shift", PyArray2::from_owned_array(py, shift))?;
+        d.set_item("structure", structure)?;
         Ok(d)
     }
 }

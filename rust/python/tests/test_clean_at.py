@@ -102,7 +102,7 @@ def test_torch_noise_synth_takes_clean_at(gamma_pack):
     iso = max(pack.calibrated_isos)
     clean, black, top = _ramp(pack, iso)
     gains = pack.gain_ratios(iso)
-    synth = NoiseSynth(pack, iso, clean_at="target")
+    synth = NoiseSynth(pack, iso, clean_at="target", components="pixel")
     gen = torch.Generator().manual_seed(3)
     out = synth(torch.as_tensor(np.stack([clean.astype(np.int32)] * 4)), generator=gen).numpy()
     for c, m, se, _ in _bands(clean, out, black, top, gains):

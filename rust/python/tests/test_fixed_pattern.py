@@ -53,3 +53,27 @@ def test_pattern_repeats_and_follows_the_crop(dark_pack: noisecal.Pack) -> None:
     # Told it sits at (0, 0) (wrong pixels, and the wrong CFA phase), it does not.
     f = _pattern(dark_pack, crop, (0, 0), range(96, 144), "pixel,fpn")
     assert abs(_corr(f, a[10:42, 21:69])) < 0.08, _corr(f, a[10:42, 21:69])
+
+
+def test_tables_name_the_components_they_leave_out(dark_pack: noisecal.Pack, pack: noisecal.Pack) -> None:
+    # The dark step's pattern (and the simulated row/column offsets) are drawn by synth by default,
+    # not by the pixel tables: the tables say so.
+    structure = dark_pack.tables(ISO)["structure"]
+    assert "fpn" in structure, structure
+    assert set(structure) <= {"row", "column", "frame", "fpn"}
+    assert dark_pack.tables(ISO, model="pg")["structure"] == []
+
+
+def test_noise_synth_refuses_the_default_set_it_does_not_draw(dark_pack: noisecal.Pack) -> None:
+    pytest.importorskip("torch", reason="torch is not installed (optional: pip install noisecal[torch])")
+    from noisecal.torch import NoiseSynth
+
+    structure = dark_pack.tables(ISO)["structure"]
+    with pytest.raises(ValueError, match=r"NoiseSynth draws the pixel component alone, but the pack adds "
+                                         + ", ".join(structure)):
+        NoiseSynth(dark_pack, ISO)
+    # Asked for the pixel component alone, it draws it.
+    import torch
+
+    out = NoiseSynth(dark_pack, ISO, components="pixel")(torch.full((8, 8), 200, dtype=torch.int32))
+    assert out.shape == (8, 8)

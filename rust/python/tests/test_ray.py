@@ -1,4 +1,5 @@
-"""The Ray example's outputs equal `noisecal synth` with the same per-image seeds (runs when Ray is
+"""The Ray example's outputs equal `noisecal synth` with the same per-image seeds, and its folder
+run on the same folder and seed (runs when Ray is
 installed; CI installs it when it can, see tests/run_all.sh)."""
 
 from __future__ import annotations
@@ -37,3 +38,7 @@ def test_ray_example_equals_cli(session, cli, tmp_path):
         theirs, _ = noisecal.read_dng(tmp_path / f"cli_{f.name}")
         np.testing.assert_array_equal(ours, theirs)
         assert (tmp_path / "out" / f.name).read_bytes() == (tmp_path / f"cli_{f.name}").read_bytes()
+    # The same folder rule: `noisecal synth` on the folder with --seed 5 writes the same files.
+    run(cli, "synth", "--pack", session["cli_pack"], "--iso", "800", "--seed", "5", src, "-o", tmp_path / "cli_folder")
+    for f in sorted(src.iterdir()):
+        assert (tmp_path / "out" / f.name).read_bytes() == (tmp_path / "cli_folder" / f.name).read_bytes(), f.name

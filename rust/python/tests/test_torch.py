@@ -118,8 +118,10 @@ def setup(pack):
     clean = clean_image()
     # One crop at an odd row origin, and a batch of two images with different origins.
     origins = [(1, 0), (0, 1), (1, 1)]
-    core = [pack.synth(clean, ISO, 3, cfa_origin=origins[0], components="pixel")]
-    core += [pack.synth(clean, ISO, 4 + i, cfa_origin=o, components="pixel") for i, o in enumerate(origins[1:])]
+    # LEVELS has one level above white on purpose: allowed explicitly (the core keeps the level).
+    core = [pack.synth(clean, ISO, 3, cfa_origin=origins[0], components="pixel", out_of_range="allow")]
+    core += [pack.synth(clean, ISO, 4 + i, cfa_origin=o, components="pixel", out_of_range="allow")
+             for i, o in enumerate(origins[1:])]
     return NoiseSynth, tables, clean, origins, core
 
 
@@ -133,7 +135,7 @@ def draw(synth, clean: np.ndarray, origins: list, seed: int = 0, origin_of=lambd
 
 def test_table_sampler_matches_the_core(setup, pack):
     NoiseSynth, tables, clean, origins, core = setup
-    synth = NoiseSynth(pack, ISO)
+    synth = NoiseSynth(pack, ISO, components="pixel")
     r = compare(tables, draw(synth, clean, origins), core, origins)
     print(f"\nNoiseSynth vs Pack.synth: {r}")
     # The core's own samples fit the exported tables (the tables are the core's whole sampler):
@@ -196,3 +198,16 @@ def test_mutations_fail_the_same_check(setup):
     # The comparison with the core alone (no knowledge of the exact tables) catches each of them.
     missed = [n for n, r in caught.items() if r["p_two"] > ALPHA / r["tests"]]
     assert not missed, f"mutations the two-sample test misses: {missed}"
+
+
+def test_components_it_does_not_draw_are_refused(pack):
+    from noisecal.torch import NoiseSynth
+
+    # Asked for explicitly: refused whatever the pack holds (the default set: test_fixed_pattern.py).
+    for bad in ("pixel,row", "all", "frame", "pixel,fpn", ""):
+        with pytest.raises(ValueError, match=r"NoiseSynth draws the pixel component alone"):
+            NoiseSynth(pack, ISO, components=bad)
+    assert NoiseSynth(pack, ISO, components="pixel").iso == ISO
+    # A baseline model is pixel-only: nothing to refuse.
+    assert pack.tables(ISO, model="hg")["structure"] == []
+    assert NoiseSynth(pack, ISO, model="hg").iso == ISO

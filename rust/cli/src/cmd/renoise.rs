@@ -15,6 +15,7 @@ use noisecal_core::{BlackAlignment, ModelPack, position};
 
 use crate::dng;
 use crate::models::{ModelKind, align_input, check_layout_matches, resolve_model};
+use crate::seeds::SeedBy;
 use crate::support::load_pack;
 
 #[derive(clap::Args, Debug)]
@@ -36,10 +37,16 @@ pub struct Args {
     /// target PMF), denoised (estimate + target noise) or naive (input + target noise).
     #[arg(long, default_value = "bridge", value_parser = parse_method)]
     pub method: Method,
-    /// Seed: the same inputs and seed give the same bytes on any thread count. In a folder, the
-    /// i-th file (sorted by name) uses seed + i.
+    /// Seed: the same inputs and seed give the same bytes on any thread count. In a folder, each
+    /// file's seed is `seed_for(file name, seed)` (a keyed BLAKE2b of the name, as Python's
+    /// `noisecal.seed_for`): a file keeps its noise when others are added or removed, and the
+    /// same folder gets the same bytes from the Python package and its Ray actor.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// How a folder's files are seeded: `name` (default, above) or `index` (the i-th file in
+    /// sorted order gets seed + i, the rule before, and a batch of Python's `Pack.synth`).
+    #[arg(long, value_enum, default_value_t = SeedBy::Name)]
+    pub seed_by: SeedBy,
     /// Allow ISOs outside the calibrated range (extrapolated).
     #[arg(long)]
     pub extrapolate: bool,
@@ -72,8 +79,9 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
     let mut renoisers: BTreeMap<u32, Renoiser> = BTreeMap::new();
     let mut target_note_shown = false;
     let mut target_model: Option<noisecal_core::model::pack::IsoModel> = None;
+    let folder = args.input.is_dir();
     for (i, job) in jobs.iter().enumerate() {
-        let seed = args.seed.wrapping_add(i as u64);
+        let seed = if folder { args.seed_by.seed(args.seed, i, &job.input) } else { args.seed };
         let file = dng::read_dng_file(&job.input)?;
         let img = &file.image;
         check_layout_matches(&pack, &img.layout, &job.input)?;

@@ -13,6 +13,7 @@ use noisecal_core::synth::{CleanAt, synthesize, synthesize_bands};
 
 use crate::dng;
 use crate::models::{ModelKind, align_input, check_layout_matches, resolve_model, sampler_for};
+use crate::seeds::SeedBy;
 use crate::support::MAX_PACK_BYTES;
 
 #[derive(clap::Args, Debug)]
@@ -23,9 +24,16 @@ pub struct Args {
     /// Target ISO; an ISO between calibrated ones is interpolated (said on stderr).
     #[arg(long)]
     pub iso: u32,
-    /// Seed: the same inputs and seed give the same bytes on any thread count.
+    /// Seed: the same inputs and seed give the same bytes on any thread count. In a folder, each
+    /// file's seed is `seed_for(file name, seed)` (a keyed BLAKE2b of the name, as Python's
+    /// `noisecal.seed_for`): a file keeps its noise when others are added or removed, and the
+    /// same folder gets the same bytes from the Python package and its Ray actor.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// How a folder's files are seeded: `name` (default, above) or `index` (the i-th file in
+    /// sorted order gets seed + i, the rule before, and a batch of Python's `Pack.synth`).
+    #[arg(long, value_enum, default_value_t = SeedBy::Name)]
+    pub seed_by: SeedBy,
     /// Noise model: the calibrated non-parametric one, or a baseline for comparison.
     #[arg(long, value_enum, default_value_t = ModelKind::Noisecal)]
     pub model: ModelKind,
@@ -174,8 +182,9 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         });
         let mut failed: Option<(usize, anyhow::Error)> = None;
         for (i, ((input, output), file)) in jobs.iter().zip(read_rx).enumerate() {
-            // Each file gets its own seed stream so a folder run equals single-file runs with seed + index.
-            let seed = args.seed.wrapping_add(i as u64);
+            // Each file gets its own seed stream (crate::seeds): a folder run equals single-file runs
+            // with `--seed seed_for(file name, seed)`, and Python's and Ray's runs of the folder.
+            let seed = if folder { args.seed_by.seed(args.seed, i, input) } else { args.seed };
             match file.and_then(|f| job.sample(input, output, f, seed)) {
                 Ok(out) => {
                     let w = Written { input: input.clone(), output: output.clone(), seed, out };

@@ -10,11 +10,46 @@ captures to a higher ISO and interpolates ISOs, from numpy arrays, with the same
 >>> pack = noisecal.Pack.load("pixel6.pack")
 >>> noisy = pack.synth(clean_u16, iso=1600, seed=7, cfa_origin=(y0, x0))
 
+Errors: ``NoisecalError`` (a ``ValueError``) for every failure; its ``InputError`` for a wrong
+argument (the message names it and the fix) and ``MismatchError`` for an image of another sensor
+(``read_dng(path, pack=pack)``); a wrong dtype is a ``TypeError``. A ``Pack`` pickles (by its
+bytes) and works in forked and spawned workers (DataLoader, multiprocessing, Ray).
+
+Seeds: a batch ``(N, H, W)`` uses ``seed + i`` for image ``i``; a folder of files is seeded by
+name, ``seed_for(file name, seed)``, the rule of ``noisecal synth`` on a folder and of
+:mod:`noisecal.ray`.
+
 Torch users: :mod:`noisecal.torch` (``NoiseSynth`` on any device). Ray Data users:
 :mod:`noisecal.ray` (``RenoiseActor`` for ``Dataset.map_batches``).
 """
 
-from ._noisecal import NoisecalError, Pack, __version__, calibrate, read_dng, write_dng
+from ._noisecal import (
+    InputError,
+    MismatchError,
+    NoisecalError,
+    NoisecalWarning,
+    Pack,
+    __version__,
+    calibrate,
+    read_dng,
+    write_dng,
+)
 from .seeds import seed_for
 
-__all__ = ["NoisecalError", "Pack", "calibrate", "read_dng", "write_dng", "seed_for", "__version__"]
+__all__ = [
+    "NoisecalError",
+    "InputError",
+    "MismatchError",
+    "NoisecalWarning",
+    "Pack",
+    "calibrate",
+    "read_dng",
+    "write_dng",
+    "seed_for",
+    "__version__",
+]
+
+
+def _pack_from_bytes(data: bytes) -> Pack:
+    """Unpickles a :class:`Pack` (``Pack.__reduce__`` gives its bytes)."""
+    return Pack.from_bytes(data)

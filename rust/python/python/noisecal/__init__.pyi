@@ -11,8 +11,15 @@ __version__: str
 Model = Literal["noisecal", "hg", "pg", "noiseprofile"]
 Method = Literal["bridge", "quantile", "denoised", "naive"]
 CleanAt = Literal["reference", "target"]
+OutOfRange = Literal["raise", "warn", "allow"]
+Mismatch = Literal["raise", "warn", "ignore"]
 
 class NoisecalError(ValueError): ...
+class InputError(NoisecalError): ...
+class MismatchError(InputError): ...
+class NoisecalWarning(UserWarning): ...
+
+def _pack_from_bytes(data: bytes) -> Pack: ...
 
 class Layout(TypedDict):
     cfa: str
@@ -33,6 +40,7 @@ class Tables(TypedDict):
     gain_ratio: list[float]
     clean_at: CleanAt
     shift: npt.NDArray[np.float64]
+    structure: list[str]
 
 class Pack:
     @staticmethod
@@ -40,6 +48,9 @@ class Pack:
     @staticmethod
     def from_bytes(data: bytes) -> Pack: ...
     def to_bytes(self) -> bytes: ...
+    def __reduce__(self) -> tuple[Any, tuple[bytes]]: ...
+    def __copy__(self) -> Pack: ...
+    def __deepcopy__(self, memo: Any) -> Pack: ...
     def save(self, path: str | PathLike[str]) -> None: ...
     @property
     def isos(self) -> list[int]: ...
@@ -67,6 +78,7 @@ class Pack:
         extrapolate: bool = False,
         components: str | None = None,
         clean_at: CleanAt = "reference",
+        out_of_range: OutOfRange = "raise",
     ) -> npt.NDArray[np.uint16]: ...
     def synth_float(
         self,
@@ -79,6 +91,7 @@ class Pack:
         extrapolate: bool = False,
         components: str | None = None,
         clean_at: CleanAt = "reference",
+        out_of_range: OutOfRange = "raise",
     ) -> npt.NDArray[np.float32]: ...
     def renoise(
         self,
@@ -89,6 +102,7 @@ class Pack:
         *,
         method: Method = "bridge",
         extrapolate: bool = False,
+        out_of_range: OutOfRange = "raise",
     ) -> npt.NDArray[np.uint16]: ...
     def interp(self, isos: Sequence[int], *, extrapolate: bool = False) -> Pack: ...
     def gain_ratios(self, iso: int, *, extrapolate: bool = False) -> list[float]: ...
@@ -104,7 +118,9 @@ def calibrate(
     pooling: int | None = None,
     plain: bool = False,
 ) -> Pack: ...
-def read_dng(path: str | PathLike[str]) -> tuple[npt.NDArray[np.uint16], dict[str, Any]]: ...
+def read_dng(
+    path: str | PathLike[str], *, pack: Pack | None = None, mismatch: Mismatch = "raise"
+) -> tuple[npt.NDArray[np.uint16], dict[str, Any]]: ...
 def write_dng(
     path: str | PathLike[str],
     pixels: npt.NDArray[np.uint16],

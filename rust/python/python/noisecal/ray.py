@@ -3,8 +3,9 @@
 ``RenoiseActor`` is a callable class for ``Dataset.map_batches(RenoiseActor, fn_constructor_kwargs=
 {...}, batch_format="numpy", concurrency=...)``: Ray runs it as a stateful actor, so the pack is
 loaded once per actor in ``__init__``. Each row names a clean raw DNG (column ``path``); its seed
-comes from a stable key (the file name, :func:`noisecal.seed_for`), so a re-run, or any number of
-actors, writes identical files, and each equals ``noisecal synth --seed <seed>`` on that file.
+comes from a stable key (the file name, :func:`noisecal.seed_for` with ``base_seed``), so a re-run,
+or any number of actors, writes identical files: the folder equals ``noisecal synth --seed
+<base_seed>`` on the folder (the same rule), and each file ``noisecal synth --seed <its seed>``.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ class RenoiseActor:
         for path in batch["path"]:
             path = Path(str(path))
             seed = seed_for(path.name, self.base_seed)
-            clean, meta = read_dng(path)
+            clean, meta = read_dng(path, pack=self.pack)
             noisy = self.pack.synth(clean, self.iso, seed, model=self.model, black_level=meta["black"])
             if self.fmt == "dng":
                 out = self.out_dir / path.name

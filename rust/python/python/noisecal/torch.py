@@ -10,6 +10,12 @@ sensor writes. ``clean_at="target"`` takes clean images at the target ISO's brig
 ``Pack.synth(..., clean_at="target")``: the tables' ``lut`` then picks each level's reference bin
 and their ``shift`` (the gain shift taken out) is added, dithered onto the integers.
 
+Components: ``NoiseSynth`` draws the pixel component alone (``Pack.synth(..., components="pixel")``).
+It does not drop the others silently: when the pack has row, column, frame or fixed-pattern noise
+at the ISO (``tables["structure"]``), the default ``components=None`` (every component, as
+``Pack.synth``) is refused with a ``ValueError`` naming them; pass ``components="pixel"`` to accept
+the pixel-independent model, or use ``Pack.synth`` for all of them.
+
 Torch is optional: importing this module without it raises ImportError with the fix.
 """
 
@@ -27,11 +33,33 @@ _ROW = 1 << 33  # each table row's CDF lives in [0, 2^32]; rows are offset by 2^
 _U16 = (1 << 16) - 1
 
 
+def _check_components(components: str | None, tables: dict, iso: int) -> None:
+    """Refuses components NoiseSynth does not draw (it draws the pixel component alone)."""
+    if components is None:
+        structure = list(tables.get("structure", []))
+        if structure:
+            raise ValueError(
+                f"NoiseSynth draws the pixel component alone, but the pack adds {', '.join(structure)} noise at "
+                f"ISO {iso} by default (Pack.synth): pass components=\"pixel\" to draw the pixel-independent model "
+                "on the device, or use Pack.synth for every component"
+            )
+        return
+    names = [c.strip().lower() for c in str(components).split(",") if c.strip()]
+    others = [c for c in names if c != "pixel"]
+    if others or not names:
+        raise ValueError(
+            f"components={components!r}: NoiseSynth draws the pixel component alone; pass components=\"pixel\", "
+            "or use Pack.synth(..., components=...) for row, column, frame or fpn noise"
+        )
+
+
 class NoiseSynth(torch.nn.Module):
     """Adds a pack's noise at one ISO to clean raw tensors on the tensors' device.
 
     Move it with ``.to(device)`` like any module; the generator passed to ``forward`` must live on
-    the same device."""
+    the same device. ``components``: ``None`` (default) asks for every component the pack has at
+    ``iso`` and is refused when that is more than ``"pixel"``, the only one drawn here; ``"pixel"``
+    draws the pixel-independent model."""
 
     def __init__(
         self,
@@ -41,15 +69,20 @@ class NoiseSynth(torch.nn.Module):
         model: str = "noisecal",
         extrapolate: bool = False,
         clean_at: str = "reference",
+        components: str | None = None,
     ):
         super().__init__()
-        self._load(pack.tables(iso, model=model, extrapolate=extrapolate, clean_at=clean_at))
+        tables = pack.tables(iso, model=model, extrapolate=extrapolate, clean_at=clean_at)
+        _check_components(components, tables, iso)
+        self._load(tables)
 
     @classmethod
     def from_tables(cls, tables: dict) -> NoiseSynth:
         """A sampler over tables in the layout of :meth:`noisecal.Pack.tables` (e.g. saved ones)."""
         self = cls.__new__(cls)
         torch.nn.Module.__init__(self)
+        # Tables are the pixel-independent model whatever the pack holds besides: taking them as
+        # they are is asking for the pixel component.
         self._load(tables)
         return self
 
