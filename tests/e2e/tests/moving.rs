@@ -19,6 +19,14 @@ struct Outcome {
     still: Vec<Moments>,
     moving: Vec<Moments>,
     events: Vec<String>,
+    /// The self-check's robust-spread findings of the still and the moving pack.
+    still_spread: Vec<String>,
+    moving_spread: Vec<String>,
+}
+
+/// The pack's robust-spread findings (method.md, "Self-check").
+fn spread_findings(pack: &noisecal_core::ModelPack) -> Vec<String> {
+    pack.warnings.iter().filter(|w| w.contains("robust spread")).cloned().collect()
 }
 
 fn calibrate(
@@ -38,11 +46,13 @@ fn run(seed: u64) -> Outcome {
     let still_sim = spec.simulator(&sensor.model, seed ^ 0xA5A5).expect("simulator");
     let plan = spec.plan(&still_sim).expect("plan");
     let (still_pack, _) = calibrate(&still_sim, &plan);
+    let still_spread = spread_findings(&still_pack);
     let mut moving_model = sensor.model.clone();
     let mut moving_spec = spec.clone();
     scene.apply(&mut moving_model, &mut moving_spec);
     let moving_sim = moving_spec.simulator(&moving_model, seed ^ 0xA5A5).expect("simulator");
     let (moving_pack, events) = calibrate(&moving_sim, &plan);
+    let moving_spread = spread_findings(&moving_pack);
     let hsim = spec.heldout_simulator(&sensor.model, seed ^ 0xA5A5).expect("held-out simulator");
     let hplan = spec.heldout_plan(&plan).expect("held-out plan");
     let off = spec.heldout.index_offset;
@@ -52,6 +62,8 @@ fn run(seed: u64) -> Outcome {
         still: heldout_moments(&hsim, &hplan, off, &still_pack, Components::ON_OWN_CAPTURES),
         moving: heldout_moments(&hsim, &hplan, off, &moving_pack, Components::ON_OWN_CAPTURES),
         events,
+        still_spread,
+        moving_spread,
     }
 }
 
@@ -116,6 +128,14 @@ fn motion_between_frames_is_not_measured_as_noise() {
         println!("{:>4} {}", o.seed, o.description);
         for e in o.events.iter().filter(|e| e.contains("moved") || e.contains("shift")) {
             println!("     event: {e}");
+        }
+        for w in &o.moving_spread {
+            println!("     moving pack: {w}");
+        }
+        // Heavy tails, clipping, row noise and blur alone must not read as a robust-spread
+        // finding: a still session's pack has none.
+        for w in &o.still_spread {
+            failures.push(format!("seed {} still pack: {w}", o.seed));
         }
         for (s, m) in o.still.iter().zip(&o.moving) {
             let (sl, sh) = s.tail_ratios();

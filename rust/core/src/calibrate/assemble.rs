@@ -8,7 +8,7 @@ use crate::calibrate::estimate::{BinLevels, Pooling, estimate_position};
 use crate::calibrate::motion::MOTION_TOLERANCE;
 use crate::calibrate::session::CalibrationSession;
 use crate::error::SessionError;
-use crate::model::check::self_check;
+use crate::model::check::{self_check, spread_check};
 use crate::model::layout::POSITIONS;
 use crate::model::pack::{IsoModel, ModelOrigin, ModelPack, PositionModel};
 use crate::model::structure::{FixedPattern, IsoStructure};
@@ -191,6 +191,18 @@ impl CalibrationSession {
         }
         let checks = self_check(&pack);
         pack.warnings.extend(checks.into_iter().map(|c| c.to_string()));
+        let spread = spread_check(
+            &pack,
+            |iso, pos| self.isos.get(&iso).and_then(|a| a.histograms(pos)),
+            |iso| {
+                self.isos
+                    .get(&iso)
+                    .map(|a| &a.motion)
+                    .filter(|m| m.frames > 0 && m.max_shift > MOTION_WORTH_SAYING_PX)
+                    .map(|m| m.max_shift)
+            },
+        );
+        pack.warnings.extend(spread.into_iter().map(|c| c.to_string()));
         Ok(pack)
     }
 }
