@@ -49,6 +49,9 @@ compile_kotlin() {
 # on itself). After `cargo test --workspace` (tests/run_all.sh runs it first) this builds nothing;
 # a build of its own (another profile, or -p with other features) would rebuild the crate graph.
 TEST_BUILD_DIR="$ROOT/target/debug"
+# The cdylib is built there as a dependency of the tests, so cargo leaves it in deps/ (no hash in a
+# cdylib's file name) instead of copying it up beside the binaries.
+TEST_LIB_DIR="$TEST_BUILD_DIR/deps"
 ensure_test_build() {
   command -v cargo >/dev/null || { echo "error: cargo not found; install Rust (rustup)" >&2; exit 2; }
   echo "checking the workspace's test build (cargo test --workspace --no-run; nothing to do after cargo test)" >&2
@@ -57,4 +60,6 @@ ensure_test_build() {
   for f in "$@"; do
     [[ -e "$TEST_BUILD_DIR/$f" ]] || { echo "error: $TEST_BUILD_DIR/$f not built by cargo test --workspace --no-run" >&2; exit 2; }
   done
+  [[ -f "$TEST_LIB_DIR/libnoisecal_jni.so" || -f "$TEST_LIB_DIR/libnoisecal_jni.dylib" ]] || {
+    echo "error: libnoisecal_jni not built in $TEST_LIB_DIR by cargo test --workspace --no-run" >&2; exit 2; }
 }
