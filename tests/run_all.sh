@@ -7,6 +7,10 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
+# One build serves every stage (issue 22): `cargo test --workspace` builds the workspace once, in the
+# `test` profile (optimised, see Cargo.toml), with the library, noisecal-jni-tool, the CLI and the
+# fuzzer in target/debug; the JVM harnesses and the fuzzer below run those (their
+# `cargo test --workspace --no-run` finds nothing to do), no release build of their own.
 echo "== cargo test --workspace" >&2
 cargo test --workspace
 
@@ -17,7 +21,7 @@ echo "== JVM: JNI boundary (Kotlin NoisecalSession over the host-built library)"
 bash tests/jvm/jni/run.sh
 
 echo "== JVM: full simulated sweep, plan → controller → JNI → pack, against noisecal calibrate" >&2
-bash tests/jvm/sweep/run.sh --build
+bash tests/jvm/sweep/run.sh
 
 echo "== Python: pip install ./rust/python, then pytest" >&2
 venv=target/pyenv
@@ -37,11 +41,12 @@ fi
 
 # Fuzzing (issue 13): each decoder target — DNG reader, recording reader, pack decoder, JNI
 # frame-view entry — mutated from tests/fuzz-corpus/ for NOISECAL_FUZZ_SECONDS (default 45). The
-# `test` profile (optimised, with overflow checks) is what `cargo test --workspace` above already
-# built, so this costs no build. A panic or an input slower than the limit fails the run and is saved
+# binary is the one `cargo test --workspace` above built for rust/fuzz/tests (the `test` profile:
+# optimised, with overflow checks), so this costs no build (a `cargo build -p noisecal-fuzz` would:
+# features unify over the selected packages only). A panic or an input slower than the limit fails the run and is saved
 # under target/fuzz-crashes/. Longer runs: docs/fuzzing.md. NOISECAL_FUZZ_SECONDS=0: seeds only.
 echo "== fuzz: dng, recording, pack, jni-frame (${NOISECAL_FUZZ_SECONDS:-45} s each)" >&2
-cargo build --profile test -q -p noisecal-fuzz
+[[ -x target/debug/noisecal-fuzz ]] || { echo "error: target/debug/noisecal-fuzz not built by cargo test --workspace" >&2; exit 1; }
 # A 20 s per-input limit in CI (2 s by default), for a loaded shared runner; hangs still fail.
 # (Two fuzzed recordings that took ~3 s, a session estimating ISOs it then left out, now replay
 # in ~2 ms and are seeds in tests/fuzz-corpus/recording/.)

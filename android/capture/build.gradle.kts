@@ -8,6 +8,10 @@ plugins {
 
 kotlin {
     jvmToolchain(libs.versions.jvm.get().toInt())
+    // As on the host (tests/jvm/kotlin.sh compiles this module with -Werror): a warning fails the build.
+    compilerOptions {
+        allWarningsAsErrors = true
+    }
 }
 
 dependencies {

@@ -2,8 +2,9 @@
 # Host JVM tests of the JNI boundary (rust/jni + android/.../org/noisecal/jni/NoisecalSession.kt).
 #
 # Usage: tests/jvm/jni/run.sh [--rec SESSION.rec] [--filter NAME] [--bench-size WxH] [--bench-targets N]
-#   Builds the cdylib and its helper with the harness's hooks (cargo build --release -p noisecal-jni
-#   --features testkit: the Android library is built without them), installs the Kotlin
+#   Takes the cdylib and its helper with the harness's hooks (feature testkit: the Android library is
+#   built without them) from the workspace's test build in target/debug (`cargo test --workspace
+#   --no-run`, nothing to build after `cargo test --workspace`; tests/jvm/kotlin.sh), installs the Kotlin
 #   compiler (npm kotlin-compiler, pinned) into .tools/ if missing, compiles NoisecalSession.kt with
 #   the harness in tests/jvm/jni/src, and runs it against a recording: by default a synthetic one
 #   written by `noisecal-jni-tool write-recording` (pass --rec to use e.g. one from
@@ -18,13 +19,9 @@ source "$ROOT/tests/jvm/kotlin.sh"
 OUT="$ROOT/target/jvm-jni"
 WORK="$OUT/work"
 
-command -v cargo >/dev/null || { echo "error: cargo not found; install Rust (rustup)" >&2; exit 2; }
-
-echo "building noisecal-jni (release, feature testkit)" >&2
-(cd "$ROOT" && cargo build --release -p noisecal-jni --features testkit >&2)
-LIB_DIR="$ROOT/target/release"
-TOOL="$LIB_DIR/noisecal-jni-tool"
-[[ -f "$LIB_DIR/libnoisecal_jni.so" || -f "$LIB_DIR/libnoisecal_jni.dylib" ]] || { echo "error: libnoisecal_jni not built in $LIB_DIR" >&2; exit 2; }
+ensure_test_build noisecal-jni-tool
+LIB_DIR="$TEST_LIB_DIR"
+TOOL="$TEST_BUILD_DIR/noisecal-jni-tool"
 
 ensure_kotlinc
 

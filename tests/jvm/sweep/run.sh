@@ -4,10 +4,10 @@
 # session wrote, with and without faults (settings lag, dropped images/results, failed captures,
 # wrong black levels, a kill mid-burst and a resume), and sane according to `noisecal inspect --json`.
 #
-# Usage: tests/jvm/sweep/run.sh [--build] [--filter NAME]
-#   Builds the release cdylib (with the harness feature testkit, as tests/jvm/jni does) and CLI
-#   (cargo build --release -p noisecal-jni -p noisecal-cli --features noisecal-jni/testkit) when
-#   either is missing, or always with --build; installs the Kotlin compiler (npm kotlin-compiler,
+# Usage: tests/jvm/sweep/run.sh [--filter NAME]
+#   Takes the cdylib (with the harness feature testkit, as tests/jvm/jni does) and the CLI from the
+#   workspace's test build in target/debug (`cargo test --workspace --no-run`, nothing to build
+#   after `cargo test --workspace`; tests/jvm/kotlin.sh); installs the Kotlin compiler (npm kotlin-compiler,
 #   pinned) into .tools/ if missing; compiles android/capture/src/main/kotlin plus
 #   tests/jvm/sweep/src (skipped when the sources did not change) and runs the tests (or those whose
 #   "suite :: name" contains NAME). Last line: "N passed, M failed"; non-zero exit on failure.
@@ -19,28 +19,20 @@ ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/../../.." && pwd)"
 source "$ROOT/tests/jvm/kotlin.sh"
 OUT="$ROOT/target/jvm-sweep"
 WORK="$OUT/work"
-LIB_DIR="$ROOT/target/release"
-CLI="$LIB_DIR/noisecal"
+LIB_DIR="$TEST_LIB_DIR"
+CLI="$TEST_BUILD_DIR/noisecal"
 
-BUILD=0
 ARGS=()
 while [[ $# -gt 0 ]]; do
   case "$1" in
-    --build) BUILD=1; shift ;;
+    # --build: accepted for older callers; the test build is always brought up to date.
+    --build) shift ;;
     --filter) [[ $# -ge 2 ]] || { echo "error: --filter needs a value" >&2; exit 2; }; ARGS+=(--filter "$2"); shift 2 ;;
-    *) echo "error: unknown argument $1 (usage: $0 [--build] [--filter NAME])" >&2; exit 2 ;;
+    *) echo "error: unknown argument $1 (usage: $0 [--filter NAME])" >&2; exit 2 ;;
   esac
 done
 
-command -v cargo >/dev/null || { echo "error: cargo not found; install Rust (rustup)" >&2; exit 2; }
-
-have_lib() { [[ -f "$LIB_DIR/libnoisecal_jni.so" || -f "$LIB_DIR/libnoisecal_jni.dylib" ]]; }
-if [[ $BUILD == 1 ]] || ! have_lib || [[ ! -x "$CLI" ]]; then
-  echo "building noisecal-jni and noisecal-cli (release, feature noisecal-jni/testkit)" >&2
-  (cd "$ROOT" && cargo build --release -p noisecal-jni -p noisecal-cli --features noisecal-jni/testkit >&2)
-fi
-have_lib || { echo "error: libnoisecal_jni not built in $LIB_DIR" >&2; exit 2; }
-[[ -x "$CLI" ]] || { echo "error: $CLI not built" >&2; exit 2; }
+ensure_test_build noisecal
 
 ensure_kotlinc
 

@@ -462,7 +462,7 @@ class Suite(private val cfg: Config) {
 
 fun main(args: Array<String>) {
     fun arg(name: String): String? = args.indexOf(name).takeIf { it >= 0 }?.let { args.getOrNull(it + 1) }
-    val tool = File(arg("--tool") ?: "target/release/noisecal-jni-tool")
+    val tool = File(arg("--tool") ?: "target/debug/noisecal-jni-tool")
     val work = File(arg("--work") ?: "target/jvm-jni/work").apply { mkdirs() }
     val recording = File(arg("--rec") ?: File(work, "session.rec").path)
     val size = (arg("--bench-size") ?: "4032x3024").split("x").map { it.toInt() }

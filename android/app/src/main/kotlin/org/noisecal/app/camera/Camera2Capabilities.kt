@@ -80,9 +80,13 @@ object Camera2Capabilities {
             raw = CameraCharacteristics.REQUEST_AVAILABLE_CAPABILITIES_RAW in caps && rawSize != null,
             lensShadingAppliedToRaw = ch.get(CameraCharacteristics.SENSOR_INFO_LENS_SHADING_APPLIED) ?: false,
         )
-        val previewSize = rawSize?.let { raw ->
-            val sizes = map?.getOutputSizes(SurfaceHolder::class.java) ?: map?.getOutputSizes(SurfaceTexture::class.java) ?: emptyArray()
-            choosePreviewSize(sizes.toList(), raw)
+        // rawSize came from map, so both are null or neither; testing both keeps every Kotlin
+        // compiler free of "unnecessary safe call" warnings (K2 infers map from rawSize, K1 does not).
+        val previewSize = if (map != null && rawSize != null) {
+            val sizes = map.getOutputSizes(SurfaceHolder::class.java) ?: map.getOutputSizes(SurfaceTexture::class.java) ?: emptyArray()
+            choosePreviewSize(sizes.toList(), rawSize)
+        } else {
+            null
         }
         return CameraChoice(id, facing, capabilities, previewSize?.let { FrameSize(it.width, it.height) },
             CapturePlanner.unsupportedReasons(capabilities))
