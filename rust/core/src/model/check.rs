@@ -159,13 +159,13 @@ pub fn self_check(pack: &ModelPack) -> Vec<Finding> {
                 if total == 0 { 0.0 } else { at_edge as f64 / total as f64 }
             };
             let legacy = m.positions[pos].estimate.is_none();
-            out.extend(fill_spans(bins, clip_mass).into_iter().map(|(a, b)| Finding::FillSpansClipped {
-                iso: m.iso,
-                pos,
-                name,
-                levels: (level(a), level(b + 1)),
-                legacy,
-            }));
+            // Towards the floor the noise law itself falls (shot noise fades towards black, and
+            // the estimator follows it there, method.md "Estimation" 3): only a legacy pack's
+            // fill is suspect on that side.
+            let towards_floor = |a: usize| a > 0 && bins[a - 1].clipped;
+            out.extend(fill_spans(bins, clip_mass).into_iter().filter(|&(a, _)| legacy || !towards_floor(a)).map(
+                |(a, b)| Finding::FillSpansClipped { iso: m.iso, pos, name, levels: (level(a), level(b + 1)), legacy },
+            ));
         }
     }
     out
