@@ -223,47 +223,24 @@ fn streamed_folder_runs_and_failures() {
         let bytes = dng(big, big, (64, 48), [0, 0, 48, 64], Storage::Strips16 { rows: 3 + i });
         std::fs::write(input.join(format!("f{i}.dng")), bytes).expect("write");
     }
+    // `noisecal -q synth --pack PACK --iso 800 --seed SEED [extra…] INPUT -o OUTPUT`, which must succeed.
+    let synth = |seed: &str, extra: &[&str], input: &std::path::Path, output: &std::path::Path| {
+        let mut args = vec!["-q", "synth", "--pack", s(&pack), "--iso", "800", "--seed", seed];
+        args.extend_from_slice(extra);
+        args.extend([s(input), "-o", s(output)]);
+        let (ok, err) = noisecal(&args);
+        assert!(ok, "{err}");
+    };
     let out = d.join("out");
-    let (ok, err) =
-        noisecal(&["-q", "synth", "--pack", s(&pack), "--iso", "800", "--seed", "5", s(&input), "-o", s(&out)]);
-    assert!(ok, "{err}");
+    synth("5", &[], &input, &out);
     let by_index = d.join("by_index");
-    let (ok, err) = noisecal(&[
-        "-q",
-        "synth",
-        "--pack",
-        s(&pack),
-        "--iso",
-        "800",
-        "--seed",
-        "5",
-        "--seed-by",
-        "index",
-        s(&input),
-        "-o",
-        s(&by_index),
-    ]);
-    assert!(ok, "{err}");
+    synth("5", &["--seed-by", "index"], &input, &by_index);
     for i in 0..3 {
         let name = format!("f{i}.dng");
         let f = input.join(&name);
         for (folder, seed) in [(&out, noisecal_cli::seeds::seed_for(name.as_bytes(), 5)), (&by_index, 5 + i as u64)] {
             let single = d.join(format!("single{i}_{seed}.dng"));
-            let seed = seed.to_string();
-            let (ok, err) = noisecal(&[
-                "-q",
-                "synth",
-                "--pack",
-                s(&pack),
-                "--iso",
-                "800",
-                "--seed",
-                &seed,
-                s(&f),
-                "-o",
-                s(&single),
-            ]);
-            assert!(ok, "{err}");
+            synth(&seed.to_string(), &[], &f, &single);
             let a = std::fs::read(folder.join(&name)).expect("folder output");
             assert!(a == std::fs::read(&single).expect("single output"), "file {i} of {}", folder.display());
         }
