@@ -16,9 +16,15 @@ pub const PACK_MAGIC_TEXT: &str = "NCALPACK";
 /// Bump on any change to the serialised structs. Version 2 adds, per bin, where its PMF comes
 /// from, its measured moments and whether it is clipped, and per position the estimator's
 /// report; version 3 adds the structured components per ISO ([`IsoStructure`]); version 4 their
-/// fixed pattern (dark frames). Versions 1 to 3 are read and migrated ([`crate::format::pack_v1`],
-/// [`crate::format::pack_v2`], [`crate::format::pack_v3`]).
-pub const PACK_VERSION: u16 = 4;
+/// fixed pattern (dark frames); version 5 stores the same structs compactly (each bin's weights
+/// delta-coded, the payload deflated: [`crate::format::compact`]), losslessly. Versions 1 to 3
+/// are read and migrated ([`crate::format::pack_v1`], [`crate::format::pack_v2`],
+/// [`crate::format::pack_v3`]); version 4 is read as it is ([`ModelPack::to_bytes_v4`] still
+/// writes it).
+pub const PACK_VERSION: u16 = 5;
+/// The last version whose payload is the bare bincode value (what [`ModelPack::to_bytes_v4`]
+/// writes).
+pub const PACK_VERSION_UNCOMPRESSED: u16 = 4;
 /// The oldest pack version this noisecal reads.
 pub const PACK_VERSION_MIN: u16 = 1;
 
@@ -334,8 +340,15 @@ impl ModelPack {
         self.isos.insert(at, m);
     }
 
+    /// The pack as a file of the current version (compact: [`crate::format::compact`]).
     pub fn to_bytes(&self) -> Result<Vec<u8>, CodecError> {
-        codec::encode("model pack", PACK_MAGIC, PACK_VERSION, self)
+        Ok(codec::encode_sealed(PACK_MAGIC, PACK_VERSION, &crate::format::compact::encode(self)?))
+    }
+
+    /// The pack as a version 4 file: the same value uncompressed (for noisecal builds before
+    /// version 5, and for diffing packs byte by byte). It loads to the same pack.
+    pub fn to_bytes_v4(&self) -> Result<Vec<u8>, CodecError> {
+        codec::encode("model pack", PACK_MAGIC, PACK_VERSION_UNCOMPRESSED, self)
     }
 
     /// Reads a pack of this version or an older one (migrated; see [`crate::format::pack_v1`]).
@@ -347,7 +360,8 @@ impl ModelPack {
             1 => codec::decode_payload::<crate::format::pack_v1::ModelPackV1>(WHAT, payload)?.migrate(),
             2 => codec::decode_payload::<crate::format::pack_v2::ModelPackV2>(WHAT, payload)?.migrate(),
             3 => codec::decode_payload::<crate::format::pack_v3::ModelPackV3>(WHAT, payload)?.migrate(),
-            _ => codec::decode_payload(WHAT, payload)?,
+            PACK_VERSION_UNCOMPRESSED => codec::decode_payload(WHAT, payload)?,
+            _ => crate::format::compact::decode(payload)?,
         };
         p.check()?;
         Ok(p)

@@ -1,0 +1,188 @@
+//! Compact packs (format version 5, issue 26 item 3): a calibrated pack written compactly loads
+//! to exactly the pack that was written, so its sampler tables and its synthesized images are
+//! byte for byte those of the same pack written uncompressed (version 4), which still loads; and
+//! the compact file is much smaller.
+//!
+//! `cargo test -p noisecal-core --release --test pack_compact -- --ignored --nocapture` prints
+//! the sizes of the demo's pack and of random-family sensors' packs in both versions.
+
+use ndarray::Array2;
+use noisecal_core::model::pack::{PACK_MAGIC, PACK_VERSION};
+use noisecal_core::synth::sampler::{BinTable, IsoSampler};
+use noisecal_core::synth::synthesize;
+use noisecal_core::{CalibrationSession, ModelPack, SessionConfig};
+use noisecal_sim::{Chart, SensorModel, SessionPlan, Simulator, random_sensor, random_session};
+
+fn calibrate(sim: &Simulator, plan: &SessionPlan) -> ModelPack {
+    let mut config = SessionConfig::new(plan.reference_iso);
+    config.make = "sim".into();
+    let mut session = CalibrationSession::new(sim.layout(), config).expect("session");
+    plan.feed(sim, &mut session, |_, _| ()).expect("capture");
+    session.finish().expect("a pack")
+}
+
+/// A small simulated session of the demo's phone: 2 ISOs, 4 frames per burst.
+fn small_pack() -> ModelPack {
+    let sim =
+        Simulator::new(SensorModel::phone_10bit(), Chart::color_checker(96, 64).expect("chart"), 3).expect("simulator");
+    let plan = SessionPlan::for_simulator(&sim, vec![100, 800], 4).expect("plan").with_ev_steps(-2..=2);
+    calibrate(&sim, &plan)
+}
+
+/// The demo's session (`noisecal demo`: 384×288 colour checker, 6 ISOs, 10 frames, ±4 EV),
+/// calibrated from the frames instead of DNGs.
+fn demo_pack() -> ModelPack {
+    let sim = Simulator::new(SensorModel::phone_10bit(), Chart::color_checker(384, 288).expect("chart"), 1)
+        .expect("simulator");
+    let plan =
+        SessionPlan::for_simulator(&sim, vec![100, 200, 400, 800, 1600, 3200], 10).expect("plan").with_ev_steps(-4..=4);
+    calibrate(&sim, &plan)
+}
+
+fn random_pack(seed: u64) -> ModelPack {
+    let sensor = random_sensor(seed);
+    let spec = random_session(seed, &sensor.model);
+    let sim = spec.simulator(&sensor.model, seed ^ 0xA5A5).expect("simulator");
+    let plan = spec.plan(&sim).expect("plan");
+    calibrate(&sim, &plan)
+}
+
+/// A clean image sweeping every level of the sensor.
+fn ramp(pack: &ModelPack) -> Array2<u16> {
+    let (w, h) = (pack.layout.width as usize, pack.layout.height as usize);
+    let white = pack.layout.white as usize;
+    Array2::from_shape_fn((h, w), |(y, x)| (((y * w + x) * 7919) % (white + 1)) as u16)
+}
+
+/// Every ISO's sampler tables and a synthesized image of each, for comparing two loads.
+fn fingerprint(pack: &ModelPack) -> Vec<(Vec<Vec<u64>>, Array2<u16>)> {
+    let clean = ramp(pack);
+    pack.isos
+        .iter()
+        .map(|m| {
+            let tables: Vec<Vec<u64>> =
+                m.positions.iter().flat_map(|p| &p.bins).map(|b| BinTable::new(b).cdf().to_vec()).collect();
+            (tables, synthesize(&IsoSampler::new(pack, m), clean.view(), 42))
+        })
+        .collect()
+}
+
+#[test]
+fn compact_packs_round_trip_and_synthesize_as_version_4() {
+    let p = small_pack();
+    let v5 = p.to_bytes().expect("bytes");
+    let v4 = p.to_bytes_v4().expect("bytes");
+    assert_eq!(&v5[..8], PACK_MAGIC);
+    assert_eq!(u16::from_le_bytes([v5[8], v5[9]]), PACK_VERSION);
+    assert_eq!(PACK_VERSION, 5);
+    assert_eq!(u16::from_le_bytes([v4[8], v4[9]]), 4);
+    // Deterministic bytes.
+    assert_eq!(v5, p.to_bytes().expect("bytes"));
+    let from5 = ModelPack::from_bytes(&v5).expect("a version 5 pack loads");
+    let from4 = ModelPack::from_bytes(&v4).expect("a version 4 pack still loads");
+    assert_eq!(from5, p);
+    assert_eq!(from4, p);
+    // A version 4 file migrated to 5 and back: the same bytes each way.
+    assert_eq!(from4.to_bytes().expect("bytes"), v5);
+    assert_eq!(from5.to_bytes_v4().expect("bytes"), v4);
+    // Sampler tables and synthesis: byte for byte.
+    assert_eq!(fingerprint(&from5), fingerprint(&from4));
+    // Size: measured 0.58× of the uncompressed file.
+    assert!(v5.len() * 10 <= v4.len() * 7, "version 5 {} bytes, version 4 {}", v5.len(), v4.len());
+}
+
+/// Size bound on a random-family sensor's pack, and its round trip.
+#[test]
+fn a_random_sensors_pack_is_compact() {
+    let p = random_pack(1);
+    let v5 = p.to_bytes().expect("bytes");
+    let v4 = p.to_bytes_v4().expect("bytes");
+    assert_eq!(ModelPack::from_bytes(&v5).expect("loads"), p);
+    // Measured 0.38×.
+    assert!(v5.len() * 2 <= v4.len(), "version 5 {} bytes, version 4 {}", v5.len(), v4.len());
+}
+
+/// Damage inside the compressed payload (with the CRC recomputed, as a fuzzer's mutants may
+/// be): refused with an error, never a panic.
+#[test]
+fn damaged_compact_packs_are_refused() {
+    let p = small_pack();
+    let v5 = p.to_bytes().expect("bytes");
+    let header = 8 + 2 + 2 + 8 + 4;
+    let mut state = 0x2545_F491_4F6C_DD1Du64;
+    for k in 0..200 {
+        let mut b = v5.clone();
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        let at = header + (state as usize) % (b.len() - header);
+        b[at] ^= 1 << (k % 8);
+        let crc = crc32fast_hash(&b[header..]);
+        b[20..24].copy_from_slice(&crc.to_le_bytes());
+        if let Ok(q) = ModelPack::from_bytes(&b) {
+            // A flip the format cannot see (a weight, a float) still gives a valid pack.
+            q.check().expect("a loaded pack passes its checks");
+        }
+    }
+    for cut in [header, header + 3, header + 8, v5.len() - 1] {
+        let mut b = v5[..cut].to_vec();
+        let len = (cut - header) as u64;
+        b[12..20].copy_from_slice(&len.to_le_bytes());
+        let crc = crc32fast_hash(&b[header..]);
+        b[20..24].copy_from_slice(&crc.to_le_bytes());
+        assert!(ModelPack::from_bytes(&b).is_err(), "cut at {cut}");
+    }
+}
+
+/// CRC-32 (IEEE), as the framing computes it (the test does not depend on crc32fast).
+fn crc32fast_hash(b: &[u8]) -> u32 {
+    let mut crc = !0u32;
+    for &x in b {
+        crc ^= x as u32;
+        for _ in 0..8 {
+            crc = if crc & 1 != 0 { (crc >> 1) ^ 0xEDB8_8320 } else { crc >> 1 };
+        }
+    }
+    !crc
+}
+
+/// Sizes before (version 4) and after (version 5), for the report.
+#[test]
+#[ignore = "measurement: calibrates the demo session and random sensors (minutes in a debug build)"]
+fn pack_sizes() {
+    let seeds: Vec<u64> = std::env::var("NOISECAL_SEEDS")
+        .ok()
+        .map(|s| s.split(',').filter_map(|x| x.trim().parse().ok()).collect())
+        .unwrap_or_else(|| vec![0, 1, 2, 3]);
+    let mut packs: Vec<(String, ModelPack)> = vec![("demo".into(), demo_pack())];
+    for seed in seeds {
+        packs.push((format!("random {seed}: {}", random_sensor(seed).description), random_pack(seed)));
+    }
+    for (name, p) in &packs {
+        let t0 = std::time::Instant::now();
+        let v5 = p.to_bytes().expect("bytes");
+        let enc = t0.elapsed();
+        let t0 = std::time::Instant::now();
+        let back = ModelPack::from_bytes(&v5).expect("loads");
+        let dec = t0.elapsed();
+        assert_eq!(&back, p);
+        let v4 = p.to_bytes_v4().expect("bytes");
+        let cells: usize = p.isos.iter().flat_map(|m| &m.positions).flat_map(|q| &q.bins).map(|b| b.counts.len()).sum();
+        let cal = p.isos.iter().filter(|m| m.is_calibrated()).count().max(1);
+        println!(
+            "{name}\n  {} ISOs ({cal} calibrated), {cells} PMF cells: version 4 {} bytes, version 5 {} bytes ({:.3}×), {} bytes per calibrated ISO; encode {:?}, load {:?}",
+            p.isos.len(),
+            v4.len(),
+            v5.len(),
+            v5.len() as f64 / v4.len() as f64,
+            v5.len() / cal,
+            enc,
+            dec
+        );
+        if let Ok(dir) = std::env::var("NOISECAL_DUMP") {
+            let stem = name.split(':').next().unwrap_or("pack").replace(' ', "-");
+            std::fs::write(format!("{dir}/{stem}.v4.pack"), &v4).expect("write");
+            std::fs::write(format!("{dir}/{stem}.v5.pack"), &v5).expect("write");
+        }
+    }
+}
