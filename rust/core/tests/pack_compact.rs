@@ -1,12 +1,14 @@
 //! Compact packs (format version 5, issue 26 item 3): a calibrated pack written compactly loads
-//! to exactly the pack that was written, so its sampler tables and its synthesized images are
-//! byte for byte those of the same pack written uncompressed (version 4), which still loads; and
-//! the compact file is much smaller.
+//! to the pack with its weights rounded to 9 significant bits ([`ModelPack::compacted`]), whose
+//! log-probabilities are within 2·2⁻⁹ nats of the pack's and whose synthesized images, drawn with
+//! the same random numbers, differ in a small fraction of pixels by a step; the same pack written
+//! uncompressed (version 4) still loads as it was; and the compact file is a fraction of the size.
 //!
 //! `cargo test -p noisecal-core --release --test pack_compact -- --ignored --nocapture` prints
 //! the sizes of the demo's pack and of random-family sensors' packs in both versions.
 
 use ndarray::Array2;
+use noisecal_core::format::compact::MANTISSA_BITS;
 use noisecal_core::model::pack::{PACK_MAGIC, PACK_VERSION};
 use noisecal_core::synth::sampler::{BinTable, IsoSampler};
 use noisecal_core::synth::synthesize;
@@ -18,7 +20,9 @@ fn calibrate(sim: &Simulator, plan: &SessionPlan) -> ModelPack {
     config.make = "sim".into();
     let mut session = CalibrationSession::new(sim.layout(), config).expect("session");
     plan.feed(sim, &mut session, |_, _| ()).expect("capture");
-    session.finish().expect("a pack")
+    let exact = session.finish_exact().expect("a pack");
+    assert_eq!(session.finish().expect("a pack"), exact.compacted(), "calibration rounds as a file stores");
+    exact
 }
 
 /// A small simulated session of the demo's phone: 2 ISOs, 4 frames per burst.
@@ -67,6 +71,29 @@ fn fingerprint(pack: &ModelPack) -> Vec<(Vec<Vec<u64>>, Array2<u16>)> {
         .collect()
 }
 
+/// Largest change of any value's log-probability between two packs of the same bins, and the
+/// mean KL divergence per bin (nats).
+fn log_prob_change(a: &ModelPack, b: &ModelPack) -> (f64, f64) {
+    let (mut worst, mut kl, mut n) = (0.0f64, 0.0f64, 0usize);
+    for (ma, mb) in a.isos.iter().zip(&b.isos) {
+        for (ba, bb) in ma.positions.iter().flat_map(|p| &p.bins).zip(mb.positions.iter().flat_map(|p| &p.bins)) {
+            assert_eq!((ba.first, ba.counts.len()), (bb.first, bb.counts.len()), "same support");
+            let ta: f64 = ba.counts.iter().map(|&c| c as f64).sum();
+            let tb: f64 = bb.counts.iter().map(|&c| c as f64).sum();
+            for (&ca, &cb) in ba.counts.iter().zip(&bb.counts) {
+                assert_eq!(ca == 0, cb == 0, "no value gains or loses probability");
+                if ca > 0 {
+                    let (pa, pb) = (ca as f64 / ta, cb as f64 / tb);
+                    worst = worst.max((pa / pb).ln().abs());
+                    kl += pa * (pa / pb).ln();
+                }
+            }
+            n += 1;
+        }
+    }
+    (worst, kl / n.max(1) as f64)
+}
+
 #[test]
 fn compact_packs_round_trip_and_synthesize_as_version_4() {
     let p = small_pack();
@@ -80,13 +107,42 @@ fn compact_packs_round_trip_and_synthesize_as_version_4() {
     assert_eq!(v5, p.to_bytes().expect("bytes"));
     let from5 = ModelPack::from_bytes(&v5).expect("a version 5 pack loads");
     let from4 = ModelPack::from_bytes(&v4).expect("a version 4 pack still loads");
-    assert_eq!(from5, p);
-    assert_eq!(from4, p);
-    // A version 4 file migrated to 5 and back: the same bytes each way.
+    assert_eq!(from4, p, "version 4 loads byte for byte as before");
+    assert_eq!(from5, p.compacted());
+    assert_eq!(from5.compacted(), from5, "compacting is idempotent");
+    // A version 4 file migrated to 5, and a loaded version 5 written again: the same bytes.
     assert_eq!(from4.to_bytes().expect("bytes"), v5);
-    assert_eq!(from5.to_bytes_v4().expect("bytes"), v4);
-    // Sampler tables and synthesis: byte for byte.
-    assert_eq!(fingerprint(&from5), fingerprint(&from4));
+    assert_eq!(from5.to_bytes().expect("bytes"), v5);
+    // The rounding: within its bound on every value's log-probability (so on any held-out
+    // cross-entropy), and a negligible KL divergence.
+    let (worst, kl) = log_prob_change(&from4, &from5);
+    let bound = 2.0 * 0.5f64.powi(MANTISSA_BITS as i32) * 1.001;
+    assert!(worst <= bound, "log-probability moved by {worst} nats, bound {bound}");
+    assert!(kl < 1e-5, "mean KL {kl}");
+    eprintln!("rounding: largest log-probability change {worst:.2e} nats, mean KL per bin {kl:.2e} nats");
+    // Synthesis with the same random numbers: a pixel changes only where its draw falls between
+    // a table entry and its rounded one, by one step.
+    let (a, b) = (fingerprint(&from4), fingerprint(&from5));
+    for ((ta, ia), (tb, ib)) in a.iter().zip(&b) {
+        let moved: u64 =
+            ta.iter().zip(tb).flat_map(|(x, y)| x.iter().zip(y)).map(|(&x, &y)| x.abs_diff(y)).max().unwrap_or(0);
+        // A draw lands on another value only inside the gaps between old and new entries.
+        let gaps = ta
+            .iter()
+            .zip(tb)
+            .map(|(x, y)| x.iter().zip(y).map(|(&x, &y)| x.abs_diff(y) as f64).sum::<f64>() / 2f64.powi(32))
+            .fold(0.0, f64::max);
+        assert!(moved as f64 <= 2.0f64.powi(32 - MANTISSA_BITS as i32), "a CDF entry moved by {moved} / 2³²");
+        let differ = ia.iter().zip(ib).filter(|(x, y)| x != y).count();
+        let far = ia.iter().zip(ib).filter(|(x, y)| x.abs_diff(**y) > 4).count();
+        let frac = differ as f64 / ia.len() as f64;
+        eprintln!(
+            "synthesis: {differ} of {} pixels differ ({frac:.2e}; a bin's gaps hold at most {gaps:.2e} of the draws), {far} by more than 4 DN",
+            ia.len()
+        );
+        assert!(frac < 1e-2, "{differ} of {} pixels differ", ia.len());
+        assert_eq!(far, 0);
+    }
     // Size: measured 0.58× of the uncompressed file.
     assert!(v5.len() * 10 <= v4.len() * 7, "version 5 {} bytes, version 4 {}", v5.len(), v4.len());
 }
@@ -97,7 +153,7 @@ fn a_random_sensors_pack_is_compact() {
     let p = random_pack(1);
     let v5 = p.to_bytes().expect("bytes");
     let v4 = p.to_bytes_v4().expect("bytes");
-    assert_eq!(ModelPack::from_bytes(&v5).expect("loads"), p);
+    assert_eq!(ModelPack::from_bytes(&v5).expect("loads"), p.compacted());
     // Measured 0.38×.
     assert!(v5.len() * 2 <= v4.len(), "version 5 {} bytes, version 4 {}", v5.len(), v4.len());
 }
@@ -165,12 +221,13 @@ fn pack_sizes() {
         let t0 = std::time::Instant::now();
         let back = ModelPack::from_bytes(&v5).expect("loads");
         let dec = t0.elapsed();
-        assert_eq!(&back, p);
+        assert_eq!(back, p.compacted());
+        let (worst, kl) = log_prob_change(p, &back);
         let v4 = p.to_bytes_v4().expect("bytes");
         let cells: usize = p.isos.iter().flat_map(|m| &m.positions).flat_map(|q| &q.bins).map(|b| b.counts.len()).sum();
         let cal = p.isos.iter().filter(|m| m.is_calibrated()).count().max(1);
         println!(
-            "{name}\n  {} ISOs ({cal} calibrated), {cells} PMF cells: version 4 {} bytes, version 5 {} bytes ({:.3}×), {} bytes per calibrated ISO; encode {:?}, load {:?}",
+            "{name}\n  {} ISOs ({cal} calibrated), {cells} PMF cells: version 4 {} bytes, version 5 {} bytes ({:.3}×), {} bytes per calibrated ISO; encode {:?}, load {:?}; largest log-probability change {worst:.2e} nats, mean KL per bin {kl:.2e}",
             p.isos.len(),
             v4.len(),
             v5.len(),

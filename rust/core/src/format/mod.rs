@@ -5,7 +5,7 @@
 //! compact payload of the current one ([`compact`]).
 
 pub(crate) mod codec;
-pub(crate) mod compact;
+pub mod compact;
 pub(crate) mod pack_v1;
 pub(crate) mod pack_v2;
 pub(crate) mod pack_v3;

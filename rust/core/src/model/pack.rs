@@ -17,7 +17,8 @@ pub const PACK_MAGIC_TEXT: &str = "NCALPACK";
 /// from, its measured moments and whether it is clipped, and per position the estimator's
 /// report; version 3 adds the structured components per ISO ([`IsoStructure`]); version 4 their
 /// fixed pattern (dark frames); version 5 stores the same structs compactly (each bin's weights
-/// delta-coded, the payload deflated: [`crate::format::compact`]), losslessly. Versions 1 to 3
+/// rounded to 9 significant bits and delta-coded, the payload deflated:
+/// [`crate::format::compact`]; [`ModelPack::compacted`] is what loads back). Versions 1 to 3
 /// are read and migrated ([`crate::format::pack_v1`], [`crate::format::pack_v2`],
 /// [`crate::format::pack_v3`]); version 4 is read as it is ([`ModelPack::to_bytes_v4`] still
 /// writes it).
@@ -340,13 +341,23 @@ impl ModelPack {
         self.isos.insert(at, m);
     }
 
-    /// The pack as a file of the current version (compact: [`crate::format::compact`]).
+    /// The pack as a file of the current version stores it (every weight rounded to
+    /// [`crate::format::compact::MANTISSA_BITS`] significant bits): what [`ModelPack::from_bytes`]
+    /// of [`ModelPack::to_bytes`] gives. Idempotent.
+    pub fn compacted(&self) -> ModelPack {
+        let mut p = self.clone();
+        crate::format::compact::round_weights(&mut p);
+        p
+    }
+
+    /// The pack as a file of the current version (compact: [`crate::format::compact`]); it loads
+    /// back as [`ModelPack::compacted`].
     pub fn to_bytes(&self) -> Result<Vec<u8>, CodecError> {
         Ok(codec::encode_sealed(PACK_MAGIC, PACK_VERSION, &crate::format::compact::encode(self)?))
     }
 
-    /// The pack as a version 4 file: the same value uncompressed (for noisecal builds before
-    /// version 5, and for diffing packs byte by byte). It loads to the same pack.
+    /// The pack as a version 4 file: the same value uncompressed and unrounded (for noisecal
+    /// builds before version 5, and for diffing packs byte by byte). It loads to the same pack.
     pub fn to_bytes_v4(&self) -> Result<Vec<u8>, CodecError> {
         codec::encode("model pack", PACK_MAGIC, PACK_VERSION_UNCOMPRESSED, self)
     }
