@@ -243,3 +243,22 @@ fn pack_sizes() {
         }
     }
 }
+
+/// The fuzz corpus's packs (written by an older noisecal, version 3) still load, and written as
+/// version 5 load back as their rounded selves. `NOISECAL_WRITE_SEEDS=1` writes those version 5
+/// files into the corpus as seeds (`*-v5.pack`).
+#[test]
+fn older_pack_files_load_and_migrate_to_version_5() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/fuzz-corpus/pack");
+    for name in ["plain", "two-isos", "interpolated"] {
+        let bytes = std::fs::read(dir.join(format!("{name}.pack"))).expect("read seed");
+        assert_eq!(u16::from_le_bytes([bytes[8], bytes[9]]), 3, "{name} is a version 3 file");
+        let old = ModelPack::from_bytes(&bytes).expect("a version 3 pack loads");
+        let v5 = old.to_bytes().expect("bytes");
+        assert_eq!(ModelPack::from_bytes(&v5).expect("loads"), old.compacted(), "{name}");
+        assert_eq!(ModelPack::from_bytes(&old.to_bytes_v4().expect("bytes")).expect("loads"), old, "{name}");
+        if std::env::var_os("NOISECAL_WRITE_SEEDS").is_some() && name != "interpolated" {
+            std::fs::write(dir.join(format!("{name}-v5.pack")), &v5).expect("write seed");
+        }
+    }
+}
