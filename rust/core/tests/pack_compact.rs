@@ -51,6 +51,56 @@ fn random_pack(seed: u64) -> ModelPack {
     calibrate(&sim, &plan)
 }
 
+/// Plain histograms of an independent held-out session (`plan` on `sim`, frame indices shifted
+/// by `offset`), binned as `pack` is.
+fn heldout(sim: &Simulator, plan: &SessionPlan, offset: u64, pack: &ModelPack) -> ModelPack {
+    let mut config = SessionConfig::new(plan.reference_iso);
+    config.bin_width = Some(pack.bin_width);
+    config.plain = true;
+    let mut session = CalibrationSession::new(sim.layout(), config).expect("session");
+    let mut step = None;
+    for f in plan.frames() {
+        if step != Some(f.step) {
+            session.begin_step(plan.exposure_ns(f.step, plan.reference_iso)).expect("step");
+            step = Some(f.step);
+        }
+        let (px, meta) = sim.capture(f.iso, f.exposure_ns, f.index + offset).expect("capture");
+        let _ = session.push_frame(&noisecal_core::FrameView::from_array(&px).expect("view"), &meta);
+    }
+    session.finish_exact().expect("held-out histograms")
+}
+
+/// Held-out cross-entropy (nats per sample) of `pack`'s PMFs on `held`'s measured histograms,
+/// and the fraction of held-out samples on values the pack gives no probability (left out).
+fn cross_entropy(pack: &ModelPack, held: &ModelPack) -> (f64, f64) {
+    let (mut nll, mut n, mut out) = (0.0f64, 0.0f64, 0.0f64);
+    for h in &held.isos {
+        let Some(m) = pack.iso(h.iso) else { continue };
+        for (pm, ph) in m.positions.iter().zip(&h.positions) {
+            for (b, hb) in pm.bins.iter().zip(&ph.bins) {
+                if hb.source != noisecal_core::model::pack::BinSource::Measured {
+                    continue;
+                }
+                let t: f64 = b.counts.iter().map(|&c| c as f64).sum();
+                for (i, &c) in hb.counts.iter().enumerate() {
+                    if c == 0 {
+                        continue;
+                    }
+                    let v = hb.first as i64 + i as i64 - b.first as i64;
+                    let w = usize::try_from(v).ok().and_then(|v| b.counts.get(v)).copied().unwrap_or(0);
+                    if w == 0 {
+                        out += c as f64;
+                    } else {
+                        nll -= c as f64 * (w as f64 / t).ln();
+                        n += c as f64;
+                    }
+                }
+            }
+        }
+    }
+    (nll / n.max(1.0), out / (n + out).max(1.0))
+}
+
 /// A clean image sweeping every level of the sensor.
 fn ramp(pack: &ModelPack) -> Array2<u16> {
     let (w, h) = (pack.layout.width as usize, pack.layout.height as usize);
@@ -210,11 +260,29 @@ fn pack_sizes() {
         .ok()
         .map(|s| s.split(',').filter_map(|x| x.trim().parse().ok()).collect())
         .unwrap_or_else(|| vec![0, 1, 2, 3]);
-    let mut packs: Vec<(String, ModelPack)> = vec![("demo".into(), demo_pack())];
-    for seed in seeds {
-        packs.push((format!("random {seed}: {}", random_sensor(seed).description), random_pack(seed)));
+    let mut packs: Vec<(String, ModelPack, ModelPack)> = Vec::new();
+    {
+        let p = demo_pack();
+        let sim = Simulator::new(SensorModel::phone_10bit(), Chart::color_checker(384, 288).expect("chart"), 1001)
+            .expect("simulator");
+        let plan = SessionPlan::for_simulator(&sim, vec![100, 200, 400, 800, 1600, 3200], 10)
+            .expect("plan")
+            .with_ev_steps(-4..=4);
+        let h = heldout(&sim, &plan, 1 << 40, &p);
+        packs.push(("demo".into(), p, h));
     }
-    for (name, p) in &packs {
+    for seed in seeds {
+        let sensor = random_sensor(seed);
+        let spec = random_session(seed, &sensor.model);
+        let p = random_pack(seed);
+        let sim = spec.simulator(&sensor.model, seed ^ 0xA5A5).expect("simulator");
+        let plan = spec.plan(&sim).expect("plan");
+        let hsim = spec.heldout_simulator(&sensor.model, seed ^ 0xA5A5).expect("held-out simulator");
+        let hplan = spec.heldout_plan(&plan).expect("held-out plan");
+        let h = heldout(&hsim, &hplan, spec.heldout.index_offset, &p);
+        packs.push((format!("random {seed}: {}", sensor.description), p, h));
+    }
+    for (name, p, held) in &packs {
         let t0 = std::time::Instant::now();
         let v5 = p.to_bytes().expect("bytes");
         let enc = t0.elapsed();
@@ -223,19 +291,24 @@ fn pack_sizes() {
         let dec = t0.elapsed();
         assert_eq!(back, p.compacted());
         let (worst, kl) = log_prob_change(p, &back);
+        let (ce4, uncovered) = cross_entropy(p, held);
+        let (ce5, _) = cross_entropy(&back, held);
         let v4 = p.to_bytes_v4().expect("bytes");
         let cells: usize = p.isos.iter().flat_map(|m| &m.positions).flat_map(|q| &q.bins).map(|b| b.counts.len()).sum();
         let cal = p.isos.iter().filter(|m| m.is_calibrated()).count().max(1);
         println!(
-            "{name}\n  {} ISOs ({cal} calibrated), {cells} PMF cells: version 4 {} bytes, version 5 {} bytes ({:.3}×), {} bytes per calibrated ISO; encode {:?}, load {:?}; largest log-probability change {worst:.2e} nats, mean KL per bin {kl:.2e}",
+            "{name}\n  {} ISOs ({cal} calibrated), {cells} PMF cells: version 4 {} bytes, version 5 {} bytes ({:.3}×), {} bytes per calibrated ISO; encode {:?}, load {:?}; largest log-probability change {worst:.2e} nats, mean KL per bin {kl:.2e}\n  held-out cross-entropy {ce4:.6} → {ce5:.6} nats ({:+.2e} relative; {:.2e} of the held-out samples on values without probability, left out)",
             p.isos.len(),
             v4.len(),
             v5.len(),
             v5.len() as f64 / v4.len() as f64,
             v5.len() / cal,
             enc,
-            dec
+            dec,
+            (ce5 - ce4) / ce4,
+            uncovered
         );
+        assert!(ce5 <= ce4 * 1.01, "{name}: cross-entropy {ce4} → {ce5}");
         if let Ok(dir) = std::env::var("NOISECAL_DUMP") {
             let stem = name.split(':').next().unwrap_or("pack").replace(' ', "-");
             std::fs::write(format!("{dir}/{stem}.v4.pack"), &v4).expect("write");
