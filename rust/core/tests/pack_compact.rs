@@ -193,8 +193,16 @@ fn compact_packs_round_trip_and_synthesize_as_version_4() {
         assert!(frac < 1e-2, "{differ} of {} pixels differ", ia.len());
         assert_eq!(far, 0);
     }
-    // Size: measured 0.58× of the uncompressed file.
-    assert!(v5.len() * 10 <= v4.len() * 7, "version 5 {} bytes, version 4 {}", v5.len(), v4.len());
+    // A model derived on the fly (interpolated) is the one a pack that stores it loads back,
+    // so synthesis at a derived ISO gives the same bytes whether the pack stores it or not.
+    let (m, _) = noisecal_core::derive::interp::model_for(&from5, 400, false).expect("interpolated");
+    let mut with = from5.clone();
+    with.insert(m.clone().into_owned());
+    let back = ModelPack::from_bytes(&with.to_bytes().expect("bytes")).expect("loads");
+    assert_eq!(back.iso(400), Some(m.as_ref()));
+    // Size: measured 0.27× of the uncompressed file.
+    eprintln!("version 4 {} bytes, version 5 {}", v4.len(), v5.len());
+    assert!(v5.len() * 2 <= v4.len(), "version 5 {} bytes, version 4 {}", v5.len(), v4.len());
 }
 
 /// Size bound on a random-family sensor's pack, and its round trip.
@@ -204,8 +212,8 @@ fn a_random_sensors_pack_is_compact() {
     let v5 = p.to_bytes().expect("bytes");
     let v4 = p.to_bytes_v4().expect("bytes");
     assert_eq!(ModelPack::from_bytes(&v5).expect("loads"), p.compacted());
-    // Measured 0.38×.
-    assert!(v5.len() * 2 <= v4.len(), "version 5 {} bytes, version 4 {}", v5.len(), v4.len());
+    // Measured 0.20×.
+    assert!(v5.len() * 10 <= v4.len() * 3, "version 5 {} bytes, version 4 {}", v5.len(), v4.len());
 }
 
 /// Damage inside the compressed payload (with the CRC recomputed, as a fuzzer's mutants may

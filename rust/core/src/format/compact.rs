@@ -28,8 +28,8 @@ use crate::format::codec;
 use crate::model::pack::ModelPack;
 
 const WHAT: &str = "model pack";
-/// Deflate level: 9 is 2–4 % smaller than 6 on calibrated packs at a few hundred ms more for
-/// a 20 MB pack (encoding only; inflating costs the same).
+/// Deflate level: the smallest output (measured: encoding a pack that is 28 MB as version 4
+/// takes 1.5 s, loading it 0.1 s; inflating costs the same at any level).
 const LEVEL: u8 = 9;
 /// The largest uncompressed payload a pack may claim (the bincode decoder's own limit).
 const MAX_RAW: u64 = 1 << 30;

@@ -174,13 +174,19 @@ pub struct BinModel {
     pub clipped: bool,
 }
 
+/// A weight as a pack file stores it.
+fn stored(w: u64) -> u64 {
+    crate::format::compact::quantize(w)
+}
+
 impl BinModel {
     /// True when the PMF does not stand on the bin's own samples.
     pub fn filled(&self) -> bool {
         self.source == BinSource::Filled
     }
 
-    /// Weights from an estimated PMF (probabilities × 2³⁰, so packs are deterministic).
+    /// Weights from an estimated PMF (probabilities × 2³⁰, so packs are deterministic; rounded
+    /// for storage when the calibration finishes, [`crate::CalibrationSession::finish`]).
     pub fn estimated(p: &Pmf, samples: u64, source: BinSource, measured: Option<[f64; 2]>, clipped: bool) -> Self {
         const SCALE: f64 = (1u64 << 30) as f64;
         let mut b = Self::from_scaled(p, SCALE);
@@ -229,10 +235,12 @@ impl BinModel {
     }
 
     /// Weights from a derived PMF (interpolated or parametric), with a fixed total so such bins
-    /// serialise deterministically. `filled` marks a PMF that stands on no measured bin.
+    /// serialise deterministically, rounded as a pack file stores them (so a model derived on
+    /// the fly is the one a pack that stores it loads back). `filled` marks a PMF that stands on
+    /// no measured bin.
     pub fn from_pmf(p: &Pmf, samples: u64, filled: bool) -> Self {
         const SCALE: f64 = (1u64 << 24) as f64;
-        let counts: Vec<u64> = p.p.iter().map(|&x| (x * SCALE).round() as u64).collect();
+        let counts: Vec<u64> = p.p.iter().map(|&x| stored((x * SCALE).round() as u64)).collect();
         let mut b = BinModel {
             first: p.first,
             counts,
