@@ -95,15 +95,24 @@ pub fn encode<T: Serialize>(
     version: u16,
     value: &T,
 ) -> Result<Vec<u8>, CodecError> {
-    let payload = bincode::serde::encode_to_vec(value, config())
-        .map_err(|e| CodecError::Encode { what, detail: e.to_string() })?;
+    Ok(encode_sealed(magic, version, &encode_payload(what, value)?))
+}
+
+/// The bincode payload of `value`, as [`encode`] seals it.
+pub fn encode_payload<T: Serialize>(what: &'static str, value: &T) -> Result<Vec<u8>, CodecError> {
+    bincode::serde::encode_to_vec(value, config()).map_err(|e| CodecError::Encode { what, detail: e.to_string() })
+}
+
+/// Seals `payload` (any bytes: a file whose payload is not a bare bincode value, such as a
+/// compressed one) behind `magic` and `version`, as [`encode`] does.
+pub fn encode_sealed(magic: &[u8; 8], version: u16, payload: &[u8]) -> Vec<u8> {
     let mut out = Vec::with_capacity(SEALED_HEADER + payload.len());
     out.extend_from_slice(&preamble(magic, version));
     out.extend_from_slice(&0u16.to_le_bytes());
     out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
-    out.extend_from_slice(&crc32fast::hash(&payload).to_le_bytes());
-    out.extend_from_slice(&payload);
-    Ok(out)
+    out.extend_from_slice(&crc32fast::hash(payload).to_le_bytes());
+    out.extend_from_slice(payload);
+    out
 }
 
 /// Decodes what [`encode`] wrote, refusing a wrong magic, a newer or older version, a truncated

@@ -16,9 +16,16 @@ pub const PACK_MAGIC_TEXT: &str = "NCALPACK";
 /// Bump on any change to the serialised structs. Version 2 adds, per bin, where its PMF comes
 /// from, its measured moments and whether it is clipped, and per position the estimator's
 /// report; version 3 adds the structured components per ISO ([`IsoStructure`]); version 4 their
-/// fixed pattern (dark frames). Versions 1 to 3 are read and migrated ([`crate::format::pack_v1`],
-/// [`crate::format::pack_v2`], [`crate::format::pack_v3`]).
-pub const PACK_VERSION: u16 = 4;
+/// fixed pattern (dark frames); version 5 stores the same structs compactly (each bin's weights
+/// rounded to 9 significant bits and delta-coded, the payload deflated:
+/// [`crate::format::compact`]; [`ModelPack::compacted`] is what loads back). Versions 1 to 3
+/// are read and migrated ([`crate::format::pack_v1`], [`crate::format::pack_v2`],
+/// [`crate::format::pack_v3`]); version 4 is read as it is ([`ModelPack::to_bytes_v4`] still
+/// writes it).
+pub const PACK_VERSION: u16 = 5;
+/// The last version whose payload is the bare bincode value (what [`ModelPack::to_bytes_v4`]
+/// writes).
+pub const PACK_VERSION_UNCOMPRESSED: u16 = 4;
 /// The oldest pack version this noisecal reads.
 pub const PACK_VERSION_MIN: u16 = 1;
 
@@ -167,13 +174,19 @@ pub struct BinModel {
     pub clipped: bool,
 }
 
+/// A weight as a pack file stores it.
+fn stored(w: u64) -> u64 {
+    crate::format::compact::quantize(w)
+}
+
 impl BinModel {
     /// True when the PMF does not stand on the bin's own samples.
     pub fn filled(&self) -> bool {
         self.source == BinSource::Filled
     }
 
-    /// Weights from an estimated PMF (probabilities × 2³⁰, so packs are deterministic).
+    /// Weights from an estimated PMF (probabilities × 2³⁰, so packs are deterministic; rounded
+    /// for storage when the calibration finishes, [`crate::CalibrationSession::finish`]).
     pub fn estimated(p: &Pmf, samples: u64, source: BinSource, measured: Option<[f64; 2]>, clipped: bool) -> Self {
         const SCALE: f64 = (1u64 << 30) as f64;
         let mut b = Self::from_scaled(p, SCALE);
@@ -222,10 +235,12 @@ impl BinModel {
     }
 
     /// Weights from a derived PMF (interpolated or parametric), with a fixed total so such bins
-    /// serialise deterministically. `filled` marks a PMF that stands on no measured bin.
+    /// serialise deterministically, rounded as a pack file stores them (so a model derived on
+    /// the fly is the one a pack that stores it loads back). `filled` marks a PMF that stands on
+    /// no measured bin.
     pub fn from_pmf(p: &Pmf, samples: u64, filled: bool) -> Self {
         const SCALE: f64 = (1u64 << 24) as f64;
-        let counts: Vec<u64> = p.p.iter().map(|&x| (x * SCALE).round() as u64).collect();
+        let counts: Vec<u64> = p.p.iter().map(|&x| stored((x * SCALE).round() as u64)).collect();
         let mut b = BinModel {
             first: p.first,
             counts,
@@ -334,8 +349,25 @@ impl ModelPack {
         self.isos.insert(at, m);
     }
 
+    /// The pack as a file of the current version stores it (every weight rounded to
+    /// [`crate::format::compact::MANTISSA_BITS`] significant bits): what [`ModelPack::from_bytes`]
+    /// of [`ModelPack::to_bytes`] gives. Idempotent.
+    pub fn compacted(&self) -> ModelPack {
+        let mut p = self.clone();
+        crate::format::compact::round_weights(&mut p);
+        p
+    }
+
+    /// The pack as a file of the current version (compact: [`crate::format::compact`]); it loads
+    /// back as [`ModelPack::compacted`].
     pub fn to_bytes(&self) -> Result<Vec<u8>, CodecError> {
-        codec::encode("model pack", PACK_MAGIC, PACK_VERSION, self)
+        Ok(codec::encode_sealed(PACK_MAGIC, PACK_VERSION, &crate::format::compact::encode(self)?))
+    }
+
+    /// The pack as a version 4 file: the same value uncompressed and unrounded (for noisecal
+    /// builds before version 5, and for diffing packs byte by byte). It loads to the same pack.
+    pub fn to_bytes_v4(&self) -> Result<Vec<u8>, CodecError> {
+        codec::encode("model pack", PACK_MAGIC, PACK_VERSION_UNCOMPRESSED, self)
     }
 
     /// Reads a pack of this version or an older one (migrated; see [`crate::format::pack_v1`]).
@@ -347,7 +379,8 @@ impl ModelPack {
             1 => codec::decode_payload::<crate::format::pack_v1::ModelPackV1>(WHAT, payload)?.migrate(),
             2 => codec::decode_payload::<crate::format::pack_v2::ModelPackV2>(WHAT, payload)?.migrate(),
             3 => codec::decode_payload::<crate::format::pack_v3::ModelPackV3>(WHAT, payload)?.migrate(),
-            _ => codec::decode_payload(WHAT, payload)?,
+            PACK_VERSION_UNCOMPRESSED => codec::decode_payload(WHAT, payload)?,
+            _ => crate::format::compact::decode(payload)?,
         };
         p.check()?;
         Ok(p)
