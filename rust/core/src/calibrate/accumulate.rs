@@ -62,6 +62,13 @@ impl MotionTally {
         let v: Vec<f64> = self.shifts.iter().map(|&s| s as f64).collect();
         if v.is_empty() { 0.0 } else { crate::math::stats::median(&v) }
     }
+
+    /// The largest displacement (pixels) when the chart moved enough to say so
+    /// ([`crate::calibrate::assemble::MOTION_WORTH_SAYING_PX`]).
+    pub(crate) fn moved(&self) -> Option<f64> {
+        (self.frames > 0 && self.max_shift > crate::calibrate::assemble::MOTION_WORTH_SAYING_PX)
+            .then_some(self.max_shift)
+    }
 }
 
 impl IsoAccumulator {
@@ -275,43 +282,35 @@ fn fold_rows(
                 hist[lut[c as usize] as usize].add(n);
                 samples += 1;
             }
-        } else if identity {
-            for (x, (&v, &c)) in row.iter().zip(crow).enumerate() {
-                if c == NOT_FLAT {
-                    continue;
-                }
-                let n = v as i32 - c as i32;
-                if c <= line_top {
-                    line_add(&mut rs[x & 3], &mut cols[x][half], n, c);
-                }
-                if x & 1 == 0 {
-                    hist0[lut0[c as usize] as usize].add(n);
-                    codes0[(v as usize).min(top)] += 1;
-                } else {
-                    hist1[lut1[c as usize] as usize].add(n);
-                    codes1[(v as usize).min(top)] += 1;
-                }
-                samples += 1;
-            }
         } else {
-            for (x, (&v, &c)) in row.iter().zip(crow).enumerate() {
-                if c == NOT_FLAT {
-                    continue;
-                }
-                let pos = parity * 2 + (x & 1);
-                let t = tf.apply(pos, v).round().clamp(0.0, white as f32) as i32;
-                let n = t - c as i32;
-                if c <= line_top {
-                    line_add(&mut rs[x & 3], &mut cols[x][half], n, c);
-                }
-                if x & 1 == 0 {
-                    hist0[lut0[c as usize] as usize].add(n);
-                    codes0[(v as usize).min(top)] += 1;
-                } else {
-                    hist1[lut1[c as usize] as usize].add(n);
-                    codes1[(v as usize).min(top)] += 1;
-                }
-                samples += 1;
+            // A still frame: every flat pixel goes to the histograms. One loop, written once and
+            // expanded for the raw values and for transformed ones, so that the identity case
+            // carries no per-pixel branch.
+            macro_rules! fold_still {
+                ($value:expr) => {
+                    for (x, (&v, &c)) in row.iter().zip(crow).enumerate() {
+                        if c == NOT_FLAT {
+                            continue;
+                        }
+                        let n = $value(parity * 2 + (x & 1), v) - c as i32;
+                        if c <= line_top {
+                            line_add(&mut rs[x & 3], &mut cols[x][half], n, c);
+                        }
+                        if x & 1 == 0 {
+                            hist0[lut0[c as usize] as usize].add(n);
+                            codes0[(v as usize).min(top)] += 1;
+                        } else {
+                            hist1[lut1[c as usize] as usize].add(n);
+                            codes1[(v as usize).min(top)] += 1;
+                        }
+                        samples += 1;
+                    }
+                };
+            }
+            if identity {
+                fold_still!(|_: usize, v: u16| v as i32);
+            } else {
+                fold_still!(|pos: usize, v: u16| tf.apply(pos, v).round().clamp(0.0, white as f32) as i32);
             }
         }
         row_sums.push(rs);

@@ -141,7 +141,7 @@ impl CalibrationSession {
                 }
             }
             let mt = &acc.motion;
-            if mt.frames > 0 && mt.max_shift > MOTION_WORTH_SAYING_PX {
+            if mt.moved().is_some() {
                 warnings.push(format!(
                     "ISO {iso}: the chart moved between frames: target frames were up to {:.2} px (median {:.2} px) off their reference bursts; {:.2} % of flat samples were left out where that motion changed the level by more than {:.2} SD of the noise (it is not noise). Over about 0.3 px, a sturdier mount, optical stabilisation off or a remote trigger gives more samples",
                     mt.max_shift,
@@ -204,13 +204,7 @@ impl CalibrationSession {
         let spread = spread_check(
             &pack,
             |iso, pos| self.isos.get(&iso).and_then(|a| a.histograms(pos)),
-            |iso| {
-                self.isos
-                    .get(&iso)
-                    .map(|a| &a.motion)
-                    .filter(|m| m.frames > 0 && m.max_shift > MOTION_WORTH_SAYING_PX)
-                    .map(|m| m.max_shift)
-            },
+            |iso| self.isos.get(&iso).and_then(|a| a.motion.moved()),
         );
         pack.warnings.extend(spread.into_iter().map(|c| c.to_string()));
         Ok(pack)

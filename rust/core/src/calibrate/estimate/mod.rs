@@ -215,9 +215,9 @@ pub fn estimate_position(
     // Per bin, the pooling it uses: the position's choice, or a smaller one where the bin's own
     // held-out samples decide for it by more than `OVERRIDE_NATS`.
     let per_bin: Vec<u64>;
-    // Per clipped bin, whether it keeps its own histogram: the bins the held-out samples clearly
-    // favour own mode for (see below); `None` when nothing was cross-validated.
-    let mut own_votes: Option<Vec<bool>> = None;
+    // Per bin, whether its held-out samples clearly favour its own histogram over law mode
+    // (clipped bins, cross-validated only; see the clip mode below).
+    let own_votes: Vec<bool>;
     // The law mode gives clipped bins what the noise law, fitted on unclipped bins, predicts:
     // with fewer unclipped samples than one window of the law, nothing measured stands behind
     // it (a high ISO whose noise reaches the floor from every level: a 96 × 72 session at 50 ×
@@ -225,14 +225,16 @@ pub fn estimate_position(
     // bins keep their own samples.
     let unclipped: u64 = (0..nbins).filter(|&b| !clipped[b]).map(|b| total[b].total()).sum();
     let law_supported = unclipped as f64 >= law::LAW_MIN_SAMPLES;
-    let (m, clip_mode, choice, candidates, clip_scores, heldout) = match pooling {
+    let (m, choice, candidates, clip_scores, heldout) = match pooling {
         Pooling::Fixed(m) => {
             per_bin = vec![m; nbins];
-            (m, ClipMode::Law, Choice::Fixed, Vec::new(), None, 0)
+            own_votes = vec![false; nbins];
+            (m, Choice::Fixed, Vec::new(), None, 0)
         }
         Pooling::Auto | Pooling::Plain if live_folds.len() < 2 => {
             per_bin = vec![DEFAULT_POOLING; nbins];
-            (DEFAULT_POOLING, ClipMode::Law, Choice::Default, Vec::new(), None, 0)
+            own_votes = vec![false; nbins];
+            (DEFAULT_POOLING, Choice::Default, Vec::new(), None, 0)
         }
         Pooling::Auto | Pooling::Plain => {
             let cv = cross_validate(folds, &total, &clipped, levels, &live_folds);
@@ -256,25 +258,23 @@ pub fn estimate_position(
                 .zip(&cv.ll)
                 .map(|(&pooling, &ll)| CandidateScore { pooling, cross_entropy: -ll / n })
                 .collect();
-            own_votes = Some(
-                (0..nbins)
-                    .map(|b| {
-                        clipped[b]
-                            && cv.bin_heldout[b] >= OVERRIDE_MIN_HELDOUT
-                            && cv.clip_bin_own[b] - cv.clip_bin_law[b][best] > OVERRIDE_NATS
-                    })
-                    .collect(),
-            );
-            let (mode, scores) = match cv.clip_ll {
+            own_votes = (0..nbins)
+                .map(|b| {
+                    clipped[b]
+                        && cv.bin_heldout[b] >= OVERRIDE_MIN_HELDOUT
+                        && cv.clip_bin_own[b] - cv.clip_bin_law[b][best] > OVERRIDE_NATS
+                })
+                .collect();
+            // The clipped bins' scores in both modes, all together (for the report).
+            let scores = match cv.clip_ll {
                 Some([own, law]) if cv.clip_samples > 0 => {
                     let k = cv.clip_samples as f64;
-                    (if own > law { ClipMode::Own } else { ClipMode::Law }, Some([-own / k, -law / k]))
+                    Some([-own / k, -law / k])
                 }
-                _ => (ClipMode::Law, None),
+                _ => None,
             };
             (
                 POOLING_CANDIDATES[best],
-                mode,
                 Choice::CrossValidated { folds: live_folds.len() as u8 },
                 candidates,
                 scores,
@@ -313,21 +313,8 @@ pub fn estimate_position(
     // samples, noise ≈ 0) chose own mode for 145 clipped bins at ISO 3200, and bins of 10–30
     // samples kept their own histograms, means from −51 to +27 DN beside −30 DN neighbours.
     // Without a law to stand on (`law_supported`), every clipped bin keeps its own.
-    let own_mode: Vec<bool> = (0..nbins)
-        .map(|b| {
-            clipped[b]
-                && (!law_supported
-                    || match &own_votes {
-                        Some(v) => v[b],
-                        None => clip_mode == ClipMode::Own,
-                    })
-        })
-        .collect();
-    let clip_mode = if !law_supported || (own_votes.is_none() && clip_mode == ClipMode::Own) {
-        ClipMode::Own
-    } else {
-        ClipMode::Law
-    };
+    let own_mode: Vec<bool> = (0..nbins).map(|b| clipped[b] && (!law_supported || own_votes[b])).collect();
+    let clip_mode = if law_supported { ClipMode::Law } else { ClipMode::Own };
     let data = Data::new(&total, &clipped, levels).deselected(&deselect, levels);
     // Bin means onto the law where bursts explain their distance, unless the user fixed the
     // pooling (`--pooling 0` is each bin's own histogram, for comparisons).
@@ -339,12 +326,7 @@ pub fn estimate_position(
             // no prior (a 12-bit sensor at 50× its base ISO, every bin clipped, filled its
             // empty dark bins with noise of mean +1600 DN beside measured bins at −110).
             let nearest = (!law_supported && data.stats[b].n == 0)
-                .then(|| {
-                    (1..nbins)
-                        .flat_map(|d| [b.checked_sub(d), (b + d < nbins).then_some(b + d)])
-                        .flatten()
-                        .find(|&j| data.stats[j].n > 0)
-                })
+                .then(|| nearest_bin(b, nbins, |j| data.stats[j].n > 0))
                 .flatten();
             let (src, own_only) = match nearest {
                 Some(j) => (j, true),
@@ -398,6 +380,12 @@ pub(crate) fn argmax(v: &[f64]) -> usize {
     (0..v.len()).min_by(|&a, &b| v[b].total_cmp(&v[a]).then(a.cmp(&b))).unwrap_or(0)
 }
 
+/// The bin nearest to `b` (itself first, then both sides at each distance, the lower first) of
+/// the `n` bins that `ok` accepts.
+fn nearest_bin(b: usize, n: usize, ok: impl Fn(usize) -> bool) -> Option<usize> {
+    (0..n).flat_map(|d| [b.checked_sub(d), (b + d < n).then_some(b + d)]).flatten().find(|&j| ok(j))
+}
+
 /// The plain empirical estimator: each bin's own histogram, the nearest bin with samples for
 /// empty bins (no law, no pooling, no prior). The yardstick of method.md: the pack must not lose
 /// to it on held-out frames.
@@ -405,10 +393,7 @@ pub fn plain_empirical(hists: &[NoiseHistogram]) -> Vec<BinModel> {
     let nb = hists.len();
     (0..nb)
         .map(|b| {
-            let pick = (0..nb)
-                .flat_map(|d| [b.checked_sub(d), (b + d < nb).then_some(b + d)])
-                .flatten()
-                .find(|&j| hists[j].total() > 0);
+            let pick = nearest_bin(b, nb, |j| hists[j].total() > 0);
             match pick {
                 Some(j) => {
                     let t = hists[j].trimmed();
