@@ -217,6 +217,116 @@ impl SimSession {
     }
 }
 
+/// What `noisecal simulate --bench` writes.
+#[derive(Debug, Clone)]
+pub struct BenchSpec {
+    pub width: u32,
+    pub height: u32,
+    /// Target ISOs (the base ISO, the sensor's, is the reference).
+    pub isos: Vec<u32>,
+    /// Base-ISO frames per evaluation scene.
+    pub burst: u32,
+    pub scenes: u32,
+    pub train_scenes: u32,
+    /// Real frames per training scene and target ISO.
+    pub train_frames: u32,
+    /// Noise seed (the sensor's PRNU/DSNU and every frame); scenes are seeded from it too.
+    pub seed: u64,
+}
+
+impl BenchSpec {
+    /// Frames (and clean images) written.
+    pub fn frames(&self) -> usize {
+        let per_eval = self.burst as usize + self.isos.len();
+        let per_train = 1 + self.isos.len() * self.train_frames as usize;
+        self.scenes as usize * per_eval + self.train_scenes as usize * per_train
+    }
+}
+
+/// Frame indices of training scenes start here (evaluation scenes below it): fresh noise.
+const TRAIN_INDEX: u64 = 1 << 40;
+/// Frame indices per scene.
+const SCENE_FRAMES: u64 = 1 << 20;
+
+/// Writes a denoiser-benchmark set (see `noisecal simulate --bench`) into `dir`:
+/// `eval/sceneNNN/ref_KKK.dng` (the base-ISO burst) and `eval/sceneNNN/iso<ISO>.dng`;
+/// `train/clean/sceneNNN.dng` (the noiseless base-ISO image, rounded) and
+/// `train/captures/sceneNNN_iso<ISO>_<K>.dng`. Scene `i` is exposed `−(i mod 4)` EV below
+/// the mid-range exposure at the base ISO; a target ISO keeps ISO × exposure. Deterministic in
+/// the spec on any thread count.
+pub fn write_bench_set(
+    model: &SensorModel,
+    name: &str,
+    spec: &BenchSpec,
+    dir: &Path,
+    mut tick: impl FnMut(),
+) -> anyhow::Result<()> {
+    let base = model.base_iso;
+    if let Some(bad) = spec.isos.iter().find(|&&i| i <= base) {
+        anyhow::bail!("--isos: ISO {bad} is not above the sensor's base ISO {base} (the clean images' ISO): give higher target ISOs");
+    }
+    let eval = dir.join("eval");
+    let clean_dir = dir.join("train").join("clean");
+    let cap_dir = dir.join("train").join("captures");
+    for d in [&eval, &clean_dir, &cap_dir] {
+        std::fs::create_dir_all(d).with_context(|| format!("cannot create {}", d.display()))?;
+    }
+    let make = "noisecal";
+    let scene_sim = |scene_seed: u64| -> anyhow::Result<Simulator> {
+        let chart = Chart::natural(spec.width, spec.height, scene_seed)?;
+        Ok(Simulator::new(model.clone(), chart, spec.seed)?)
+    };
+    let exposure = |sim: &Simulator, i: u32, iso: u32| -> anyhow::Result<u64> {
+        let mid = sim.mid_range_exposure_ns(base)? as f64 / f64::from(1u32 << (i % 4));
+        Ok(((mid * base as f64 / iso as f64).round() as u64).max(1))
+    };
+    for i in 0..spec.scenes {
+        let sim = scene_sim(spec.seed.wrapping_mul(1_000_003).wrapping_add(i as u64))?;
+        let layout = sim.layout();
+        let d = eval.join(format!("scene{i:03}"));
+        std::fs::create_dir_all(&d).with_context(|| format!("cannot create {}", d.display()))?;
+        let first = i as u64 * SCENE_FRAMES;
+        let mut jobs: Vec<(u32, u64, std::path::PathBuf)> =
+            (0..spec.burst).map(|k| (base, first + k as u64, d.join(format!("ref_{k:03}.dng")))).collect();
+        for (j, &iso) in spec.isos.iter().enumerate() {
+            jobs.push((iso, first + (spec.burst as usize + j) as u64, d.join(format!("iso{iso}.dng"))));
+        }
+        let caps: Vec<_> = jobs
+            .par_iter()
+            .map(|(iso, k, _)| sim.capture(*iso, exposure(&sim, i, *iso)?, *k).map_err(anyhow::Error::from))
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        for ((_, _, path), (pixels, meta)) in jobs.iter().zip(caps) {
+            dng::write_dng_from_layout(path, &layout, &meta, make, name, &pixels)?;
+            tick();
+        }
+    }
+    for i in 0..spec.train_scenes {
+        let sim = scene_sim(spec.seed.wrapping_mul(1_000_003).wrapping_add(TRAIN_INDEX + i as u64))?;
+        let layout = sim.layout();
+        let exp = exposure(&sim, i, base)?;
+        let clean = sim.clean_expected(base, exp)?.mapv(|v| v.round().clamp(0.0, layout.white as f32) as u16);
+        let meta = noisecal_core::FrameMeta { iso: base, exposure_ns: exp, black: None };
+        dng::write_dng_from_layout(&clean_dir.join(format!("scene{i:03}.dng")), &layout, &meta, make, name, &clean)?;
+        tick();
+        let jobs: Vec<(u32, u32)> =
+            spec.isos.iter().flat_map(|&iso| (0..spec.train_frames).map(move |k| (iso, k))).collect();
+        let caps: Vec<_> = jobs
+            .par_iter()
+            .enumerate()
+            .map(|(n, (iso, _))| {
+                let index = TRAIN_INDEX + i as u64 * SCENE_FRAMES + n as u64;
+                sim.capture(*iso, exposure(&sim, i, *iso)?, index).map_err(anyhow::Error::from)
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        for ((iso, k), (pixels, meta)) in jobs.iter().zip(caps) {
+            let path = cap_dir.join(format!("scene{i:03}_iso{iso}_{k}.dng"));
+            dng::write_dng_from_layout(&path, &layout, &meta, make, name, &pixels)?;
+            tick();
+        }
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

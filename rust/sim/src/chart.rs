@@ -124,6 +124,27 @@ pub struct Chart {
     /// Relative illumination loss in the image corners (0.1: corners get 90 %), quadratic in
     /// the distance from the centre; fixed to the sensor, not to the chart.
     pub vignetting: f32,
+    /// A per-pixel scene replacing the patch grid (natural-statistics scenes for the denoiser
+    /// benchmark, [`Chart::natural`]); `None` for a chart.
+    pub texture: Option<std::sync::Arc<Texture>>,
+}
+
+/// A scene given per pixel: linear reflectance (R, G, B) of each pixel, row-major, looked up at
+/// the nearest pixel (outside the image, the nearest edge pixel).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Texture {
+    pub width: u32,
+    pub height: u32,
+    pub rgb: Vec<[f32; 3]>,
+}
+
+impl Texture {
+    #[inline]
+    fn at(&self, x: f32, y: f32, c: usize) -> f32 {
+        let xi = (x.floor().max(0.0) as usize).min(self.width as usize - 1);
+        let yi = (y.floor().max(0.0) as usize).min(self.height as usize - 1);
+        self.rgb[yi * self.width as usize + xi][c]
+    }
 }
 
 impl Chart {
@@ -155,6 +176,7 @@ impl Chart {
             edge_blur_px: (0.0012 * width.max(height) as f32).clamp(0.7, 4.0),
             lamp_electrons_per_s: [1.2e5, 2.0e5, 1.5e5],
             vignetting: 0.1,
+            texture: None,
         };
         chart.validate()?;
         Ok(chart)
@@ -179,7 +201,66 @@ impl Chart {
             edge_blur_px: 0.0,
             lamp_electrons_per_s: [1.2e5, 2.0e5, 1.5e5],
             vignetting: 0.0,
+            texture: None,
         };
+        chart.validate()?;
+        Ok(chart)
+    }
+
+    /// A natural-statistics scene of `width × height` pixels for the denoiser benchmark (not a
+    /// chart): dead leaves (opaque discs, front to back, radii with density ∝ r⁻³ between 1.5 px
+    /// and a quarter of the larger side, which gives the 1/f² power spectrum of natural images),
+    /// each leaf a colour of log-uniform luminance over 0.004 … 0.9 (dark shadows to white) and
+    /// random chroma, under a smooth illumination gradient of up to 2 stops across the frame and
+    /// 10 % corner vignetting. The same `seed` gives the same scene.
+    pub fn natural(width: u32, height: u32, seed: u64) -> Result<Self, SimError> {
+        use crate::noise::uniform_open;
+        use rand::SeedableRng;
+        let mut chart = Self::flat(width, height, [0.0; 3])?;
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(seed ^ 0x6e61_7475_7261_6c5f);
+        let (w, h) = (width as usize, height as usize);
+        let mut rgb = vec![[0.0f32; 3]; w * h];
+        let mut covered = vec![false; w * h];
+        let mut left = w * h;
+        let (rmin, rmax) = (1.5f64, (w.max(h) as f64 / 4.0).max(2.0));
+        // Inverse CDF of the density ∝ r⁻³ on [rmin, rmax].
+        let (a, b) = (rmin.powi(-2), rmax.powi(-2));
+        let mut leaves = 0usize;
+        while left > 0 && leaves < 200_000 {
+            leaves += 1;
+            let r = (a - uniform_open(&mut rng) * (a - b)).powf(-0.5);
+            let cx = uniform_open(&mut rng) * (w as f64 + 2.0 * r) - r;
+            let cy = uniform_open(&mut rng) * (h as f64 + 2.0 * r) - r;
+            let lum = (0.004f64.ln() + uniform_open(&mut rng) * (0.9f64 / 0.004).ln()).exp();
+            let chroma: [f64; 3] = std::array::from_fn(|_| 0.6 + 0.8 * uniform_open(&mut rng));
+            let mean = (chroma[0] + chroma[1] + chroma[2]) / 3.0;
+            let color = chroma.map(|c| (lum * c / mean).min(1.0) as f32);
+            let (x0, x1) = ((cx - r).floor().max(0.0) as usize, ((cx + r).ceil().max(0.0) as usize).min(w));
+            let (y0, y1) = ((cy - r).floor().max(0.0) as usize, ((cy + r).ceil().max(0.0) as usize).min(h));
+            for y in y0..y1 {
+                let dy = y as f64 + 0.5 - cy;
+                for x in x0..x1 {
+                    let dx = x as f64 + 0.5 - cx;
+                    let i = y * w + x;
+                    if !covered[i] && dx * dx + dy * dy <= r * r {
+                        covered[i] = true;
+                        rgb[i] = color;
+                        left -= 1;
+                    }
+                }
+            }
+        }
+        // A smooth illumination gradient: exp2 of a plane spanning up to 2 stops, at most 1.
+        let (gx, gy) = (uniform_open(&mut rng) * 2.0 - 1.0, uniform_open(&mut rng) * 2.0 - 1.0);
+        let norm = (gx.abs() + gy.abs()).max(1e-9);
+        for (i, v) in rgb.iter_mut().enumerate() {
+            let (x, y) = ((i % w) as f64 / w as f64, (i / w) as f64 / h as f64);
+            let e: f64 = 2.0 * ((gx * x + gy * y) / norm - (gx.max(0.0) + gy.max(0.0)) / norm);
+            let f = e.exp2() as f32;
+            *v = v.map(|c| c * f);
+        }
+        chart.vignetting = 0.1;
+        chart.texture = Some(std::sync::Arc::new(Texture { width, height, rgb }));
         chart.validate()?;
         Ok(chart)
     }
@@ -188,6 +269,18 @@ impl Chart {
     pub fn validate(&self) -> Result<(), SimError> {
         check_size(self.width, self.height)?;
         let bad = |what: &'static str, value: String, fix: &'static str| SimError::Parameter { what, value, fix };
+        if let Some(t) = &self.texture {
+            if (t.width, t.height) != (self.width, self.height) || t.rgb.len() != t.width as usize * t.height as usize {
+                return Err(bad(
+                    "Chart::texture",
+                    format!("{}×{} with {} values for a {}×{} chart", t.width, t.height, t.rgb.len(), self.width, self.height),
+                    "give one reflectance per pixel of the chart",
+                ));
+            }
+            if !t.rgb.iter().all(|r| r.iter().all(|v| v.is_finite() && (0.0..=1.5).contains(v))) {
+                return Err(bad("Chart::texture", "out of range".into(), "reflectances must be finite and in [0, 1.5]"));
+            }
+        }
         if self.patches.len() != self.grid_rows * self.grid_cols {
             return Err(bad(
                 "Chart::patches",
@@ -324,6 +417,9 @@ impl Chart {
     /// Electron rate of the chart (before lamp and vignetting) for colour `c` at chart
     /// coordinates `(x, y)`.
     fn reflectance_at(&self, x: f32, y: f32, c: usize) -> f32 {
+        if let Some(t) = &self.texture {
+            return t.at(x, y, c);
+        }
         let mut s = self.background[c];
         for i in 0..self.grid_rows {
             let (y0, y1) = self.row_span(i);
@@ -365,7 +461,9 @@ impl Chart {
         let (vxf, vyf) = self.vignette_axes();
         let vx = (0..w).map(|x| self.vignetting * vxf(x)).collect();
         let vy = (0..h).map(|y| self.vignetting * vyf(y)).collect();
-        Prepared { chart: self, fx, fy, vx, vy, pose: None }
+        // A per-pixel scene is evaluated per pixel (the pose path with the identity pose).
+        let pose = self.texture.is_some().then_some(Pose { dx: jitter.0, dy: jitter.1, cos: 1.0, sin: 0.0, scale: 1.0 });
+        Prepared { chart: self, fx, fy, vx, vy, pose }
     }
 }
 
@@ -506,6 +604,30 @@ mod tests {
         let at = c.irradiance(y as usize, x as usize, CfaColor::Green, (0.5 - x.fract(), 0.0))
             / (c.lamp_electrons_per_s[1] * c.vignette(y as usize, x as usize));
         assert!((at - mid).abs() < 0.01, "{at} vs {mid}");
+    }
+
+    #[test]
+    fn natural_scenes_are_seeded_textured_and_span_the_range() {
+        let a = Chart::natural(128, 96, 3).expect("scene");
+        assert_eq!(a, Chart::natural(128, 96, 3).expect("scene"));
+        assert_ne!(a, Chart::natural(128, 96, 4).expect("scene"));
+        let img = a.render(CfaPattern::Rggb, (0.0, 0.0));
+        let colors = CfaPattern::Rggb.colors();
+        for (row, col) in [(0, 0), (10, 17), (95, 127), (40, 3)] {
+            let want = a.irradiance(row, col, colors[noisecal_core::model::layout::position(row, col)], (0.0, 0.0));
+            assert!((img[[row, col]] - want).abs() <= 1e-4 * want.abs() + 1e-3, "{row},{col}");
+        }
+        // Not a chart: many distinct levels, dark and bright parts (over 20× apart in green).
+        let green: Vec<f32> = img.indexed_iter().filter(|((y, x), _)| (y + x) % 2 == 1).map(|(_, v)| *v).collect();
+        let mut sorted = green.clone();
+        sorted.sort_by(f32::total_cmp);
+        let (p5, p95) = (sorted[sorted.len() / 20], sorted[sorted.len() * 19 / 20]);
+        assert!(p95 > 20.0 * p5, "p5 {p5}, p95 {p95}");
+        sorted.dedup();
+        assert!(sorted.len() > 200, "{} distinct levels", sorted.len());
+        let mut bad = a.clone();
+        bad.texture = Some(std::sync::Arc::new(Texture { width: 4, height: 4, rgb: vec![[0.5; 3]; 16] }));
+        assert!(bad.validate().expect_err("size mismatch").to_string().contains("Chart::texture"));
     }
 
     #[test]

@@ -30,7 +30,7 @@ mod sim;
 mod truth;
 
 pub use bytes::{to_padded_le_bytes, try_to_padded_le_bytes};
-pub use chart::{Chart, PatchRect};
+pub use chart::{Chart, PatchRect, Texture};
 pub use error::SimError;
 pub use family::{
     FAMILY_MAX_ISO_FACTOR, HeldOutSpec, MovingScene, RandomSensor, SessionScale, SessionSpec, random_moving_scene,

@@ -76,9 +76,30 @@ pub struct Args {
     /// uses: the optional dark step that measures the fixed pattern. 0 = none.
     #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=256))]
     pub dark: u32,
+    /// Write a denoiser-benchmark set into this folder instead of a calibration session (for
+    /// `noisecal-bench`): natural-statistics scenes (dead leaves, not charts), `eval/sceneNNN/`
+    /// each a burst of --frames at the base ISO (its mean is the clean image) and one frame per
+    /// target ISO at the same ISO × exposure; `train/clean/` the noiseless scenes at the base ISO
+    /// (clean training images); `train/captures/` --train-frames real frames of each training
+    /// scene per target ISO (the oracle's training data, and the ISO-a captures noise on noise
+    /// starts from). Scenes are exposed 0 to −3 EV below mid-range in turn (low light included).
+    #[arg(long, value_name = "DIR", conflicts_with_all = ["dngs", "rec", "heldout", "dark"])]
+    pub bench: Option<PathBuf>,
+    /// With --bench: evaluation scenes.
+    #[arg(long, default_value_t = 8, requires = "bench", value_parser = clap::value_parser!(u32).range(1..=10000))]
+    pub scenes: u32,
+    /// With --bench: training scenes.
+    #[arg(long, default_value_t = 16, requires = "bench", value_parser = clap::value_parser!(u32).range(1..=100000))]
+    pub train_scenes: u32,
+    /// With --bench: real frames per training scene and target ISO.
+    #[arg(long, default_value_t = 2, requires = "bench", value_parser = clap::value_parser!(u32).range(1..=256))]
+    pub train_frames: u32,
 }
 
 pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
+    if let Some(dir) = &args.bench {
+        return bench_set(&args, dir, quiet);
+    }
     if args.dngs.is_none() && args.rec.is_none() {
         bail!("nothing to write: give --dngs DIR and/or --rec FILE");
     }
@@ -170,4 +191,58 @@ fn structured_text(m: &noisecal_sim::SensorModel) -> String {
         m.dsnu_pre_e,
         m.dsnu_post_dn
     )
+}
+
+/// `--bench DIR`: the denoiser benchmark's evaluation and training set.
+fn bench_set(args: &Args, dir: &std::path::Path, quiet: bool) -> anyhow::Result<()> {
+    let choice = args.sensor.unwrap_or(SensorChoice::Preset(args.preset));
+    let (mut model, name, isos) = match choice {
+        SensorChoice::Preset(p) => (p.model(), p.name().to_string(), vec![100, 200, 400, 800, 1600]),
+        SensorChoice::Random(seed) => {
+            let sensor = noisecal_sim::random_sensor(seed);
+            let spec = noisecal_sim::random_session(seed, &sensor.model);
+            if !quiet {
+                eprintln!("sensor random:{seed}: {}", sensor.description);
+            }
+            (sensor.model.clone(), sensor.name(), spec.target_isos.clone())
+        }
+    };
+    if args.structured {
+        model = model.with_structured_noise();
+        if !quiet {
+            eprintln!("sensor {name}{}", structured_text(&model));
+        }
+    }
+    if let Some(a) = args.flicker {
+        model.flicker = Some(noisecal_sim::Flicker { probability: 0.1, amplitude: a });
+    }
+    let spec = crate::simulate::BenchSpec {
+        width: args.width.unwrap_or(256),
+        height: args.height.unwrap_or(256),
+        isos: args.isos.clone().unwrap_or(isos),
+        burst: args.frames.unwrap_or(16),
+        scenes: args.scenes,
+        train_scenes: args.train_scenes,
+        train_frames: args.train_frames,
+        seed: args.seed,
+    };
+    let total = spec.frames();
+    let pb = progress_bar(total as u64, quiet, "simulating");
+    crate::simulate::write_bench_set(&model, &name, &spec, dir, || pb.inc(1))?;
+    pb.finish_and_clear();
+    if !quiet {
+        eprintln!(
+            "benchmark set written to {}: {} evaluation scenes (burst of {} at ISO {} + ISOs {:?}), {} training scenes ({} frames per ISO), {}×{}",
+            dir.display(),
+            spec.scenes,
+            spec.burst,
+            model.base_iso,
+            spec.isos,
+            spec.train_scenes,
+            spec.train_frames,
+            spec.width,
+            spec.height
+        );
+    }
+    Ok(())
 }
