@@ -351,9 +351,11 @@ impl Chart {
     /// Largest reflectance × lamp rate over patches, background and colours (e⁻/s): the
     /// brightest spot of the chart before vignetting.
     pub fn max_rate(&self) -> f32 {
+        let texture = self.texture.as_deref().map_or(&[][..], |t| &t.rgb[..]);
         self.patches
             .iter()
             .chain(std::iter::once(&self.background))
+            .chain(texture)
             .flat_map(|r| (0..3).map(move |c| r[c] * self.lamp_electrons_per_s[c]))
             .fold(0.0, f32::max)
     }
@@ -625,6 +627,8 @@ mod tests {
         assert!(p95 > 20.0 * p5, "p5 {p5}, p95 {p95}");
         sorted.dedup();
         assert!(sorted.len() > 200, "{} distinct levels", sorted.len());
+        // Exposed by its brightest texel, not by the (black) background of the flat chart below it.
+        assert!(a.max_rate() > 0.3 * a.lamp_electrons_per_s[1], "{}", a.max_rate());
         let mut bad = a.clone();
         bad.texture = Some(std::sync::Arc::new(Texture { width: 4, height: 4, rgb: vec![[0.5; 3]; 16] }));
         assert!(bad.validate().expect_err("size mismatch").to_string().contains("Chart::texture"));
