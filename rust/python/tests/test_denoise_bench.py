@@ -1,0 +1,321 @@
+"""noisecal.bench, the denoiser benchmark: its data layout, metrics, models and (with torch) a small
+run whose controls must come out in order (the oracle best within the seed spread, the wrong
+model — HG with half the variance — clearly worst).
+
+The small run is CI's check of the whole machinery (tests/run_all.sh runs this file in a venv
+with torch); without torch those tests are skipped and the rest run."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import noisecal
+from noisecal import bench as B
+
+from conftest import _cli, have, run
+
+
+# ---------------------------------------------------------------------------------------------
+# Data layout
+
+
+def test_pack_raw_puts_cfa_position_p_in_channel_p_and_unpacks_back():
+    raw = np.arange(6 * 8, dtype=np.uint16).reshape(6, 8)
+    p = B.pack_raw(raw)
+    assert p.shape == (4, 3, 4)
+    for row, col in [(0, 0), (1, 0), (0, 3), (5, 7), (4, 5)]:
+        assert p[(row % 2) * 2 + col % 2, row // 2, col // 2] == raw[row, col]
+    assert np.array_equal(B.unpack_raw(p), raw)
+    with pytest.raises(B.BenchError, match="even height and width"):
+        B.pack_raw(raw[:5])
+
+
+def test_normalise_maps_each_positions_black_to_0_and_white_to_1():
+    black = [60.0, 64.0, 66.0, 70.0]
+    img = B.per_position(black, (4, 6))
+    assert np.allclose(B.normalise(img, black, 1023), 0)
+    assert np.allclose(B.normalise(np.full((4, 6), 1023.0), black, 1023), 1)
+    mid = B.normalise(np.full((4, 6), 500.0), black, 1023)
+    assert np.allclose(mid[2], (500 - 66) / (1023 - 66))
+
+
+@pytest.mark.parametrize("cfa", ["RGGB", "GRBG", "GBRG", "BGGR"])
+def test_mosaic_keeps_each_pixels_cfa_colour(cfa):
+    rgb = np.stack([np.full((4, 4), v) for v in (1.0, 2.0, 3.0)], axis=-1)
+    m = B.mosaic(rgb, cfa)
+    want = {"R": 1.0, "G": 2.0, "B": 3.0}
+    for p, c in enumerate(cfa):
+        assert np.all(m[p // 2 :: 2, p % 2 :: 2] == want[c])
+    with pytest.raises(B.BenchError, match="unknown CFA"):
+        B.mosaic(rgb, "RGBW")
+
+
+def test_generated_scenes_are_seeded_in_range_and_have_the_channel_gains():
+    layout = {"cfa": "GRBG", "black": [64.0] * 4, "white": 1023}
+    a = B.generate_clean(8, 64, 96, layout, seed=3)
+    assert all(np.array_equal(x, y) for x, y in zip(a, B.generate_clean(8, 64, 96, layout, seed=3)))
+    assert not np.array_equal(a[0], B.generate_clean(1, 64, 96, layout, seed=4)[0])
+    s = np.stack(a).astype(np.float64)
+    assert s.min() >= 64 and s.max() <= 1023 and a[0].dtype == np.uint16
+    # GRBG: position 1 is red (gain 0.6), 2 blue (0.75), 0 and 3 green (1): over 8 scenes the
+    # channel means above black keep that order, and the scenes span dark to bright.
+    ch = B.pack_raw(s.mean(0) - 64).reshape(4, -1).mean(1)
+    assert ch[1] < ch[2] < min(ch[0], ch[3])
+    assert 0.4 < ch[1] / ch[0] < 0.8
+    norm = (s - 64) / (1023 - 64)
+    assert (norm < 0.02).mean() > 0.05 and (norm > 0.3).mean() > 0.005
+
+
+def test_batch_plan_is_seeded_even_and_in_bounds():
+    a = B.batch_plan(7, 50, 8, 5, 3, (64, 80), 32)
+    assert np.array_equal(a, B.batch_plan(7, 50, 8, 5, 3, (64, 80), 32))
+    assert not np.array_equal(a, B.batch_plan(8, 50, 8, 5, 3, (64, 80), 32))
+    assert a.shape == (50, 8, 4)
+    assert a[..., 0].max() == 4 and a[..., 1].max() == 2 and a[..., :2].min() == 0
+    assert np.all(a[..., 2:] % 2 == 0)
+    assert a[..., 2].max() <= 64 - 32 and a[..., 3].max() <= 80 - 32
+    assert a[..., 3].max() == 48  # the last even offset is reachable
+    with pytest.raises(B.BenchError, match="larger than the training images"):
+        B.batch_plan(0, 1, 1, 1, 1, (16, 16), 32)
+
+
+# ---------------------------------------------------------------------------------------------
+# Metrics
+
+
+def test_psnr_known_values():
+    ref = np.zeros((4, 8, 8))
+    assert B.psnr(ref + 0.1, ref) == pytest.approx(20.0)
+    assert B.psnr(ref + 0.01, ref) == pytest.approx(40.0)
+    assert B.psnr(ref + 0.5, ref, data_range=2.0) == pytest.approx(10 * math.log10(4 / 0.25))
+    assert B.psnr(ref, ref) == math.inf
+
+
+def _ssim_brute(x, y, data_range=1.0):
+    """SSIM by its definition, window by window (the 11×11 Gaussian of σ 1.5), for a 2-D image."""
+    k = np.exp(-0.5 * ((np.arange(11) - 5) / 1.5) ** 2)
+    w = np.outer(k, k) / np.outer(k, k).sum()
+    c1, c2 = (0.01 * data_range) ** 2, (0.03 * data_range) ** 2
+    out = np.empty((x.shape[0] - 10, x.shape[1] - 10))
+    for i in range(out.shape[0]):
+        for j in range(out.shape[1]):
+            a, b = x[i : i + 11, j : j + 11], y[i : i + 11, j : j + 11]
+            ma, mb = (w * a).sum(), (w * b).sum()
+            va, vb = (w * a * a).sum() - ma**2, (w * b * b).sum() - mb**2
+            cov = (w * a * b).sum() - ma * mb
+            out[i, j] = (2 * ma * mb + c1) * (2 * cov + c2) / ((ma**2 + mb**2 + c1) * (va + vb + c2))
+    return out
+
+
+def test_ssim_known_values_and_the_definition():
+    rng = np.random.default_rng(1)
+    x = rng.random((2, 24, 30))
+    assert B.ssim(x, x) == pytest.approx(1.0)
+    # Constant images a and b: no variance, SSIM = (2ab + C1) / (a² + b² + C1).
+    a, b = 0.3, 0.5
+    c1 = 0.01**2
+    assert B.ssim(np.full((1, 16, 16), a), np.full((1, 16, 16), b)) == pytest.approx((2 * a * b + c1) / (a * a + b * b + c1))
+    y = np.clip(x + rng.normal(0, 0.1, x.shape), 0, 1)
+    m = B.ssim_map(y, x)
+    assert m.shape == (2, 14, 20)
+    for c in range(2):
+        assert np.allclose(m[c], _ssim_brute(y[c], x[c]), atol=1e-10)
+    assert 0.3 < B.ssim(y, x) < 0.95
+
+
+def test_score_bands_pool_the_error_by_clean_level():
+    clean = np.zeros((4, 20, 20))
+    clean[:, :, :10] = 0.01  # dark
+    clean[:, :, 10:] = 0.5  # bright
+    pred = clean.copy()
+    pred[:, :, :10] += 0.01  # dark error 0.01 → 40 dB
+    pred[:, :, 10:] += 0.1  # bright error 0.1 → 20 dB
+    s = B.score([pred], [clean])
+    assert set(s["bands"]) == {"dark", "bright"}
+    assert s["bands"]["dark"]["psnr"] == pytest.approx(40.0)
+    assert s["bands"]["bright"]["psnr"] == pytest.approx(20.0)
+    assert s["bands"]["dark"]["fraction"] == pytest.approx(0.5)
+    assert s["psnr"] == pytest.approx(10 * math.log10(1 / ((0.01**2 + 0.1**2) / 2)))
+
+
+def test_summarise():
+    s = B.summarise([1.0, 2.0, 4.0])
+    assert s["mean"] == pytest.approx(7 / 3)
+    assert s["std"] == pytest.approx(np.std([1, 2, 4], ddof=1))
+    assert (s["min"], s["max"], s["n"]) == (1.0, 4.0, 3)
+    assert B.summarise([5.0])["std"] == 0.0
+
+
+def test_controls_need_a_clear_margin():
+    def row(model, kind, mean, std=0.05):
+        return {"model": model, "kind": kind, "iso": 800, "psnr": {"mean": mean, "std": std}}
+
+    good = B.controls([row("oracle", "oracle", 36.0), row("hg", "hg", 36.02), row("wrong", "wrong", 35.0)])[800]
+    assert not good["oracle_best"] and good["oracle_within_spread"] and good["wrong_clear"]
+    bad = B.controls([row("oracle", "oracle", 35.5), row("hg", "hg", 36.0), row("wrong", "wrong", 35.45)])[800]
+    assert not bad["oracle_within_spread"] and bad["wrong_worst"] and not bad["wrong_clear"]
+
+
+# ---------------------------------------------------------------------------------------------
+# Models
+
+
+def test_parse_model():
+    m = B.parse_model("interp=noisecal:pixel@x.pack")
+    assert (m.label, m.kind, m.components, m.pack_path) == ("interp", "noisecal", "pixel", "x.pack")
+    assert B.parse_model("HG").kind == "hg" and B.parse_model("HG").label == "HG"
+    assert B.parse_model("plain", plain_pack="p.pack").pack_path == "p.pack"
+    with pytest.raises(B.BenchError, match="--plain-pack"):
+        B.parse_model("plain")
+    with pytest.raises(B.BenchError, match="unknown model 'gauss'"):
+        B.parse_model("gauss")
+    with pytest.raises(B.BenchError, match="components apply to pack models"):
+        B.parse_model("wrong:pixel")
+
+
+def test_wrong_model_has_half_the_hg_variance(pack):
+    """On a flat image, var(wrong) / var(hg) = 1/2 (a wrong scale, e.g. 1/2 instead of 1/√2,
+    gives 1/4; no scaling 1), and the mean stays HG's (a centre off by the gain shift moves it)."""
+    clean = np.full((256, 256), 400, dtype=np.uint16)
+    hg = pack.synth(clean, 800, 3, model="hg").astype(np.float64)
+    wrong = B.half_variance(pack.synth(clean, 800, 3, model="hg"), clean, pack, 800).astype(np.float64)
+    for p in range(4):
+        h, w = B.pack_raw(hg)[p], B.pack_raw(wrong)[p]
+        ratio = w.var() / h.var()
+        assert 0.44 < ratio < 0.56, ratio  # ± ~6 σ of the ratio's sampling error at 16 384 pixels
+        assert abs(w.mean() - h.mean()) < 0.2  # ~7 standard errors of the difference
+
+
+# ---------------------------------------------------------------------------------------------
+# The evaluation set `noisecal simulate --bench` writes, and its loading
+
+
+@pytest.fixture(scope="module")
+def bench_set(tmp_path_factory: pytest.TempPathFactory, cli: Path) -> Path:
+    d = tmp_path_factory.mktemp("bench") / "set"
+    run(cli, "simulate", "--bench", d, "--scenes", "4", "--train-scenes", "8", "--train-frames", "2",
+        "--width", "128", "--height", "128", "--isos", "1600", "--frames", "12", "--seed", "3")
+    return d
+
+
+def test_simulated_bench_set_layout(bench_set: Path, pack):
+    scenes = B.load_eval(bench_set / "eval", pack)
+    assert [s.name for s in scenes] == [f"scene{i:03}" for i in range(4)]
+    assert {s.base_iso for s in scenes} == {50}
+    assert all(list(s.frames) == [1600] and len(s.frames[1600]) == 1 for s in scenes)
+    names, cleans = B.load_clean(bench_set / "train" / "clean", pack)
+    assert names == [f"scene{i:03}" for i in range(8)]
+    caps = B.load_captures(bench_set / "train" / "captures", names, pack)
+    assert set(caps) == {(j, 1600) for j in range(8)} and all(len(v) == 2 for v in caps.values())
+    # ISO × exposure kept: the ISO-1600 frame is the burst mean × the gain ratio (phone10: ≈ 1.02)
+    # above black; and the scenes are not flat or charts: many levels, dark and bright.
+    ratios = []
+    for s in scenes:
+        c = B.normalise(s.clean, [64] * 4, 1023)
+        f = B.normalise(s.frames[1600][0], [64] * 4, 1023)
+        ratios.append(f.mean() / c.mean())
+        assert len(np.unique(np.rint(s.clean))) > 50  # even the −3 EV scene
+    assert 0.98 < np.mean(ratios) < 1.06, ratios
+    c0 = B.normalise(scenes[0].clean, [64] * 4, 1023)
+    assert c0.max() > 0.6 and (c0 < 0.05).mean() > 0.1
+    # The clean training image is the scene's noiseless mean: its captures scatter about it.
+    cap = np.stack(caps[(0, 1600)]).astype(np.float64).mean(0)
+    assert abs((cap - 64).mean() / (cleans[0].astype(np.float64) - 64).mean() - 1.02) < 0.04
+
+
+def test_bad_evaluation_sets_are_named(bench_set: Path, pack, tmp_path: Path):
+    bad = tmp_path / "eval"
+    shutil.copytree(bench_set / "eval", bad)
+    for f in sorted((bad / "scene001").glob("ref_*.dng"))[1:]:
+        f.unlink()
+    with pytest.raises(B.BenchError, match="scene001 has 1 frame at its lowest ISO 50"):
+        B.load_eval(bad, pack)
+    with pytest.raises(B.BenchError, match="no scene sub-folders"):
+        B.load_eval(bench_set / "train" / "clean", pack)
+    with pytest.raises(B.BenchError, match="names no clean training image"):
+        B.load_captures(bench_set / "train" / "captures", ["other"], pack)
+
+
+def test_cli_errors_are_one_line_without_a_traceback(bench_set: Path, session: dict, capsys):
+    rc = B.main(["--pack", str(session["cli_pack"]), "--set", str(bench_set), "--isos", "3200", "--steps", "1"])
+    err = capsys.readouterr().err
+    if have("torch"):
+        assert "--isos [3200]: the evaluation set has frames at ISOs [1600] only" in err
+    else:
+        assert "torch" in err and "pip install" in err
+    assert rc == 2 and "Traceback" not in err
+    rc = B.main(["--pack", str(session["cli_pack"]), "--set", str(bench_set), "--models", "hg,plain"])
+    assert rc == 2 and "--plain-pack" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------------------------
+# With torch: determinism and the small run CI checks
+
+
+@pytest.mark.torch
+def test_training_is_deterministic(bench_set: Path, pack):
+    pytest.importorskip("torch")
+    names, cleans = B.load_clean(bench_set / "train" / "clean", pack)
+    lay = pack.layout
+    cn = [B.normalise(c, lay["black"], lay["white"]) for c in cleans]
+    pairs = B.make_pairs(B.parse_model("hg"), 800, cleans, 2, pack, {}, 1, {})
+    again = B.make_pairs(B.parse_model("hg"), 800, cleans, 2, pack, {}, 1, {})
+    assert all(np.array_equal(a, b) for ra, rb in zip(pairs.noisy, again.noisy) for a, b in zip(ra, rb))
+    plan = B.batch_plan(0, 5, 4, len(cleans), 2, cleans[0].shape, 32)
+    nets = [B.train_one(pairs, cn, lay, plan, 32, 8, 0, "cpu", 1e-3) for _ in range(2)]
+    other = B.train_one(pairs, cn, lay, plan, 32, 8, 1, "cpu", 1e-3)
+    sa, sb, so = (n.state_dict() for n in (*nets, other))
+    assert all(np.array_equal(sa[k].numpy(), sb[k].numpy()) for k in sa)
+    assert not all(np.array_equal(sa[k].numpy(), so[k].numpy()) for k in sa)
+
+
+@pytest.mark.torch
+def test_small_run_controls_in_order(bench_set: Path, tmp_path: Path, capsys):
+    """CI's small configuration: oracle, noisecal, HG and the wrong model at ISO 1600, 2 seeds of
+    a few hundred steps on 32-pixel crops. Every network must beat the noisy input (the machinery
+    trains), the wrong model must be worst by a clear margin (beyond 2 seed spreads) and the
+    oracle best within the seed spread; the resumed run must reproduce the table."""
+    pytest.importorskip("torch")
+    t0 = time.time()
+    steps = os.environ.get("NOISECAL_BENCH_CI_STEPS", "500")
+    out = tmp_path / "r.json"
+    args = ["--pack", str(_ci_pack(bench_set)), "--set", str(bench_set), "--models", "oracle,noisecal,hg,wrong",
+            "--steps", steps, "--seeds", "2", "--crop", "32", "--width", "16", "--batch", "16", "--lr", "0.003",
+            "--state", str(tmp_path / "state"), "--json", str(out)]
+    assert B.main(args) == 0, capsys.readouterr().err
+    table = capsys.readouterr().out
+    print(table)
+    r = json.loads(out.read_text())
+    assert len(r["networks"]) == 8
+    inp = r["input"]["1600"]["psnr"]
+    for n in r["networks"]:
+        assert n["psnr"] > inp + 0.5, (n["model"], n["seed"], n["psnr"], inp)
+    c = r["controls"]["1600"]
+    assert c["wrong_clear"], c
+    assert c["oracle_within_spread"], c
+    # Resumed: every network read back from --state, the same scores.
+    assert B.main(args) == 0
+    err = capsys.readouterr().err
+    assert err.count("resumed from") == 8
+    assert json.loads(out.read_text())["summary"] == r["summary"]
+    print(f"small run: {time.time() - t0:.0f} s")
+
+
+def _ci_pack(bench_set: Path) -> Path:
+    """A phone10 pack of the bench set's sensor (seed 3) at ISO 1600, calibrated once."""
+    p = bench_set.parent / "cal.pack"
+    if not p.exists():
+        cal = bench_set.parent / "cal"
+        run(_cli(), "simulate", "--dngs", cal, "--isos", "1600", "--frames", "8", "--width", "128", "--height", "96",
+            "--seed", "3")
+        noisecal.calibrate(cal).save(p)
+        shutil.rmtree(cal)
+    return p
