@@ -2,7 +2,8 @@
 # Every test of noisecal: the Rust workspace (unit, statistical, end-to-end, CLI), then the host JVM
 # harnesses (the Android capture library, and the JNI boundary driven from the app's Kotlin class),
 # then the Python package (built with `pip install ./rust/python` into a venv, tested with pytest;
-# Ray is installed too when PyPI allows, for the Ray Data test; NOISECAL_NO_RAY=1 skips it).
+# Ray is installed too when PyPI allows, for the Ray Data test; NOISECAL_NO_RAY=1 skips it), then
+# the denoiser benchmark's torch tests in a venv with torch (target/torchenv; NOISECAL_NO_TORCH=1 skips).
 # Needs cargo, java 17+, npm (the Kotlin compiler comes from npm into .tools/) and python3 with venv.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
@@ -38,6 +39,28 @@ if [ "${NOISECAL_NO_RAY:-0}" != 1 ]; then
 fi
 "$venv/bin/pip" install -q ./rust/python >&2
 (cd rust/python && NOISECAL_BIN="$PWD/../../target/debug/noisecal" "../../$venv/bin/python" -m pytest -q -p no:cacheprovider tests)
+
+# The denoiser benchmark (issue 23) with torch: tests/test_denoise_bench.py again, now with its torch
+# tests — determinism and CI's small run (oracle, noisecal, HG and the wrong model, 2 seeds × 500
+# steps on 32-px crops of a simulated set, ~2 min on 2 cores), which asserts every network beats the
+# noisy input, the wrong model is clearly worst and the oracle best within the seed spread. Torch
+# (5.6 GB with its CUDA libraries, ~3 min from PyPI) goes into its own venv cached under target/,
+# reused when present; when it cannot be installed the stage is skipped with one line.
+# NOISECAL_NO_TORCH=1 skips it.
+echo "== Python: denoiser benchmark with torch (venv target/torchenv)" >&2
+tvenv=target/torchenv
+if [ "${NOISECAL_NO_TORCH:-0}" = 1 ]; then
+  echo "skipped: NOISECAL_NO_TORCH=1" >&2
+else
+  [ -x "$tvenv/bin/python" ] || python3 -m venv "$tvenv"
+  if "$tvenv/bin/python" -c "import torch" 2>/dev/null || "$tvenv/bin/pip" install -q "torch>=2.0" >&2; then
+    "$tvenv/bin/pip" install -q "maturin>=1.16,<2" numpy pytest pytest-benchmark >&2
+    "$tvenv/bin/pip" install -q ./rust/python >&2
+    (cd rust/python && NOISECAL_BIN="$PWD/../../target/debug/noisecal" "../../$tvenv/bin/python" -m pytest -q -p no:cacheprovider tests/test_denoise_bench.py)
+  else
+    echo "warning: torch could not be installed from PyPI; the denoiser benchmark's torch tests are skipped" >&2
+  fi
+fi
 
 # Fuzzing (issue 13): each decoder target — DNG reader, recording reader, pack decoder, JNI
 # frame-view entry — mutated from tests/fuzz-corpus/ for NOISECAL_FUZZ_SECONDS (default 45). The
