@@ -252,7 +252,7 @@ const SCENE_FRAMES: u64 = 1 << 20;
 /// `eval/sceneNNN/ref_KKK.dng` (the base-ISO burst) and `eval/sceneNNN/iso<ISO>.dng`;
 /// `train/clean/sceneNNN.dng` (the noiseless base-ISO image, rounded) and
 /// `train/captures/sceneNNN_iso<ISO>_<K>.dng`. Scene `i` is exposed `−(i mod 4)` EV below
-/// the mid-range exposure at the base ISO; a target ISO keeps ISO × exposure. Deterministic in
+/// the exposure that puts its brightest texel at 84 % of the range at the base ISO; a target ISO keeps ISO × exposure. Deterministic in
 /// the spec on any thread count.
 pub fn write_bench_set(
     model: &SensorModel,
@@ -263,7 +263,9 @@ pub fn write_bench_set(
 ) -> anyhow::Result<()> {
     let base = model.base_iso;
     if let Some(bad) = spec.isos.iter().find(|&&i| i <= base) {
-        anyhow::bail!("--isos: ISO {bad} is not above the sensor's base ISO {base} (the clean images' ISO): give higher target ISOs");
+        anyhow::bail!(
+            "--isos: ISO {bad} is not above the sensor's base ISO {base} (the clean images' ISO): give higher target ISOs"
+        );
     }
     let eval = dir.join("eval");
     let clean_dir = dir.join("train").join("clean");
@@ -277,7 +279,8 @@ pub fn write_bench_set(
         Ok(Simulator::new(model.clone(), chart, spec.seed)?)
     };
     let exposure = |sim: &Simulator, i: u32, iso: u32| -> anyhow::Result<u64> {
-        let mid = sim.mid_range_exposure_ns(base)? as f64 / f64::from(1u32 << (i % 4));
+        // The brightest texel at 0.35 × 2.4 = 84 % of the range, then 1, 2, 3 EV darker in turn.
+        let mid = sim.mid_range_exposure_ns(base)? as f64 * 2.4 / f64::from(1u32 << (i % 4));
         Ok(((mid * base as f64 / iso as f64).round() as u64).max(1))
     };
     for i in 0..spec.scenes {
@@ -355,5 +358,47 @@ mod tests {
             dense_seen |= spec.dense;
         }
         assert!(dense_seen);
+    }
+
+    #[test]
+    fn bench_sets_are_laid_out_and_the_same_bytes_on_any_thread_count() {
+        let spec = BenchSpec {
+            width: 32,
+            height: 32,
+            isos: vec![400, 1600],
+            burst: 3,
+            scenes: 2,
+            train_scenes: 2,
+            train_frames: 2,
+            seed: 4,
+        };
+        let model = Preset::Phone10.model();
+        let write = |threads: usize| {
+            let dir = tempfile::tempdir().expect("tempdir");
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+            let mut n = 0;
+            pool.install(|| write_bench_set(&model, "sim", &spec, dir.path(), || n += 1)).expect("bench set");
+            assert_eq!(n, spec.frames());
+            dir
+        };
+        let (a, b) = (write(1), write(3));
+        let mut files = Vec::new();
+        for sub in ["eval/scene000", "eval/scene001", "train/clean", "train/captures"] {
+            for e in std::fs::read_dir(a.path().join(sub)).expect("dir") {
+                files.push(std::path::Path::new(sub).join(e.expect("entry").file_name()));
+            }
+        }
+        files.sort();
+        // 2 × (3 + 2) evaluation frames, 2 clean images, 2 × 2 × 2 captures.
+        assert_eq!(files.len(), 10 + 2 + 8);
+        assert!(files.iter().any(|f| f.ends_with("eval/scene001/iso1600.dng")));
+        assert!(files.iter().any(|f| f.ends_with("train/captures/scene001_iso400_1.dng")));
+        for f in &files {
+            let (x, y) = (std::fs::read(a.path().join(f)).expect("a"), std::fs::read(b.path().join(f)).expect("b"));
+            assert!(x == y, "{} differs between 1 and 3 threads", f.display());
+        }
+        let low = BenchSpec { isos: vec![50, 400], ..spec.clone() };
+        let err = write_bench_set(&model, "sim", &low, a.path(), || {}).expect_err("base ISO as a target");
+        assert!(err.to_string().contains("not above the sensor's base ISO 50"), "{err}");
     }
 }

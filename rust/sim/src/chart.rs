@@ -273,12 +273,23 @@ impl Chart {
             if (t.width, t.height) != (self.width, self.height) || t.rgb.len() != t.width as usize * t.height as usize {
                 return Err(bad(
                     "Chart::texture",
-                    format!("{}×{} with {} values for a {}×{} chart", t.width, t.height, t.rgb.len(), self.width, self.height),
+                    format!(
+                        "{}×{} with {} values for a {}×{} chart",
+                        t.width,
+                        t.height,
+                        t.rgb.len(),
+                        self.width,
+                        self.height
+                    ),
                     "give one reflectance per pixel of the chart",
                 ));
             }
             if !t.rgb.iter().all(|r| r.iter().all(|v| v.is_finite() && (0.0..=1.5).contains(v))) {
-                return Err(bad("Chart::texture", "out of range".into(), "reflectances must be finite and in [0, 1.5]"));
+                return Err(bad(
+                    "Chart::texture",
+                    "out of range".into(),
+                    "reflectances must be finite and in [0, 1.5]",
+                ));
             }
         }
         if self.patches.len() != self.grid_rows * self.grid_cols {
@@ -464,7 +475,8 @@ impl Chart {
         let vx = (0..w).map(|x| self.vignetting * vxf(x)).collect();
         let vy = (0..h).map(|y| self.vignetting * vyf(y)).collect();
         // A per-pixel scene is evaluated per pixel (the pose path with the identity pose).
-        let pose = self.texture.is_some().then_some(Pose { dx: jitter.0, dy: jitter.1, cos: 1.0, sin: 0.0, scale: 1.0 });
+        let pose =
+            self.texture.is_some().then_some(Pose { dx: jitter.0, dy: jitter.1, cos: 1.0, sin: 0.0, scale: 1.0 });
         Prepared { chart: self, fx, fy, vx, vy, pose }
     }
 }

@@ -82,7 +82,8 @@ pub struct Args {
     /// target ISO at the same ISO × exposure; `train/clean/` the noiseless scenes at the base ISO
     /// (clean training images); `train/captures/` --train-frames real frames of each training
     /// scene per target ISO (the oracle's training data, and the ISO-a captures noise on noise
-    /// starts from). Scenes are exposed 0 to −3 EV below mid-range in turn (low light included).
+    /// starts from). Scene i is exposed i mod 4 EV below the exposure that puts its brightest part at 84 % of the
+    /// range (low light included).
     #[arg(long, value_name = "DIR", conflicts_with_all = ["dngs", "rec", "heldout", "dark"])]
     pub bench: Option<PathBuf>,
     /// With --bench: evaluation scenes.
