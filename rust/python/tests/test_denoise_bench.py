@@ -242,18 +242,31 @@ def test_bad_evaluation_sets_are_named(bench_set: Path, pack, tmp_path: Path):
         B.load_eval(bench_set / "train" / "clean", pack)
     with pytest.raises(B.BenchError, match="names no clean training image"):
         B.load_captures(bench_set / "train" / "captures", ["other"], pack)
+    # Stems with "_" and stems that prefix others: the longest match wins.
+    caps = tmp_path / "caps"
+    caps.mkdir()
+    src = sorted((bench_set / "train" / "captures").glob("scene000_*.dng"))[0]
+    shutil.copy(src, caps / "a_b_iso1600_0.dng")
+    shutil.copy(src, caps / "a_iso1600_0.dng")
+    got = B.load_captures(caps, ["a", "a_b"], pack)
+    assert sorted(got) == [(0, 1600), (1, 1600)]
 
 
 def test_cli_errors_are_one_line_without_a_traceback(bench_set: Path, session: dict, capsys):
     rc = B.main(["--pack", str(session["cli_pack"]), "--set", str(bench_set), "--isos", "3200", "--steps", "1"])
     err = capsys.readouterr().err
-    if have("torch"):
-        assert "--isos [3200]: the evaluation set has frames at ISOs [1600] only" in err
-    else:
-        assert "torch" in err and "pip install" in err
+    assert "--isos [3200]: the evaluation set has frames at ISOs [1600] only" in err
     assert rc == 2 and "Traceback" not in err
+    rc = B.main(["--pack", str(session["cli_pack"]), "--set", str(bench_set), "--isos", "16OO"])
+    assert rc == 2 and "--isos '16OO': give whole ISOs" in capsys.readouterr().err
+    if not have("torch"):
+        rc = B.main(["--pack", str(session["cli_pack"]), "--set", str(bench_set), "--models", "hg", "--steps", "1"])
+        err = capsys.readouterr().err
+        assert rc == 2 and "needs torch" not in err and "pip install torch" in err
     rc = B.main(["--pack", str(session["cli_pack"]), "--set", str(bench_set), "--models", "hg,plain"])
     assert rc == 2 and "--plain-pack" in capsys.readouterr().err
+    rc = B.main(["--pack", str(session["cli_pack"]), "--set", str(bench_set), "--crop", "36"])
+    assert rc == 2 and "--crop 36: use a multiple of 8" in capsys.readouterr().err
 
 
 # ---------------------------------------------------------------------------------------------

@@ -219,13 +219,14 @@ def load_captures(cap_dir: Path, names: list[str], pack) -> dict:
     out: dict = {}
     index = {n: i for i, n in enumerate(names)}
     for p in _dngs(cap_dir):
-        stem = p.stem.split("_", 1)[0]
-        if stem not in index:
+        # The longest clean stem the file name starts with, followed by "_".
+        match = max((n for n in names if p.stem.startswith(n + "_")), key=len, default=None)
+        if match is None:
             raise BenchError(
                 f"--captures: {p.name} names no clean training image (want <clean stem>_*.dng, clean stems e.g. {names[0]})"
             )
         px, m = noisecal.read_dng(p, pack=pack)
-        out.setdefault((index[stem], int(m["iso"])), []).append(px)
+        out.setdefault((index[match], int(m["iso"])), []).append(px)
     return out
 
 
@@ -593,7 +594,10 @@ def run(args: argparse.Namespace) -> dict:
     layout = pack.layout
     scenes = load_eval(Path(args.eval), pack)
     eval_isos = sorted({i for s in scenes for i in s.frames})
-    isos = eval_isos if not args.isos else [int(i) for i in args.isos.split(",")]
+    try:
+        isos = eval_isos if not args.isos else [int(i) for i in args.isos.split(",") if i.strip()]
+    except ValueError:
+        raise BenchError(f"--isos {args.isos!r}: give whole ISOs separated by commas, e.g. 400,1600") from None
     missing = [i for i in isos if i not in eval_isos]
     if missing:
         raise BenchError(f"--isos {missing}: the evaluation set has frames at ISOs {eval_isos} only")
