@@ -20,7 +20,8 @@ name, ``seed_for(file name, seed)``, the rule of ``noisecal synth`` on a folder 
 :mod:`noisecal.ray`.
 
 Torch users: :mod:`noisecal.torch` (``NoiseSynth`` on any device). Ray Data users:
-:mod:`noisecal.ray` (``RenoiseActor`` for ``Dataset.map_batches``).
+:mod:`noisecal.ray` (``RenoiseActor`` for ``Dataset.map_batches``). Does a pack train a better
+denoiser than HG on your captures? :mod:`noisecal.bench` (``noisecal-bench``, needs torch).
 """
 
 from ._noisecal import (
