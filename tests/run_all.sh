@@ -53,9 +53,9 @@ if [ "${NOISECAL_NO_TORCH:-0}" = 1 ]; then
   echo "skipped: NOISECAL_NO_TORCH=1" >&2
 else
   [ -x "$tvenv/bin/python" ] || python3 -m venv "$tvenv"
-  if "$tvenv/bin/python" -c "import torch" 2>/dev/null || "$tvenv/bin/pip" install -q "torch>=2.0" >&2; then
-    "$tvenv/bin/pip" install -q "maturin>=1.16,<2" numpy pytest pytest-benchmark >&2
-    "$tvenv/bin/pip" install -q ./rust/python >&2
+  if "$tvenv/bin/python" -c "import torch" 2>/dev/null || "$tvenv/bin/python" -m pip install -q "torch>=2.0" >&2; then
+    "$tvenv/bin/python" -m pip install -q "maturin>=1.16,<2" numpy pytest pytest-benchmark >&2
+    "$tvenv/bin/python" -m pip install -q ./rust/python >&2
     (cd rust/python && NOISECAL_BIN="$PWD/../../target/debug/noisecal" "../../$tvenv/bin/python" -m pytest -q -p no:cacheprovider tests/test_denoise_bench.py)
   else
     echo "warning: torch could not be installed from PyPI; the denoiser benchmark's torch tests are skipped" >&2
