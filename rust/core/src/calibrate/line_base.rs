@@ -27,7 +27,7 @@ impl LineBase {
     /// The sums over the flat pixels of `levels` (`w` wide, [`NOT_FLAT`] elsewhere) at or below
     /// `line_top`.
     pub(crate) fn new(levels: &[u16], w: usize, line_top: u16) -> Self {
-        let h = if w == 0 { 0 } else { levels.len() / w };
+        let h = levels.len().checked_div(w).unwrap_or(0);
         let mut rows = vec![[[0i64; 2]; CELLS]; h];
         let mut cols = vec![[[0i64; 2]; CELLS]; w];
         for (y, (crow, row)) in levels.chunks_exact(w.max(1)).zip(rows.iter_mut()).enumerate() {
