@@ -1,4 +1,5 @@
-//! Throughput on a 4032×3024 (12 MP) frame: reference accumulation, target accumulation,
+//! Throughput on a 4032×3024 (12 MP) frame (with `NOISECAL_BENCH_LOOP=n`, instead n frames of
+//! reference and of target accumulation in a plain loop, wall and CPU time per frame): reference accumulation, target accumulation,
 //! the estimator (one ISO, and one wide sparse position), synthesis on 1 and 2 threads, pack load. Run with `cargo bench -p noisecal-core`.
 
 use std::hint::black_box;
@@ -52,6 +53,36 @@ fn benches(c: &mut Criterion) {
     session.begin_step(exposure).expect("step");
     for f in &refs[..2] {
         session.push_frame(&FrameView::from_array(f).expect("view"), &ref_meta).expect("push");
+    }
+    if let Some(n) = std::env::var("NOISECAL_BENCH_LOOP").ok().and_then(|s| s.parse::<usize>().ok()) {
+        // A plain loop with the process's CPU time as well as the wall time per frame: on a
+        // shared machine CPU time compares two builds where wall time measures the neighbours.
+        let threads = rayon::current_num_threads();
+        let per_frame = |what: &str, t0: std::time::Instant, c0: f64| {
+            let (wall, cpu) = (t0.elapsed().as_secs_f64() / n as f64, (cpu_seconds() - c0) / n as f64);
+            let mpix = (W * H) as f64 / 1e6;
+            println!(
+                "{what}: {n} frames on {threads} thread(s): wall {:.1} ms ({:.0} Mpix/s), cpu {:.1} ms ({:.0} Mpix/s per thread)",
+                wall * 1e3,
+                mpix / wall,
+                cpu * 1e3,
+                mpix / cpu
+            );
+        };
+        let (t0, c0) = (std::time::Instant::now(), cpu_seconds());
+        for k in 0..n {
+            session.push_frame(&FrameView::from_array(&refs[k % refs.len()]).expect("view"), &ref_meta).expect("push");
+        }
+        per_frame("reference accumulation", t0, c0);
+        session.push_frame(&FrameView::from_array(&targets[0]).expect("view"), &tgt_meta).expect("push");
+        let (t0, c0) = (std::time::Instant::now(), cpu_seconds());
+        for k in 0..n {
+            session
+                .push_frame(&FrameView::from_array(&targets[k % targets.len()]).expect("view"), &tgt_meta)
+                .expect("push");
+        }
+        per_frame("target accumulation", t0, c0);
+        return;
     }
     let mut k = 0;
     g.bench_function("reference accumulation", |b| {
@@ -196,6 +227,17 @@ fn benches(c: &mut Criterion) {
         pack.isos.len(),
         session.checkpoint().map(|c| c.len()).unwrap_or(0)
     );
+}
+
+/// User + system CPU time of this process so far (Linux `/proc/self/stat`, 100 ticks per second);
+/// 0 elsewhere.
+fn cpu_seconds() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else { return 0.0 };
+    // Fields after the command name (which is in parentheses): utime and stime are 14 and 15.
+    let rest = stat.rsplit_once(')').map(|(_, r)| r).unwrap_or("");
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let tick = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    (tick(11) + tick(12)) / 100.0
 }
 
 criterion_group!(core, benches);

@@ -19,6 +19,7 @@ use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use ndarray::Array2;
 use noisecal_core::ModelPack;
 use noisecal_core::derive::interp::model_for;
+use noisecal_core::model::structure::Components;
 use noisecal_core::synth::sampler::IsoSampler;
 use noisecal_core::synth::synthesize_at;
 
@@ -44,22 +45,27 @@ fn benches(c: &mut Criterion) {
     // What `Pack.synth(model="noisecal")` builds (noisecal_cli::models::resolve_model → model_for).
     let (model, _) = model_for(&pack, iso, false).expect("model");
     let sampler = IsoSampler::new(&pack, &model);
+    // `Pack.synth(components="pixel")`: the pixel-independent model alone, the yardstick of the
+    // default components' cost.
+    let pixel = IsoSampler::with_components(&pack, &model, Components::PIXEL);
     let clean = clean();
     let threads = rayon::current_num_threads();
     if let Some(n) = std::env::var("NOISECAL_BENCH_LOOP").ok().and_then(|s| s.parse::<u32>().ok()) {
         // A plain loop, with the process's CPU time as well as the wall time: on a shared machine
         // CPU time per frame compares two builds where wall time mostly measures the neighbours.
-        synthesize_at(&sampler, clean.view(), 1, (0, 0));
-        let (t0, c0) = (std::time::Instant::now(), cpu_seconds());
-        for _ in 0..n {
-            black_box(synthesize_at(&sampler, black_box(clean.view()), 1, (0, 0)));
+        for (what, sampler) in [("default components", &sampler), ("components=pixel", &pixel)] {
+            synthesize_at(sampler, clean.view(), 1, (0, 0));
+            let (t0, c0) = (std::time::Instant::now(), cpu_seconds());
+            for _ in 0..n {
+                black_box(synthesize_at(sampler, black_box(clean.view()), 1, (0, 0)));
+            }
+            let (wall, cpu) = (t0.elapsed().as_secs_f64() / n as f64, (cpu_seconds() - c0) / n as f64);
+            println!(
+                "loop {n} × {H}×{W} on {threads} threads, {what}: wall {:.2} ms, cpu {:.2} ms per frame",
+                wall * 1e3,
+                cpu * 1e3
+            );
         }
-        let (wall, cpu) = (t0.elapsed().as_secs_f64() / n as f64, (cpu_seconds() - c0) / n as f64);
-        println!(
-            "loop {n} × {H}×{W} on {threads} threads: wall {:.2} ms, cpu {:.2} ms per frame",
-            wall * 1e3,
-            cpu * 1e3
-        );
         return;
     }
 
@@ -72,6 +78,9 @@ fn benches(c: &mut Criterion) {
     let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().expect("pool");
     g.bench_function("synthesize_at, 1 thread", |b| {
         b.iter(|| one.install(|| synthesize_at(&sampler, black_box(clean.view()), 1, (0, 0))))
+    });
+    g.bench_function(format!("synthesize_at, components=pixel, global pool ({threads} threads)"), |b| {
+        b.iter(|| synthesize_at(&pixel, black_box(clean.view()), 1, (0, 0)))
     });
     g.finish();
 }

@@ -9,9 +9,11 @@ use crate::calibrate::drift::{BrightnessSums, Transform};
 use crate::calibrate::estimate::FOLDS;
 use crate::calibrate::flat::NOT_FLAT;
 use crate::calibrate::frame::FrameView;
+use crate::calibrate::line_base::in_lines;
 use crate::calibrate::motion::{FrameMotion, MotionProbe, NEGLIGIBLE_MOTION_PX};
 use crate::calibrate::reference::CleanImage;
-use crate::calibrate::structure::{CELLS, FrameSums, LineSums, StructureAccumulator};
+use crate::calibrate::structure::{CELLS, FrameSums, StructureAccumulator};
+use crate::calibrate::window_counts::{LaneCounts, WindowCounts};
 use crate::model::histogram::NoiseHistogram;
 use crate::model::layout::{Binning, POSITIONS};
 
@@ -162,15 +164,16 @@ impl IsoAccumulator {
         // Line sums leave out levels near white, where clipping moves lines from frame to frame.
         let black = tf.black.iter().cloned().fold(f32::INFINITY, f32::min);
         let line_top = (black + 0.9 * (white as f32 - black)).clamp(0.0, white as f32) as u16;
-        let ((s0, l0, rows0, cols0), (s1, l1, rows1, cols1)) = rayon::join(
-            || fold_rows(0, frame, clean, w, h, &luts, even, codes_even, tf, white, line_top, &image.probe, moving),
-            || fold_rows(1, frame, clean, w, h, &luts, odd, codes_odd, tf, white, line_top, &image.probe, moving),
-        );
-        let samples = s0 + s1;
+        let fold_parity = |parity: usize, hists: &mut [Vec<NoiseHistogram>], codes: &mut [Vec<u64>]| {
+            let target = FoldTarget { hists, codes, luts: &luts, white, line_top };
+            fold_rows(parity, frame, clean, w, h, target, tf, &image.probe, moving)
+        };
+        let (r0, r1) = rayon::join(|| fold_parity(0, even, codes_even), || fold_parity(1, odd, codes_odd));
+        let samples = r0.samples + r1.samples;
         // A sample left out takes its clean level's selection back out of the frame's sums:
         // they describe exactly the samples the histograms hold.
-        let left = l0.len() + l1.len();
-        for &(pos, level) in l0.iter().chain(&l1) {
+        let left = r0.left_out.len() + r1.left_out.len();
+        for &(pos, level) in r0.left_out.iter().chain(&r1.left_out) {
             let (pos, level) = (pos as usize, level as usize);
             let [d, a] = image.level_selection[pos].get(level).copied().unwrap_or([0.0; 2]);
             let s = &mut self.shift[fold][pos][luts[pos][level] as usize];
@@ -180,15 +183,24 @@ impl IsoAccumulator {
         }
         self.motion.left_out += left as u64;
         self.motion.offered += samples + left as u64;
+        let base = image.line_base.get(clean, w, line_top);
         let mut lines = FrameSums::new(w, h, tf.black);
-        for (parity, rows) in [(0, rows0), (1, rows1)] {
-            for (i, r) in rows.into_iter().enumerate() {
-                lines.rows[parity + 2 * i] = r;
+        for (parity, r) in [(0, &r0), (1, &r1)] {
+            for (i, noise) in r.rows.iter().enumerate() {
+                let y = parity + 2 * i;
+                lines.rows[y] = std::array::from_fn(|cell| {
+                    let [level, count] = base.rows[y][cell];
+                    [noise[cell], level, count]
+                });
             }
         }
         // A column's cell is `row parity | half << 1`.
-        for (c, (a, b)) in lines.cols.iter_mut().zip(cols0.into_iter().zip(cols1)) {
-            *c = [a[0], b[0], a[1], b[1]];
+        for (x, c) in lines.cols.iter_mut().enumerate() {
+            *c = std::array::from_fn(|cell| {
+                let [level, count] = base.cols[x][cell];
+                let r = if cell & 1 == 0 { &r0 } else { &r1 };
+                [r.cols[cell >> 1][x], level, count]
+            });
         }
         self.structure.add_frame(step, &lines);
         // Brightness sums per position for the gain ratio (after normalisation).
@@ -202,18 +214,38 @@ impl IsoAccumulator {
     }
 }
 
-/// What [`fold_rows`] returns: the samples added, the (position, clean level) of each sample
-/// left out, the line sums per row (by cell) and per column (by half).
-type FoldedRows = (u64, Vec<(u8, u16)>, Vec<[LineSums; CELLS]>, Vec<[LineSums; 2]>);
+/// What [`fold_rows`] returns for the rows of one parity.
+struct FoldedRows {
+    /// Samples added to the histograms.
+    samples: u64,
+    /// The (position, clean level) of each sample left out.
+    left_out: Vec<(u8, u16)>,
+    /// Per row, the sum of the noise over the line pixels of each cell (`x & 3`).
+    rows: Vec<[i64; CELLS]>,
+    /// Per half (`⌊y/2⌋` parity), per column, the sum of the noise over its line pixels.
+    cols: [Vec<i64>; 2],
+}
+
+/// Where the rows of one parity go: that parity's two positions' histograms and code counts.
+struct FoldTarget<'a> {
+    hists: &'a mut [Vec<NoiseHistogram>],
+    codes: &'a mut [Vec<u64>],
+    luts: &'a [Vec<u16>; POSITIONS],
+    white: u16,
+    /// The highest clean level of the line sums.
+    line_top: u16,
+}
 
 /// Folds the rows of one parity into that parity's two positions' histograms and code counts.
 /// With `motion` (a frame that moved), the flat pixels whose level the motion changes by more
 /// than their tolerance are left out of the histograms, and the line sums take the motion's
 /// predicted change out of every pixel's `n` (`probe`: the clean image's gradients); the line
 /// sums keep every flat pixel, so that every frame of a burst sums the same pixels into each
-/// line. Returns the samples, the (position, clean level) of each sample
-/// left out, and the sums of `n` and of the clean level per row (by cell) and per column (by
-/// half).
+/// line (their clean levels and counts are the image's [`LineBase`](crate::calibrate::line_base::LineBase)).
+///
+/// Each row is three tight loops: the noise `n = value − clean` of every pixel into a row
+/// buffer, its line sums (branch-free, vectorised by the compiler), then the histogram and code
+/// counts of each position's flat pixels.
 #[allow(clippy::too_many_arguments)]
 fn fold_rows(
     parity: usize,
@@ -221,32 +253,34 @@ fn fold_rows(
     clean: &[u16],
     w: usize,
     h: usize,
-    luts: &[Vec<u16>; POSITIONS],
-    hists: &mut [Vec<NoiseHistogram>],
-    codes: &mut [Vec<u64>],
+    target: FoldTarget<'_>,
     tf: &Transform,
-    white: u16,
-    line_top: u16,
     probe: &MotionProbe,
     motion: Option<&FrameMotion>,
 ) -> FoldedRows {
+    let FoldTarget { hists, codes, luts, white, line_top } = target;
     let mut samples = 0u64;
     let mut left_out: Vec<(u8, u16)> = Vec::new();
-    let (mut keep, mut correction) = match motion {
-        Some(_) => (vec![true; w], vec![0i32; w]),
-        None => (Vec::new(), Vec::new()),
+    let (mut keep, mut correction, mut line_noise) = match motion {
+        Some(_) => (vec![true; w], vec![0i32; w], vec![0i32; w]),
+        None => (Vec::new(), Vec::new(), Vec::new()),
     };
-    let mut row_sums = Vec::with_capacity(h / 2 + 1);
-    // Per column, by half (`⌊y/2⌋` parity).
-    let mut cols: Vec<[LineSums; 2]> = vec![[[0; 3]; 2]; w];
+    let mut rows = Vec::with_capacity(h / 2 + 1);
+    let mut cols = [vec![0i64; w], vec![0i64; w]];
     let mut buf = vec![0u16; w];
+    let mut noise = vec![0i32; w];
+    let mut masked = vec![0i32; w];
     let identity = tf.identity();
     let top = white as usize;
     let (h0, h1) = hists.split_at_mut(1);
     let (hist0, hist1) = (&mut h0[0], &mut h1[0]);
     let (c0, c1) = codes.split_at_mut(1);
-    let (codes0, codes1) = (&mut c0[0][..], &mut c1[0][..]);
-    let (lut0, lut1) = (&luts[parity * 2], &luts[parity * 2 + 1]);
+    let (codes_out0, codes_out1) = (&mut c0[0][..], &mut c1[0][..]);
+    let (mut codes0, mut codes1) = (LaneCounts::new(top), LaneCounts::new(top));
+    let (lut0, lut1) = (&luts[parity * 2][..], &luts[parity * 2 + 1][..]);
+    // Each position has at most a pixel of every other column of every other row.
+    let most = w.div_ceil(2) * h.div_ceil(2);
+    let (mut window0, mut window1) = (WindowCounts::new(hist0, most), WindowCounts::new(hist1, most));
     for y in (parity..h).step_by(2) {
         let row: &[u16] = match frame.row(y) {
             std::borrow::Cow::Borrowed(r) => r,
@@ -256,75 +290,95 @@ fn fold_rows(
             }
         };
         let crow = &clean[y * w..y * w + w];
-        let mut rs: [LineSums; CELLS] = [[0; 3]; CELLS];
-        let half = (y >> 1) & 1;
-        if let Some(m) = motion {
-            // A frame that moved: the pixels its motion changes are left out of the
-            // histograms, and its predicted change comes out of the line sums.
-            m.row_effects(probe, y, crow, &mut keep, &mut correction);
-            for (x, (&v, &c)) in row.iter().zip(crow).enumerate() {
-                if c == NOT_FLAT {
-                    continue;
-                }
-                let pos = parity * 2 + (x & 1);
-                let t = if identity { v as i32 } else { tf.apply(pos, v).round().clamp(0.0, white as f32) as i32 };
-                let n = t - c as i32;
-                if c <= line_top {
-                    line_add(&mut rs[x & 3], &mut cols[x][half], n - correction[x], c);
-                }
-                let (hist, lut, codes) =
-                    if x & 1 == 0 { (&mut *hist0, lut0, &mut *codes0) } else { (&mut *hist1, lut1, &mut *codes1) };
-                codes[(v as usize).min(top)] += 1;
-                if !keep[x] {
-                    left_out.push((pos as u8, c));
-                    continue;
-                }
-                hist[lut[c as usize] as usize].add(n);
-                samples += 1;
+        if identity {
+            for ((n, &v), &c) in noise.iter_mut().zip(row).zip(crow) {
+                *n = v as i32 - c as i32;
             }
         } else {
-            // A still frame: every flat pixel goes to the histograms. One loop, written once and
-            // expanded for the raw values and for transformed ones, so that the identity case
-            // carries no per-pixel branch.
-            macro_rules! fold_still {
-                ($value:expr) => {
-                    for (x, (&v, &c)) in row.iter().zip(crow).enumerate() {
-                        if c == NOT_FLAT {
-                            continue;
-                        }
-                        let n = $value(parity * 2 + (x & 1), v) - c as i32;
-                        if c <= line_top {
-                            line_add(&mut rs[x & 3], &mut cols[x][half], n, c);
-                        }
-                        if x & 1 == 0 {
-                            hist0[lut0[c as usize] as usize].add(n);
-                            codes0[(v as usize).min(top)] += 1;
-                        } else {
-                            hist1[lut1[c as usize] as usize].add(n);
-                            codes1[(v as usize).min(top)] += 1;
-                        }
-                        samples += 1;
-                    }
-                };
-            }
-            if identity {
-                fold_still!(|_: usize, v: u16| v as i32);
-            } else {
-                fold_still!(|pos: usize, v: u16| tf.apply(pos, v).round().clamp(0.0, white as f32) as i32);
+            for (x, ((n, &v), &c)) in noise.iter_mut().zip(row).zip(crow).enumerate() {
+                let t = tf.apply(parity * 2 + (x & 1), v).round().clamp(0.0, white as f32) as i32;
+                *n = t - c as i32;
             }
         }
-        row_sums.push(rs);
+        let half = (y >> 1) & 1;
+        let line_values: &[i32] = if let Some(m) = motion {
+            // A frame that moved: its predicted change comes out of the line sums.
+            m.row_effects(probe, y, crow, &mut keep, &mut correction);
+            for ((l, &n), &k) in line_noise.iter_mut().zip(&noise).zip(&correction) {
+                *l = n - k;
+            }
+            &line_noise
+        } else {
+            &noise
+        };
+        rows.push(line_sums(line_values, crow, line_top, &mut cols[half], &mut masked));
+        // Even columns are position `2·parity`, odd ones `2·parity + 1`.
+        let count = |first: usize,
+                     window: &mut WindowCounts,
+                     hist: &mut Vec<NoiseHistogram>,
+                     lut: &[u16],
+                     codes: &mut LaneCounts,
+                     left_out: &mut Vec<(u8, u16)>| {
+            let pos = (parity * 2 + first) as u8;
+            let mut added = 0u64;
+            if motion.is_some() {
+                for x in (first..w).step_by(2) {
+                    let c = crow[x];
+                    if c == NOT_FLAT {
+                        continue;
+                    }
+                    codes.add((row[x] as usize).min(top), x >> 1);
+                    if !keep[x] {
+                        left_out.push((pos, c));
+                        continue;
+                    }
+                    window.add(lut[c as usize] as usize, noise[x], x >> 1, hist);
+                    added += 1;
+                }
+            } else {
+                for x in (first..w).step_by(2) {
+                    let c = crow[x];
+                    if c == NOT_FLAT {
+                        continue;
+                    }
+                    codes.add((row[x] as usize).min(top), x >> 1);
+                    window.add(lut[c as usize] as usize, noise[x], x >> 1, hist);
+                    added += 1;
+                }
+            }
+            added
+        };
+        samples += count(0, &mut window0, hist0, lut0, &mut codes0, &mut left_out);
+        samples += count(1, &mut window1, hist1, lut1, &mut codes1, &mut left_out);
     }
-    (samples, left_out, row_sums, cols)
+    window0.flush(hist0);
+    window1.flush(hist1);
+    codes0.flush(codes_out0);
+    codes1.flush(codes_out1);
+    FoldedRows { samples, left_out, rows, cols }
 }
 
-#[inline(always)]
-fn line_add(row: &mut LineSums, col: &mut LineSums, n: i32, clean: u16) {
-    let (n, c) = (n as i64, clean as i64);
-    row[0] += n;
-    row[1] += c;
-    row[2] += 1;
-    col[0] += n;
-    col[1] += c;
-    col[2] += 1;
+/// Adds one row's noise over its line pixels (flat, clean level at most `line_top`) into its
+/// columns' sums `cols`, and returns its sums per cell (`x & 3`); `masked` is scratch of the
+/// row's width. Branch-free loops, so that the compiler vectorises them.
+#[inline]
+fn line_sums(noise: &[i32], crow: &[u16], line_top: u16, cols: &mut [i64], masked: &mut [i32]) -> [i64; CELLS] {
+    for ((m, &n), &c) in masked.iter_mut().zip(noise).zip(crow) {
+        *m = n & (in_lines(c, line_top) as i32).wrapping_neg();
+    }
+    for (col, &m) in cols.iter_mut().zip(masked.iter()) {
+        *col += m as i64;
+    }
+    let mut cells = [0i64; CELLS];
+    let quads = masked.chunks_exact(CELLS);
+    let rest = quads.remainder();
+    for q in quads {
+        for (cell, &m) in cells.iter_mut().zip(q) {
+            *cell += m as i64;
+        }
+    }
+    for (cell, &m) in cells.iter_mut().zip(rest) {
+        *cell += m as i64;
+    }
+    cells
 }

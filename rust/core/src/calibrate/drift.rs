@@ -88,6 +88,9 @@ pub(crate) fn brightness_sums(
     w: usize,
     h: usize,
 ) -> BrightnessSums {
+    if let Some(sums) = integer_brightness_sums(frame, base, tf, clip, w, h) {
+        return sums;
+    }
     let mut out =
         BrightnessSums { bands: vec![[0.0; 5]; BANDS], frame_pos: [0.0; POSITIONS], base_pos: [0.0; POSITIONS] };
     let rows_per_band = h.div_ceil(BANDS).max(1);
@@ -118,6 +121,70 @@ pub(crate) fn brightness_sums(
         }
     }
     out
+}
+
+/// [`brightness_sums`] in integers, where that gives the same sums to the last bit: a frame
+/// not transformed, integer black levels, and sums that cannot reach 2⁵³ (every term, and so
+/// every partial sum the floating-point loop forms, is then an integer it holds exactly, and
+/// the order of the additions changes nothing). `None` elsewhere.
+fn integer_brightness_sums(
+    frame: &FrameView<'_>,
+    base: &[u16],
+    tf: &Transform,
+    clip: f32,
+    w: usize,
+    h: usize,
+) -> Option<BrightnessSums> {
+    let integral = |b: f32| b.fract() == 0.0 && (0.0..=65535.0).contains(&b);
+    if !tf.identity() || !tf.black.iter().all(|&b| integral(b)) || clip.is_nan() || clip < 0.0 {
+        return None;
+    }
+    // The largest base level compared: `c as f32 > clip` is `c > ⌊clip⌋` for an integer `c`.
+    let top = clip.min(65535.0).floor() as u16;
+    let black: [i64; POSITIONS] = tf.black.map(|b| b as i64);
+    // |base − black| ≤ max(top, black), |frame − black| < 2¹⁶ (the mask keeps a base of
+    // NOT_FLAT out, so a compared base level is at most 65534).
+    let largest_base = black.iter().fold(top as i64, |m, &b| m.max(b)) as u128;
+    if (w as u128) * (h as u128) * largest_base * 65536 >= 1u128 << 53 {
+        return None;
+    }
+    let rows_per_band = h.div_ceil(BANDS).max(1);
+    let step = if h > 512 { 4 } else { 1 };
+    let mut bands = vec![[0i64; 5]; BANDS];
+    let (mut frame_pos, mut base_pos) = ([0i64; POSITIONS], [0i64; POSITIONS]);
+    let mut buf = vec![0u16; w];
+    for y in (0..h).step_by(2 * step).flat_map(|y| [y, y + 1]).filter(|&y| y < h) {
+        frame.read_row(y, &mut buf);
+        let band = &mut bands[(y / rows_per_band).min(BANDS - 1)];
+        let parity = (y & 1) << 1;
+        // Even columns, then odd ones: one position each.
+        for first in 0..2 {
+            let pos = parity | first;
+            let b = black[pos];
+            let mut sums = [0i64; 5];
+            for x in (first..w).step_by(2) {
+                let c = base[y * w + x];
+                let keep = (c != NOT_FLAT && c <= top) as i64;
+                let bv = (c as i64 - b) * keep;
+                let fv = (buf[x] as i64 - b) * keep;
+                sums[0] += keep;
+                sums[1] += bv;
+                sums[2] += fv;
+                sums[3] += bv * bv;
+                sums[4] += bv * fv;
+            }
+            for (o, v) in band.iter_mut().zip(sums) {
+                *o += v;
+            }
+            frame_pos[pos] += sums[2];
+            base_pos[pos] += sums[1];
+        }
+    }
+    Some(BrightnessSums {
+        bands: bands.iter().map(|b| b.map(|v| v as f64)).collect(),
+        frame_pos: frame_pos.map(|v| v as f64),
+        base_pos: base_pos.map(|v| v as f64),
+    })
 }
 
 /// Brightness of one frame against a base image (the clean image, or the burst's first frame).

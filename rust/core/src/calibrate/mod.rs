@@ -5,6 +5,7 @@
 //!   progress, checkpoints, and the pack at the end.
 //! - [`reference`](mod@reference): one reference burst, summed into the clean image and its flat mask.
 //! - [`accumulate`]: target frames folded into the per-bin histograms.
+//! - [`line_base`]: the clean image's half of the target frames' line sums.
 //! - [`step`]: which EV step a frame belongs to (the step tolerance).
 //! - [`flat`], [`drift`], [`deselect`]: the flat test, frame brightness, and the clean image's
 //!   own error.
@@ -22,12 +23,14 @@ pub(crate) mod drift;
 pub mod estimate;
 pub mod flat;
 pub mod frame;
+mod line_base;
 pub mod meta;
 pub mod motion;
 pub mod reference;
 pub mod session;
 pub mod step;
 pub(crate) mod structure;
+mod window_counts;
 
 pub use flat::{NOT_FLAT, Roi};
 pub use frame::FrameView;

@@ -16,6 +16,7 @@ use crate::calibrate::drift::{
 };
 use crate::calibrate::flat::{CleanInputs, FlatReport, GROUPS, Groups, NOT_FLAT, Roi, TemporalStats, clean_and_mask};
 use crate::calibrate::frame::FrameView;
+use crate::calibrate::line_base::LineBaseCache;
 use crate::calibrate::meta::FrameMeta;
 use crate::calibrate::motion::MotionProbe;
 use crate::error::SessionError;
@@ -66,6 +67,9 @@ pub struct CleanImage {
     pub level_selection: [Vec<[f64; 2]>; POSITIONS],
     /// What registering a target frame on this image, and the motion test, read of it.
     pub probe: MotionProbe,
+    /// The clean-image half of the target frames' line sums, computed on first use.
+    #[serde(skip)]
+    pub(crate) line_base: LineBaseCache,
 }
 
 impl CleanImage {
@@ -79,6 +83,20 @@ impl CleanImage {
             Array2::from_shape_vec(shape, mask).expect("height × width flags"),
         )
     }
+}
+
+/// `[n, Σd, Σd²]` per (position, group) of one frame as the floating-point sums of its samples
+/// in turn, when those are exact: every term is an integer, `|Σd| ≤ Σd²` and `n ≤ Σd²` bound
+/// every partial sum, so below 2⁵³ no addition rounds and the order of the additions changes
+/// nothing. `None` when a sum reaches 2⁵³, or the integer sums could have overflowed (`pixels`:
+/// the frame's).
+fn exact_stats(sums: &[[i64; 3]], pixels: usize) -> Option<Vec<[f64; 3]>> {
+    const EXACT: i64 = 1 << 53;
+    // Σd² < pixels · 2³², within i64 below 2³¹ pixels.
+    if pixels >= 1 << 31 || sums.iter().any(|s| s[2] >= EXACT || s[0] >= EXACT) {
+        return None;
+    }
+    Some(sums.iter().map(|s| s.map(|v| v as f64)).collect())
 }
 
 /// One row of the sums, of the first frame and of the squares, with its index.
@@ -158,37 +176,75 @@ impl ReferenceBurst {
             rows[y & 1].push((y, s, f, q));
         }
         let [even_rows, odd_rows] = rows;
-        let work = |rows: Vec<RowPair<'_>>| {
-            let mut acc = vec![[0.0f64; 3]; POSITIONS * GROUPS];
+        let identity = tf.identity();
+        // Each position's level group of every first-frame level up to white.
+        let group_of: [Vec<u8>; POSITIONS] =
+            std::array::from_fn(|pos| (0..=white).map(|f0| groups.group(pos, f0 as f32) as u8).collect());
+        let group = |pos: usize, f0: u16| match group_of[pos].get(f0 as usize) {
+            Some(&g) => g as usize,
+            None => groups.group(pos, f0 as f32),
+        };
+        let work = |mut rows: Vec<RowPair<'_>>| {
+            // `[n, Σd, Σd²]` per position and group, in integers (see `exact_stats`).
+            let mut sums = vec![[0i64; 3]; POSITIONS * GROUPS];
             let mut row_buf = vec![0u16; w];
-            for (y, sum_row, first_row, square_row) in rows {
+            let mut values = vec![0u32; w];
+            for (y, sum_row, first_row, square_row) in rows.iter_mut() {
+                let y = *y;
                 frame.read_row(y, &mut row_buf);
-                let take_stats = (y / 2) % stats_rows == 0;
-                for x in 0..w {
-                    let pos = ((y & 1) << 1) | (x & 1);
-                    let v = if tf.identity() {
-                        row_buf[x] as u32
-                    } else {
-                        tf.apply(pos, row_buf[x]).round().clamp(0.0, white as f32) as u32
-                    };
-                    sum_row[x] += v;
-                    if first_frame {
-                        first_row[x] = v as u16;
-                        continue;
+                if identity {
+                    for (v, &r) in values.iter_mut().zip(&row_buf) {
+                        *v = r as u32;
                     }
-                    let f0 = first_row[x];
+                } else {
+                    for (x, (v, &r)) in values.iter_mut().zip(&row_buf).enumerate() {
+                        let pos = ((y & 1) << 1) | (x & 1);
+                        *v = tf.apply(pos, r).round().clamp(0.0, white as f32) as u32;
+                    }
+                }
+                for (s, &v) in sum_row.iter_mut().zip(&values) {
+                    *s += v;
+                }
+                if first_frame {
+                    for (f, &v) in first_row.iter_mut().zip(&values) {
+                        *f = v as u16;
+                    }
+                    continue;
+                }
+                for ((q, &v), &f0) in square_row.iter_mut().zip(&values).zip(first_row.iter()) {
                     let di = v as i64 - f0 as i64;
-                    square_row[x] = square_row[x].saturating_add((di * di).min(u32::MAX as i64) as u32);
-                    if take_stats {
-                        let d = di as f64;
-                        let a = &mut acc[pos * GROUPS + groups.group(pos, f0 as f32)];
+                    *q = q.saturating_add((di * di).min(u32::MAX as i64) as u32);
+                }
+                if (y / 2) % stats_rows == 0 {
+                    for (x, (&v, &f0)) in values.iter().zip(first_row.iter()).enumerate() {
+                        let pos = ((y & 1) << 1) | (x & 1);
+                        let di = v as i64 - f0 as i64;
+                        let a = &mut sums[pos * GROUPS + group(pos, f0)];
+                        a[0] += 1;
+                        a[1] += di;
+                        a[2] += di * di;
+                    }
+                }
+            }
+            exact_stats(&sums, w * h).unwrap_or_else(|| {
+                // Sums the floating-point additions would have rounded: those additions, in
+                // their order.
+                let mut acc = vec![[0.0f64; 3]; POSITIONS * GROUPS];
+                for (y, _, first_row, _) in rows.iter().filter(|r| !first_frame && (r.0 / 2) % stats_rows == 0) {
+                    frame.read_row(*y, &mut row_buf);
+                    for (x, (&r, &f0)) in row_buf.iter().zip(first_row.iter()).enumerate() {
+                        let pos = ((y & 1) << 1) | (x & 1);
+                        let v =
+                            if identity { r as u32 } else { tf.apply(pos, r).round().clamp(0.0, white as f32) as u32 };
+                        let d = (v as i64 - f0 as i64) as f64;
+                        let a = &mut acc[pos * GROUPS + group(pos, f0)];
                         a[0] += 1.0;
                         a[1] += d;
                         a[2] += d * d;
                     }
                 }
-            }
-            acc
+                acc
+            })
         };
         let (a, b) = rayon::join(|| work(even_rows), || work(odd_rows));
         for part in [&a, &b] {
@@ -234,6 +290,16 @@ impl ReferenceBurst {
         let mean: Vec<u16> =
             self.sum.iter().map(|&s| (s as f64 / m).round().clamp(0.0, self.layout.white as f64) as u16).collect();
         let probe = MotionProbe::new(mean, &levels, w, h, self.frames, &flat, &groups, clip_level(&self.layout));
-        Ok(CleanImage { levels, width: w, height: h, frames: self.frames, flat, selection, level_selection, probe })
+        Ok(CleanImage {
+            levels,
+            width: w,
+            height: h,
+            frames: self.frames,
+            flat,
+            selection,
+            level_selection,
+            probe,
+            line_base: LineBaseCache::default(),
+        })
     }
 }
