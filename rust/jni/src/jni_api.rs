@@ -12,10 +12,12 @@
 //! becomes an `org.noisecal.jni.NoisecalException` carrying the error's message (the core's own
 //! message for a core error); the method then returns 0 / null. A dark frame with a scene in it
 //! (`SessionError::NotDark`) throws its subclass `org.noisecal.jni.NoisecalNotDarkException`, so
-//! the app can tell "cover the lens" from other refusals without reading the message. No Rust panic crosses into the
+//! the app can tell "cover the lens" from other refusals without reading the message; a frame
+//! that moved too far (`SessionError::Moved`) throws `org.noisecal.jni.NoisecalMovedException`. No Rust panic crosses into the
 //! JVM, and nothing on this path unwraps.
 //!
-//! Progress crosses as a Kotlin object, `NoisecalSession.Progress` with its
+//! A pushed frame's verdict crosses as `NoisecalSession.FrameVerdict` (drift, motion, samples
+//! left out, re-take), built the same way. Progress crosses as a Kotlin object, `NoisecalSession.Progress` with its
 //! `NoisecalSession.IsoProgress` list, constructed here through bindings of their constructors
 //! (`bind_java_type!`): the Kotlin classes are the one definition of the type, and a constructor
 //! that no longer matches fails loudly at the first call (a `NoisecalException` naming it), never
@@ -52,12 +54,20 @@ fn throw_noisecal(env: &mut Env<'_>, message: &str) {
 }
 
 /// Throws what `err` is at the edge: `NoisecalNotDarkException` for a dark frame that is not
-/// dark, `NoisecalException` for everything else.
+/// dark, `NoisecalMovedException` for a frame that moved too far, `NoisecalException` for
+/// everything else.
 fn throw_error(env: &mut Env<'_>, err: &BoundaryError) {
     let message = err.to_string();
-    if matches!(err, BoundaryError::Session(SessionError::NotDark { .. })) {
+    let subclass = match err {
+        BoundaryError::Session(SessionError::NotDark { .. }) => {
+            Some(jni_str!("org/noisecal/jni/NoisecalNotDarkException"))
+        }
+        BoundaryError::Session(SessionError::Moved { .. }) => Some(jni_str!("org/noisecal/jni/NoisecalMovedException")),
+        _ => None,
+    };
+    if let Some(class) = subclass {
         let msg = JNIString::from(message.as_str());
-        if thrown(env.throw_new(jni_str!("org/noisecal/jni/NoisecalNotDarkException"), &msg)) {
+        if thrown(env.throw_new(class, &msg)) {
             return;
         }
         env.exception_clear();
@@ -132,7 +142,10 @@ macro_rules! session_method {
     ($($spec:tt)*) => {
         native_method! {
             java_type = "org.noisecal.jni.NoisecalSession",
-            type_map = { JProgress => "org.noisecal.jni.NoisecalSession$Progress" },
+            type_map = {
+                JProgress => "org.noisecal.jni.NoisecalSession$Progress",
+                JFrameVerdict => "org.noisecal.jni.NoisecalSession$FrameVerdict",
+            },
             error_policy = ThrowNoisecal,
             $($spec)*
         }
@@ -154,7 +167,7 @@ pub const NATIVE_METHODS: &[NativeMethod<'_>] = &[
         static extern fn native_push_frame(
             handle: jlong, buffer: java.nio.ByteBuffer, width: jint, height: jint, row_stride: jint,
             pixel_stride: jint, iso: jint, exposure_ns: jlong, black_levels: jfloat[],
-        ) -> jint,
+        ) -> JFrameVerdict,
     },
     session_method! { static extern fn native_set_noise_profile(handle: jlong, iso: jint, profile: jdouble[]) },
     session_method! { static extern fn native_progress(handle: jlong) -> JProgress },
@@ -192,6 +205,15 @@ mod bindings {
     }
 
     bind_java_type! {
+        rust_type = JFrameVerdict,
+        rust_type_vis = pub(super),
+        java_type = "org.noisecal.jni.NoisecalSession$FrameVerdict",
+        constructors {
+            fn new(drift_normalised: jboolean, registered: jboolean, shift_px: jdouble, samples: jlong, left_out: jlong, retake: jboolean),
+        },
+    }
+
+    bind_java_type! {
         rust_type = JArrayList,
         rust_type_vis = pub(super),
         java_type = java.util.ArrayList,
@@ -202,7 +224,7 @@ mod bindings {
     }
 }
 
-use bindings::{JArrayList, JIsoProgress, JProgress};
+use bindings::{JArrayList, JFrameVerdict, JIsoProgress, JProgress};
 
 fn string(env: &Env<'_>, s: &JString<'_>, name: &'static str) -> Result<String> {
     if s.is_null() {
@@ -291,10 +313,9 @@ fn native_begin_dark<'local>(_env: &mut Env<'local>, _class: JClass<'local>, han
     registry::with(handle, |s| s.begin_dark())
 }
 
-/// Bit 0 of `nativePushFrame`'s result: the frame's brightness drifted and was normalised.
-pub const VERDICT_DRIFT_NORMALISED: jint = 1;
-
-/// Folds in one frame, read in place from the direct buffer's memory (no copy).
+/// Folds in one frame, read in place from the direct buffer's memory (no copy), and returns the
+/// core's report of it as a `NoisecalSession.FrameVerdict` (drift; a target frame's motion,
+/// samples left out and whether its burst is worth taking again: `FrameReport::retake`).
 ///
 /// The plane starts at the buffer's *address* (`GetDirectBufferAddress`), whatever its
 /// `position()`, and spans its `capacity()`: Camera2's `Image.Plane.getBuffer()` is positioned at
@@ -315,7 +336,7 @@ fn native_push_frame<'local>(
     iso: jint,
     exposure_ns: jlong,
     black_levels: JFloatArray<'local>,
-) -> Result<jint> {
+) -> Result<JFrameVerdict<'local>> {
     if buffer.is_null() {
         return Err(BoundaryError::NullBuffer);
     }
@@ -332,7 +353,15 @@ fn native_push_frame<'local>(
     let plane: &[u8] = unsafe { std::slice::from_raw_parts(addr.cast_const(), capacity) };
     let params = PlaneParams { width, height, row_stride, pixel_stride, iso, exposure_ns, black: black.as_deref() };
     let report = registry::with(handle, |s| s.push_plane(plane, &params))?;
-    Ok(if report.drift_normalised { VERDICT_DRIFT_NORMALISED } else { 0 })
+    Ok(JFrameVerdict::new(
+        env,
+        report.drift_normalised,
+        report.motion.is_some(),
+        report.shift_px().unwrap_or(0.0),
+        long(report.samples),
+        long(report.left_out),
+        report.retake(),
+    )?)
 }
 
 fn native_set_noise_profile<'local>(

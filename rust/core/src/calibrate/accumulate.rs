@@ -126,7 +126,7 @@ impl IsoAccumulator {
 
     /// Folds one target frame of EV step `step` in, its raw values mapped by `tf`, its
     /// brightness sums already taken (`scale` normalised them), the flat pixels its `motion`
-    /// changes left out. Returns the samples added.
+    /// changes left out. Returns the samples added and the flat samples left out.
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn add_frame(
         &mut self,
@@ -138,7 +138,7 @@ impl IsoAccumulator {
         sums: &BrightnessSums,
         scale: f64,
         motion: Option<&FrameMotion>,
-    ) -> u64 {
+    ) -> (u64, u64) {
         let moving = motion.filter(|m| m.max_shift() > NEGLIGIBLE_MOTION_PX);
         if let Some(m) = motion {
             self.motion.frames += 1;
@@ -210,7 +210,7 @@ impl IsoAccumulator {
         }
         self.frames += 1;
         self.samples += samples;
-        samples
+        (samples, left as u64)
     }
 }
 

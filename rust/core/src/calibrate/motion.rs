@@ -10,7 +10,8 @@
 //! - [`register`]: a target frame's motion against the clean image, an affine field
 //!   `u(p) = t + A·(p − c)` (shift, rotation, scale, shear) with a gain and an offset per CFA
 //!   position, by Gauss–Newton on the edge samples (bilinear on each colour's own lattice,
-//!   Huber-weighted).
+//!   Huber-weighted, then Tukey-weighted around robust row offsets: a glitching pixel is not
+//!   motion).
 //! - [`FrameMotion::row_effects`]: which flat pixels of a row the frame's motion changes by more
 //!   than [`MOTION_TOLERANCE`] of the noise at their level (calibration leaves those samples out
 //!   of that frame, never resampling it: interpolation would correlate its noise), and the change
@@ -34,6 +35,13 @@ pub const MOTION_TOLERANCE: f64 = 0.25;
 /// A frame that moved further than this (pixels, anywhere in the image) against its reference
 /// burst is refused: a sturdier mount, OIS off or a remote trigger is needed.
 pub const MAX_MOTION_PX: f64 = 2.0;
+
+/// A frame that moved further than this (pixels, anywhere in the image) is taken, its moved
+/// pixels left out, but its burst is worth taking again (a sturdier mount, OIS off, a remote
+/// trigger): past about 0.3 px the pixels left out near edges cost a bin a noticeable share of
+/// its samples, and the motion model's own error (15–20 % of the shift) approaches the
+/// tolerance. The app's result check says so per burst.
+pub const RETAKE_MOTION_PX: f64 = 0.3;
 
 /// Below this (pixels, anywhere in the image) a frame's motion changes nothing worth a pass.
 pub const NEGLIGIBLE_MOTION_PX: f64 = 0.005;
@@ -350,15 +358,8 @@ struct Fit {
     anchor_ratios: Vec<f64>,
 }
 
-/// Huber's loss of a residual at `scale` (quadratic within 3 SDs).
-#[inline]
-fn huber(r: f64, scale: f64) -> f64 {
-    let z = (r / scale).abs();
-    scale * scale * if z <= 3.0 { 0.5 * z * z } else { 3.0 * z - 4.5 }
-}
-
 /// Fits gain and offset per position and, when `free_motion`, the motion field, starting from
-/// `start` (or from no motion, gain 1, offset 0), Huber-weighted at the previous iteration's
+/// `start` (or from no motion, gain 1, offset 0), robustly weighted ([`robust_weights`]) at the previous iteration's
 /// robust scale, for at most `iterations` Gauss–Newton steps.
 #[allow(clippy::too_many_arguments)]
 fn fit(
@@ -376,7 +377,7 @@ fn fit(
     let mut scale = start.map_or(f64::INFINITY, |f| f.scale);
     let mut normal = Vec::new();
     let mut anchor_ratios = Vec::new();
-    for _ in 0..iterations {
+    for it in 0..iterations {
         anchor_ratios.clear();
         let mut a = vec![vec![0.0f64; PARAMS + 1]; PARAMS];
         let mut residuals = Vec::with_capacity(samples.len());
@@ -385,12 +386,14 @@ fn fit(
         // Jacobian by demeaning within the row. A vertical motion moves a row's edges, not the
         // row as a whole, so it stays identified where a row crosses both patches and gaps.
         let mut rows: Vec<(usize, f64, [f64; PARAMS], f64)> = Vec::with_capacity(samples.len());
+        let mut slack = Vec::with_capacity(samples.len());
         for s in samples {
             let (dx, dy) = ((s.x as f64 - m.centre[0]) / m.radius, (s.y as f64 - m.centre[1]) / m.radius);
             let u = m.at(s.x as f64, s.y as f64);
             let (v, g) = probe.warp(w, h, s.x, s.y, u);
             let r = s.value - (gain[s.pos] * v + offset[s.pos]);
             let (gx, gy) = (gain[s.pos] * g[0], gain[s.pos] * g[1]);
+            slack.push(MODEL_SLACK_PX * gx.hypot(gy));
             let mut j = [0.0f64; PARAMS];
             if free_motion {
                 j[0] = gx;
@@ -408,16 +411,20 @@ fn fit(
             }
             rows.push((s.y, 1.0, j, r));
         }
+        // Huber weights first (the motion is not yet fitted: an edge's residual is its signal),
+        // then, once the motion is, redescending ones: a pixel that glitched (hot, flickering,
+        // RTS) or did something else (dust, a reflection) weighs nothing, in the fit and in its
+        // row's offset.
+        let redescend = it >= if free_motion { 2 } else { 1 };
+        robust_weights(&mut rows, &slack, scale, redescend);
         demean_rows(&mut rows);
         for (k, s) in samples.iter().enumerate() {
-            let (_, _, j, r) = &rows[k];
+            let (_, wgt, j, r) = &rows[k];
+            let wgt = *wgt;
             residuals.push(r.abs());
             if let Some(sd) = s.anchor_sd {
                 anchor_ratios.push(r * r / (sd as f64 * sd as f64).max(1e-6));
             }
-            // Huber weights at 3 robust SDs: edge samples that did something else (dust,
-            // a reflection) do not pull the fit.
-            let wgt = if r.abs() <= 3.0 * scale { 1.0 } else { 3.0 * scale / r.abs() };
             // A row holds two positions: about 9 of the 14 columns are non-zero.
             let mut nz = [0usize; PARAMS];
             let mut k = 0;
@@ -463,7 +470,7 @@ fn fit(
             .iter()
             .chain(&d[6..].iter().step_by(2).copied().collect::<Vec<_>>())
             .fold(0.0f64, |a, v| a.max(v.abs()));
-        if change < 1e-3 {
+        if change < 1e-3 && redescend {
             break;
         }
     }
@@ -472,18 +479,74 @@ fn fit(
     Some(Fit { motion: m, gain, offset, scale, normal, anchor_ratios })
 }
 
-/// The Huber objective of a fit at `scale`, each row's mean residual (its row offset) taken out.
+/// Tukey's biweight constant (95 % efficiency on Gaussian noise).
+const TUKEY_C: f64 = 4.685;
+
+/// How far (pixels) the motion model may miss at an edge (a bilinear warp on a colour's 2-px
+/// lattice pulls a sub-pixel shift by up to 15–20 %): a sample's residual is judged against
+/// the noise and this much motion along its gradient, so a steep edge the model misses is not
+/// taken for a glitch.
+const MODEL_SLACK_PX: f64 = 0.15;
+
+/// Sets each sample's weight (`.1`) from its residual (`.3`) less its row's median residual
+/// (the row offset, estimated robustly: a glitch of a hundred SD moves a row's mean by several
+/// SD of the noise, and every residual of the row with it), at the sample's own scale
+/// `hypot(scale, slack)` (`slack`: [`MODEL_SLACK_PX`] times its gradient): Huber's at 3 scales
+/// or, when `redescend`, Tukey's biweight at [`TUKEY_C`]. An infinite `scale` (a first fit) is
+/// taken from the deviations' own MAD.
+fn robust_weights(rows: &mut [(usize, f64, [f64; PARAMS], f64)], slack: &[f64], scale: f64, redescend: bool) {
+    let mut dev = vec![0.0f64; rows.len()];
+    let mut start = 0;
+    while start < rows.len() {
+        let y = rows[start].0;
+        let end = start + rows[start..].iter().take_while(|r| r.0 == y).count();
+        let centre = median(&rows[start..end].iter().map(|r| r.3).collect::<Vec<_>>());
+        for k in start..end {
+            dev[k] = rows[k].3 - centre;
+        }
+        start = end;
+    }
+    let scale = if scale.is_finite() {
+        scale
+    } else {
+        (1.4826 * median(&dev.iter().map(|d| d.abs()).collect::<Vec<_>>())).max(0.25)
+    };
+    for ((r, d), sl) in rows.iter_mut().zip(&dev).zip(slack) {
+        let z = (d / scale.hypot(*sl)).abs();
+        r.1 = if redescend {
+            if z < TUKEY_C { (1.0 - (z / TUKEY_C).powi(2)).powi(2) } else { 0.0 }
+        } else if z <= 3.0 {
+            1.0
+        } else {
+            3.0 / z
+        };
+    }
+}
+
+/// Tukey's biweight loss of a residual at `scale` (bounded: a glitch costs what any outlier does).
+#[inline]
+fn tukey(r: f64, scale: f64) -> f64 {
+    let z = (r / scale).abs();
+    let c2 = TUKEY_C * TUKEY_C;
+    scale * scale * if z < TUKEY_C { c2 / 6.0 * (1.0 - (1.0 - z * z / c2).powi(3)) } else { c2 / 6.0 }
+}
+
+/// The robust objective of a fit at `scale` (Tukey's biweight), each row's robust offset taken
+/// out.
 fn objective(probe: &MotionProbe, samples: &[Sample], w: usize, h: usize, f: &Fit, scale: f64) -> f64 {
+    let mut slack = Vec::with_capacity(samples.len());
     let mut rows: Vec<(usize, f64, [f64; PARAMS], f64)> = samples
         .iter()
         .map(|s| {
             let u = f.motion.at(s.x as f64, s.y as f64);
-            let (v, _) = probe.warp(w, h, s.x, s.y, u);
+            let (v, g) = probe.warp(w, h, s.x, s.y, u);
+            slack.push(MODEL_SLACK_PX * f.gain[s.pos] * g[0].hypot(g[1]));
             (s.y, 1.0, [0.0; PARAMS], s.value - (f.gain[s.pos] * v + f.offset[s.pos]))
         })
         .collect();
+    robust_weights(&mut rows, &slack, scale, true);
     demean_rows(&mut rows);
-    rows.iter().map(|r| huber(r.3, scale)).sum()
+    rows.iter().zip(&slack).map(|(r, sl)| tukey(r.3, scale.hypot(*sl))).sum()
 }
 
 /// Takes each row's mean (weights `.1`) out of the Jacobian rows `.2` and residuals `.3` of its
@@ -718,6 +781,69 @@ mod tests {
                 "{corner:?} vs {want:?}"
             );
         }
+    }
+
+    /// A frame of the test scene moved by `(tx, ty)`, with Gaussian noise of SD `sd` and `share`
+    /// of its pixels (chosen by a hash, afresh per `seed`) off by ±`jump` DN: hot, flickering or
+    /// RTS pixels, which change from frame to frame but do not move.
+    fn glitched_frame(w: usize, h: usize, tx: f64, ty: f64, sd: f64, share: f64, jump: f64, seed: u64) -> Vec<u16> {
+        let hash = |y: usize, x: usize, k: u64| {
+            ((y as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (x as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F) ^ k)
+                .wrapping_mul(0x2545_F491_4F6C_DD1D)
+                .rotate_left(29)
+                .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        };
+        let unit = |v: u64| ((v >> 11) as f64 + 0.5) / (1u64 << 53) as f64;
+        (0..h)
+            .flat_map(|y| {
+                (0..w).map(move |x| {
+                    let (u1, u2) = (unit(hash(y, x, seed)), unit(hash(y, x, seed ^ 0x5555)));
+                    let gauss = (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos();
+                    let mut v = scene(x as f64 + tx, y as f64 + ty) + sd * gauss;
+                    let g = hash(y, x, seed.wrapping_add(0xABCD));
+                    if unit(g) < share {
+                        v += if g & (1 << 7) == 0 { jump } else { -jump };
+                    }
+                    v.round().clamp(0.0, 1023.0) as u16
+                })
+            })
+            .collect()
+    }
+
+    #[test]
+    fn glitching_pixels_are_not_motion_and_a_real_shift_is_still_found() {
+        let (w, h) = (160usize, 128usize);
+        let (probe, _) = probe_of(w, h);
+        let layout = SensorLayout {
+            width: w as u32,
+            height: h as u32,
+            cfa: crate::CfaPattern::Rggb,
+            black: [0.0; POSITIONS],
+            white: 1023,
+        };
+        let meta = crate::FrameMeta { iso: 100, exposure_ns: 1, black: None };
+        let tf = Transform::of(&layout, &meta, 1.0);
+        let (cx, cy) = (w as f64 / 2.0, h as f64 / 2.0);
+        let mut worst_still: f64 = 0.0;
+        for seed in 0..8u64 {
+            // Still, 4 % of pixels ±120 DN (120 SD) off: no motion beyond a few hundredths px.
+            let frame = glitched_frame(w, h, 0.0, 0.0, 1.0, 0.04, 120.0, seed);
+            let view = FrameView::from_u16(&frame, w, h, w).expect("view");
+            let m = register(&probe, &view, &tf, w, h, 1000.0).expect("registered");
+            worst_still = worst_still.max(m.max_shift());
+            // Moved by a known shift, with the same glitches: found as without them.
+            let (tx, ty) = (0.3 - 0.07 * seed as f64, -0.25 + 0.05 * seed as f64);
+            let frame = glitched_frame(w, h, tx, ty, 1.0, 0.04, 120.0, seed + 100);
+            let view = FrameView::from_u16(&frame, w, h, w).expect("view");
+            let m = register(&probe, &view, &tf, w, h, 1000.0).expect("registered");
+            let u = m.at(cx, cy);
+            let tol = |t: f64| 0.15 * t.abs() + 0.02;
+            assert!(
+                (u[0] - tx).abs() < tol(tx) && (u[1] - ty).abs() < tol(ty),
+                "seed {seed}: shift {u:?} vs ({tx}, {ty}) among glitching pixels"
+            );
+        }
+        assert!(worst_still <= 0.03, "a still frame with glitching pixels moved {worst_still:.3} px");
     }
 
     #[test]

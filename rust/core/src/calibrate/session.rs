@@ -117,9 +117,26 @@ pub struct FrameReport {
     pub drift_normalised: bool,
     /// Samples added (target frames).
     pub samples: u64,
+    /// Flat samples left out of this frame because its motion changed their level (method.md,
+    /// "Motion between frames").
+    pub left_out: u64,
     /// A target frame's motion against its reference burst, when registered (method.md,
     /// "Motion between frames").
     pub motion: Option<FrameMotion>,
+}
+
+impl FrameReport {
+    /// The frame's largest displacement against its reference burst (pixels), when registered.
+    pub fn shift_px(&self) -> Option<f64> {
+        self.motion.as_ref().map(FrameMotion::max_shift)
+    }
+
+    /// Whether this frame moved enough that its burst is worth taking again
+    /// ([`RETAKE_MOTION_PX`](crate::calibrate::motion::RETAKE_MOTION_PX)): a sturdier mount, the
+    /// optical stabilisation off, a remote trigger.
+    pub fn retake(&self) -> bool {
+        self.shift_px().is_some_and(|s| s > crate::calibrate::motion::RETAKE_MOTION_PX)
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -317,7 +334,14 @@ impl CalibrationSession {
         let burst = slot.get_or_insert_with(|| DarkBurst::new(layout, meta.iso));
         burst.push(frame, &black)?;
         self.dark_frames += 1;
-        Ok(FrameReport { kind: FrameKind::Dark, departure: 0.0, drift_normalised: false, samples: 0, motion: None })
+        Ok(FrameReport {
+            kind: FrameKind::Dark,
+            departure: 0.0,
+            drift_normalised: false,
+            samples: 0,
+            left_out: 0,
+            motion: None,
+        })
     }
 
     /// The dark burst in progress.
@@ -411,6 +435,7 @@ impl CalibrationSession {
             departure: r.verdict.departure,
             drift_normalised: r.normalised,
             samples: 0,
+            left_out: 0,
             motion: None,
         })
     }
@@ -502,7 +527,7 @@ impl CalibrationSession {
         }
         let binning = &self.binning;
         let acc = self.isos.entry(meta.iso).or_insert_with(|| IsoAccumulator::new(binning));
-        let samples = acc.add_frame(step, frame, &tp.image, binning, &tf, &sums, scale, motion.as_ref());
+        let (samples, left_out) = acc.add_frame(step, frame, &tp.image, binning, &tf, &sums, scale, motion.as_ref());
         if verdict.drifted {
             acc.drift_frames += 1;
             self.drift_frames += 1;
@@ -519,6 +544,7 @@ impl CalibrationSession {
             departure: verdict.departure,
             drift_normalised: scale != 1.0,
             samples,
+            left_out,
             motion,
         })
     }

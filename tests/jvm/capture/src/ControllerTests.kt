@@ -263,6 +263,53 @@ class ControllerTests : Suite("controller") {
             checkSinkMatchesPlan(h.plan, factory.last.calls)
         }
 
+        test("motion verdict per burst: a burst that moved is marked for a re-take with its shift, samples left out and refusals; still ones are steady") {
+            val plan = smallPlan(frames = 5)
+            val targets = plan.bursts.filter { it.role != org.noisecal.capture.plan.BurstRole.REFERENCE && it.role != org.noisecal.capture.plan.BurstRole.DARK }
+            check(targets.size >= 2) { "the plan has ${targets.size} target bursts" }
+            val moving = targets[1]
+            // Pushes arrive in plan order, one per accepted frame: the moving burst's pushes
+            // are those after every frame of the bursts before it (plus one refusal).
+            val first = plan.bursts.takeWhile { it.index != moving.index }.sumOf { it.frames }
+            val factory = RecordingSinkFactory(motion = { n, iso ->
+                when {
+                    iso == plan.sensor.referenceIso -> null
+                    n == first + 1 -> 2.6 // refused: over 2 px
+                    n in first until first + moving.frames + 1 -> 0.45
+                    else -> 0.02
+                }
+            })
+            val h = Harness(plan, factory = factory)
+            val outcome = h.run()
+            check(outcome is CaptureOutcome.Finished) { "finished: $outcome" }
+            val verdicts = (outcome as CaptureOutcome.Finished).motion
+            eq(targets.map { it.index }, verdicts.map { it.burst.index }, "one verdict per target burst, in order")
+            val m = verdicts.single { it.burst.index == moving.index }
+            eq(moving.frames, m.framesRegistered, "the moving burst's frames registered")
+            eq(1, m.framesRefused, "one frame refused for moving over 2 px")
+            check(m.retake && m.maxShiftPx == 0.45 && m.leftOut > 0) { "moving burst: $m" }
+            check(m.verdict.contains("re-take") && m.verdict.contains("0.45 px") && m.verdict.contains("sturdier mount")) { m.verdict }
+            for (v in verdicts - m) {
+                check(!v.retake && v.framesRefused == 0 && v.maxShiftPx == 0.02) { "still burst: $v" }
+                check(v.verdict.contains("steady")) { v.verdict }
+            }
+            eq(listOf(moving.index), h.states.last().retakeBursts.map { it.burst.index }, "progress lists the burst to re-take")
+            check(h.states.any { it.lastRejection?.startsWith("moved:") == true }) { "the refusal is shown" }
+            eq(1, h.states.last().framesRejected, "the refused frame counted and re-taken")
+            checkSinkMatchesPlan(h.plan, factory.last.calls)
+            // The result screen gets the verdicts and says which burst to take again.
+            val capturing = org.noisecal.capture.controller.UiStateMachine.reduce(
+                org.noisecal.capture.controller.UiState.Planned(
+                    org.noisecal.capture.controller.Setup(camera(), smallMetering, smallForm),
+                    org.noisecal.capture.plan.PlanResult.Ok(plan)),
+                org.noisecal.capture.controller.UiEvent.CaptureStarted(plan))
+            val done = expect<org.noisecal.capture.controller.UiState.Done>(
+                fold(capturing, org.noisecal.capture.controller.UiEvent.CaptureEnded(outcome, null)), "finished")
+            eq(listOf(moving.index), done.retakeBursts.map { it.burst.index }, "the result check lists the burst to re-take")
+            val banner = done.banner
+            check(banner is org.noisecal.capture.controller.Banner.Error && banner.text.contains("re-take")) { "banner: $banner" }
+        }
+
         test("stop request: stops between events and resumes later") {
             val plan = smallPlan()
             val dir = tempDir("stop")

@@ -3,10 +3,13 @@ package org.noisecal.capture.test
 import java.io.File
 import java.nio.file.Files
 import org.noisecal.capture.controller.Clock
+import org.noisecal.capture.controller.FrameMotion
+import org.noisecal.capture.controller.FrameMovedException
 import org.noisecal.capture.controller.FrameSink
 import org.noisecal.capture.controller.FrameSinkFactory
 import org.noisecal.capture.controller.IsoCoverage
 import org.noisecal.capture.controller.LensNotCoveredException
+import org.noisecal.capture.controller.PushedFrame
 import org.noisecal.capture.controller.RawFrame
 import org.noisecal.capture.controller.SinkProgress
 import org.noisecal.capture.plan.SensorSpec
@@ -61,6 +64,11 @@ class RecordingSink(
     val calls: MutableList<SinkCall> = mutableListOf(),
     private val tagged: TaggedFrames? = TaggedFrames(),
     private val refuse: (Int) -> Boolean = { false },
+    /**
+     * What the core would measure of push n at ISO iso: a target frame's shift (px), or null for
+     * no registration; over 2 px the push is refused with [FrameMovedException] as the core does.
+     */
+    private val motion: (n: Int, iso: Int) -> Double? = { _, iso -> if (iso == sensor.referenceIso) null else 0.01 },
 ) : FrameSink {
     var closed = false
     var pushes = 0
@@ -82,10 +90,14 @@ class RecordingSink(
         calls += SinkCall("step", exposureNs = referenceExposureNs)
     }
 
-    override fun pushFrame(frame: RawFrame): Boolean {
+    override fun pushFrame(frame: RawFrame): PushedFrame {
         check(!closed) { "sink closed" }
         val n = pushes++
         if (refuse(n)) throw IllegalArgumentException("fake refusal of push $n")
+        val shift = if (dark) null else motion(n, frame.iso)
+        if (shift != null && shift > 2.0) {
+            throw FrameMovedException("fake: target frame at ISO ${frame.iso} moved ${"%.2f".format(shift)} px: use a sturdier mount")
+        }
         val buf = frame.buffer
         require(buf.isDirect) { "heap ByteBuffer" }
         require(frame.pixelStride == 2) { "pixel stride ${frame.pixelStride}" }
@@ -113,7 +125,10 @@ class RecordingSink(
         }
         means += mean
         calls += SinkCall("frame", frame.iso, frame.exposureNs, seq)
-        return false
+        // As the core: samples left out where the motion moved edges (here 1 % per 0.1 px).
+        val samples = (frame.width * frame.height).toLong()
+        val leftOut = if (shift == null) 0L else (samples * shift / 10).toLong()
+        return PushedFrame(false, shift?.let { FrameMotion(it, samples - leftOut, leftOut, it > 0.3) })
     }
 
     override fun progress(): SinkProgress {
@@ -159,6 +174,7 @@ class RecordingSink(
 class RecordingSinkFactory(
     private val tagged: TaggedFrames? = TaggedFrames(),
     private val refuse: (Int) -> Boolean = { false },
+    private val motion: ((n: Int, iso: Int) -> Double?)? = null,
 ) : FrameSinkFactory {
     val made = mutableListOf<RecordingSink>()
     var restoredFrom: String? = null
@@ -168,14 +184,17 @@ class RecordingSinkFactory(
 
     override fun create(sensor: SensorSpec): FrameSink {
         this.sensor = sensor
-        return RecordingSink(sensor, tagged = tagged, refuse = refuse).also { made += it }
+        return sink(sensor, mutableListOf()).also { made += it }
     }
 
     override fun restore(checkpointPath: String): FrameSink {
         restoredFrom = checkpointPath
         val s = checkNotNull(sensor) { "restore needs the sensor: call withSensor" }
-        return RecordingSink(s, RecordingSink.decode(File(checkpointPath).readText()), tagged, refuse).also { made += it }
+        return sink(s, RecordingSink.decode(File(checkpointPath).readText())).also { made += it }
     }
+
+    private fun sink(s: SensorSpec, calls: MutableList<SinkCall>): RecordingSink =
+        if (motion == null) RecordingSink(s, calls, tagged, refuse) else RecordingSink(s, calls, tagged, refuse, motion)
 
     val last: RecordingSink get() = made.last()
 }

@@ -12,7 +12,12 @@
 //!    makes them shrink), a non-negative polynomial cannot follow them, and `log σ²` is
 //!    interpolated linearly in `log ISO` instead. With a single neighbour, its variance is
 //!    scaled by the physics of its own HG fit: shot part × `j/k`, read part × `(j/k)²`.
-//! 3. **Mean** vs ISO: weighted least-squares line over the same neighbours.
+//! 3. **Mean** vs ISO: a bin's mean carries the gain ratio as `(g − 1)·l` (`l` its level above
+//!    black): that part is taken at the model's own gain ratio (`log g` linear in `log ISO`
+//!    between the bracketing ISOs), and what is left (offsets, clipping) by a weighted
+//!    least-squares line in ISO over the same neighbours. A line in ISO through the whole means
+//!    made a sensor with gain ∝ ISO^0.9 3–4 % too bright between its calibrated ISOs, and its
+//!    means disagreed with its own gain ratio (`tests/interp_gain.rs`).
 //! 4. **Shape** (Eq. 5): by default ([`ShapeSource::QuantileBlend`]) the standardised quantile
 //!    functions of the two bracketing calibrated ISOs are blended with weight
 //!    `t = ln(j/lo) / ln(hi/lo)`; [`ShapeSource::Nearest`] takes the nearest calibrated ISO (in
@@ -92,10 +97,18 @@ pub fn gain_ratio_at(pack: &ModelPack, iso: u32, extrapolate: bool) -> Result<[f
     Ok(planned_gain_ratio(&nb, iso as f64))
 }
 
-/// Gain ratios at ISO `j` from the neighbours: linear in log ISO (brightness against ISO is a
-/// power law where the gain is not ∝ ISO, so `g` is close to linear in `log ISO`).
+/// Gain ratios at ISO `j` from the neighbours: `log g` linear in `log ISO` between the two
+/// bracketing ones (brightness against ISO is a power law where the gain is not ∝ ISO: exact
+/// for gain ∝ ISO^γ), `g` linear in `log ISO` if a ratio is not positive.
 fn planned_gain_ratio(nb: &[&IsoModel], j: f64) -> [f64; POSITIONS] {
-    std::array::from_fn(|pos| log_lerp(nb, j, &|m: &IsoModel| m.gain_ratio[pos]))
+    std::array::from_fn(|pos| {
+        let positive = !nb.is_empty() && nb.iter().all(|m| m.gain_ratio[pos] > 0.0 && m.gain_ratio[pos].is_finite());
+        if positive {
+            log_lerp(nb, j, &|m: &IsoModel| m.gain_ratio[pos].ln()).exp()
+        } else {
+            log_lerp(nb, j, &|m: &IsoModel| m.gain_ratio[pos])
+        }
+    })
 }
 
 /// Builds the model a plan describes. Panics only if the plan does not come from this pack.
@@ -104,6 +117,7 @@ pub fn interpolate_planned(pack: &ModelPack, plan: &InterpPlan) -> IsoModel {
     let j = plan.iso as f64;
     let nb: Vec<&IsoModel> = plan.neighbours.iter().filter_map(|&k| pack.iso(k)).collect();
     let shape_models: Vec<&IsoModel> = plan.shape_from.iter().filter_map(|&k| pack.iso(k)).collect();
+    let gain_ratio = planned_gain_ratio(&nb, j);
     let t = if shape_models.len() == 2 {
         (j / shape_models[0].iso as f64).ln() / (shape_models[1].iso as f64 / shape_models[0].iso as f64).ln()
     } else {
@@ -117,21 +131,25 @@ pub fn interpolate_planned(pack: &ModelPack, plan: &InterpPlan) -> IsoModel {
             let bins = (0..binning.bins(pos))
                 .into_par_iter()
                 .map(|b| {
+                    // A bin's mean carries the gain ratio, `(g − 1)·l` (calibration step 7):
+                    // that part is taken at the ratio this model states, and only what is left
+                    // (offsets, clipping) is fitted against ISO.
+                    let level_above = (b as f64 + 0.5) * binning.bin_width as f64;
                     let pts: Vec<Point<'_>> = nb
                         .iter()
                         .map(|m| {
                             let bin = &m.positions[pos].bins[b];
                             let (mean, var) = bin.moments();
                             let n = bin.samples.max(1) as f64;
+                            let mean = mean - (m.gain_ratio[pos] - 1.0) * level_above;
                             Point { iso: m.iso as f64, mean, var: var.max(1e-6), weight: n, bin }
                         })
                         .collect();
-                    let level_above = (b as f64 + 0.5) * binning.bin_width as f64;
                     // Noise wider than the sensor's range is all clipping: bounding it keeps an
                     // extrapolated PMF (and its memory) within the codes the sensor can write.
                     let span = pack.layout.white as f64 + 1.0;
                     let var = fit_variance(&pts, j, single_params, level_above).clamp(1e-3, span * span);
-                    let mean = fit_mean(&pts, j).clamp(-span, span);
+                    let mean = (fit_mean(&pts, j) + (gain_ratio[pos] - 1.0) * level_above).clamp(-span, span);
                     let pmf = match shape_models.as_slice() {
                         [a, c] => blend_quantiles(
                             &a.positions[pos].bins[b].pmf(),
@@ -152,7 +170,6 @@ pub fn interpolate_planned(pack: &ModelPack, plan: &InterpPlan) -> IsoModel {
         })
         .collect();
     let lerp = |f: &dyn Fn(&IsoModel) -> f64| -> f64 { log_lerp(&nb, j, f) };
-    let gain_ratio = planned_gain_ratio(&nb, j);
     let noise_profile = if nb.iter().all(|m| m.noise_profile.is_some()) {
         Some(NoiseProfile(std::array::from_fn(|pos| {
             std::array::from_fn(|c| {

@@ -46,9 +46,11 @@ class NoisecalSession private constructor(@Volatile private var handle: Long) : 
      * planes do not until it is closed).
      * [rowStride] and [pixelStride] in bytes as the plane reports them; [iso] and [exposureNs] as the
      * TotalCaptureResult reported them; [blackLevels] the per-frame dynamic black level (4 values,
-     * CFA position order) or null. Returns whether the frame's brightness drifted (flicker) and was
-     * normalised. During a dark step ([beginDark]) a frame that is not dark throws
-     * [NoisecalNotDarkException].
+     * CFA position order) or null. Returns what the core made of the frame ([FrameVerdict]):
+     * whether its brightness drifted (flicker) and was normalised, and for a target frame its
+     * motion against its reference burst. During a dark step ([beginDark]) a frame that is not
+     * dark throws [NoisecalNotDarkException]; a target frame that moved too far (over 2 px) throws
+     * [NoisecalMovedException] (the session unchanged).
      */
     fun pushFrame(
         buffer: ByteBuffer,
@@ -59,10 +61,7 @@ class NoisecalSession private constructor(@Volatile private var handle: Long) : 
         iso: Int,
         exposureNs: Long,
         blackLevels: FloatArray?,
-    ): FrameVerdict {
-        val code = nativePushFrame(live(), buffer, width, height, rowStride, pixelStride, iso, exposureNs, blackLevels)
-        return FrameVerdict(driftNormalised = (code and 1) != 0)
-    }
+    ): FrameVerdict = nativePushFrame(live(), buffer, width, height, rowStride, pixelStride, iso, exposureNs, blackLevels)
 
     /** Current progress of the session. */
     fun progress(): Progress = nativeProgress(live())
@@ -107,8 +106,25 @@ class NoisecalSession private constructor(@Volatile private var handle: Long) : 
         return handle
     }
 
-    /** Whether a pushed frame was accepted as is or had its brightness drift normalised. */
-    data class FrameVerdict(val driftNormalised: Boolean)
+    /**
+     * What the core made of an accepted frame: [driftNormalised] its brightness drifted and was
+     * normalised. For a target frame the core registered on its reference burst ([registered]):
+     * [shiftPx] its largest displacement anywhere in the frame (pixels), [samples] the flat samples
+     * it added, [leftOut] the flat samples left out because the motion changed their level (motion
+     * is not noise), and [retake] the core's verdict that the frame moved enough for its burst to
+     * be worth taking again (a sturdier mount, OIS off, a remote trigger).
+     *
+     * Built by the native library through this constructor (rust/jni/src/jni_api.rs binds it),
+     * like [Progress].
+     */
+    data class FrameVerdict(
+        val driftNormalised: Boolean,
+        val registered: Boolean,
+        val shiftPx: Double,
+        val samples: Long,
+        val leftOut: Long,
+        val retake: Boolean,
+    )
 
     /**
      * Per-ISO progress: target frames folded in, samples, bins still under-sampled of all bins.
@@ -173,7 +189,7 @@ class NoisecalSession private constructor(@Volatile private var handle: Long) : 
         @JvmStatic private external fun nativePushFrame(
             handle: Long, buffer: ByteBuffer, width: Int, height: Int, rowStride: Int, pixelStride: Int,
             iso: Int, exposureNs: Long, blackLevels: FloatArray?,
-        ): Int
+        ): FrameVerdict
         @JvmStatic private external fun nativeSetNoiseProfile(handle: Long, iso: Int, profile: DoubleArray)
         @JvmStatic private external fun nativeProgress(handle: Long): Progress
         @JvmStatic private external fun nativeBinWidth(handle: Long): Int
@@ -193,3 +209,10 @@ open class NoisecalException(message: String) : RuntimeException(message)
  * the sensor. The message (the core's) tells the user to cover the lens; the session is unchanged.
  */
 class NoisecalNotDarkException(message: String) : NoisecalException(message)
+
+/**
+ * A target frame moved too far against its reference burst (over 2 px): the core refused it (the
+ * session unchanged). The message (the core's) names the burst, how far it moved and what to do:
+ * a sturdier mount, optical stabilisation off, a remote trigger.
+ */
+class NoisecalMovedException(message: String) : NoisecalException(message)

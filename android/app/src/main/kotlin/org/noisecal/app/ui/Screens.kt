@@ -337,6 +337,7 @@ private fun CapturePanel(vm: CaptureViewModel, state: UiState.Capturing, modifie
         Text("Re-taken: ${s.framesRejected} rejected, ${s.framesLost} lost; ${s.framesDriftNormalised} flicker-corrected", style = MaterialTheme.typography.bodySmall)
         s.lastRejection?.let { Text("Last: $it", style = MaterialTheme.typography.bodySmall) }
         s.message?.let { Text(it, style = MaterialTheme.typography.bodySmall) }
+        for (m in s.retakeBursts) Text(m.verdict, style = MaterialTheme.typography.bodySmall, color = MaterialTheme.colorScheme.error)
         if (s.coverage.isNotEmpty()) {
             Text("Coverage (bins with enough samples)", style = MaterialTheme.typography.titleSmall)
             for (c in s.coverage) {
@@ -393,6 +394,13 @@ private fun DonePanel(vm: CaptureViewModel, state: UiState.Done, modifier: Modif
     Column(modifier, verticalArrangement = Arrangement.spacedBy(8.dp)) {
         Text("Done", style = MaterialTheme.typography.titleLarge)
         Text(state.summary)
+        if (state.motion.isNotEmpty()) {
+            Text("Motion per burst", style = MaterialTheme.typography.titleSmall)
+            for (m in state.motion) {
+                Text(m.verdict, style = MaterialTheme.typography.bodySmall,
+                    color = if (m.retake) MaterialTheme.colorScheme.error else MaterialTheme.colorScheme.onSurface)
+            }
+        }
         Button(onClick = { saveAs.launch(state.exportName) }, modifier = Modifier.fillMaxWidth()) { Text("Save as…") }
         OutlinedButton(onClick = { sharePackIntent(context, File(state.packPath), state.summary)?.let { context.startActivity(it) } },
             modifier = Modifier.fillMaxWidth()) { Text("Share") }

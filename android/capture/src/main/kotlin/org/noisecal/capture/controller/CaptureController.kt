@@ -190,7 +190,7 @@ class CaptureController(
                 val summary = sink().finish(store.packFile.path)
                 store.save(ProgressRecord(fingerprint, completed.toSet(), store.checkpointName(completed.size), finished = true, summary = summary))
                 update { it.copy(phase = CapturePhase.DONE, remainingMs = 0, packPath = store.packFile.path, summary = summary, message = summary) }
-                return CaptureOutcome.Finished(store.packFile.path, summary)
+                return CaptureOutcome.Finished(store.packFile.path, summary, current.burstMotion)
             } catch (e: StopRequested) {
                 update { it.copy(phase = CapturePhase.STOPPED, message = "Stopped after ${completed.size} of ${plan.bursts.size} bursts") }
                 return CaptureOutcome.Stopped(completed.size)
@@ -385,8 +385,13 @@ class CaptureController(
                 update { it.copy(framesRejected = it.framesRejected + 1, lastRejection = reason) }
                 return reason
             }
-            val drift = try {
+            val pushed = try {
                 sink.pushFrame(RawFrame(img.buffer, img.width, img.height, img.rowStride, img.pixelStride, r.iso, r.exposureNs, r.dynamicBlackLevels))
+            } catch (e: FrameMovedException) {
+                val why = "moved: ${e.message}"
+                update { s -> s.copy(framesRejected = s.framesRejected + 1, lastRejection = why,
+                    burstMotion = tallied(s.burstMotion, b) { it.copy(framesRefused = it.framesRefused + 1) }) }
+                return why
             } catch (e: LensNotCoveredException) {
                 val why = "not dark: ${e.message}"
                 update { it.copy(framesRejected = it.framesRejected + 1, lastRejection = why) }
@@ -397,16 +402,27 @@ class CaptureController(
                 update { it.copy(framesRejected = it.framesRejected + 1, lastRejection = why) }
                 return why
             }
+            val motion = pushed.motion
             update { s ->
                 s.copy(burstFramesAccepted = s.burstFramesAccepted + 1, framesDone = s.framesDone + 1,
-                    framesDriftNormalised = s.framesDriftNormalised + if (drift) 1 else 0,
-                    elapsedMs = (clock.nanoTime() - runStartNs) / 1_000_000)
+                    framesDriftNormalised = s.framesDriftNormalised + if (pushed.driftNormalised) 1 else 0,
+                    elapsedMs = (clock.nanoTime() - runStartNs) / 1_000_000,
+                    burstMotion = if (motion == null) s.burstMotion else tallied(s.burstMotion, b) { it.with(motion) })
             }
             if (current.burstFramesAccepted % config.coverageEveryFrames.coerceAtLeast(1) == 0) refreshCoverage(sink)
             return null
         } finally {
             img.close()
         }
+    }
+
+    /**
+     * [list] with [b]'s motion verdict changed by [f]: the last entry when it is [b]'s (its
+     * frames arrive together), else a new one. A burst taken again after a rollback starts anew.
+     */
+    private fun tallied(list: List<BurstMotion>, b: Burst, f: (BurstMotion) -> BurstMotion): List<BurstMotion> {
+        val last = list.lastOrNull()
+        return if (last != null && last.burst.index == b.index) list.dropLast(1) + f(last) else list + f(BurstMotion(b))
     }
 
     /** Why a frame does not match [b], or null when it does. */

@@ -47,13 +47,66 @@ data class CaptureProgress(
     val coverLens: CoverLensRequest? = null,
     /** The dark step was skipped at the prompt; the session finishes without it. */
     val darkSkipped: Boolean = false,
+    /**
+     * The motion verdict of every burst whose frames the core registered or refused for motion,
+     * in capture order (the current burst's updated as its frames arrive): the result check.
+     */
+    val burstMotion: List<BurstMotion> = emptyList(),
 ) {
+    /** The bursts the user should take again (a sturdier mount, OIS off, a remote trigger). */
+    val retakeBursts: List<BurstMotion> get() = burstMotion.filter { it.retake }
+
     val overallFraction: Double get() = if (framesTotal == 0) 0.0 else framesDone.toDouble() / framesTotal
     val burstFraction: Double get() = if (burstFramesWanted == 0) 0.0 else burstFramesAccepted.toDouble() / burstFramesWanted
 
     companion object {
         /** Nothing captured yet of [plan]. */
         fun start(plan: CapturePlan) = CaptureProgress(burstCount = plan.bursts.size, framesTotal = plan.totalFrames)
+    }
+}
+
+/**
+ * One burst's motion verdict, from the core's measurement of each frame against its reference
+ * burst: [framesRegistered] frames measured, [maxShiftPx] the largest displacement found
+ * (pixels), [samples] flat samples kept and [leftOut] left out where the motion changed their
+ * level, [framesRefused] frames refused for moving over 2 px (and taken again), [framesToRetake]
+ * frames the core judged moved enough for the burst to be taken again. [verdict] is the line the
+ * result check shows.
+ */
+data class BurstMotion(
+    val burst: Burst,
+    val framesRegistered: Int = 0,
+    val maxShiftPx: Double = 0.0,
+    val samples: Long = 0,
+    val leftOut: Long = 0,
+    val framesRefused: Int = 0,
+    val framesToRetake: Int = 0,
+) {
+    /** Whether the user should take this burst again. */
+    val retake: Boolean get() = framesToRetake > 0 || framesRefused > 0
+
+    /** Share of the flat samples left out because the frames moved. */
+    val leftOutFraction: Double get() = if (samples + leftOut == 0L) 0.0 else leftOut.toDouble() / (samples + leftOut)
+
+    /** This tally with one more accepted frame. */
+    fun with(m: FrameMotion): BurstMotion = copy(
+        framesRegistered = framesRegistered + 1,
+        maxShiftPx = maxOf(maxShiftPx, m.shiftPx),
+        samples = samples + m.samples,
+        leftOut = leftOut + m.leftOut,
+        framesToRetake = framesToRetake + if (m.retake) 1 else 0,
+    )
+
+    /** One line for the result check. */
+    val verdict: String get() {
+        val shift = "moved up to ${"%.2f".format(maxShiftPx)} px over $framesRegistered frame(s)"
+        val left = "${"%.1f".format(100 * leftOutFraction)} % of flat samples left out"
+        val refused = if (framesRefused > 0) ", $framesRefused frame(s) refused for moving over 2 px" else ""
+        return if (retake) {
+            "$burst: $shift, $left$refused: re-take it with a sturdier mount, optical stabilisation off, a remote trigger"
+        } else {
+            "$burst: steady ($shift, $left)"
+        }
     }
 }
 
@@ -76,7 +129,8 @@ fun interface UiStateListener : ProgressListener {
 
 /** How a run ended. */
 sealed class CaptureOutcome {
-    data class Finished(val packPath: String, val summary: String) : CaptureOutcome()
+    /** The pack is written; [motion] is the per-burst motion verdict ([CaptureProgress.burstMotion]). */
+    data class Finished(val packPath: String, val summary: String, val motion: List<BurstMotion> = emptyList()) : CaptureOutcome()
     /** [CaptureController.requestStop] was called; the session resumes from [completedBursts] bursts. */
     data class Stopped(val completedBursts: Int) : CaptureOutcome()
     /** Something failed; [resumable] says whether a later run continues from the last checkpoint. */

@@ -42,12 +42,13 @@ interface FrameSink : AutoCloseable {
     fun beginDark()
 
     /**
-     * Folds one frame in and returns whether its brightness drifted and was normalised (flicker).
-     * Throws (any RuntimeException) when the frame is refused, leaving the sink unchanged; a frame
-     * of the dark step that shows a scene (the lens is not covered) is refused with
-     * [LensNotCoveredException].
+     * Folds one frame in and returns what the core made of it ([PushedFrame]: whether its
+     * brightness drifted and was normalised, a target frame's motion). Throws (any
+     * RuntimeException) when the frame is refused, leaving the sink unchanged; a frame of the dark
+     * step that shows a scene (the lens is not covered) is refused with [LensNotCoveredException],
+     * a target frame that moved too far (over 2 px) with [FrameMovedException].
      */
-    fun pushFrame(frame: RawFrame): Boolean
+    fun pushFrame(frame: RawFrame): PushedFrame
 
     fun progress(): SinkProgress
 
@@ -70,3 +71,25 @@ interface FrameSinkFactory {
  * and taking the dark step again; [message] is the core's explanation.
  */
 class LensNotCoveredException(message: String, cause: Throwable? = null) : RuntimeException(message, cause)
+
+/**
+ * What the core made of an accepted frame: [driftNormalised] its brightness drifted (flicker) and
+ * was normalised; [motion] a target frame's motion against its reference burst, when the core
+ * registered it (null for reference and dark frames, and where the chart has no edges).
+ */
+data class PushedFrame(val driftNormalised: Boolean, val motion: FrameMotion? = null)
+
+/**
+ * A target frame's motion as the core measured it: [shiftPx] its largest displacement anywhere
+ * in the frame (pixels); [samples] the flat samples it added and [leftOut] those left out because
+ * the motion changed their level (motion is not noise); [retake] the core's verdict that it moved
+ * enough for its burst to be worth taking again.
+ */
+data class FrameMotion(val shiftPx: Double, val samples: Long, val leftOut: Long, val retake: Boolean)
+
+/**
+ * A target frame was refused because it moved too far against its reference burst (over 2 px).
+ * The controller takes another frame, counts it against the burst's motion verdict
+ * ([BurstMotion.framesRefused]); [message] is the core's (which burst, how far, what to do).
+ */
+class FrameMovedException(message: String, cause: Throwable? = null) : RuntimeException(message, cause)

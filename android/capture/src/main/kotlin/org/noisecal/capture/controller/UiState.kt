@@ -79,13 +79,21 @@ sealed interface UiState {
         override val banner: Banner? = null,
     ) : AtCamera
 
-    /** The pack at [packPath] is written; [summary] is the core's one-line verdict. */
+    /**
+     * The pack at [packPath] is written; [summary] is the core's one-line verdict; [motion] the
+     * per-burst motion verdicts of the run ([BurstMotion.verdict]), with [retakeBursts] the bursts
+     * to take again.
+     */
     data class Done(
         override val setup: Setup,
         val packPath: String,
         val summary: String,
         override val banner: Banner? = null,
+        val motion: List<BurstMotion> = emptyList(),
     ) : AtCamera {
+        /** The bursts that moved enough to be worth taking again. */
+        val retakeBursts: List<BurstMotion> get() = motion.filter { it.retake }
+
         /** The file name offered when the pack is saved elsewhere. */
         val exportName: String get() = packExportName(setup.camera.capabilities)
     }

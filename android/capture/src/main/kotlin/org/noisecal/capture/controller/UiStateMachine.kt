@@ -146,7 +146,9 @@ object UiStateMachine {
     }
 
     private fun captureEnded(setup: Setup, plan: CapturePlan, e: UiEvent.CaptureEnded): UiState = when (val o = e.outcome) {
-        is CaptureOutcome.Finished -> UiState.Done(setup, o.packPath, o.summary)
+        is CaptureOutcome.Finished -> UiState.Done(setup, o.packPath, o.summary, motion = o.motion,
+            banner = o.motion.filter { it.retake }.takeIf { it.isNotEmpty() }
+                ?.let { Banner.Error("${it.size} burst(s) moved: ${it.first().verdict}") })
         is CaptureOutcome.Stopped -> UiState.Planned(setup, PlanResult.Ok(plan), e.resume,
             Banner.Info("Stopped after ${o.completedBursts} of ${plan.bursts.size} bursts; resume whenever you are ready"))
         is CaptureOutcome.Failed -> UiState.Planned(setup, PlanResult.Ok(plan), if (o.resumable) e.resume else null, Banner.Error(o.reason))

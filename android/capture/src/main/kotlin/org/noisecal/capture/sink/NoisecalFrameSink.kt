@@ -1,12 +1,16 @@
 package org.noisecal.capture.sink
 
+import org.noisecal.capture.controller.FrameMotion
+import org.noisecal.capture.controller.FrameMovedException
 import org.noisecal.capture.controller.FrameSink
 import org.noisecal.capture.controller.FrameSinkFactory
 import org.noisecal.capture.controller.IsoCoverage
 import org.noisecal.capture.controller.LensNotCoveredException
+import org.noisecal.capture.controller.PushedFrame
 import org.noisecal.capture.controller.RawFrame
 import org.noisecal.capture.controller.SinkProgress
 import org.noisecal.capture.plan.SensorSpec
+import org.noisecal.jni.NoisecalMovedException
 import org.noisecal.jni.NoisecalNotDarkException
 import org.noisecal.jni.NoisecalSession
 
@@ -22,11 +26,13 @@ class NoisecalFrameSink(val session: NoisecalSession) : FrameSink {
 
     override fun beginDark() = session.beginDark()
 
-    override fun pushFrame(frame: RawFrame): Boolean = try {
-        session.pushFrame(frame.buffer, frame.width, frame.height, frame.rowStride, frame.pixelStride,
-            frame.iso, frame.exposureNs, frame.blackLevels).driftNormalised
+    override fun pushFrame(frame: RawFrame): PushedFrame = try {
+        pushed(session.pushFrame(frame.buffer, frame.width, frame.height, frame.rowStride, frame.pixelStride,
+            frame.iso, frame.exposureNs, frame.blackLevels))
     } catch (e: NoisecalNotDarkException) {
         throw LensNotCoveredException(e.message ?: "the dark frame is not dark: cover the lens", e)
+    } catch (e: NoisecalMovedException) {
+        throw FrameMovedException(e.message ?: "the frame moved too far: use a sturdier mount", e)
     }
 
     override fun progress(): SinkProgress {
@@ -69,3 +75,9 @@ class NoisecalSinkFactory(
 
     override fun restore(checkpointPath: String): FrameSink = NoisecalFrameSink(NoisecalSession.restore(checkpointPath))
 }
+
+/** The controller's view of the core's verdict on a frame. */
+internal fun pushed(v: NoisecalSession.FrameVerdict): PushedFrame = PushedFrame(
+    driftNormalised = v.driftNormalised,
+    motion = if (v.registered) FrameMotion(v.shiftPx, v.samples, v.leftOut, v.retake) else null,
+)
