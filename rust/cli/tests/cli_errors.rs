@@ -123,7 +123,7 @@ fn synth_is_reproducible_and_reads_back() {
     let c = run("c.dng", "8", "2");
     assert_eq!(a, b, "same seed, different thread count, different bytes");
     assert_ne!(a, c);
-    let img = noisecal_cli::dng::read_dng(&dir.path().join("a.dng")).unwrap();
+    let img = noisecal_input::dng::read_dng(&dir.path().join("a.dng")).unwrap();
     assert_eq!(img.meta.iso, 800);
     // ISO 400 is between the calibrated 200 and 800: interpolated, and said so (not under -q).
     let out = dir.path().join("i.dng");
@@ -151,17 +151,17 @@ fn synth_takes_levels_above_black() {
     let dngs = dir.path().join("dngs");
     let pack = dir.path().join("p.pack");
     assert!(noisecal(&["calibrate", dngs.to_str().unwrap(), "-o", pack.to_str().unwrap(), "--min-samples", "50"]).0);
-    let template = noisecal_cli::dng::read_dng(&dngs.join("f00000.dng")).unwrap();
+    let template = noisecal_input::dng::read_dng(&dngs.join("f00000.dng")).unwrap();
     // The same scene written with the pack's black level (64) and with black 60.
     let scene =
         ndarray::Array2::from_shape_fn(template.pixels.dim(), |(y, x)| (150 + 3 * ((x / 8 + y / 8) % 20)) as u16);
     let mut layout = template.layout.clone();
     let meta = noisecal_core::FrameMeta { black: None, ..template.meta };
     let a = dir.path().join("a.dng");
-    noisecal_cli::dng::write_dng_from_layout(&a, &layout, &meta, "m", "p", &scene).unwrap();
+    noisecal_input::dng::write_dng_from_layout(&a, &layout, &meta, "m", "p", &scene).unwrap();
     layout.black = [60.0; 4];
     let b = dir.path().join("b.dng");
-    noisecal_cli::dng::write_dng_from_layout(&b, &layout, &meta, "m", "p", &scene.mapv(|v| v - 4)).unwrap();
+    noisecal_input::dng::write_dng_from_layout(&b, &layout, &meta, "m", "p", &scene.mapv(|v| v - 4)).unwrap();
     for (input, out) in [(&a, "na.dng"), (&b, "nb.dng")] {
         let (ok, err) = noisecal(&[
             "synth",
@@ -177,8 +177,8 @@ fn synth_takes_levels_above_black() {
         ]);
         assert!(ok, "{err}");
     }
-    let na = noisecal_cli::dng::read_dng(&dir.path().join("na.dng")).unwrap().pixels;
-    let nb = noisecal_cli::dng::read_dng(&dir.path().join("nb.dng")).unwrap().pixels;
+    let na = noisecal_input::dng::read_dng(&dir.path().join("na.dng")).unwrap().pixels;
+    let nb = noisecal_input::dng::read_dng(&dir.path().join("nb.dng")).unwrap().pixels;
     assert_ne!(na, scene, "noise was added");
     assert_eq!(nb, na.mapv(|v| v.saturating_sub(4)), "the same noise, 4 DN lower");
 }
@@ -232,15 +232,15 @@ fn renoise_takes_levels_above_black() {
     ]);
     assert!(ok, "{err}");
     // One capture written with the pack's black level (64) and again 4 DN lower, black 60.
-    let capture = noisecal_cli::dng::read_dng(&dngs.join("f00003.dng")).expect("read");
+    let capture = noisecal_input::dng::read_dng(&dngs.join("f00003.dng")).expect("read");
     let mut layout = capture.layout.clone();
     let meta = noisecal_core::FrameMeta { black: None, ..capture.meta };
     let a = dir.path().join("a.dng");
-    noisecal_cli::dng::write_dng_from_layout(&a, &layout, &meta, "m", "p", &capture.pixels).expect("write");
+    noisecal_input::dng::write_dng_from_layout(&a, &layout, &meta, "m", "p", &capture.pixels).expect("write");
     layout.black = [60.0; 4];
     let b = dir.path().join("b.dng");
     let lowered = capture.pixels.mapv(|v| v.saturating_sub(4));
-    noisecal_cli::dng::write_dng_from_layout(&b, &layout, &meta, "m", "p", &lowered).expect("write");
+    noisecal_input::dng::write_dng_from_layout(&b, &layout, &meta, "m", "p", &lowered).expect("write");
     for (input, out) in [(&a, "ra.dng"), (&b, "rb.dng")] {
         let (ok, err) = noisecal(&[
             "renoise",
@@ -258,8 +258,8 @@ fn renoise_takes_levels_above_black() {
         ]);
         assert!(ok, "{err}");
     }
-    let ra = noisecal_cli::dng::read_dng(&dir.path().join("ra.dng")).expect("read").pixels;
-    let rb = noisecal_cli::dng::read_dng(&dir.path().join("rb.dng")).expect("read").pixels;
+    let ra = noisecal_input::dng::read_dng(&dir.path().join("ra.dng")).expect("read").pixels;
+    let rb = noisecal_input::dng::read_dng(&dir.path().join("rb.dng")).expect("read").pixels;
     assert_ne!(ra, capture.pixels, "noise was added");
     assert_eq!(rb, ra.mapv(|v| v.saturating_sub(4)), "the same noise on noise, 4 DN lower");
 }
@@ -300,11 +300,11 @@ fn degenerate_sessions_are_refused_by_name() {
         let d = dir.path().join(name);
         std::fs::create_dir(&d).unwrap();
         for (i, f) in files.iter().enumerate() {
-            let img = noisecal_cli::dng::read_dng(f).unwrap();
+            let img = noisecal_input::dng::read_dng(f).unwrap();
             let meta = noisecal_core::FrameMeta { black: None, ..img.meta };
             let px = ndarray::Array2::from_shape_fn(img.pixels.dim(), |(y, x)| pixel(y, x, i));
             let out = d.join(f.file_name().unwrap());
-            noisecal_cli::dng::write_dng_from_layout(&out, &img.layout, &meta, &img.make, &img.model, &px).unwrap();
+            noisecal_input::dng::write_dng_from_layout(&out, &img.layout, &meta, &img.make, &img.model, &px).unwrap();
         }
         let (ok, err) = noisecal(&["calibrate", d.to_str().unwrap(), "-o", pack.to_str().unwrap()]);
         assert!(!ok, "{name}: a degenerate session calibrated");
@@ -335,7 +335,7 @@ fn flags_folders_and_quiet_do_what_they_say() {
         assert!(!ok && err.contains("--extrapolate"), "{model}: {err}");
         let (ok, err) = noisecal(&[&args[..], &["--extrapolate"]].concat());
         assert!(ok, "{model} --extrapolate: {err}");
-        assert_eq!(noisecal_cli::dng::read_dng(&out).unwrap().meta.iso, 3200);
+        assert_eq!(noisecal_input::dng::read_dng(&out).unwrap().meta.iso, 3200);
     }
 
     let deep = dir.path().join("new/deeper/n.dng");

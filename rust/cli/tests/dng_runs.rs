@@ -4,8 +4,8 @@
 use std::path::Path;
 use std::process::Command;
 
-use noisecal_cli::dng::tiff::{Ifd, ImageData, TagValue, TiffBuilder, tag};
-use noisecal_cli::dng::{DngError, read_dng};
+use noisecal_input::dng::tiff::{Ifd, ImageData, TagValue, TiffBuilder, tag};
+use noisecal_input::dng::{DngError, read_dng};
 
 mod support;
 

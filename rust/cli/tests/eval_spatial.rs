@@ -16,12 +16,12 @@
 use std::path::PathBuf;
 use std::sync::OnceLock;
 
-use noisecal_cli::calibrate::{CalibrateOptions, calibrate_path};
 use noisecal_cli::eval::{EvalOptions, EvalReport, IsoEval, SpatialEval, SpatialModelScore, evaluate, render_text};
 use noisecal_cli::simulate::SimSession;
 use noisecal_core::metrics::spatial::{
     FlatLayout, SpatialFloor, SpatialSamples, compare_spatial, row_offset_bin_width,
 };
+use noisecal_input::calibrate::{CalibrateOptions, calibrate_path};
 use noisecal_sim::{Chart, SensorModel, Simulator};
 
 /// 384×288: the chart's patches hold 16×16 same-colour crops for the NPS.
@@ -44,7 +44,7 @@ fn calibrate_and_eval(model: SensorModel, isos: &[u32], cal_frames: u32, held_fr
     let mut h = SimSession::new(model, "sim", W, H, 31, isos.to_vec(), held_frames, evs).expect("held-out session");
     h.index_offset = 1_000_000;
     h.write(Some(&held), None, 0, || {}).expect("write held-out");
-    let (pack, _) = calibrate_path(&cal, &CalibrateOptions::default(), true).expect("calibrate");
+    let (pack, _) = calibrate_path(&cal, &CalibrateOptions::default(), &mut |_, _| {}).expect("calibrate");
     let pack_path: PathBuf = dir.path().join("p.pack");
     std::fs::write(&pack_path, pack.to_bytes().expect("pack bytes")).expect("write pack");
     let opts = EvalOptions { seeds: 1, ..Default::default() };

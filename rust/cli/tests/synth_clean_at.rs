@@ -8,8 +8,8 @@ use std::path::Path;
 use std::process::Command;
 
 use ndarray::Array2;
-use noisecal_cli::dng;
 use noisecal_core::{CalibrationSession, SessionConfig};
+use noisecal_input::dng;
 use noisecal_sim::{Chart, SensorModel, SessionPlan, Simulator};
 
 fn noisecal(args: &[&str]) -> (bool, String) {

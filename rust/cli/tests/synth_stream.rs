@@ -8,11 +8,11 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use ndarray::Array2;
-use noisecal_cli::dng::tiff::{Ifd, ImageData, TagValue, TiffBuilder, pack_msb, tag, u16_bytes};
-use noisecal_cli::dng::{Tag, derived_bytes, fitted_noise_profile, read_dng_file};
-use noisecal_cli::models::{ModelKind, resolve_model};
+use noisecal_core::resolve::{ModelKind, resolve_model};
 use noisecal_core::synth::sampler::IsoSampler;
 use noisecal_core::synth::synthesize;
+use noisecal_input::dng::tiff::{Ifd, ImageData, TagValue, TiffBuilder, pack_msb, tag, u16_bytes};
+use noisecal_input::dng::{Tag, derived_bytes, fitted_noise_profile, read_dng_file};
 
 fn noisecal(args: &[&str]) -> (bool, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(args).output().expect("noisecal runs");
@@ -143,8 +143,8 @@ fn dng(big: bool, sub_ifd: bool, (w, h): (usize, usize), active: [usize; 4], sto
 
 /// What the in-memory path writes for `input` (seed 7, ISO 800, every component).
 fn in_memory(pack: &Path, input: &Path, output: &Path) -> Vec<u8> {
-    let pack = noisecal_cli::support::load_pack(pack).expect("pack");
-    let (model, _) = resolve_model(&pack, 800, ModelKind::Noisecal, false).expect("model");
+    let pack = noisecal_input::files::load_pack(pack).expect("pack");
+    let model = resolve_model(&pack, 800, ModelKind::Noisecal, false).expect("model").model;
     let sampler = IsoSampler::new(&pack, &model);
     let file = read_dng_file(input).expect("read");
     let noisy = synthesize(&sampler, file.image.pixels.view(), 7);

@@ -101,6 +101,7 @@ class Pack:
         seed: int = 0,
         *,
         method: Method = "bridge",
+        black_level: float | Sequence[float] | None = None,
         extrapolate: bool = False,
         out_of_range: OutOfRange = "raise",
     ) -> npt.NDArray[np.uint16]: ...

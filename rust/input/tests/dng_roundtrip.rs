@@ -1,10 +1,10 @@
-//! write → read round trips of `noisecal_cli::dng`, the writer's guarantees, and `scan_folder`.
+//! write → read round trips of `noisecal_input::dng`, the writer's guarantees, and `scan_folder`.
 
 use std::path::Path;
 
 use ndarray::Array2;
-use noisecal_cli::dng::{DngError, read_dng, scan_folder, write_dng, write_dng_from_layout};
 use noisecal_core::{CfaPattern, FrameMeta, SensorLayout};
+use noisecal_input::dng::{DngError, read_dng, scan_folder, write_dng, write_dng_from_layout};
 
 /// Deterministic xorshift64* noise, so the tests need no RNG crate.
 struct Rng(u64);
