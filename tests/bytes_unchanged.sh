@@ -13,9 +13,10 @@ after=${2:?usage: bytes_unchanged.sh BEFORE_BINARY AFTER_BINARY}
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
 
+# Each run writes into the same folder under relative paths (reports and eval text name their
+# inputs), which is then moved aside.
 run_all() {
-  local bin=$1 out=$2
-  mkdir -p "$out"
+  local bin=$1 out=.
   local q=--quiet
   "$bin" $q simulate --width 96 --height 64 --frames 6 --isos 100,400,1600 --structured --dark 3 \
     --seed 11 --dngs "$out/caps" --rec "$out/session.rec"
@@ -24,8 +25,8 @@ run_all() {
   "$bin" $q calibrate "$out/caps" -o "$out/dng.pack"
   "$bin" $q calibrate "$out/session.rec" -o "$out/rec.pack"
   "$bin" $q calibrate "$out/caps" --bin-width 8 --plain -o "$out/plain.pack"
-  local clean
-  clean=$(ls "$out/held"/*.dng | head -n 1)
+  local held=(held/*.dng)
+  local clean=${held[0]}
   "$bin" $q synth --pack "$out/dng.pack" --iso 400 --seed 5 "$clean" -o "$out/synth400.dng"
   "$bin" $q synth --pack "$out/dng.pack" --iso 800 --seed 5 --clean-at target "$clean" -o "$out/synth800.dng"
   "$bin" $q synth --pack "$out/dng.pack" --iso 400 --model hg "$clean" -o "$out/synth_hg.dng"
@@ -35,15 +36,20 @@ run_all() {
     -o "$out/renoise.dng"
   "$bin" $q renoise --pack "$out/dng.pack" --to-iso 1600 --from-iso 400 --method quantile \
     "$out/synth400.dng" -o "$out/renoise_q.dng"
-  "$bin" $q interp --pack "$out/dng.pack" --isos 200,800 -o "$out/interp.pack"
+  "$bin" $q interp --pack "$out/dng.pack" --iso 200 --iso 800 -o "$out/interp.pack"
   "$bin" $q eval --pack "$out/dng.pack" "$out/held" --seeds 2 --json "$out/eval.json" >"$out/eval.txt"
   "$bin" $q report --pack "$out/dng.pack" --eval "$out/eval.json" -o "$out/report.html"
   "$bin" $q inspect "$out/interp.pack" >"$out/inspect.txt"
   "$bin" $q demo --out "$out/demo" --width 96 --height 64 --frames 4 >"$out/demo.txt"
 }
 
-run_all "$before" "$work/before" >/dev/null
-run_all "$after" "$work/after" >/dev/null
+before=$(realpath "$before")
+after=$(realpath "$after")
+for side in before after; do
+  mkdir "$work/run"
+  (cd "$work/run" && run_all "${!side}" >/dev/null)
+  mv "$work/run" "$work/$side"
+done
 
 status=0
 count=0

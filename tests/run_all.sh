@@ -7,7 +7,7 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
-# One build serves every stage (issue 22): `cargo test --workspace` builds the workspace once, in the
+# One build serves every stage: `cargo test --workspace` builds the workspace once, in the
 # `test` profile (optimised, see Cargo.toml), with the library, noisecal-jni-tool, the CLI and the
 # fuzzer in target/debug; the JVM harnesses and the fuzzer below run those (their
 # `cargo test --workspace --no-run` finds nothing to do), no release build of their own.
@@ -39,7 +39,7 @@ fi
 "$venv/bin/pip" install -q ./rust/python >&2
 (cd rust/python && NOISECAL_BIN="$PWD/../../target/debug/noisecal" "../../$venv/bin/python" -m pytest -q -p no:cacheprovider tests)
 
-# Fuzzing (issue 13): each decoder target — DNG reader, recording reader, pack decoder, JNI
+# Fuzzing: each decoder target — DNG reader, recording reader, pack decoder, JNI
 # frame-view entry — mutated from tests/fuzz-corpus/ for NOISECAL_FUZZ_SECONDS (default 45). The
 # binary is the one `cargo test --workspace` above built for rust/fuzz/tests (the `test` profile:
 # optimised, with overflow checks), so this costs no build (a `cargo build -p noisecal-fuzz` would:

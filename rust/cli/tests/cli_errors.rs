@@ -22,8 +22,13 @@ fn simulate(dir: &Path) {
 
 /// The same session written by `simulate` to `out` as `kind` (`--dngs` or `--rec`).
 fn simulate_as(out: &Path, kind: &str) {
-    let (ok, err) =
-        noisecal(&support::simulate(("64", "48"), "3", "200,800", "--ev=-1,1", &[kind, out.to_str().unwrap()]));
+    let (ok, err) = noisecal(&support::simulate(
+        ("64", "48"),
+        "3",
+        "200,800",
+        "--ev=-1,1",
+        &[kind, out.to_str().expect("a UTF-8 path")],
+    ));
     assert!(ok, "{err}");
 }
 
@@ -264,7 +269,7 @@ fn renoise_takes_levels_above_black() {
     assert_eq!(rb, ra.mapv(|v| v.saturating_sub(4)), "the same noise on noise, 4 DN lower");
 }
 
-/// Issue 13 "degenerate sessions": a capture folder whose frames are all saturated, all one
+/// Degenerate sessions: a capture folder whose frames are all saturated, all one
 /// noiseless level, all at black, or all masked (a texture with no flat pixel anywhere) is
 /// refused, naming what is wrong; the existing pack is kept.
 #[test]
@@ -313,7 +318,7 @@ fn degenerate_sessions_are_refused_by_name() {
     }
 }
 
-/// Issue 13 item 14: `synth --model hg|pg --extrapolate` extrapolates instead of asking
+/// Flags are honoured: `synth --model hg|pg --extrapolate` extrapolates instead of asking
 /// for the flag it was given; `synth` and `renoise` create a missing output folder as the other
 /// commands do; `eval` does not suggest `--extrapolate`, which it lacks; `-q` silences
 /// `calibrate`'s and `renoise`'s warnings.

@@ -1,4 +1,4 @@
-//! Dark frames through the binary (issue 11): `simulate --dark` writes a lens-covered step after
+//! Dark frames through the binary: `simulate --dark` writes a lens-covered step after
 //! the lit sweep; `calibrate` finds the dark frames of a DNG folder by their content (they match
 //! the darkest EV step's ISO × exposure, so metadata alone would take them for targets) and a
 //! recording's by its BeginDark record; both give every ISO the same fixed pattern, and no lit

@@ -1,4 +1,4 @@
-//! The spatial measures of `noisecal eval` (issue 11, "Evaluation") on simulated sensors whose
+//! The spatial measures of `noisecal eval` (method.md, "Evaluation") on simulated sensors whose
 //! structured noise is known:
 //!
 //! - real against real (two disjoint halves of the held-out frames, and two independent
@@ -11,7 +11,7 @@
 //! - on a sensor without them, nothing of the sort: ratios ≈ 1, distances at their floors.
 //!
 //! `cargo test -p noisecal-cli --test eval_spatial -- --nocapture` prints the "before" table of
-//! issue 11 (pixel-only packs on a sensor with row noise, frame offsets and DSNU).
+//! the structured components were added for (pixel-only packs on a sensor with row noise, frame offsets and DSNU).
 
 use std::path::PathBuf;
 use std::sync::OnceLock;
@@ -86,7 +86,7 @@ fn pixel_only(sp: &SpatialEval) -> &SpatialModelScore {
     sp.model("noisecal-pixel").or_else(|| sp.model("noisecal")).expect("noisecal scored")
 }
 
-/// Issue 11's "before" table (pixel-only noisecal against the real held-out frames), and the
+/// The "before" table (pixel-only noisecal against the real held-out frames), and the
 /// pack's full model next to it where it has structured components.
 fn before_table(r: &EvalReport) {
     let f = |v: Option<f64>| v.map_or("—".to_string(), |x| format!("{x:.3}"));

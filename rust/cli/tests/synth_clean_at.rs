@@ -72,7 +72,7 @@ fn clean_at_target_adds_noise_without_mean_shift() {
     // `--components pixel`), and the gain shift.
     const BANDS: usize = 4;
     let stats = |noisy: &Array2<u16>| -> Vec<(f64, f64, f64, f64)> {
-        let mut acc = vec![(0.0f64, 0.0f64, 0usize, 0.0f64); BANDS];
+        let mut acc = [(0.0f64, 0.0f64, 0usize, 0.0f64); BANDS];
         for ((y, x), &c) in clean.indexed_iter() {
             let l = c as f64 - black;
             let b = ((l / top * BANDS as f64) as usize).min(BANDS - 1);

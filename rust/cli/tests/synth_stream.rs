@@ -158,7 +158,9 @@ fn streamed_output_equals_the_in_memory_path() {
     let d = dir.path();
     let pack = pack(d);
     // The simulated phone's sensor is 64×48: the active areas are that size.
-    let cases: Vec<(&str, bool, bool, (usize, usize), [usize; 4], Storage)> = vec![
+    // (name, big-endian, raw image in a sub-IFD, full size, active area, storage): [`dng`]'s inputs.
+    type Case = (&'static str, bool, bool, (usize, usize), [usize; 4], Storage);
+    let cases: Vec<Case> = vec![
         ("le_full_strips", false, false, (64, 48), [0, 0, 48, 64], Storage::Strips16 { rows: 5 }),
         ("le_full_one_strip", false, false, (64, 48), [0, 0, 48, 64], Storage::Strips16 { rows: 48 }),
         ("le_masked_subifd", false, true, (72, 52), [2, 4, 50, 68], Storage::Strips16 { rows: 16 }),

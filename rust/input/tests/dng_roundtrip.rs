@@ -141,7 +141,7 @@ fn bad_write_input_is_refused_and_leaves_existing_file_intact() {
     let names: Vec<_> = std::fs::read_dir(dir.path()).expect("ls").map(|e| e.expect("entry").file_name()).collect();
     assert_eq!(names.len(), 1, "{names:?}");
 
-    // A missing folder is created, as for every output of the CLI (issue 13 item 14); a folder
+    // A missing folder is created, as for every output of the CLI (a path that names a new folder is not an error); a folder
     // that cannot be made (a file stands in its way) is an I/O error naming the file.
     let missing = dir.path().join("no/such/dir/x.dng");
     write_dng_from_layout(&missing, &lay, &meta, "M", "N", &pixels).expect("into a missing folder");

@@ -14,6 +14,9 @@
 //! Arrays are read without copying, the GIL is released while the core works (`Python::detach`),
 //! and the core runs on a pool of all cores; outputs depend only on inputs and seeds.
 
+// The module map above links the crate's private modules (the extension's API is Python's).
+#![allow(rustdoc::private_intra_doc_links)]
+
 mod checks;
 mod errors;
 mod io;

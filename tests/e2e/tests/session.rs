@@ -248,7 +248,7 @@ fn byte_identical_frames_are_refused_not_calibrated() {
     assert_eq!(pack.iso_list(), vec![400]);
 }
 
-/// Issue 13 item 1: an absurd camera NoiseProfile (S = 1e-3, O = 1e10, from a damaged tag or
+/// An absurd camera NoiseProfile (S = 1e-3, O = 1e10, from a damaged tag or
 /// record) does not go into the pack, where `synth --model noiseprofile`, `eval` and `report`
 /// would size their work by it; the pack says why.
 #[test]
