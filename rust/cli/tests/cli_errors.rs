@@ -2,16 +2,12 @@
 //! and nothing already written is lost.
 
 use std::path::Path;
-use std::process::Command;
 
 mod support;
 
 fn noisecal(args: &[&str]) -> (bool, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(args).arg("-q").output().expect("run noisecal");
-    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert!(!stderr.contains("panicked"), "a panic crossed the CLI: {stderr}");
-    assert_ne!(out.status.code(), Some(3), "internal error: {stderr}");
-    (out.status.success(), stderr)
+    let out = support::run_quiet(args);
+    (out.ok, out.stderr)
 }
 
 /// The 64×48 test session (ISOs 200 and 800, EV −1 and +1, 3 frames a burst) as DNGs in
@@ -142,7 +138,7 @@ fn synth_is_reproducible_and_reads_back() {
         "-o",
         out.to_str().unwrap(),
     ];
-    let loud = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(args).output().expect("run noisecal");
+    let loud = support::command().args(args).output().expect("run noisecal");
     let err = String::from_utf8_lossy(&loud.stderr);
     assert!(loud.status.success() && err.contains("interpolated"), "{err}");
     let (ok, err) = noisecal(&args);
@@ -207,7 +203,7 @@ fn a_closed_stdout_ends_quietly() {
         // The reader is gone before the command writes a byte: every write fails with EPIPE.
         let (reader, writer) = std::io::pipe().expect("pipe");
         drop(reader);
-        let child = Command::new(env!("CARGO_BIN_EXE_noisecal"))
+        let child = support::command()
             .args(args)
             .arg("-q")
             .stdout(writer)
@@ -352,7 +348,7 @@ fn flags_folders_and_quiet_do_what_they_say() {
     assert!(ok && deep.is_file(), "renoise into a missing folder: {err}");
     // -q (which `noisecal` adds) leaves stderr empty; without it the warnings are said.
     assert!(err.is_empty(), "renoise -q printed: {err}");
-    let loud = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(renoise).output().unwrap();
+    let loud = support::command().args(renoise).output().unwrap();
     assert!(loud.status.success() && String::from_utf8_lossy(&loud.stderr).contains("warning"));
 
     // A recording cut short calibrates with a warning, which -q keeps off stderr.
@@ -362,7 +358,7 @@ fn flags_folders_and_quiet_do_what_they_say() {
     let cut = dir.path().join("cut.rec");
     std::fs::write(&cut, &bytes[..bytes.len() - 2000]).unwrap();
     let args = ["calibrate", &s(&cut), "-o", &s(&dir.path().join("cut.pack"))];
-    let loud = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(args).output().unwrap();
+    let loud = support::command().args(args).output().unwrap();
     let loud_err = String::from_utf8_lossy(&loud.stderr);
     assert!(loud.status.success() && loud_err.contains("interrupted capture"), "{loud_err}");
     let (ok, err) = noisecal(&args);
@@ -393,8 +389,7 @@ fn a_sparse_session_is_warned_about_by_name() {
     simulate(dir.path());
     let dngs = dir.path().join("dngs");
     let inspect = |pack: &Path| -> String {
-        let out =
-            Command::new(env!("CARGO_BIN_EXE_noisecal")).args(["inspect", pack.to_str().unwrap()]).output().unwrap();
+        let out = support::command().args(["inspect", pack.to_str().unwrap()]).output().unwrap();
         assert!(out.status.success());
         String::from_utf8_lossy(&out.stdout).into_owned()
     };

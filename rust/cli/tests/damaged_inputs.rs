@@ -3,7 +3,7 @@
 //! files of killed runs are swept, and messages say what is wrong.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::{Duration, Instant, SystemTime};
 
 use noisecal_core::format::recording::{Record, RecordingReader, RecordingWriter};
@@ -11,11 +11,8 @@ use noisecal_core::format::recording::{Record, RecordingReader, RecordingWriter}
 mod support;
 
 fn run(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(args).output().expect("run noisecal");
-    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert!(!stderr.contains("panicked"), "a panic crossed the CLI: {stderr}");
-    assert_ne!(out.status.code(), Some(3), "internal error: {stderr}");
-    (out.status.success(), String::from_utf8_lossy(&out.stdout).into_owned(), stderr)
+    let out = support::run(args);
+    (out.ok, out.stdout, out.stderr)
 }
 
 fn s(p: &Path) -> &str {
@@ -125,7 +122,7 @@ fn killed_writes_leave_nothing_that_lasts() {
     let out = dir.path().join("out");
     std::fs::create_dir(&out).expect("mkdir");
     let rec = out.join("big.rec");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_noisecal"))
+    let mut child = support::command()
         .args(["simulate", "-q", "--width", "1024", "--height", "768", "--frames", "16", "--rec", s(&rec)])
         .stderr(Stdio::null())
         .spawn()

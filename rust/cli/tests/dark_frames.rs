@@ -5,13 +5,14 @@
 //! frame is taken for a dark one.
 
 use std::path::Path;
-use std::process::Command;
 
 use serde_json::Value;
 
+mod support;
+
 fn noisecal(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(args).output().expect("run noisecal");
-    (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
+    let out = support::run(args);
+    (out.ok, out.stdout, out.stderr)
 }
 
 fn ok(args: &[&str]) -> (String, String) {

@@ -15,9 +15,11 @@ use noisecal_core::synth::synthesize;
 use noisecal_input::dng::tiff::{Ifd, ImageData, TagValue, TiffBuilder, pack_msb, tag, u16_bytes};
 use noisecal_input::dng::{Tag, fitted_noise_profile, read_dng};
 
+mod support;
+
 fn noisecal(args: &[&str]) -> (bool, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(args).output().expect("noisecal runs");
-    (out.status.success(), String::from_utf8_lossy(&out.stderr).into_owned())
+    let out = support::run(args);
+    (out.ok, out.stderr)
 }
 
 fn s(p: &Path) -> &str {

@@ -9,21 +9,21 @@
 //!   is marked added; a pack without components at all says none were calibrated.
 
 use std::path::Path;
-use std::process::Command;
 
 use noisecal_cli::simulate::SimSession;
 use noisecal_core::ModelPack;
 use noisecal_sim::SensorModel;
 use serde_json::Value;
 
+mod support;
+
 const ISOS: [u32; 3] = [100, 400, 1600];
 
 /// Runs the binary; panics with its stderr when it fails. Returns stdout.
 fn noisecal(args: &[&str]) -> String {
-    let out = Command::new(env!("CARGO_BIN_EXE_noisecal")).arg("-q").args(args).output().expect("run noisecal");
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "noisecal {args:?} failed: {stderr}");
-    String::from_utf8(out.stdout).expect("UTF-8 output")
+    let out = support::run(std::iter::once("-q").chain(args.iter().copied()));
+    assert!(out.ok, "noisecal {args:?} failed: {}", out.stderr);
+    out.stdout
 }
 
 fn s(p: &Path) -> &str {

@@ -5,18 +5,17 @@
 //! which `--clean-at reference` spells out (same bytes). A bad value names the option.
 
 use std::path::Path;
-use std::process::Command;
 
 use ndarray::Array2;
 use noisecal_core::{CalibrationSession, SessionConfig};
 use noisecal_input::dng;
 use noisecal_sim::{Chart, SensorModel, SessionPlan, Simulator};
 
+mod support;
+
 fn noisecal(args: &[&str]) -> (bool, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(args).arg("-q").output().expect("run noisecal");
-    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert!(!stderr.contains("panicked"), "a panic crossed the CLI: {stderr}");
-    (out.status.success(), stderr)
+    let out = support::run_quiet(args);
+    (out.ok, out.stderr)
 }
 
 fn s(p: &Path) -> String {

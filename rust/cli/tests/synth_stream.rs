@@ -5,7 +5,6 @@
 //! otherwise (tiles, packed rows) keep the in-memory path and give the same bytes too.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use ndarray::Array2;
 use noisecal_core::resolve::{ModelKind, resolve_model};
@@ -14,9 +13,11 @@ use noisecal_core::synth::synthesize;
 use noisecal_input::dng::tiff::{Ifd, ImageData, TagValue, TiffBuilder, pack_msb, tag, u16_bytes};
 use noisecal_input::dng::{Tag, derived_bytes, fitted_noise_profile, read_dng_file};
 
+mod support;
+
 fn noisecal(args: &[&str]) -> (bool, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(args).output().expect("noisecal runs");
-    (out.status.success(), String::from_utf8_lossy(&out.stderr).into_owned())
+    let out = support::run(args);
+    (out.ok, out.stderr)
 }
 
 fn s(p: &Path) -> &str {
