@@ -27,8 +27,8 @@ pub fn calibrate(
     pooling: Option<u64>,
     plain: bool,
 ) -> PyResult<Pack> {
-    if bin_width == Some(0) {
-        return Err(input("bin_width 0 is not a width: give levels per bin (1 or more), or leave it to the default"));
+    if let Some(w) = bin_width {
+        noisecal_core::model::bin_width::check(w).map_err(|e| input(format!("bin_width {e}")))?;
     }
     let opts = CalibrateOptions { reference_iso, bin_width, pooling, plain, ..Default::default() };
     py.detach(|| {

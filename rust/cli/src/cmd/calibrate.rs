@@ -20,7 +20,7 @@ pub struct Args {
     #[arg(long)]
     pub reference_iso: Option<u32>,
     /// Levels per bin in DN (default: ~240 bins between black and white).
-    #[arg(long, value_parser = clap::value_parser!(u16).range(crate::cmd::bounds::BIN_WIDTH))]
+    #[arg(long, value_parser = crate::cmd::bounds::bin_width)]
     pub bin_width: Option<u16>,
     /// Pool every bin with its neighbours until it holds this many samples (default: chosen per
     /// ISO and CFA position by cross-validation on held-out frames; 0 = each bin's own histogram).
