@@ -11,6 +11,9 @@ cd "$(dirname "${BASH_SOURCE[0]}")/.."
 # `test` profile (optimised, see Cargo.toml), with the library, noisecal-jni-tool, the CLI and the
 # fuzzer in target/debug; the JVM harnesses and the fuzzer below run those (their
 # `cargo test --workspace --no-run` finds nothing to do), no release build of their own.
+echo "== every file the docs name exists" >&2
+bash tests/doc_paths.sh
+
 echo "== cargo test --workspace" >&2
 cargo test --workspace
 
@@ -38,6 +41,11 @@ if [ "${NOISECAL_NO_RAY:-0}" != 1 ]; then
 fi
 "$venv/bin/pip" install -q ./rust/python >&2
 (cd rust/python && NOISECAL_BIN="$PWD/../../target/debug/noisecal" "../../$venv/bin/python" -m pytest -q -p no:cacheprovider tests)
+# The type stubs (python/noisecal/__init__.pyi) against the installed extension: a function, argument
+# or default added on one side only fails here.
+"$venv/bin/pip" install -q "mypy>=1.13,<2" >&2
+echo "== Python: mypy.stubtest noisecal (the .pyi against the extension)" >&2
+(cd rust/python && "../../$venv/bin/python" -m mypy.stubtest noisecal --allowlist stubtest-allowlist.txt)
 
 # Fuzzing: each decoder target — DNG reader, recording reader, pack decoder, JNI
 # frame-view entry — mutated from tests/fuzz-corpus/ for NOISECAL_FUZZ_SECONDS (default 45). The

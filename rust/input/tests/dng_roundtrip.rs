@@ -196,7 +196,7 @@ fn missing_file_is_io_error() {
     assert!(err.to_string().contains("/definitely/not/here.dng"), "{err}");
 }
 
-/// 12 MP round trip; run with `cargo test --release -p noisecal-cli --test dng_roundtrip -- --ignored --nocapture`.
+/// 12 MP round trip; run with `cargo test --release -p noisecal-input --test dng_roundtrip -- --ignored --nocapture`.
 #[test]
 #[ignore = "timing; run in release"]
 fn read_12mp_fast() {
