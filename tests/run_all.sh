@@ -45,7 +45,7 @@ fi
 # or default added on one side only fails here.
 "$venv/bin/pip" install -q "mypy>=1.13,<2" >&2
 echo "== Python: mypy.stubtest noisecal (the .pyi against the extension)" >&2
-(cd rust/python && "../../$venv/bin/python" -m mypy.stubtest noisecal --allowlist stubtest-allowlist.txt)
+(cd rust/python && "../../$venv/bin/python" -m mypy.stubtest noisecal --allowlist stubtest-allowlist.txt --mypy-config-file stubtest.ini)
 
 # Fuzzing: each decoder target — DNG reader, recording reader, pack decoder, JNI
 # frame-view entry — mutated from tests/fuzz-corpus/ for NOISECAL_FUZZ_SECONDS (default 45). The

@@ -1,5 +1,5 @@
 from os import PathLike
-from typing import Any, Literal, Sequence, TypedDict
+from typing import Any, Literal, Sequence, TypedDict, final
 
 import numpy as np
 import numpy.typing as npt
@@ -42,6 +42,7 @@ class Tables(TypedDict):
     shift: npt.NDArray[np.float64]
     structure: list[str]
 
+@final
 class Pack:
     @staticmethod
     def load(path: str | PathLike[str]) -> Pack: ...
