@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Whole-program mutation run of the release `noisecal` binary (issue 13; not part of CI).
+"""Whole-program mutation run of the release `noisecal` binary (damaged inputs of every kind; not part of CI).
 
 Every command gets mutated packs, DNGs and recordings (bit flips, byte sets, truncations, splices,
 CRC-repaired mutations, records removed or duplicated) and bad arguments, each run with a timeout
@@ -255,7 +255,7 @@ def dng_tag_mutation(rng, b):
 
 
 def set_bits(b, bits):
-    """The DNG with BitsPerSample (tag 258) set to `bits`: 16-bit data mislabelled (issue 13 item 9)."""
+    """The DNG with BitsPerSample (tag 258) set to `bits`: 16-bit data mislabelled."""
     b = bytearray(b)
     ifd = struct.unpack_from("<I", b, 4)[0]
     for k in range(struct.unpack_from("<H", b, ifd)[0]):

@@ -8,10 +8,13 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
-# One build serves every stage (issue 22): `cargo test --workspace` builds the workspace once, in the
+# One build serves every stage: `cargo test --workspace` builds the workspace once, in the
 # `test` profile (optimised, see Cargo.toml), with the library, noisecal-jni-tool, the CLI and the
 # fuzzer in target/debug; the JVM harnesses and the fuzzer below run those (their
 # `cargo test --workspace --no-run` finds nothing to do), no release build of their own.
+echo "== every file the docs name exists" >&2
+bash tests/doc_paths.sh
+
 echo "== cargo test --workspace" >&2
 cargo test --workspace
 
@@ -39,8 +42,13 @@ if [ "${NOISECAL_NO_RAY:-0}" != 1 ]; then
 fi
 "$venv/bin/pip" install -q ./rust/python >&2
 (cd rust/python && NOISECAL_BIN="$PWD/../../target/debug/noisecal" "../../$venv/bin/python" -m pytest -q -p no:cacheprovider tests)
+# The type stubs (python/noisecal/__init__.pyi) against the installed extension: a function, argument
+# or default added on one side only fails here.
+"$venv/bin/pip" install -q "mypy>=1.13,<2" >&2
+echo "== Python: mypy.stubtest noisecal (the .pyi against the extension)" >&2
+(cd rust/python && "../../$venv/bin/python" -m mypy.stubtest noisecal --allowlist stubtest-allowlist.txt --mypy-config-file stubtest.ini)
 
-# The denoiser benchmark (issue 23) with torch: tests/test_denoise_bench.py again, now with its torch
+# The denoiser benchmark with torch: tests/test_denoise_bench.py again, now with its torch
 # tests — determinism and CI's small run (oracle, noisecal, HG and the wrong model, 2 seeds × 500
 # steps on 32-px crops of a simulated set, ~2 min on 2 cores), which asserts every network beats the
 # noisy input, the wrong model is clearly worst and the oracle best within the seed spread. Torch
@@ -62,7 +70,7 @@ else
   fi
 fi
 
-# Fuzzing (issue 13): each decoder target — DNG reader, recording reader, pack decoder, JNI
+# Fuzzing: each decoder target — DNG reader, recording reader, pack decoder, JNI
 # frame-view entry — mutated from tests/fuzz-corpus/ for NOISECAL_FUZZ_SECONDS (default 45). The
 # binary is the one `cargo test --workspace` above built for rust/fuzz/tests (the `test` profile:
 # optimised, with overflow checks), so this costs no build (a `cargo build -p noisecal-fuzz` would:

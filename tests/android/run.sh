@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# What can be proven about the Android app without a phone, the Android SDK or the NDK (issue 25;
-# docs/android.md says what these checks prove and what they do not):
+# What can be proven about the Android app without a phone, the Android SDK or the NDK
+# (docs/android.md says what these checks prove and what they do not):
 #   1. resources: aapt2 compiles android/app/src/main/res and links it with the app's manifest
 #      against Debian's framework-res.apk (API 29); any error fails. The manifest's own classes
 #      (".MainActivity") must exist in the app's Kotlin sources.

@@ -14,12 +14,12 @@ use std::path::Path;
 use std::process::Command;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
-use noisecal_cli::dng::{derived_bytes, fitted_noise_profile, read_dng_file, read_dng_source};
-use noisecal_cli::models::{ModelKind, resolve_model};
 use noisecal_core::ModelPack;
 use noisecal_core::model::structure::Components;
+use noisecal_core::resolve::{ModelKind, resolve_model};
 use noisecal_core::synth::sampler::IsoSampler;
 use noisecal_core::synth::{synthesize, synthesize_bands};
+use noisecal_input::dng::{derived_bytes, fitted_noise_profile, read_dng_file, read_dng_source};
 
 const ISO: u32 = 800;
 
@@ -91,7 +91,7 @@ fn benches(c: &mut Criterion) {
     let pack_bytes = std::fs::read(&pack).expect("pack");
     g.bench_function("pack_load", |b| b.iter(|| black_box(ModelPack::from_bytes(&pack_bytes).expect("pack"))));
     let pack = ModelPack::from_bytes(&pack_bytes).expect("pack");
-    let (model, _) = resolve_model(&pack, ISO, ModelKind::Noisecal, false).expect("model");
+    let model = resolve_model(&pack, ISO, ModelKind::Noisecal, false).expect("model").model;
     // Per run: the sampler's tables (with the structured components taken out of every bin's PMF
     // by deconvolution), and without components.
     g.bench_function("sampler_build", |b| b.iter(|| black_box(IsoSampler::new(&pack, &model))));

@@ -9,7 +9,7 @@ use noisecal_core::format::recording::{RecordingHeader, RecordingWriter};
 use noisecal_sim::{Chart, RandomSensor, SensorModel, SessionPlan, SessionSpec, Simulator};
 use rayon::prelude::*;
 
-use crate::dng;
+use noisecal_input::dng;
 
 /// A simulated session: sensor, scene and plan.
 #[derive(Debug, Clone)]
@@ -142,7 +142,7 @@ impl SimSession {
         }
         let mut writer = match rec {
             Some(p) => {
-                crate::output::create_parent(p)
+                noisecal_input::files::create_parent(p)
                     .with_context(|| format!("cannot create the directory of {}", p.display()))?;
                 // Streamed into a temporary file renamed over `p` at the end: a kill leaves no
                 // partial recording (the next write into the folder removes the temporary file).

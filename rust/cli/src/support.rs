@@ -1,5 +1,5 @@
-//! What every subcommand needs and none owns: reading a pack, a progress bar, text on stdout, and
-//! telling a closed stdout from a failure.
+//! What every subcommand needs and none owns: a progress bar, text on stdout, and telling a
+//! closed stdout from a failure (pack files and output files: `noisecal_input::files`).
 
 use std::io::{self, Write};
 use std::path::Path;
@@ -7,17 +7,7 @@ use std::path::Path;
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 use noisecal_core::ModelPack;
-
-/// The largest pack file read (a 14-bit pack with many ISOs is tens of MB).
-pub const MAX_PACK_BYTES: u64 = 1 << 30;
-
-/// Reads a pack file with a message that names it. Only regular files are read: a FIFO or a
-/// device such as `/dev/zero` is refused instead of blocking or filling memory.
-pub fn load_pack(path: &Path) -> anyhow::Result<ModelPack> {
-    let bytes = noisecal_io::read_regular(path, MAX_PACK_BYTES)
-        .with_context(|| format!("cannot read model pack {}", path.display()))?;
-    ModelPack::from_bytes(&bytes).with_context(|| format!("{} is not a usable model pack", path.display()))
-}
+use noisecal_input::calibrate::{CalibrateOptions, CalibrateReport, calibrate_path};
 
 /// A progress bar over `len` frames on stderr (hidden with `--quiet`).
 pub fn progress_bar(len: u64, quiet: bool, what: &str) -> ProgressBar {
@@ -32,6 +22,18 @@ pub fn progress_bar(len: u64, quiet: bool, what: &str) -> ProgressBar {
     );
     pb.set_message(what.to_string());
     pb
+}
+
+/// Calibrates from a DNG folder or a recording ([`calibrate_path`]) with a progress bar on
+/// stderr (hidden with `--quiet`).
+pub fn calibrate(path: &Path, opts: &CalibrateOptions, quiet: bool) -> anyhow::Result<(ModelPack, CalibrateReport)> {
+    let pb = progress_bar(0, quiet, "calibrating");
+    let done = calibrate_path(path, opts, &mut |frames, total| {
+        pb.set_length(total);
+        pb.set_position(frames);
+    });
+    pb.finish_and_clear();
+    done
 }
 
 /// Writes `text` to stdout and flushes it. A closed stdout comes back as an error whose chain
@@ -71,7 +73,7 @@ pub fn is_broken_pipe(err: &anyhow::Error) -> bool {
 }
 
 /// The error and its causes joined by `: ` as `{:#}` joins them, leaving out a cause its parent's
-/// text already holds (an error that says its source, as [`crate::dng::DngError`]'s I/O error
+/// text already holds (an error that says its source, as [`noisecal_input::dng::DngError`]'s I/O error
 /// does, would otherwise say it twice).
 pub fn error_text(e: &anyhow::Error) -> String {
     let mut out = String::new();
@@ -96,7 +98,8 @@ mod tests {
     #[test]
     fn a_cause_is_said_once() {
         let io = std::io::Error::other("x.dng is a named pipe (FIFO), not a regular file");
-        let e = anyhow::Error::from(crate::dng::DngError::io(Path::new("x.dng"), io)).context("reading inputs");
+        let e =
+            anyhow::Error::from(noisecal_input::dng::DngError::io(Path::new("x.dng"), io)).context("reading inputs");
         let text = error_text(&e);
         assert_eq!(text.matches("named pipe").count(), 1, "{text}");
         assert!(text.starts_with("reading inputs: x.dng: x.dng is a named pipe"), "{text}");
@@ -123,34 +126,4 @@ mod tests {
             "\\u{1b}]0;pwned\\u{7}Evil\\u{9b}2J\\u{202e}"
         );
     }
-}
-
-/// Refuses an output that would write over an input: the same file (through symlinks and hard
-/// links), the same folder, or a DNG inside an input folder. Checked before any work, so a
-/// refused run leaves everything as it was.
-pub fn refuse_overwriting_inputs(output: &Path, inputs: &[&Path]) -> anyhow::Result<()> {
-    for input in inputs {
-        if noisecal_io::same_file(output, input) {
-            anyhow::bail!(
-                "{} is also an input ({}): write to another path; noisecal never writes over what it reads",
-                output.display(),
-                input.display()
-            );
-        }
-        let is_dng = output.extension().is_some_and(|e| e.eq_ignore_ascii_case("dng"));
-        if input.is_dir()
-            && is_dng
-            && output.exists()
-            && output.parent().is_some_and(|p| {
-                noisecal_io::same_file(if p.as_os_str().is_empty() { Path::new(".") } else { p }, input)
-            })
-        {
-            anyhow::bail!(
-                "{} is one of the captures in {}: write to another path; noisecal never writes over what it reads",
-                output.display(),
-                input.display()
-            );
-        }
-    }
-    Ok(())
 }

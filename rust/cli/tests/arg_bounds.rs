@@ -1,13 +1,11 @@
 //! Numbers that size allocations or loops are bounded when the command line is parsed.
 
-use std::process::Command;
+mod support;
 
 fn refused(args: &[&str], expect: &str) {
-    let out = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(args).output().expect("noisecal runs");
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success(), "{args:?} was accepted");
-    assert!(err.contains(expect), "{args:?}: {err}");
-    assert!(!err.contains("panicked"), "{err}");
+    let out = support::run(args);
+    assert!(!out.ok, "{args:?} was accepted");
+    assert!(out.stderr.contains(expect), "{args:?}: {}", out.stderr);
 }
 
 #[test]
@@ -18,7 +16,7 @@ fn absurd_numbers_are_refused_with_the_range() {
     refused(&["simulate", "--width", "4000000000", "--dngs", "d"], "not in 2..=16384");
     refused(&["simulate", "--frames", "0", "--dngs", "d"], "not in 1..=1024");
     refused(&["demo", "--width", "1"], "not in 2..=16384");
-    refused(&["calibrate", "caps", "-o", "p.pack", "--bin-width", "0"], "not in 1..=4096");
+    refused(&["calibrate", "caps", "-o", "p.pack", "--bin-width", "0"], "0 is not a bin width: give 1 to 4096");
     refused(&["calibrate", "caps", "-o", "p.pack", "--flat-k", "NaN"], "finite number above 0");
     refused(&["calibrate", "caps", "-o", "p.pack", "--flat-k=-1"], "finite number above 0");
 }

@@ -2,16 +2,12 @@
 //! and nothing already written is lost.
 
 use std::path::Path;
-use std::process::Command;
 
 mod support;
 
 fn noisecal(args: &[&str]) -> (bool, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(args).arg("-q").output().expect("run noisecal");
-    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert!(!stderr.contains("panicked"), "a panic crossed the CLI: {stderr}");
-    assert_ne!(out.status.code(), Some(3), "internal error: {stderr}");
-    (out.status.success(), stderr)
+    let out = support::run_quiet(args);
+    (out.ok, out.stderr)
 }
 
 /// The 64×48 test session (ISOs 200 and 800, EV −1 and +1, 3 frames a burst) as DNGs in
@@ -22,8 +18,13 @@ fn simulate(dir: &Path) {
 
 /// The same session written by `simulate` to `out` as `kind` (`--dngs` or `--rec`).
 fn simulate_as(out: &Path, kind: &str) {
-    let (ok, err) =
-        noisecal(&support::simulate(("64", "48"), "3", "200,800", "--ev=-1,1", &[kind, out.to_str().unwrap()]));
+    let (ok, err) = noisecal(&support::simulate(
+        ("64", "48"),
+        "3",
+        "200,800",
+        "--ev=-1,1",
+        &[kind, out.to_str().expect("a UTF-8 path")],
+    ));
     assert!(ok, "{err}");
 }
 
@@ -123,7 +124,7 @@ fn synth_is_reproducible_and_reads_back() {
     let c = run("c.dng", "8", "2");
     assert_eq!(a, b, "same seed, different thread count, different bytes");
     assert_ne!(a, c);
-    let img = noisecal_cli::dng::read_dng(&dir.path().join("a.dng")).unwrap();
+    let img = noisecal_input::dng::read_dng(&dir.path().join("a.dng")).unwrap();
     assert_eq!(img.meta.iso, 800);
     // ISO 400 is between the calibrated 200 and 800: interpolated, and said so (not under -q).
     let out = dir.path().join("i.dng");
@@ -137,7 +138,7 @@ fn synth_is_reproducible_and_reads_back() {
         "-o",
         out.to_str().unwrap(),
     ];
-    let loud = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(args).output().expect("run noisecal");
+    let loud = support::command().args(args).output().expect("run noisecal");
     let err = String::from_utf8_lossy(&loud.stderr);
     assert!(loud.status.success() && err.contains("interpolated"), "{err}");
     let (ok, err) = noisecal(&args);
@@ -151,17 +152,17 @@ fn synth_takes_levels_above_black() {
     let dngs = dir.path().join("dngs");
     let pack = dir.path().join("p.pack");
     assert!(noisecal(&["calibrate", dngs.to_str().unwrap(), "-o", pack.to_str().unwrap(), "--min-samples", "50"]).0);
-    let template = noisecal_cli::dng::read_dng(&dngs.join("f00000.dng")).unwrap();
+    let template = noisecal_input::dng::read_dng(&dngs.join("f00000.dng")).unwrap();
     // The same scene written with the pack's black level (64) and with black 60.
     let scene =
         ndarray::Array2::from_shape_fn(template.pixels.dim(), |(y, x)| (150 + 3 * ((x / 8 + y / 8) % 20)) as u16);
     let mut layout = template.layout.clone();
     let meta = noisecal_core::FrameMeta { black: None, ..template.meta };
     let a = dir.path().join("a.dng");
-    noisecal_cli::dng::write_dng_from_layout(&a, &layout, &meta, "m", "p", &scene).unwrap();
+    noisecal_input::dng::write_dng_from_layout(&a, &layout, &meta, "m", "p", &scene).unwrap();
     layout.black = [60.0; 4];
     let b = dir.path().join("b.dng");
-    noisecal_cli::dng::write_dng_from_layout(&b, &layout, &meta, "m", "p", &scene.mapv(|v| v - 4)).unwrap();
+    noisecal_input::dng::write_dng_from_layout(&b, &layout, &meta, "m", "p", &scene.mapv(|v| v - 4)).unwrap();
     for (input, out) in [(&a, "na.dng"), (&b, "nb.dng")] {
         let (ok, err) = noisecal(&[
             "synth",
@@ -177,8 +178,8 @@ fn synth_takes_levels_above_black() {
         ]);
         assert!(ok, "{err}");
     }
-    let na = noisecal_cli::dng::read_dng(&dir.path().join("na.dng")).unwrap().pixels;
-    let nb = noisecal_cli::dng::read_dng(&dir.path().join("nb.dng")).unwrap().pixels;
+    let na = noisecal_input::dng::read_dng(&dir.path().join("na.dng")).unwrap().pixels;
+    let nb = noisecal_input::dng::read_dng(&dir.path().join("nb.dng")).unwrap().pixels;
     assert_ne!(na, scene, "noise was added");
     assert_eq!(nb, na.mapv(|v| v.saturating_sub(4)), "the same noise, 4 DN lower");
 }
@@ -202,7 +203,7 @@ fn a_closed_stdout_ends_quietly() {
         // The reader is gone before the command writes a byte: every write fails with EPIPE.
         let (reader, writer) = std::io::pipe().expect("pipe");
         drop(reader);
-        let child = Command::new(env!("CARGO_BIN_EXE_noisecal"))
+        let child = support::command()
             .args(args)
             .arg("-q")
             .stdout(writer)
@@ -232,15 +233,15 @@ fn renoise_takes_levels_above_black() {
     ]);
     assert!(ok, "{err}");
     // One capture written with the pack's black level (64) and again 4 DN lower, black 60.
-    let capture = noisecal_cli::dng::read_dng(&dngs.join("f00003.dng")).expect("read");
+    let capture = noisecal_input::dng::read_dng(&dngs.join("f00003.dng")).expect("read");
     let mut layout = capture.layout.clone();
     let meta = noisecal_core::FrameMeta { black: None, ..capture.meta };
     let a = dir.path().join("a.dng");
-    noisecal_cli::dng::write_dng_from_layout(&a, &layout, &meta, "m", "p", &capture.pixels).expect("write");
+    noisecal_input::dng::write_dng_from_layout(&a, &layout, &meta, "m", "p", &capture.pixels).expect("write");
     layout.black = [60.0; 4];
     let b = dir.path().join("b.dng");
     let lowered = capture.pixels.mapv(|v| v.saturating_sub(4));
-    noisecal_cli::dng::write_dng_from_layout(&b, &layout, &meta, "m", "p", &lowered).expect("write");
+    noisecal_input::dng::write_dng_from_layout(&b, &layout, &meta, "m", "p", &lowered).expect("write");
     for (input, out) in [(&a, "ra.dng"), (&b, "rb.dng")] {
         let (ok, err) = noisecal(&[
             "renoise",
@@ -258,13 +259,13 @@ fn renoise_takes_levels_above_black() {
         ]);
         assert!(ok, "{err}");
     }
-    let ra = noisecal_cli::dng::read_dng(&dir.path().join("ra.dng")).expect("read").pixels;
-    let rb = noisecal_cli::dng::read_dng(&dir.path().join("rb.dng")).expect("read").pixels;
+    let ra = noisecal_input::dng::read_dng(&dir.path().join("ra.dng")).expect("read").pixels;
+    let rb = noisecal_input::dng::read_dng(&dir.path().join("rb.dng")).expect("read").pixels;
     assert_ne!(ra, capture.pixels, "noise was added");
     assert_eq!(rb, ra.mapv(|v| v.saturating_sub(4)), "the same noise on noise, 4 DN lower");
 }
 
-/// Issue 13 "degenerate sessions": a capture folder whose frames are all saturated, all one
+/// Degenerate sessions: a capture folder whose frames are all saturated, all one
 /// noiseless level, all at black, or all masked (a texture with no flat pixel anywhere) is
 /// refused, naming what is wrong; the existing pack is kept.
 #[test]
@@ -300,11 +301,11 @@ fn degenerate_sessions_are_refused_by_name() {
         let d = dir.path().join(name);
         std::fs::create_dir(&d).unwrap();
         for (i, f) in files.iter().enumerate() {
-            let img = noisecal_cli::dng::read_dng(f).unwrap();
+            let img = noisecal_input::dng::read_dng(f).unwrap();
             let meta = noisecal_core::FrameMeta { black: None, ..img.meta };
             let px = ndarray::Array2::from_shape_fn(img.pixels.dim(), |(y, x)| pixel(y, x, i));
             let out = d.join(f.file_name().unwrap());
-            noisecal_cli::dng::write_dng_from_layout(&out, &img.layout, &meta, &img.make, &img.model, &px).unwrap();
+            noisecal_input::dng::write_dng_from_layout(&out, &img.layout, &meta, &img.make, &img.model, &px).unwrap();
         }
         let (ok, err) = noisecal(&["calibrate", d.to_str().unwrap(), "-o", pack.to_str().unwrap()]);
         assert!(!ok, "{name}: a degenerate session calibrated");
@@ -313,7 +314,7 @@ fn degenerate_sessions_are_refused_by_name() {
     }
 }
 
-/// Issue 13 item 14: `synth --model hg|pg --extrapolate` extrapolates instead of asking
+/// Flags are honoured: `synth --model hg|pg --extrapolate` extrapolates instead of asking
 /// for the flag it was given; `synth` and `renoise` create a missing output folder as the other
 /// commands do; `eval` does not suggest `--extrapolate`, which it lacks; `-q` silences
 /// `calibrate`'s and `renoise`'s warnings.
@@ -335,7 +336,7 @@ fn flags_folders_and_quiet_do_what_they_say() {
         assert!(!ok && err.contains("--extrapolate"), "{model}: {err}");
         let (ok, err) = noisecal(&[&args[..], &["--extrapolate"]].concat());
         assert!(ok, "{model} --extrapolate: {err}");
-        assert_eq!(noisecal_cli::dng::read_dng(&out).unwrap().meta.iso, 3200);
+        assert_eq!(noisecal_input::dng::read_dng(&out).unwrap().meta.iso, 3200);
     }
 
     let deep = dir.path().join("new/deeper/n.dng");
@@ -347,7 +348,7 @@ fn flags_folders_and_quiet_do_what_they_say() {
     assert!(ok && deep.is_file(), "renoise into a missing folder: {err}");
     // -q (which `noisecal` adds) leaves stderr empty; without it the warnings are said.
     assert!(err.is_empty(), "renoise -q printed: {err}");
-    let loud = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(renoise).output().unwrap();
+    let loud = support::command().args(renoise).output().unwrap();
     assert!(loud.status.success() && String::from_utf8_lossy(&loud.stderr).contains("warning"));
 
     // A recording cut short calibrates with a warning, which -q keeps off stderr.
@@ -357,7 +358,7 @@ fn flags_folders_and_quiet_do_what_they_say() {
     let cut = dir.path().join("cut.rec");
     std::fs::write(&cut, &bytes[..bytes.len() - 2000]).unwrap();
     let args = ["calibrate", &s(&cut), "-o", &s(&dir.path().join("cut.pack"))];
-    let loud = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(args).output().unwrap();
+    let loud = support::command().args(args).output().unwrap();
     let loud_err = String::from_utf8_lossy(&loud.stderr);
     assert!(loud.status.success() && loud_err.contains("interrupted capture"), "{loud_err}");
     let (ok, err) = noisecal(&args);
@@ -388,8 +389,7 @@ fn a_sparse_session_is_warned_about_by_name() {
     simulate(dir.path());
     let dngs = dir.path().join("dngs");
     let inspect = |pack: &Path| -> String {
-        let out =
-            Command::new(env!("CARGO_BIN_EXE_noisecal")).args(["inspect", pack.to_str().unwrap()]).output().unwrap();
+        let out = support::command().args(["inspect", pack.to_str().unwrap()]).output().unwrap();
         assert!(out.status.success());
         String::from_utf8_lossy(&out.stdout).into_owned()
     };

@@ -1,9 +1,9 @@
-//! Issue 13 regressions through the real binary: damaged recordings are never taken for an
-//! interrupted capture (item 7) nor for good (item 8), temporary files of killed runs are swept
-//! (item 13), and messages say what is wrong (item 14, issue 15).
+//! Damaged inputs through the real binary: damaged recordings are never taken for an
+//! interrupted capture (a flipped length) nor for good (records removed or duplicated), temporary
+//! files of killed runs are swept, and messages say what is wrong.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::{Duration, Instant, SystemTime};
 
 use noisecal_core::format::recording::{Record, RecordingReader, RecordingWriter};
@@ -11,11 +11,8 @@ use noisecal_core::format::recording::{Record, RecordingReader, RecordingWriter}
 mod support;
 
 fn run(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(args).output().expect("run noisecal");
-    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert!(!stderr.contains("panicked"), "a panic crossed the CLI: {stderr}");
-    assert_ne!(out.status.code(), Some(3), "internal error: {stderr}");
-    (out.status.success(), String::from_utf8_lossy(&out.stdout).into_owned(), stderr)
+    let out = support::run(args);
+    (out.ok, out.stdout, out.stderr)
 }
 
 fn s(p: &Path) -> &str {
@@ -68,7 +65,7 @@ fn refused(dir: &Path, rec: &[u8], name: &str, says: &[&str]) {
     assert_eq!(std::fs::read(&pack).expect("pack"), before, "{name}: the existing pack was replaced");
 }
 
-/// Items 7 and 8: a flipped length bit, removed and duplicated records.
+/// Damaged recordings: a flipped length bit, removed and duplicated records.
 #[test]
 fn damaged_recordings_fail_and_keep_the_pack() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -79,7 +76,7 @@ fn damaged_recordings_fail_and_keep_the_pack() {
     let frames = frame_records(&good);
     assert!(frames.len() >= 12);
 
-    // Item 7: bit 20 of a middle frame's length (7 680 → 1 056 256): runs past the end of file.
+    // A flipped length: bit 20 of a middle frame's length (7 680 → 1 056 256): runs past the end of file.
     let (idx, at, _) = frames[frames.len() / 2];
     let mut flipped = good.clone();
     flipped[at + 46 + 2] ^= 0x10;
@@ -99,7 +96,7 @@ fn damaged_recordings_fail_and_keep_the_pack() {
     past[at + 46..at + 50].copy_from_slice(&longer.to_le_bytes());
     refused(dir.path(), &past, "past-end.rec", &["is damaged", "not an interrupted capture"]);
 
-    // Item 8: a frame record removed; one duplicated.
+    // Records lost or repeated: a frame record removed; one duplicated.
     let (_, at, len) = frames[4];
     let mut removed = good[..at].to_vec();
     removed.extend_from_slice(&good[at + len..]);
@@ -116,7 +113,7 @@ fn damaged_recordings_fail_and_keep_the_pack() {
     assert!(ok && err.contains("interrupted capture"), "{err}");
 }
 
-/// Item 13: a temporary file left beside an output by a killed run is removed by the next run
+/// A temporary file left beside an output by a killed run is removed by the next run
 /// that writes into that folder; `simulate --rec` writes through a temporary file, so a kill
 /// leaves no partial recording.
 #[test]
@@ -125,7 +122,7 @@ fn killed_writes_leave_nothing_that_lasts() {
     let out = dir.path().join("out");
     std::fs::create_dir(&out).expect("mkdir");
     let rec = out.join("big.rec");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_noisecal"))
+    let mut child = support::command()
         .args(["simulate", "-q", "--width", "1024", "--height", "768", "--frames", "16", "--rec", s(&rec)])
         .stderr(Stdio::null())
         .spawn()
@@ -204,7 +201,7 @@ fn rewrite(src: &[u8], make: &str, shrink: bool) -> Vec<u8> {
     w.finish().expect("finish")
 }
 
-/// Item 14 and issue 15: an ROI outside the image says so; when no frame is usable the error
+/// Messages that say what is wrong: an ROI outside the image says so; when no frame is usable the error
 /// says why frames were rejected, per reason with counts; `inspect` escapes a make that carries
 /// terminal escapes.
 #[test]

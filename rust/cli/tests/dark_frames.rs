@@ -1,17 +1,18 @@
-//! Dark frames through the binary (issue 11): `simulate --dark` writes a lens-covered step after
+//! Dark frames through the binary: `simulate --dark` writes a lens-covered step after
 //! the lit sweep; `calibrate` finds the dark frames of a DNG folder by their content (they match
 //! the darkest EV step's ISO × exposure, so metadata alone would take them for targets) and a
 //! recording's by its BeginDark record; both give every ISO the same fixed pattern, and no lit
 //! frame is taken for a dark one.
 
 use std::path::Path;
-use std::process::Command;
 
 use serde_json::Value;
 
+mod support;
+
 fn noisecal(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(args).output().expect("run noisecal");
-    (out.status.success(), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
+    let out = support::run(args);
+    (out.ok, out.stdout, out.stderr)
 }
 
 fn ok(args: &[&str]) -> (String, String) {

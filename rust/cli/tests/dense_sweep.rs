@@ -6,10 +6,10 @@
 
 use std::path::Path;
 
-use noisecal_cli::calibrate::{CalibrateOptions, calibrate_path};
-use noisecal_cli::dng;
 use noisecal_cli::eval::{EvalOptions, evaluate, render_text};
-use noisecal_cli::grouping::scan_dng_set;
+use noisecal_input::calibrate::{CalibrateOptions, calibrate_path};
+use noisecal_input::dng;
+use noisecal_input::grouping::scan_dng_set;
 use noisecal_sim::{Chart, SensorModel, SessionPlan, Simulator};
 
 const STEPS: i32 = 41;
@@ -60,7 +60,7 @@ fn a_dense_photon_transfer_sweep_calibrates() {
     assert_eq!(set.steps.len(), STEPS as usize, "every setting is its own step: {:?}", set.warnings);
     assert!(set.steps.iter().all(|s| s.reference.len() == 5 && s.targets.len() == 1));
 
-    let (pack, report) = calibrate_path(&cal, &CalibrateOptions::default(), true).expect("calibrate");
+    let (pack, report) = calibrate_path(&cal, &CalibrateOptions::default(), &mut |_, _| {}).expect("calibrate");
     assert!(report.rejected.is_empty(), "no frame refused: {:?}", report.rejected);
     let m = pack.iso(400).expect("ISO 400 calibrated");
     assert_eq!(m.drift_frames, 0, "nothing normalised as drift");

@@ -9,15 +9,17 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use ndarray::Array2;
-use noisecal_cli::dng::tiff::{Ifd, ImageData, TagValue, TiffBuilder, pack_msb, tag, u16_bytes};
-use noisecal_cli::dng::{Tag, fitted_noise_profile, read_dng};
-use noisecal_cli::models::{ModelKind, resolve_model};
+use noisecal_core::resolve::{ModelKind, resolve_model};
 use noisecal_core::synth::sampler::IsoSampler;
 use noisecal_core::synth::synthesize;
+use noisecal_input::dng::tiff::{Ifd, ImageData, TagValue, TiffBuilder, pack_msb, tag, u16_bytes};
+use noisecal_input::dng::{Tag, fitted_noise_profile, read_dng};
+
+mod support;
 
 fn noisecal(args: &[&str]) -> (bool, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(args).output().expect("noisecal runs");
-    (out.status.success(), String::from_utf8_lossy(&out.stderr).into_owned())
+    let out = support::run(args);
+    (out.ok, out.stderr)
 }
 
 fn s(p: &Path) -> &str {
@@ -370,7 +372,7 @@ fn check_kept(kind: Kind) {
 
     // NoiseProfile: the pack's fit at ISO 800, per plane (R, G = mean of both greens, B).
     let pack = noisecal_core::ModelPack::from_bytes(&std::fs::read(&pack_path).expect("pack")).expect("pack");
-    let (model, _) = resolve_model(&pack, 800, ModelKind::Noisecal, false).expect("model");
+    let model = resolve_model(&pack, 800, ModelKind::Noisecal, false).expect("model").model;
     let clean = read_dng(&input).expect("read input");
     let np = fitted_noise_profile(&pack, &model, &clean.layout).expect("profile");
     let want = [

@@ -4,14 +4,14 @@
 use std::path::Path;
 use std::process::Command;
 
-use noisecal_cli::dng::tiff::{Ifd, ImageData, TagValue, TiffBuilder, tag};
-use noisecal_cli::dng::{DngError, read_dng};
+use noisecal_input::dng::tiff::{Ifd, ImageData, TagValue, TiffBuilder, tag};
+use noisecal_input::dng::{DngError, read_dng};
 
 mod support;
 
 fn noisecal(args: &[&str]) -> (bool, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(args).output().expect("noisecal runs");
-    (out.status.success(), String::from_utf8_lossy(&out.stderr).into_owned())
+    let out = support::run(args);
+    (out.ok, out.stderr)
 }
 
 fn s(p: &Path) -> &str {

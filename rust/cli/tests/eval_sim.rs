@@ -8,10 +8,10 @@
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-use noisecal_cli::calibrate::{CalibrateOptions, calibrate_path};
 use noisecal_cli::eval::{EvalOptions, EvalReport, evaluate, render_text};
 use noisecal_cli::simulate::SimSession;
 use noisecal_core::ModelPack;
+use noisecal_input::calibrate::{CalibrateOptions, calibrate_path};
 use noisecal_sim::SensorModel;
 
 const ISOS: [u32; 3] = [100, 400, 800];
@@ -47,7 +47,7 @@ fn fixture() -> &'static Fixture {
         let heldout = dir.path().join("heldout");
         simulate(&cal, 11, 8);
         simulate(&heldout, 12, 4);
-        let (pack, _) = calibrate_path(&cal, &CalibrateOptions::default(), true).expect("calibrate");
+        let (pack, _) = calibrate_path(&cal, &CalibrateOptions::default(), &mut |_, _| {}).expect("calibrate");
         let pack_path = dir.path().join("p.pack");
         std::fs::write(&pack_path, pack.to_bytes().expect("pack bytes")).expect("write pack");
         let opts = EvalOptions { seeds: 2, leave_one_out: true, renoise: Some((400, 800)), ..Default::default() };
@@ -174,7 +174,7 @@ fn bad_inputs_get_clear_errors() {
     // A pack ISO with no held-out frames is skipped with a note.
     let sub = f._dir.path().join("heldout_400");
     std::fs::create_dir_all(&sub).expect("dir");
-    let set = noisecal_cli::grouping::scan_dng_set(&f.heldout, None).expect("scan");
+    let set = noisecal_input::grouping::scan_dng_set(&f.heldout, None).expect("scan");
     for step in &set.steps {
         for fr in step.reference.iter().chain(step.targets.iter().filter(|t| t.meta.iso == 400)) {
             std::fs::copy(&fr.path, sub.join(fr.path.file_name().expect("name"))).expect("copy");

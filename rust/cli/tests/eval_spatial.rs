@@ -1,4 +1,4 @@
-//! The spatial measures of `noisecal eval` (issue 11, "Evaluation") on simulated sensors whose
+//! The spatial measures of `noisecal eval` (method.md, "Evaluation") on simulated sensors whose
 //! structured noise is known:
 //!
 //! - real against real (two disjoint halves of the held-out frames, and two independent
@@ -11,17 +11,17 @@
 //! - on a sensor without them, nothing of the sort: ratios ≈ 1, distances at their floors.
 //!
 //! `cargo test -p noisecal-cli --test eval_spatial -- --nocapture` prints the "before" table of
-//! issue 11 (pixel-only packs on a sensor with row noise, frame offsets and DSNU).
+//! the structured components were added for (pixel-only packs on a sensor with row noise, frame offsets and DSNU).
 
 use std::path::PathBuf;
 use std::sync::OnceLock;
 
-use noisecal_cli::calibrate::{CalibrateOptions, calibrate_path};
 use noisecal_cli::eval::{EvalOptions, EvalReport, IsoEval, SpatialEval, SpatialModelScore, evaluate, render_text};
 use noisecal_cli::simulate::SimSession;
 use noisecal_core::metrics::spatial::{
     FlatLayout, SpatialFloor, SpatialSamples, compare_spatial, row_offset_bin_width,
 };
+use noisecal_input::calibrate::{CalibrateOptions, calibrate_path};
 use noisecal_sim::{Chart, SensorModel, Simulator};
 
 /// 384×288: the chart's patches hold 16×16 same-colour crops for the NPS.
@@ -44,7 +44,7 @@ fn calibrate_and_eval(model: SensorModel, isos: &[u32], cal_frames: u32, held_fr
     let mut h = SimSession::new(model, "sim", W, H, 31, isos.to_vec(), held_frames, evs).expect("held-out session");
     h.index_offset = 1_000_000;
     h.write(Some(&held), None, 0, || {}).expect("write held-out");
-    let (pack, _) = calibrate_path(&cal, &CalibrateOptions::default(), true).expect("calibrate");
+    let (pack, _) = calibrate_path(&cal, &CalibrateOptions::default(), &mut |_, _| {}).expect("calibrate");
     let pack_path: PathBuf = dir.path().join("p.pack");
     std::fs::write(&pack_path, pack.to_bytes().expect("pack bytes")).expect("write pack");
     let opts = EvalOptions { seeds: 1, ..Default::default() };
@@ -86,7 +86,7 @@ fn pixel_only(sp: &SpatialEval) -> &SpatialModelScore {
     sp.model("noisecal-pixel").or_else(|| sp.model("noisecal")).expect("noisecal scored")
 }
 
-/// Issue 11's "before" table (pixel-only noisecal against the real held-out frames), and the
+/// The "before" table (pixel-only noisecal against the real held-out frames), and the
 /// pack's full model next to it where it has structured components.
 fn before_table(r: &EvalReport) {
     let f = |v: Option<f64>| v.map_or("—".to_string(), |x| format!("{x:.3}"));

@@ -2,11 +2,12 @@
 //! the input is left byte for byte as it was.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
+
+mod support;
 
 fn noisecal(args: &[&Path]) -> (bool, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_noisecal")).arg("-q").args(args).output().expect("noisecal runs");
-    (out.status.success(), String::from_utf8_lossy(&out.stderr).into_owned())
+    let out = support::run(std::iter::once(Path::new("-q")).chain(args.iter().copied()));
+    (out.ok, out.stderr)
 }
 
 fn p(s: &str) -> PathBuf {

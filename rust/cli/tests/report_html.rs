@@ -3,11 +3,11 @@
 
 use std::path::Path;
 
-use noisecal_cli::calibrate::{CalibrateOptions, calibrate_path};
 use noisecal_cli::cmd::eval::ScoringArgs;
 use noisecal_cli::cmd::report::{Args, run};
 use noisecal_cli::simulate::SimSession;
 use noisecal_core::metrics::DEFAULT_GROUP_BINS;
+use noisecal_input::calibrate::{CalibrateOptions, calibrate_path};
 use noisecal_sim::SensorModel;
 
 fn simulate(dir: &Path, seed: u64, frames: u32) {
@@ -49,7 +49,7 @@ fn report_with_eval_is_one_self_contained_page() {
     let (cal, held) = (dir.path().join("cal"), dir.path().join("held"));
     simulate(&cal, 21, 4);
     simulate(&held, 22, 2);
-    let (pack, _) = calibrate_path(&cal, &CalibrateOptions::default(), true).expect("calibrate");
+    let (pack, _) = calibrate_path(&cal, &CalibrateOptions::default(), &mut |_, _| {}).expect("calibrate");
     let pack_path = dir.path().join("p.pack");
     std::fs::write(&pack_path, pack.to_bytes().expect("bytes")).expect("write pack");
 

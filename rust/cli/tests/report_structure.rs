@@ -1,4 +1,4 @@
-//! The report's "Structured noise" section (issue 11), end to end through the binary:
+//! The report's "Structured noise" section, end to end through the binary:
 //!
 //! - `simulate --structured` (row noise, frame offsets, DSNU), `calibrate`, `report`: the section
 //!   has the SD-vs-ISO chart and, for every ISO, one chart per component (rows, columns, frame
@@ -9,21 +9,21 @@
 //!   is marked added; a pack without components at all says none were calibrated.
 
 use std::path::Path;
-use std::process::Command;
 
 use noisecal_cli::simulate::SimSession;
 use noisecal_core::ModelPack;
 use noisecal_sim::SensorModel;
 use serde_json::Value;
 
+mod support;
+
 const ISOS: [u32; 3] = [100, 400, 1600];
 
 /// Runs the binary; panics with its stderr when it fails. Returns stdout.
 fn noisecal(args: &[&str]) -> String {
-    let out = Command::new(env!("CARGO_BIN_EXE_noisecal")).arg("-q").args(args).output().expect("run noisecal");
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "noisecal {args:?} failed: {stderr}");
-    String::from_utf8(out.stdout).expect("UTF-8 output")
+    let out = support::run(std::iter::once("-q").chain(args.iter().copied()));
+    assert!(out.ok, "noisecal {args:?} failed: {}", out.stderr);
+    out.stdout
 }
 
 fn s(p: &Path) -> &str {
@@ -70,9 +70,12 @@ fn component(v: &Value) -> Option<(String, bool)> {
     Some((format!("{sd:.3}"), v["added"].as_bool().expect("added")))
 }
 
+/// Per ISO: its components, each `(text, added)` or `None` when the pack has none.
+type IsoComponents = Vec<(u32, Vec<Option<(String, bool)>>)>;
+
 /// Per ISO of `inspect --json` with structure: the 8 components in the report's order (rows
 /// even, odd; columns even, odd; frame offset per position).
-fn inspect_components(inspect: &Value) -> Vec<(u32, Vec<Option<(String, bool)>>)> {
+fn inspect_components(inspect: &Value) -> IsoComponents {
     inspect["isos"]
         .as_array()
         .expect("isos")
@@ -114,7 +117,7 @@ fn table_row(sec: &str, iso: u32) -> Vec<Option<(String, bool)>> {
 
 /// What every ISO's part of the section must hold, checked against `inspect --json`; returns
 /// the inspected components.
-fn check_against_inspect(sec: &str, inspect: &Value) -> Vec<(u32, Vec<Option<(String, bool)>>)> {
+fn check_against_inspect(sec: &str, inspect: &Value) -> IsoComponents {
     let comps = inspect_components(inspect);
     assert_eq!(comps.iter().map(|c| c.0).collect::<Vec<_>>(), ISOS, "inspect lists structure for every ISO");
     let all = svgs(sec);

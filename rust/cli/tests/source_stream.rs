@@ -4,12 +4,12 @@
 
 use std::path::Path;
 
-use noisecal_cli::calibrate::{CalibrateOptions, calibrate_path};
-use noisecal_cli::dng;
 use noisecal_cli::eval::{EvalOptions, evaluate};
 use noisecal_cli::simulate::SimSession;
-use noisecal_cli::source::{Record, Source};
 use noisecal_core::FrameMeta;
+use noisecal_input::calibrate::{CalibrateOptions, calibrate_path};
+use noisecal_input::dng;
+use noisecal_input::source::{Record, Source};
 use noisecal_sim::SensorModel;
 
 fn session(seed: u64, frames: u32) -> SimSession {
@@ -122,7 +122,7 @@ fn a_held_out_set_with_another_black_level_is_scored_above_black() {
     // 40 DN is ten bins of the pack: scored at the captures' own levels, every clean level would
     // be taken for a much darker one.
     lower_black(&held, &low, 40);
-    let (pack, _) = calibrate_path(&cal, &CalibrateOptions::default(), true).expect("calibrate");
+    let (pack, _) = calibrate_path(&cal, &CalibrateOptions::default(), &mut |_, _| {}).expect("calibrate");
     let pack_path = dir.path().join("p.pack");
     let opts = EvalOptions { seeds: 1, ..Default::default() };
     let same = evaluate(&pack, &pack_path, &held, &opts, true).expect("eval");

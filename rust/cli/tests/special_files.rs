@@ -5,9 +5,11 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+mod support;
+
 /// Runs `noisecal args…`, failing the test if it takes more than 20 s; returns (exit ok, stderr).
 fn run(args: &[&str]) -> (bool, String) {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_noisecal"))
+    let mut child = support::command()
         .args(args)
         .stdin(Stdio::null())
         .stdout(Stdio::null())

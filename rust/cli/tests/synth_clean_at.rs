@@ -5,18 +5,17 @@
 //! which `--clean-at reference` spells out (same bytes). A bad value names the option.
 
 use std::path::Path;
-use std::process::Command;
 
 use ndarray::Array2;
-use noisecal_cli::dng;
 use noisecal_core::{CalibrationSession, SessionConfig};
+use noisecal_input::dng;
 use noisecal_sim::{Chart, SensorModel, SessionPlan, Simulator};
 
+mod support;
+
 fn noisecal(args: &[&str]) -> (bool, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(args).arg("-q").output().expect("run noisecal");
-    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert!(!stderr.contains("panicked"), "a panic crossed the CLI: {stderr}");
-    (out.status.success(), stderr)
+    let out = support::run_quiet(args);
+    (out.ok, out.stderr)
 }
 
 fn s(p: &Path) -> String {
@@ -72,7 +71,7 @@ fn clean_at_target_adds_noise_without_mean_shift() {
     // `--components pixel`), and the gain shift.
     const BANDS: usize = 4;
     let stats = |noisy: &Array2<u16>| -> Vec<(f64, f64, f64, f64)> {
-        let mut acc = vec![(0.0f64, 0.0f64, 0usize, 0.0f64); BANDS];
+        let mut acc = [(0.0f64, 0.0f64, 0usize, 0.0f64); BANDS];
         for ((y, x), &c) in clean.indexed_iter() {
             let l = c as f64 - black;
             let b = ((l / top * BANDS as f64) as usize).min(BANDS - 1);

@@ -5,18 +5,19 @@
 //! otherwise (tiles, packed rows) keep the in-memory path and give the same bytes too.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use ndarray::Array2;
-use noisecal_cli::dng::tiff::{Ifd, ImageData, TagValue, TiffBuilder, pack_msb, tag, u16_bytes};
-use noisecal_cli::dng::{Tag, derived_bytes, fitted_noise_profile, read_dng_file};
-use noisecal_cli::models::{ModelKind, resolve_model};
+use noisecal_core::resolve::{ModelKind, resolve_model};
 use noisecal_core::synth::sampler::IsoSampler;
 use noisecal_core::synth::synthesize;
+use noisecal_input::dng::tiff::{Ifd, ImageData, TagValue, TiffBuilder, pack_msb, tag, u16_bytes};
+use noisecal_input::dng::{Tag, derived_bytes, fitted_noise_profile, read_dng_file};
+
+mod support;
 
 fn noisecal(args: &[&str]) -> (bool, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_noisecal")).args(args).output().expect("noisecal runs");
-    (out.status.success(), String::from_utf8_lossy(&out.stderr).into_owned())
+    let out = support::run(args);
+    (out.ok, out.stderr)
 }
 
 fn s(p: &Path) -> &str {
@@ -143,8 +144,8 @@ fn dng(big: bool, sub_ifd: bool, (w, h): (usize, usize), active: [usize; 4], sto
 
 /// What the in-memory path writes for `input` (seed 7, ISO 800, every component).
 fn in_memory(pack: &Path, input: &Path, output: &Path) -> Vec<u8> {
-    let pack = noisecal_cli::support::load_pack(pack).expect("pack");
-    let (model, _) = resolve_model(&pack, 800, ModelKind::Noisecal, false).expect("model");
+    let pack = noisecal_input::files::load_pack(pack).expect("pack");
+    let model = resolve_model(&pack, 800, ModelKind::Noisecal, false).expect("model").model;
     let sampler = IsoSampler::new(&pack, &model);
     let file = read_dng_file(input).expect("read");
     let noisy = synthesize(&sampler, file.image.pixels.view(), 7);
@@ -158,7 +159,9 @@ fn streamed_output_equals_the_in_memory_path() {
     let d = dir.path();
     let pack = pack(d);
     // The simulated phone's sensor is 64×48: the active areas are that size.
-    let cases: Vec<(&str, bool, bool, (usize, usize), [usize; 4], Storage)> = vec![
+    // (name, big-endian, raw image in a sub-IFD, full size, active area, storage): [`dng`]'s inputs.
+    type Case = (&'static str, bool, bool, (usize, usize), [usize; 4], Storage);
+    let cases: Vec<Case> = vec![
         ("le_full_strips", false, false, (64, 48), [0, 0, 48, 64], Storage::Strips16 { rows: 5 }),
         ("le_full_one_strip", false, false, (64, 48), [0, 0, 48, 64], Storage::Strips16 { rows: 48 }),
         ("le_masked_subifd", false, true, (72, 52), [2, 4, 50, 68], Storage::Strips16 { rows: 16 }),

@@ -130,7 +130,7 @@ fn benches(c: &mut Criterion) {
                 .map(|bin| {
                     let mut h = noisecal_core::model::histogram::NoiseHistogram::default();
                     let n = if bin % 3 == 0 { 4000 } else { 40 };
-                    let mut s = (f * 1000 + bin) as u64 * 0x9E37_79B9_7F4A_7C15 | 1;
+                    let mut s = ((f * 1000 + bin) as u64 * 0x9E37_79B9_7F4A_7C15) | 1;
                     for _ in 0..n {
                         let mut z = 0i32;
                         for _ in 0..12 {

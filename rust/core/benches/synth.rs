@@ -42,7 +42,7 @@ fn benches(c: &mut Criterion) {
     let iso: u32 = std::env::var("NOISECAL_BENCH_ISO").ok().and_then(|s| s.parse().ok()).unwrap_or(800);
     let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("cannot read {path}: {e}"));
     let pack = ModelPack::from_bytes(&bytes).expect("pack");
-    // What `Pack.synth(model="noisecal")` builds (noisecal_cli::models::resolve_model → model_for).
+    // What `Pack.synth(model="noisecal")` builds (noisecal_core::resolve::resolve_model → model_for).
     let (model, _) = model_for(&pack, iso, false).expect("model");
     let sampler = IsoSampler::new(&pack, &model);
     // `Pack.synth(components="pixel")`: the pixel-independent model alone, the yardstick of the

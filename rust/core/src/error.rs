@@ -13,6 +13,8 @@ pub enum LayoutError {
         "black level {black} at CFA position {pos} is not below the white level {white}; check the BlackLevel/WhiteLevel metadata"
     )]
     BlackLevel { pos: usize, black: f32, white: u16 },
+    #[error("{width} is not a bin width: give 1 to {max} levels per bin, or leave it to the default")]
+    BinWidth { width: u16, max: u16 },
 }
 
 /// A raw buffer that cannot be read as a frame of the expected size.

@@ -14,7 +14,9 @@
 //!   noise to clean images; [`renoise`] adds the difference between two ISOs to noisy captures
 //!   (bridge models); [`metrics`] says how close synthetic noise is to real.
 //!
-//! [`math`] holds the small numerics both flows share.
+//! [`math`] holds the small numerics both flows share; [`resolve`] is which model a front-end
+//! synthesizes with (names, the model of an ISO, components, black alignment), one answer for
+//! the CLI, Python and the app.
 //!
 //! The module docs link to internal modules too (`cargo doc --document-private-items` renders
 //! them): they are the map a reader of the method needs.
@@ -28,6 +30,7 @@ pub mod math;
 pub mod metrics;
 pub mod model;
 pub mod renoise;
+pub mod resolve;
 pub mod synth;
 
 pub use calibrate::drift::DriftPolicy;

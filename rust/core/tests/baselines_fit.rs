@@ -156,7 +156,7 @@ fn parametric_interpolation_recovers_a_linear_in_iso_and_b_quadratic_in_a() {
     q.check().expect("a valid pack");
     let e = baselines::baseline_model(&p, 3200, BaselineKind::Hg, false).unwrap_err();
     assert!(e.to_string().contains("--extrapolate"), "{e}");
-    // Issue 13 item 14: with extrapolation allowed the baseline is extrapolated, not refused
+    // With extrapolation allowed the baseline is extrapolated, not refused
     // with advice to pass the flag that was given.
     let m = baselines::baseline_model(&p, 3200, BaselineKind::Hg, true).expect("extrapolated hg");
     assert!(matches!(m.origin, ModelOrigin::Extrapolated { .. }), "{:?}", m.origin);

@@ -64,7 +64,8 @@ fn the_valid_pack_passes() {
 
 #[test]
 fn impossible_packs_are_refused_by_check_and_decode() {
-    let cases: Vec<(&str, Box<dyn Fn(&mut ModelPack)>)> = vec![
+    type Damage = Box<dyn Fn(&mut ModelPack)>;
+    let cases: Vec<(&str, Damage)> = vec![
         ("ISO 0", Box::new(|p| p.isos[0].iso = 0)),
         ("gain ratio NaN", Box::new(|p| p.isos[1].gain_ratio[2] = f64::NAN)),
         ("gain ratio", Box::new(|p| p.isos[1].gain_ratio[0] = -1.0)),

@@ -1,4 +1,4 @@
-//! Compact packs (format version 5, issue 26 item 3): a calibrated pack written compactly loads
+//! Compact packs (format version 5): a calibrated pack written compactly loads
 //! to the pack with its weights rounded to 9 significant bits ([`ModelPack::compacted`]), whose
 //! log-probabilities are within 2·2⁻⁹ nats of the pack's and whose synthesized images, drawn with
 //! the same random numbers, differ in a small fraction of pixels by a step; the same pack written

@@ -1,4 +1,4 @@
-//! The brightness convention of the clean image (method.md, *Synthesis*; issue 21 item 8).
+//! The brightness convention of the clean image (method.md, *Synthesis*).
 //!
 //! A pack's bins are indexed by the reference ISO's level and its PMFs carry the gain ratio as a
 //! mean shift `(g − 1)·(level − black)`. On a simulated phone whose gain is not ∝ ISO

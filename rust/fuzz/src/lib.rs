@@ -5,7 +5,7 @@
 //!
 //! | target      | entry point                                                                 |
 //! |-------------|-----------------------------------------------------------------------------|
-//! | `dng`       | `noisecal_cli::dng::decode_dng` and `decode_dng_meta`                        |
+//! | `dng`       | `noisecal_input::dng::decode_dng` and `decode_dng_meta`                        |
 //! | `recording` | `RecordingReader::from_bytes`, every record, frame views, and a replay       |
 //! | `pack`      | `ModelPack::from_bytes`, the self-check, a sampler and a small synthesis      |
 //! | `jni-frame` | `NativeSession::push_plane` (the JNI `pushFrame` without a JVM) and `FrameView::from_le_bytes` |
@@ -83,8 +83,8 @@ fn signature(s: &str) -> String {
 
 fn run_dng(input: &[u8]) -> String {
     let src = Path::new("fuzz.dng");
-    let meta = noisecal_cli::dng::decode_dng_meta(input, src);
-    match noisecal_cli::dng::decode_dng(input, src) {
+    let meta = noisecal_input::dng::decode_dng_meta(input, src);
+    match noisecal_input::dng::decode_dng(input, src) {
         Ok(img) => {
             assert!(meta.is_ok(), "decode_dng accepted what decode_dng_meta refused: {:?}", meta.err());
             let (h, w) = img.pixels.dim();

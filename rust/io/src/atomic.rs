@@ -456,7 +456,7 @@ mod tests {
         }
     }
 
-    /// Issue 13 item 13: a temporary file left by a killed process is removed by the next write
+    /// A temporary file left by a killed process is removed by the next write
     /// into its folder; a live process's and unrelated files are kept.
     #[test]
     fn stale_temporaries_are_swept_by_the_next_write() {

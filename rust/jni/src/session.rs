@@ -90,11 +90,12 @@ impl NativeSession {
         let reference_iso = positive("referenceIso", p.reference_iso)?;
         let bin_width = match p.bin_width {
             0 => None,
+            // The core's rule (noisecal_core::model::bin_width), named by this boundary's argument.
             b => Some(
                 u16::try_from(b)
                     .ok()
-                    .filter(|&w| w > 0)
-                    .ok_or_else(|| BoundaryError::arg("binWidth", b, "pass 0 for the default or 1..=65535 levels"))?,
+                    .and_then(|w| noisecal_core::model::bin_width::check(w).ok())
+                    .ok_or_else(|| BoundaryError::arg("binWidth", b, "pass 0 for the default or 1..=4096 levels"))?,
             ),
         };
         let layout = SensorLayout { width, height, cfa, black, white };
@@ -319,5 +320,14 @@ impl NativeSession {
             log::info!("recording {} closed with {} frames ({} bytes)", path.display(), m.frames, m.bytes);
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod bin_width_tests {
+    /// The message's range is the core's rule.
+    #[test]
+    fn the_accepted_range_is_the_cores() {
+        assert_eq!(noisecal_core::model::bin_width::MAX_BIN_WIDTH, 4096);
     }
 }

@@ -40,7 +40,7 @@ create_exception!(
     "Input noisecal used as asked but that looks wrong (pixels out of range, another camera)."
 );
 
-/// The core's and the CLI's messages name command-line flags: in Python they are arguments.
+/// Some core and input-library messages still name command-line flags: in Python they are arguments.
 fn pythonic(msg: String) -> String {
     const FLAGS: [(&str, &str); 5] = [
         ("--extrapolate", "extrapolate=True"),
@@ -52,7 +52,7 @@ fn pythonic(msg: String) -> String {
     FLAGS.iter().fold(msg, |m, (flag, arg)| m.replace(flag, arg))
 }
 
-/// An error of the core or the CLI library as a `NoisecalError` with its full chain of causes.
+/// An error of the core or the input library as a `NoisecalError` with its full chain of causes.
 pub fn to_py(e: impl Into<anyhow::Error>) -> PyErr {
     let e: anyhow::Error = e.into();
     NoisecalError::new_err(pythonic(format!("{e:#}")))

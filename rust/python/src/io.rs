@@ -7,9 +7,9 @@ use numpy::PyArray2;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use noisecal_cli::calibrate::{CalibrateOptions, calibrate_path};
-use noisecal_cli::dng;
-use noisecal_cli::models::{ModelKind, resolve_model};
+use noisecal_core::resolve::{ModelKind, resolve_model};
+use noisecal_input::calibrate::{CalibrateOptions, calibrate_path};
+use noisecal_input::dng;
 
 use crate::checks::{self, Mismatch};
 use crate::errors::{err, guarded, input, to_py};
@@ -27,13 +27,13 @@ pub fn calibrate(
     pooling: Option<u64>,
     plain: bool,
 ) -> PyResult<Pack> {
-    if bin_width == Some(0) {
-        return Err(input("bin_width 0 is not a width: give levels per bin (1 or more), or leave it to the default"));
+    if let Some(w) = bin_width {
+        noisecal_core::model::bin_width::check(w).map_err(|e| input(format!("bin_width {e}")))?;
     }
     let opts = CalibrateOptions { reference_iso, bin_width, pooling, plain, ..Default::default() };
     py.detach(|| {
         guarded("calibrate", || {
-            pool::run(|| calibrate_path(&path, &opts, true).map(|(pack, _)| Pack::new(pack)).map_err(to_py))
+            pool::run(|| calibrate_path(&path, &opts, &mut |_, _| {}).map(|(pack, _)| Pack::new(pack)).map_err(to_py))
         })
     })
 }
@@ -100,7 +100,7 @@ pub fn write_dng<'py>(
     py.detach(|| {
         guarded("write_dng", || {
             pool::run(|| {
-                noisecal_cli::support::refuse_overwriting_inputs(&path, &[&template]).map_err(to_py)?;
+                noisecal_input::files::refuse_overwriting_inputs(&path, &[&template]).map_err(to_py)?;
                 let t = dng::read_dng_template(&template).map_err(to_py)?;
                 let layout = &t.image.layout;
                 let (h, w) = pixels.dim();
@@ -114,7 +114,7 @@ pub fn write_dng<'py>(
                 }
                 let profile = match &pack {
                     Some(pack) => {
-                        let (model, _) = resolve_model(pack, iso, ModelKind::Noisecal, false).map_err(to_py)?;
+                        let model = resolve_model(pack, iso, ModelKind::Noisecal, false).map_err(to_py)?.model;
                         dng::fitted_noise_profile(pack, &model, layout)
                     }
                     None => None,

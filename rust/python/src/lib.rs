@@ -4,7 +4,7 @@
 //!
 //! - [`pack::Pack`]: a model pack (load, properties, `synth`, `synth_float`, `renoise`,
 //!   `interp`, `tables`).
-//! - [`io`]: `calibrate`, `read_dng`, `write_dng` over the CLI's DNG and capture-set code.
+//! - [`io`]: `calibrate`, `read_dng`, `write_dng` over `noisecal-input` (the DNG and capture-set code the CLI uses).
 //! - [`checks`]: every input checked by name before the core sees it (dtype, shape, values
 //!   against the pack's black and white, NaN/inf, a DNG's sensor against the pack's).
 //! - [`errors`]: `NoisecalError(ValueError)` and its `InputError`, `MismatchError`; a wrong
@@ -13,6 +13,9 @@
 //!
 //! Arrays are read without copying, the GIL is released while the core works (`Python::detach`),
 //! and the core runs on a pool of all cores; outputs depend only on inputs and seeds.
+
+// The module map above links the crate's private modules (the extension's API is Python's).
+#![allow(rustdoc::private_intra_doc_links)]
 
 mod checks;
 mod errors;

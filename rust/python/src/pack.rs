@@ -10,11 +10,11 @@ use numpy::{PyArray1, PyArray2, PyArray3, PyArrayDyn};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
 
-use noisecal_cli::models::{ModelKind, resolve_model, sampler_for};
 use noisecal_core::derive::interp::{self, InterpOptions};
 use noisecal_core::model::layout::{BlackAlignment, position};
 use noisecal_core::model::structure::Components;
 use noisecal_core::renoise::{Method, Renoiser};
+use noisecal_core::resolve::{ModelKind, resolve_model};
 use noisecal_core::synth::sampler::IsoSampler;
 use noisecal_core::synth::{CleanAt, synthesize_at};
 use noisecal_core::{ModelPack, POSITIONS};
@@ -52,13 +52,13 @@ impl Pack {
         which: Components,
         clean_at: CleanAt,
     ) -> PyResult<Arc<IsoSampler>> {
-        let which = if kind == ModelKind::Noisecal { which } else { Components::PIXEL };
+        let which = kind.components(Some(which));
         let key = (iso, kind, extrapolate, which, clean_at);
         if let Some(s) = self.samplers.lock().map_err(|_| err("a sampler cache was poisoned"))?.get(&key) {
             return Ok(s.clone());
         }
-        let (m, _) = resolve_model(&self.inner, iso, kind, extrapolate).map_err(to_py)?;
-        let s = Arc::new(sampler_for(&self.inner, &m, kind, which, clean_at, extrapolate).map_err(to_py)?);
+        let resolved = resolve_model(&self.inner, iso, kind, extrapolate).map_err(to_py)?;
+        let s = Arc::new(resolved.sampler(&self.inner, which, clean_at, extrapolate).map_err(to_py)?);
         self.samplers.lock().map_err(|_| err("a sampler cache was poisoned"))?.insert(key, s.clone());
         Ok(s)
     }
@@ -77,14 +77,9 @@ fn parse_clean_at(s: &str) -> PyResult<CleanAt> {
     CleanAt::parse(s).map_err(|e| input(e.replace("clean-at", "clean_at")))
 }
 
+/// `model="noisecal"|"hg"|"pg"|"noiseprofile"` (the core's names, any case).
 fn parse_model(name: &str) -> PyResult<ModelKind> {
-    match name.to_ascii_lowercase().as_str() {
-        "noisecal" => Ok(ModelKind::Noisecal),
-        "hg" => Ok(ModelKind::Hg),
-        "pg" => Ok(ModelKind::Pg),
-        "noiseprofile" => Ok(ModelKind::Noiseprofile),
-        _ => Err(input(format!("unknown model {name:?}: use \"noisecal\", \"hg\", \"pg\" or \"noiseprofile\""))),
-    }
+    ModelKind::parse(name).map_err(input)
 }
 
 /// Per-position black levels for the input: the pack's, one number, or four (CFA order).
@@ -105,7 +100,7 @@ fn black_levels(pack: &ModelPack, black_level: Option<Vec<f64>>) -> PyResult<[f3
 
 /// Synthesizes one image whose black level may differ from the pack's: levels are taken above
 /// black (the image is carried onto the pack's black level, synthesized, and carried back:
-/// [`noisecal_core::SensorLayout::align_to`]), as `noisecal synth` does.
+/// [`BlackAlignment::around`]), as `noisecal synth` does.
 fn synth_one(
     pack: &ModelPack,
     sampler: &IsoSampler,
@@ -114,13 +109,8 @@ fn synth_one(
     seed: u64,
     origin: (usize, usize),
 ) -> Array2<u16> {
-    let align = BlackAlignment::between(*black, pack.layout.black);
-    if align.is_identity() {
-        return synthesize_at(sampler, clean, seed, origin);
-    }
-    let white = pack.layout.white;
-    let moved = align.apply_at(clean, white, origin);
-    align.undo_at(synthesize_at(sampler, moved.view(), seed, origin).view(), white, origin)
+    BlackAlignment::between(*black, pack.layout.black)
+        .around(clean, pack.layout.white, origin, |c| synthesize_at(sampler, c, seed, origin))
 }
 
 /// The structured components `synth` adds at `iso` by default (`components=None`), which the
@@ -170,7 +160,7 @@ impl Pack {
     #[staticmethod]
     fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
         py.detach(|| {
-            guarded("Pack.load", || pool::run(|| noisecal_cli::support::load_pack(&path).map(Self::new).map_err(to_py)))
+            guarded("Pack.load", || pool::run(|| noisecal_input::files::load_pack(&path).map(Self::new).map_err(to_py)))
         })
     }
 
@@ -199,7 +189,7 @@ impl Pack {
         let pack = self.inner.clone();
         py.detach(move || {
             let b = pack.to_bytes().map_err(to_py)?;
-            noisecal_cli::output::write_atomic(&path, &b).map_err(to_py)
+            noisecal_input::files::write_atomic(&path, &b).map_err(to_py)
         })
     }
 
@@ -402,8 +392,11 @@ impl Pack {
 
     /// Turns captures at `from_iso` into captures at the higher `to_iso` (noise on noise), as
     /// `noisecal renoise` does; `method` is "bridge" (default), "quantile", "denoised" or "naive".
+    /// `black_level` is the captures' black level (default: the pack's; one number, or four in
+    /// CFA order): captures with another one are carried onto the pack's, re-noised, and carried
+    /// back, as `noisecal renoise` does with a DNG's own black level.
     /// Pixels above the pack's white level are refused unless `out_of_range` is "warn" or "allow".
-    #[pyo3(signature = (noisy, from_iso, to_iso, seed=0, *, method="bridge", extrapolate=false, out_of_range="raise"))]
+    #[pyo3(signature = (noisy, from_iso, to_iso, seed=0, *, method="bridge", black_level=None, extrapolate=false, out_of_range="raise"))]
     #[allow(clippy::too_many_arguments)]
     fn renoise<'py>(
         &self,
@@ -413,6 +406,7 @@ impl Pack {
         to_iso: u32,
         seed: u64,
         method: &str,
+        black_level: Option<Vec<f64>>,
         extrapolate: bool,
         out_of_range: &str,
     ) -> PyResult<Bound<'py, PyArrayDyn<u16>>> {
@@ -427,19 +421,26 @@ impl Pack {
             )));
         }
         let policy = OutOfRange::parse(out_of_range)?;
+        let black = black_levels(&self.inner, black_level)?;
         let view = noisy.as_array();
         let (imgs, batch) = images(&view, "noisy")?;
         let pack = &*self.inner;
         checks::levels_in_range(py, &imgs, "noisy", pack, policy, "re-noise them as they are")?;
+        let align = BlackAlignment::between(black, pack.layout.black);
         let outs = py.detach(|| {
             guarded("Pack.renoise", || {
                 pool::run(|| {
-                    let (source, _) = resolve_model(pack, from_iso, ModelKind::Noisecal, extrapolate)
-                        .map_err(|e| to_py(e.context(format!("no model for the source ISO {from_iso}"))))?;
-                    let (target, _) = resolve_model(pack, to_iso, ModelKind::Noisecal, extrapolate)
-                        .map_err(|e| to_py(e.context(format!("no model for the target ISO {to_iso}"))))?;
+                    let model = |iso: u32, which: &str| {
+                        resolve_model(pack, iso, ModelKind::Noisecal, extrapolate).map(|r| r.model).map_err(|e| {
+                            to_py(anyhow::Error::from(e).context(format!("no model for the {which} ISO {iso}")))
+                        })
+                    };
+                    let (source, target) = (model(from_iso, "source")?, model(to_iso, "target")?);
                     let r = Renoiser::new(pack, &source, &target, method).map_err(to_py)?;
-                    per_image(&imgs, seed, |img, s| r.apply(img, None, s).map(|o| o.image).map_err(to_py))
+                    let white = pack.layout.white;
+                    per_image(&imgs, seed, |img, s| {
+                        align.try_around(img, white, (0, 0), |a| r.apply(a, None, s).map(|o| o.image)).map_err(to_py)
+                    })
                 })
             })
         })?;

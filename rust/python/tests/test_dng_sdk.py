@@ -1,4 +1,4 @@
-"""DNGs that keep everything (issue 10), judged by the Adobe DNG SDK through PyPI `dngpy`.
+"""DNGs that keep everything (every tag, sub-IFD, preview and maker note of their template), judged by the Adobe DNG SDK through PyPI `dngpy`.
 
 `noisecal synth`, `noisecal renoise` and `noisecal.write_dng` derive a DNG from an input DNG. Here
 the SDK reads each input and each output as Adobe's tools do and the test asserts that

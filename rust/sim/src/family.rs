@@ -375,7 +375,7 @@ pub fn random_sensor(seed: u64) -> RandomSensor {
 
 const STRUCTURED_SALT: u64 = 0x5354_5255_4354_5552; // "STRUCTUR"
 
-/// A sensor of the random family with structured noise (issue 11): [`random_sensor`]`(seed)`
+/// A sensor of the random family with structured noise: [`random_sensor`]`(seed)`
 /// (same draws, so the same pixel chain) plus, from a separate stream,
 ///
 /// | trait | range |

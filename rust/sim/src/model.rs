@@ -455,7 +455,7 @@ impl SensorModel {
         }
     }
 
-    /// This sensor with phone-like structured noise (issue 11): row noise at about an eighth
+    /// This sensor with phone-like structured noise: row noise at about an eighth
     /// of the read noise (RMS, pre- and post-gain), a per-frame black-level error per CFA
     /// position with Laplace tails (a third of it shared by the four positions), and DSNU (a
     /// fifth of the read noise, pre- and post-gain). No column noise. Scaled on this sensor's

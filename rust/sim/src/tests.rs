@@ -484,7 +484,7 @@ fn motion_walks_within_its_bounds_and_moves_frames_captured_together() {
         // The same capture index at another ISO and exposure is where the scene was then.
         let other = sim.frame_effects(800, 125_000, i as u64);
         assert_eq!((other.jitter, other.rotation, other.scale), (p.jitter, p.rotation, p.scale));
-        if i > 0 && (i as u64) % MOTION_BLOCK != 0 {
+        if i > 0 && !(i as u64).is_multiple_of(MOTION_BLOCK) {
             steps
                 .push(((p.jitter.0 - poses[i - 1].jitter.0) as f64).hypot((p.jitter.1 - poses[i - 1].jitter.1) as f64));
         }

@@ -1,4 +1,4 @@
-//! The known truth of the structured noise components at one ISO (issue 11): what a calibration
+//! The known truth of the structured noise components at one ISO: what a calibration
 //! of row, column and frame-level noise should recover, and samplers of the true offset laws so
 //! that a test can score a calibrated distribution against them (and measure the finite-sample
 //! floor of that score by scoring two samples of the truth against each other).

@@ -1,4 +1,4 @@
-//! The structured components of the simulator (issue 11) against their declared truth: the
+//! The structured components of the simulator against their declared truth: the
 //! offsets a frame carries are the ones [`Simulator::frame_offsets`], [`Simulator::row_offsets`]
 //! and [`Simulator::column_offsets`] report, and their laws are [`StructuredTruth`]'s.
 

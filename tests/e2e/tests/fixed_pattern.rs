@@ -1,4 +1,4 @@
-//! The fixed pattern (issue 11, dark frames): DSNU measured from a dark step, recovered against
+//! The fixed pattern (dark frames): DSNU measured from a dark step, recovered against
 //! the simulator's truth, and synthesized as a pattern that repeats from image to image — while a
 //! sensor without one gets nothing.
 
@@ -31,7 +31,8 @@ fn calibrate_with_dark(s: &Setup, dark: bool) -> ModelPack {
         // A lit frame in the dark step is refused, by name.
         let f = s.plan.frames().last().expect("frames");
         let (px, meta) = s.sim.capture(f.iso, f.exposure_ns, 1 << 30).expect("capture");
-        let e = session.push_frame(&FrameView::from_array(&px).expect("view"), &meta).unwrap_err();
+        let e =
+            session.push_frame(&FrameView::from_array(&px).expect("view"), &meta).expect_err("a lit frame is refused");
         assert!(e.to_string().contains("not dark"), "{e}");
     }
     session.finish().expect("finish")

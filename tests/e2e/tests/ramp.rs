@@ -1,4 +1,4 @@
-//! The upper range is as smooth as the truth (issue 21, item 6): a ramp over every clean code,
+//! The upper range is as smooth as the truth: a ramp over every clean code,
 //! synthesized with the pixel-independent model, must not show the mean of the added noise
 //! jumping between adjacent levels further than the calibration data can tell apart.
 //!

@@ -1,11 +1,11 @@
 //! Real captures are messy: the session on simulated data that has each flaw, plus the paths a
 //! user takes (DNG folder vs recording, checkpoint and resume, determinism) and bad input.
 
-use noisecal_cli::calibrate::{CalibrateOptions, calibrate_path};
 use noisecal_cli::simulate::SimSession;
 use noisecal_core::error::SessionError;
 use noisecal_core::{CalibrationSession, FrameMeta, FrameView, ModelPack, SessionConfig};
 use noisecal_e2e::{calibrate, setup};
+use noisecal_input::calibrate::{CalibrateOptions, calibrate_path};
 use noisecal_sim::{Chart, Flicker, SensorModel, Simulator};
 
 #[test]
@@ -17,8 +17,8 @@ fn dng_folder_and_recording_give_the_same_pack() {
         let rec = dir.path().join(format!("s{name}.rec"));
         s.write(Some(&dngs), Some(&rec), 40, || {}).unwrap();
         let opts = CalibrateOptions { pooling: Some(200), ..Default::default() };
-        let (a, _) = calibrate_path(&dngs, &opts, true).unwrap();
-        let (b, _) = calibrate_path(&rec, &opts, true).unwrap();
+        let (a, _) = calibrate_path(&dngs, &opts, &mut |_, _| {}).unwrap();
+        let (b, _) = calibrate_path(&rec, &opts, &mut |_, _| {}).unwrap();
         assert_eq!(a.to_bytes().unwrap(), b.to_bytes().unwrap(), "{name}-bit: DNG folder and recording differ");
         assert_eq!(a.iso_list(), vec![400, 1600]);
     }
@@ -248,7 +248,7 @@ fn byte_identical_frames_are_refused_not_calibrated() {
     assert_eq!(pack.iso_list(), vec![400]);
 }
 
-/// Issue 13 item 1: an absurd camera NoiseProfile (S = 1e-3, O = 1e10, from a damaged tag or
+/// An absurd camera NoiseProfile (S = 1e-3, O = 1e10, from a damaged tag or
 /// record) does not go into the pack, where `synth --model noiseprofile`, `eval` and `report`
 /// would size their work by it; the pack says why.
 #[test]

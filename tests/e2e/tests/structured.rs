@@ -1,4 +1,4 @@
-//! Structured noise (issue 11): row and frame offsets calibrated from the session, recovered
+//! Structured noise: row and frame offsets calibrated from the session, recovered
 //! against the simulator's truth, and synthesized so that held-out row means vary as much as
 //! real ones — without the pixel marginals getting worse, and with nothing added on a sensor that
 //! has no such noise.

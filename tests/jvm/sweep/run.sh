@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Host JVM test of issue 6 part 5: a whole simulated sweep plan → CaptureController → REAL JNI
+# Host JVM test of the capture path end to end: a whole simulated sweep plan → CaptureController → REAL JNI
 # library (NoisecalSinkFactory) → pack, byte-identical to `noisecal calibrate` of the recording the
 # session wrote, with and without faults (settings lag, dropped images/results, failed captures,
 # wrong black levels, a kill mid-burst and a resume), and sane according to `noisecal inspect --json`.

@@ -8,10 +8,14 @@ pub const SIDE: std::ops::RangeInclusive<i64> = 2..=16384;
 pub const FRAMES: std::ops::RangeInclusive<i64> = 1..=1024;
 /// Evaluation seeds per model.
 pub const SEEDS: std::ops::RangeInclusive<i64> = 1..=64;
-/// Levels per bin.
-pub const BIN_WIDTH: std::ops::RangeInclusive<i64> = 1..=4096;
 /// Padding bytes per recorded row.
 pub const PADDING_MAX: usize = 1 << 16;
+/// `--bin-width`: levels per bin, by the core's rule ([`noisecal_core::model::bin_width::check`]).
+pub fn bin_width(s: &str) -> Result<u16, String> {
+    let v: u16 = s.parse().map_err(|e| format!("{e}"))?;
+    noisecal_core::model::bin_width::check(v).map_err(|e| e.to_string())
+}
+
 /// Bins per level group in eval.
 pub const GROUP_BINS_MAX: usize = 4096;
 

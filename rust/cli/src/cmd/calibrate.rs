@@ -5,9 +5,9 @@ use std::path::PathBuf;
 use anyhow::Context;
 use noisecal_core::calibrate::flat::Roi;
 
-use crate::calibrate::{CalibrateOptions, calibrate_path};
-use crate::output::write_atomic;
 use crate::support::escape_terminal;
+use noisecal_input::calibrate::CalibrateOptions;
+use noisecal_input::files::write_atomic;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -20,7 +20,7 @@ pub struct Args {
     #[arg(long)]
     pub reference_iso: Option<u32>,
     /// Levels per bin in DN (default: ~240 bins between black and white).
-    #[arg(long, value_parser = clap::value_parser!(u16).range(crate::cmd::bounds::BIN_WIDTH))]
+    #[arg(long, value_parser = crate::cmd::bounds::bin_width)]
     pub bin_width: Option<u16>,
     /// Pool every bin with its neighbours until it holds this many samples (default: chosen per
     /// ISO and CFA position by cross-validation on held-out frames; 0 = each bin's own histogram).
@@ -62,8 +62,8 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         flat_k: args.flat_k,
         no_drift_normalise: args.no_drift_normalise,
     };
-    crate::support::refuse_overwriting_inputs(&args.output, &[&args.input])?;
-    let (pack, report) = calibrate_path(&args.input, &opts, quiet)?;
+    noisecal_input::files::refuse_overwriting_inputs(&args.output, &[&args.input])?;
+    let (pack, report) = crate::support::calibrate(&args.input, &opts, quiet)?;
     let bytes = pack.to_bytes()?;
     write_atomic(&args.output, &bytes).with_context(|| format!("writing {}", args.output.display()))?;
     // `-q`: only errors on stderr. The warnings stay in the pack (`noisecal inspect` shows them).

@@ -12,12 +12,12 @@ use noisecal_core::synth::synthesize;
 use noisecal_core::{FrameView, ModelPack, POSITIONS};
 use noisecal_sim::SensorModel;
 
-use crate::calibrate::{CalibrateOptions, calibrate_path};
-use crate::clean::CleanImages;
-use crate::models::{ModelKind, resolve_model};
-use crate::output::write_atomic;
 use crate::simulate::SimSession;
 use crate::support::progress_bar;
+use noisecal_core::resolve::{ModelKind, resolve_model};
+use noisecal_input::calibrate::CalibrateOptions;
+use noisecal_input::clean::CleanImages;
+use noisecal_input::files::write_atomic;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -62,7 +62,7 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         eprintln!("wrote {} DNGs to {}", session.plan.len(), captures.display());
     }
 
-    let (pack, report) = calibrate_path(&captures, &CalibrateOptions::default(), quiet)?;
+    let (pack, report) = crate::support::calibrate(&captures, &CalibrateOptions::default(), quiet)?;
     let pack_path = args.out.join("demo.pack");
     write_atomic(&pack_path, &pack.to_bytes()?)?;
     if !quiet {
@@ -99,8 +99,8 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         let mut real_b = NoiseSamples::new(&binning, 8);
         let mut syn = NoiseSamples::new(&binning, 8);
         let mut hg = NoiseSamples::new(&binning, 8);
-        let (m_nc, _) = resolve_model(&pack, iso, ModelKind::Noisecal, false)?;
-        let (m_hg, _) = resolve_model(&pack, iso, ModelKind::Hg, false)?;
+        let m_nc = resolve_model(&pack, iso, ModelKind::Noisecal, false)?.model;
+        let m_hg = resolve_model(&pack, iso, ModelKind::Hg, false)?.model;
         let s_nc = IsoSampler::new(&pack, &m_nc);
         let s_hg = IsoSampler::with_components(&pack, &m_hg, noisecal_core::model::structure::Components::PIXEL);
         for k in 0..frames {
@@ -137,7 +137,7 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
     writeln!(stdout, "(JSD marginal/conditional, natural log; floor = two independent real sets of the same size)")?;
 
     // Example images a user can open: the clean EV 0 image and ISO 1600 synthesized on it.
-    let (m, _) = resolve_model(&pack, 1600, ModelKind::Noisecal, false)?;
+    let m = resolve_model(&pack, 1600, ModelKind::Noisecal, false)?.model;
     let noisy = synthesize(&IsoSampler::new(&pack, &m), clean.view(), args.seed);
     write_example(&args.out, &pack, &clean, &noisy)?;
     if !quiet {
@@ -153,9 +153,16 @@ fn write_example(
     noisy: &Array2<u16>,
 ) -> anyhow::Result<()> {
     let meta = noisecal_core::FrameMeta::new(pack.reference_iso, 10_000_000);
-    crate::dng::write_dng_from_layout(&out.join("clean_ev0.dng"), &pack.layout, &meta, &pack.make, &pack.model, clean)?;
+    noisecal_input::dng::write_dng_from_layout(
+        &out.join("clean_ev0.dng"),
+        &pack.layout,
+        &meta,
+        &pack.make,
+        &pack.model,
+        clean,
+    )?;
     let meta = noisecal_core::FrameMeta::new(1600, 10_000_000 * pack.reference_iso as u64 / 1600);
-    crate::dng::write_dng_from_layout(
+    noisecal_input::dng::write_dng_from_layout(
         &out.join("synth_iso1600.dng"),
         &pack.layout,
         &meta,

@@ -7,8 +7,10 @@ use std::path::PathBuf;
 use anyhow::Context;
 
 use crate::eval::{EvalOptions, evaluate, render_text};
-use crate::output::write_atomic;
-use crate::support::{load_pack, print};
+use noisecal_input::files::load_pack;
+use noisecal_input::files::write_atomic;
+
+use crate::support::print;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -58,7 +60,7 @@ impl ScoringArgs {
 
 pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
     if let Some(json) = &args.json {
-        crate::support::refuse_overwriting_inputs(json, &[&args.pack, &args.heldout])?;
+        noisecal_input::files::refuse_overwriting_inputs(json, &[&args.pack, &args.heldout])?;
     }
     let pack = load_pack(&args.pack)?;
     let report = evaluate(&pack, &args.pack, &args.heldout, &args.scoring.options(), quiet)?;

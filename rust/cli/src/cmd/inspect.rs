@@ -9,7 +9,9 @@ use noisecal_core::{ModelPack, POSITIONS};
 use serde::Serialize;
 
 use crate::models::origin_text;
-use crate::support::{escape_terminal, load_pack, print};
+use noisecal_input::files::load_pack;
+
+use crate::support::{escape_terminal, print};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {

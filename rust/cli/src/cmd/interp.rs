@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use anyhow::{Context, bail};
 use noisecal_core::derive::interp::{self, InterpOptions, Materialized};
 
-use crate::support::load_pack;
+use noisecal_input::files::load_pack;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -27,7 +27,7 @@ pub struct Args {
 }
 
 pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
-    crate::support::refuse_overwriting_inputs(&args.output, &[&args.pack])?;
+    noisecal_input::files::refuse_overwriting_inputs(&args.output, &[&args.pack])?;
     let pack = load_pack(&args.pack)?;
     let mut stdout = std::io::stdout().lock();
     if args.isos.contains(&0) {
@@ -72,7 +72,7 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         }
     }
     let bytes = out.to_bytes().context("cannot encode the new model pack")?;
-    crate::output::write_atomic(&args.output, &bytes)?;
+    noisecal_input::files::write_atomic(&args.output, &bytes)?;
     writeln!(
         stdout,
         "wrote {} (ISOs {})",

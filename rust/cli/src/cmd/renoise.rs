@@ -3,7 +3,6 @@
 //! paper §4.2). A folder in gives a folder out (same file names). The source ISO comes from each
 //! input's metadata unless `--from-iso` says otherwise.
 
-use std::borrow::Cow;
 use std::collections::BTreeMap;
 use std::collections::btree_map::Entry;
 use std::path::{Path, PathBuf};
@@ -13,10 +12,12 @@ use ndarray::Array2;
 use noisecal_core::renoise::{Method, Renoiser};
 use noisecal_core::{BlackAlignment, ModelPack, position};
 
-use crate::dng;
-use crate::models::{ModelKind, align_input, check_layout_matches, resolve_model};
+use noisecal_core::resolve::ModelKind;
+use noisecal_input::dng;
+
+use crate::models::{align_input, check_layout_matches, resolve_model};
 use crate::seeds::SeedBy;
-use crate::support::load_pack;
+use noisecal_input::files::load_pack;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -73,7 +74,7 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
     if let Some(e) = &args.estimate {
         inputs.push(e);
     }
-    crate::support::refuse_overwriting_inputs(&args.output, &inputs)?;
+    noisecal_input::files::refuse_overwriting_inputs(&args.output, &inputs)?;
     let pack = load_pack(&args.pack)?;
     let jobs = plan_jobs(&args)?;
     let mut renoisers: BTreeMap<u32, Renoiser> = BTreeMap::new();
@@ -108,29 +109,28 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
             Some(p) => Some(read_estimate(p, img.pixels.dim(), &align)?),
             None => None,
         };
-        let input = if align.is_identity() {
-            Cow::Borrowed(&img.pixels)
-        } else {
-            Cow::Owned(align.apply(img.pixels.view(), pack.layout.white))
-        };
-        let mut out = renoiser
-            .apply(input.view(), estimate.as_ref().map(|e| e.view()), seed)
+        let mut warnings = Vec::new();
+        let noisy = align
+            .try_around(img.pixels.view(), pack.layout.white, (0, 0), |input| {
+                let out = renoiser.apply(input, estimate.as_ref().map(|e| e.view()), seed)?;
+                warnings = out.warnings;
+                Ok::<_, noisecal_core::renoise::RenoiseError>(out.image)
+            })
             .with_context(|| format!("cannot renoise {}", job.input.display()))?;
-        if !align.is_identity() {
-            out.image = align.undo(out.image.view(), img.layout.white);
-        }
         if !quiet {
-            for w in out.warnings.iter().filter(|w| !renoiser.warnings().contains(w)) {
+            for w in warnings.iter().filter(|w| !renoiser.warnings().contains(w)) {
                 eprintln!("noisecal: warning: {}: {w}", job.input.display());
             }
         }
         // The written NoiseProfile is the target model's fit (resolved once, after `prepare` checked the ISOs).
         let target = match &target_model {
             Some(m) => m,
-            None => target_model.insert(resolve_model(&pack, args.to_iso, ModelKind::Noisecal, args.extrapolate)?.0),
+            None => {
+                target_model.insert(resolve_model(&pack, args.to_iso, ModelKind::Noisecal, args.extrapolate)?.model)
+            }
         };
         let profile = dng::fitted_noise_profile(&pack, target, &img.layout);
-        dng::write_derived(&job.output, &file, &out.image, args.to_iso, profile.as_ref())?;
+        dng::write_derived(&job.output, &file, &noisy, args.to_iso, profile.as_ref())?;
         if !quiet {
             eprintln!(
                 "{} → {} (ISO {from} → {}, {}, seed {seed}{})",
@@ -234,11 +234,12 @@ fn prepare(pack: &ModelPack, from: u32, args: &Args, quiet: bool, show_target_no
             "cannot renoise ISO {from} captures to ISO {to}: noise on noise only adds noise, so --to-iso must be above the source ISO {from}"
         );
     }
-    let (source, source_note) = resolve_model(pack, from, ModelKind::Noisecal, args.extrapolate)
+    let source = resolve_model(pack, from, ModelKind::Noisecal, args.extrapolate)
         .with_context(|| format!("no model for the source ISO {from}"))?;
-    let (target, target_note) = resolve_model(pack, to, ModelKind::Noisecal, args.extrapolate)
+    let target = resolve_model(pack, to, ModelKind::Noisecal, args.extrapolate)
         .with_context(|| format!("no model for the target ISO {to}"))?;
-    let renoiser = Renoiser::new(pack, &source, &target, args.method)?;
+    let (source_note, target_note) = (crate::models::note(&source), crate::models::note(&target));
+    let renoiser = Renoiser::new(pack, &source.model, &target.model, args.method)?;
     if !quiet {
         if let Some(n) = source_note {
             eprintln!("noisecal: {n}");

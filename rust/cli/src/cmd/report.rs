@@ -7,9 +7,9 @@ use anyhow::Context;
 
 use crate::cmd::eval::ScoringArgs;
 use crate::eval::{EvalReport, evaluate};
-use crate::output::write_atomic;
 use crate::report::render_html;
-use crate::support::load_pack;
+use noisecal_input::files::load_pack;
+use noisecal_input::files::write_atomic;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -33,7 +33,7 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
     if let Some(e) = &args.eval {
         inputs.push(e);
     }
-    crate::support::refuse_overwriting_inputs(&args.output, &inputs)?;
+    noisecal_input::files::refuse_overwriting_inputs(&args.output, &inputs)?;
     let pack = load_pack(&args.pack)?;
     let eval: Option<EvalReport> = match &args.eval {
         None => None,

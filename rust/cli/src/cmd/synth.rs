@@ -11,10 +11,12 @@ use noisecal_core::model::structure::Components;
 use noisecal_core::synth::sampler::IsoSampler;
 use noisecal_core::synth::{CleanAt, synthesize, synthesize_bands};
 
-use crate::dng;
-use crate::models::{ModelKind, align_input, check_layout_matches, resolve_model, sampler_for};
+use noisecal_core::resolve::ModelKind;
+use noisecal_input::dng;
+
+use crate::models::{align_input, check_layout_matches, model_parser, resolve_model};
 use crate::seeds::SeedBy;
-use crate::support::MAX_PACK_BYTES;
+use noisecal_input::files::MAX_PACK_BYTES;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -35,7 +37,7 @@ pub struct Args {
     #[arg(long, value_enum, default_value_t = SeedBy::Name)]
     pub seed_by: SeedBy,
     /// Noise model: the calibrated non-parametric one, or a baseline for comparison.
-    #[arg(long, value_enum, default_value_t = ModelKind::Noisecal)]
+    #[arg(long, value_parser = model_parser(), default_value = "noisecal")]
     pub model: ModelKind,
     /// Allow ISOs outside the calibrated range (extrapolated).
     #[arg(long)]
@@ -63,7 +65,7 @@ pub struct Args {
     pub output: PathBuf,
 }
 
-/// [`crate::support::load_pack`] (same checks, same messages) from a mapping of the file instead
+/// [`noisecal_input::files::load_pack`] (same checks, same messages) from a mapping of the file instead
 /// of a copy: the pack is decoded once, so copying it first only costs fresh pages (1 600 of them
 /// for the 6.7 MB pack of the simulated phone), on the path before sampling can start.
 fn load_pack_mapped(path: &Path) -> anyhow::Result<noisecal_core::ModelPack> {
@@ -82,23 +84,21 @@ fn parse_clean_at(s: &str) -> Result<CleanAt, String> {
 }
 
 pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
-    crate::support::refuse_overwriting_inputs(&args.output, &[&args.input, &args.pack])?;
+    noisecal_input::files::refuse_overwriting_inputs(&args.output, &[&args.input, &args.pack])?;
     let folder = args.input.is_dir();
     std::thread::scope(|scope| {
         // A single input is read while the pack loads.
         let prefetch = (!folder).then(|| scope.spawn(|| dng::read_dng_source(&args.input)));
         let pack = load_pack_mapped(&args.pack)?;
-        let (model, note) = resolve_model(&pack, args.iso, args.model, args.extrapolate)?;
-        if let Some(n) = note
+        let resolved = resolve_model(&pack, args.iso, args.model, args.extrapolate)?;
+        if let Some(n) = crate::models::note(&resolved)
             && !quiet
         {
             eprintln!("{n}");
         }
-        let which = match args.model {
-            ModelKind::Noisecal => args.components.unwrap_or(Components::ALL),
-            _ => Components::PIXEL,
-        };
-        let sampler = sampler_for(&pack, &model, args.model, which, args.clean_at, args.extrapolate)?;
+        let which = args.model.components(args.components);
+        let sampler = resolved.sampler(&pack, which, args.clean_at, args.extrapolate)?;
+        let model = resolved.model;
         if args.clean_at == CleanAt::Target
             && !quiet
             && let Some(g) = sampler.target_gains()
@@ -278,14 +278,7 @@ impl Job<'_> {
         let clean = file.pixels();
         // The NoiseProfile fit is single-threaded: it runs next to the sampling, not after it.
         let (noisy, profile) = rayon::join(
-            || {
-                if align.is_identity() {
-                    synthesize(self.sampler, clean, seed)
-                } else {
-                    let moved = align.apply(clean, pack.layout.white);
-                    align.undo(synthesize(self.sampler, moved.view(), seed).view(), layout.white)
-                }
-            },
+            || align.around(clean, pack.layout.white, (0, 0), |c| synthesize(self.sampler, c, seed)),
             || self.profile(&layout),
         );
         Ok(Output::Pixels { file, noisy, profile })

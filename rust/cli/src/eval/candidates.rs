@@ -138,7 +138,7 @@ pub(super) fn candidates(
     };
     let mut list = vec![candidate(CandidateKind::Noisecal, "noisecal (non-parametric)".into(), origin.clone(), &model)];
     // With structured components, the pixel-independent model alone is scored next to it: what
-    // the components add (issue 11's before and after in one evaluation).
+    // the components add (the pixel-only model and the full one side by side in one evaluation).
     if list[0].sampler.structure().is_some() {
         list.push(Candidate {
             kind: CandidateKind::NoisecalPixel,

@@ -11,9 +11,9 @@ use noisecal_core::calibrate::step::{STEP_TOLERANCE, StepKey};
 use noisecal_core::model::NoiseProfile;
 use noisecal_core::{FrameMeta, POSITIONS};
 
-use crate::clean::{CleanBurst, CleanImages};
-use crate::source::{InputKind, Record, Source, SourceInfo, input_kind};
 use crate::support::progress_bar;
+use noisecal_input::clean::{CleanBurst, CleanImages};
+use noisecal_input::source::{InputKind, Record, Source, SourceInfo, input_kind};
 
 /// A burst of target frames at one ISO of one EV step, with the step's clean image.
 #[derive(Debug)]

@@ -58,7 +58,7 @@ pub use scores::{
 use scoring::IsoScoring;
 pub use text::render_text;
 
-use crate::source::SourceInfo;
+use noisecal_input::source::SourceInfo;
 
 /// Scores a pack against a held-out set (see the module docs).
 pub fn evaluate(

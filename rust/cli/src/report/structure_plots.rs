@@ -1,4 +1,4 @@
-//! The report's structured-noise charts (issue 11): each component's distribution at one ISO
+//! The report's structured-noise charts: each component's distribution at one ISO
 //! (row and column offsets per parity as quantile functions, frame offsets per CFA position as
 //! their sorted sample) and every component's standard deviation against ISO, marking which ones
 //! synthesis adds.

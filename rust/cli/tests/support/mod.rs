@@ -1,4 +1,47 @@
-//! Shared by the CLI's integration tests (`mod support;`).
+//! Shared by the CLI's integration tests (`mod support;`): the one way they run the `noisecal`
+//! binary, and the arguments of a small simulated session. A test file shapes [`Run`] into what
+//! its assertions read; how the binary is started and what every run must never do (panic, exit
+//! with the internal-error code 3) is written here once.
+
+// Each test binary uses a part of this module.
+#![allow(dead_code)]
+
+use std::ffi::OsStr;
+use std::process::{Command, Stdio};
+
+/// The exit code of an internal error (a caught panic).
+pub const INTERNAL_ERROR: i32 = 3;
+
+/// The `noisecal` binary this test target was built with, as a command to add arguments to
+/// (for runs that need their own pipes or a kill; [`run`] covers the rest).
+pub fn command() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_noisecal"))
+}
+
+/// What a finished run of `noisecal` did.
+#[derive(Debug)]
+pub struct Run {
+    pub ok: bool,
+    pub stdout: String,
+    pub stderr: String,
+}
+
+/// Runs `noisecal args…` to its end (stdin closed) and checks that no panic crossed the CLI and
+/// that it did not end with an internal error, whatever the arguments.
+pub fn run<S: AsRef<OsStr>>(args: impl IntoIterator<Item = S>) -> Run {
+    let out = command().args(args).stdin(Stdio::null()).output().expect("run noisecal");
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(!stderr.contains("panicked"), "a panic crossed the CLI: {stderr}");
+    assert_ne!(out.status.code(), Some(INTERNAL_ERROR), "internal error: {stderr}");
+    Run { ok: out.status.success(), stdout: String::from_utf8_lossy(&out.stdout).into_owned(), stderr }
+}
+
+/// As [`run`] with `-q` (after the arguments).
+pub fn run_quiet<S: AsRef<OsStr>>(args: impl IntoIterator<Item = S>) -> Run {
+    let mut all: Vec<std::ffi::OsString> = args.into_iter().map(|a| a.as_ref().to_owned()).collect();
+    all.push("-q".into());
+    run(all)
+}
 
 /// The arguments of `noisecal simulate` for a small session: a `width`×`height` sensor, `frames`
 /// a burst at each of `isos` (comma-separated) and EV step (`ev` as given, e.g. `--ev=-1,1`),

@@ -192,6 +192,6 @@ mod tests {
         let e = FrameView::from_le_bytes(&bytes, 4, 2, 8, 2).unwrap_err();
         assert!(e.to_string().contains("(height − 1) · rowStride + 2 · width"), "{e}");
         assert!(FrameView::from_le_bytes(&bytes[..8], 4, 2, 8, 2).is_err());
-        assert!(FrameView::from_le_bytes(&vec![0u8; 16], 4, 2, 8, 2).is_ok());
+        assert!(FrameView::from_le_bytes(&[0u8; 16], 4, 2, 8, 2).is_ok());
     }
 }

@@ -71,6 +71,12 @@ pub const MAX_DRIFT: f64 = 0.05;
 pub const WELL_SAMPLED: u64 = 1000;
 
 impl SessionConfig {
+    /// How a burst's frames are judged for drift under this configuration: the one policy of a
+    /// session's bursts and of a clean image summed outside a session (`noisecal-input`'s `clean`).
+    pub fn drift_policy(&self) -> DriftPolicy {
+        DriftPolicy { z: self.drift_z, floor: self.drift_floor, max: self.max_drift, normalise: self.normalise_drift }
+    }
+
     pub fn new(reference_iso: u32) -> Self {
         Self {
             reference_iso,
@@ -200,7 +206,10 @@ impl CalibrationSession {
         if config.reference_iso == 0 {
             return Err(SessionError::Metadata("reference ISO is 0; pass the sensor's minimum sensitivity".into()));
         }
-        let bin_width = config.bin_width.unwrap_or_else(|| layout.default_bin_width());
+        let bin_width = match config.bin_width {
+            Some(w) => crate::model::bin_width::check(w)?,
+            None => layout.default_bin_width(),
+        };
         let binning = Binning::new(&layout, bin_width);
         Ok(Self {
             layout,
@@ -409,8 +418,7 @@ impl CalibrationSession {
     }
 
     fn drift_policy(&self) -> DriftPolicy {
-        let c = &self.config;
-        DriftPolicy { z: c.drift_z, floor: c.drift_floor, max: c.max_drift, normalise: c.normalise_drift }
+        self.config.drift_policy()
     }
 
     fn push_reference(&mut self, frame: &FrameView<'_>, meta: &FrameMeta) -> Result<FrameReport, SessionError> {

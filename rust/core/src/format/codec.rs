@@ -313,7 +313,7 @@ mod tests {
         ));
     }
 
-    /// Issue 13 item 14: a payload that does not decode says so in words, not in Rust's
+    /// A payload that does not decode says so in words, not in Rust's
     /// (`InvalidBooleanValue(130)`).
     #[test]
     fn undecodable_payloads_are_described_in_words() {

@@ -1,4 +1,4 @@
-//! The compact payload of model packs from format version 5 on (issue 26 item 3): the same
+//! The compact payload of model packs from format version 5 on: the same
 //! bincode value as version 4, with each bin's weights rounded to [`MANTISSA_BITS`] significant
 //! bits and stored as differences of their log-like codes ([`code`]: a weight below
 //! 2^[`MANTISSA_BITS`] is its own code, a larger one its exponent and mantissa, so a smooth

@@ -1,6 +1,6 @@
 //! Raw recordings: the exact stream of (metadata, plane bytes, row stride) the app hands to the
 //! core, so a device session replays on a desktop to the same pack. A pure codec: what the bytes
-//! hold, in both directions, with the framing of [`codec`](super::codec) (a record stream).
+//! hold, in both directions, with the framing of [`codec`] (a record stream).
 //!
 //! Format v1, all integers little-endian (simple enough to read from Kotlin or Python):
 //! ```text
@@ -866,7 +866,8 @@ mod tests {
     fn golden_bytes(resume_after: usize) -> Vec<u8> {
         let data: Vec<u8> = (0..20u8).collect();
         let second = FrameMeta { iso: 110, exposure_ns: 617_283, black: Some([64.0, 64.25, 63.5, 64.0]) };
-        let steps: Vec<Box<dyn Fn(&mut RecordingWriter<Vec<u8>>) -> io::Result<()> + '_>> = vec![
+        type Step<'a> = Box<dyn Fn(&mut RecordingWriter<Vec<u8>>) -> io::Result<()> + 'a>;
+        let steps: Vec<Step<'_>> = vec![
             Box::new(|w| w.begin_step(1_234_567)),
             Box::new(|w| w.frame(&FrameMeta::new(55, 1_234_567), 4, 2, 12, 2, &data)),
             Box::new(|w| w.frame(&second, 4, 2, 12, 2, &data)),
@@ -992,7 +993,7 @@ mod tests {
         at + 1 + 45..at + 1 + 49
     }
 
-    /// Issue 13 item 7: one flipped bit in a middle record's length is damage named by record
+    /// One flipped bit in a middle record's length is damage named by record
     /// and offset, not "an interrupted capture".
     #[test]
     fn a_damaged_length_is_not_an_interruption() {
@@ -1050,7 +1051,7 @@ mod tests {
         RecordingReader::from_bytes(&encode_header(&hd)).expect("a 201 MP sensor is read");
     }
 
-    /// Issue 13 item 8: records removed or duplicated, each with a valid checksum.
+    /// Records removed or duplicated, each with a valid checksum, are damage, not a good recording.
     #[test]
     fn removed_and_duplicated_records_are_found() {
         let (good, at) = frames_recording(5);

@@ -1,4 +1,4 @@
-//! Spatial measures of noise (issue 11, "Evaluation"): what a pixel-independent model cannot make
+//! Spatial measures of noise (method.md, "Evaluation"): what a pixel-independent model cannot make
 //! and a histogram JSD cannot see. All are measured on the same flat pixels for real and
 //! synthetic noise (`capture − round(clean)`, `synthesized − round(clean)`, one clean image per
 //! EV step):

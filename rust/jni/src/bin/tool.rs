@@ -43,7 +43,7 @@ fn write_rec(args: &[String]) -> Fallible<()> {
     let seed = option(args, "--seed")?.map(|v| parse("--seed", v)).transpose()?.unwrap_or(1);
     let stride = option(args, "--row-stride")?.map(|v| parse("--row-stride", v)).transpose()?.unwrap_or(2 * w as usize);
     let synth = Synth::new(w, h, seed);
-    // Atomic like every other writer (issue 13): a failed or killed run leaves no partial
+    // Atomic like every other writer: a failed or killed run leaves no partial
     // recording under `out`.
     let failed = |e: std::io::Error| format!("writing {out} failed: {e}");
     // AtomicFile buffers its writes itself.

@@ -1,5 +1,5 @@
 from os import PathLike
-from typing import Any, Literal, Sequence, TypedDict
+from typing import Any, Literal, Sequence, TypedDict, final
 
 import numpy as np
 import numpy.typing as npt
@@ -42,6 +42,7 @@ class Tables(TypedDict):
     shift: npt.NDArray[np.float64]
     structure: list[str]
 
+@final
 class Pack:
     @staticmethod
     def load(path: str | PathLike[str]) -> Pack: ...
@@ -101,6 +102,7 @@ class Pack:
         seed: int = 0,
         *,
         method: Method = "bridge",
+        black_level: float | Sequence[float] | None = None,
         extrapolate: bool = False,
         out_of_range: OutOfRange = "raise",
     ) -> npt.NDArray[np.uint16]: ...

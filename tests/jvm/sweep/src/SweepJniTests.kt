@@ -32,7 +32,7 @@ import org.noisecal.capture.sink.NoisecalSinkFactory
 import org.noisecal.jni.NoisecalSession
 
 /**
- * Issue 6, part 5: a whole simulated sweep plan → [org.noisecal.capture.controller.CaptureController]
+ * A whole simulated sweep plan → [org.noisecal.capture.controller.CaptureController]
  * → real JNI library ([NoisecalSinkFactory]) → pack, compared byte for byte with
  * `noisecal calibrate` of the recording the same session wrote.
  */

@@ -5,9 +5,9 @@
 use std::path::{Path, PathBuf};
 
 use ndarray::{Array2, s};
-use noisecal_cli::dng::tiff::{Ifd, ImageData, TagValue, TiffBuilder, pack_msb, tag, u16_bytes};
-use noisecal_cli::dng::{DngError, DngSpec, dng_tiff, read_dng, write_dng_from_layout};
 use noisecal_core::{CfaPattern, FrameMeta, SensorLayout};
+use noisecal_input::dng::tiff::{Ifd, ImageData, TagValue, TiffBuilder, pack_msb, tag, u16_bytes};
+use noisecal_input::dng::{DngError, DngSpec, dng_tiff, read_dng, write_dng_from_layout};
 
 struct Rng(u64);
 impl Rng {
@@ -108,7 +108,7 @@ fn android_dngcreator_layout() {
 
     // Written back from it, colour tags and levels carry over.
     let out = dir.path().join("copy.dng");
-    noisecal_cli::dng::write_dng(&out, &img, &img.pixels, 1600).expect("write");
+    noisecal_input::dng::write_dng(&out, &img, &img.pixels, 1600).expect("write");
     let copy = read_dng(&out).expect("read copy");
     assert_eq!(copy.layout, img.layout);
     assert_eq!(copy.pixels, img.pixels);

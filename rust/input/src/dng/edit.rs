@@ -20,7 +20,7 @@
 //! `NewRawImageDigest` are dropped (they hash the old pixels) and `RawDataUniqueID` is changed (raw
 //! converters key their caches on it).
 
-use std::collections::{BTreeMap, HashSet};
+use std::collections::BTreeMap;
 
 use ndarray::{Array2, ArrayView2, ShapeBuilder};
 use noisecal_core::SensorLayout;
@@ -28,150 +28,18 @@ use noisecal_core::model::layout::{CfaColor, POSITIONS};
 use noisecal_core::model::pack::NoiseProfile;
 use rayon::prelude::*;
 
+use super::ifd::{Entry, FieldType, Order, Structure, walk};
 use super::tags::Tag;
 use super::tiff::pack_msb;
 
 const PHOTOMETRIC_CFA: u64 = 32803;
+const SHORT: u16 = FieldType::Short as u16;
+const LONG: u16 = FieldType::Long as u16;
 
-/// Bytes per element of a TIFF field type (`None` for types TIFF does not define).
-fn type_size(ty: u16) -> Option<usize> {
-    match ty {
-        1 | 2 | 6 | 7 => Some(1),
-        3 | 8 => Some(2),
-        4 | 9 | 11 | 13 => Some(4),
-        5 | 10 | 12 => Some(8),
-        _ => None,
-    }
-}
-
-#[derive(Debug, Clone, Copy)]
-struct Entry {
-    tag: u16,
-    ty: u16,
-    count: u32,
-    /// The value/offset field as stored (file byte order).
-    field: [u8; 4],
-}
-
-#[derive(Debug)]
-struct Dir {
-    offset: usize,
-    entries: Vec<Entry>,
-    /// File position of the u32 that points to this directory.
-    pointer_at: usize,
-    /// Directories this one points to, with the pointer tag (SubIFDs or ExifIFD).
-    children: Vec<(u16, usize)>,
-}
-
-/// Byte order of the file.
-#[derive(Debug, Clone, Copy)]
-struct Order {
-    big: bool,
-}
-
-impl Order {
-    fn u16(self, b: &[u8], at: usize) -> Option<u16> {
-        let x: [u8; 2] = b.get(at..at.checked_add(2)?)?.try_into().ok()?;
-        Some(if self.big { u16::from_be_bytes(x) } else { u16::from_le_bytes(x) })
-    }
-
-    fn u32(self, b: &[u8], at: usize) -> Option<u32> {
-        let x: [u8; 4] = b.get(at..at.checked_add(4)?)?.try_into().ok()?;
-        Some(if self.big { u32::from_be_bytes(x) } else { u32::from_le_bytes(x) })
-    }
-
-    fn b16(self, v: u16) -> [u8; 2] {
-        if self.big { v.to_be_bytes() } else { v.to_le_bytes() }
-    }
-
-    fn b32(self, v: u32) -> [u8; 4] {
-        if self.big { v.to_be_bytes() } else { v.to_le_bytes() }
-    }
-}
-
-/// The IFD structure of a TIFF file: every directory of the IFD chain and, below them, of their
-/// SubIFDs and ExifIFD pointers (in pre-order: a directory comes before the ones it points to).
-#[derive(Debug)]
-struct Structure {
-    order: Order,
-    dirs: Vec<Dir>,
-    chain: Vec<usize>,
-}
-
+/// The structure walked by [`walk`], read the ways the editor needs.
 impl Structure {
     fn parse(buf: &[u8]) -> Result<Self, String> {
-        let big = match buf.get(..4) {
-            Some(b"II\x2a\0") => false,
-            Some(b"MM\0\x2a") => true,
-            _ => return Err("the template is not a TIFF/DNG file".into()),
-        };
-        let mut s = Structure { order: Order { big }, dirs: Vec::new(), chain: Vec::new() };
-        let mut visited = HashSet::new();
-        let mut pointer_at = 4usize;
-        while let Some(off) = s.order.u32(buf, pointer_at) {
-            if off == 0 || s.chain.len() >= 64 {
-                break;
-            }
-            let idx = s.dir(buf, off as usize, pointer_at, 0, &mut visited)?;
-            s.chain.push(idx);
-            pointer_at = s.dirs[idx].offset + 2 + 12 * s.dirs[idx].entries.len();
-        }
-        if s.chain.is_empty() {
-            return Err("the template has no IFD".into());
-        }
-        Ok(s)
-    }
-
-    fn dir(
-        &mut self,
-        buf: &[u8],
-        off: usize,
-        pointer_at: usize,
-        depth: u32,
-        visited: &mut HashSet<usize>,
-    ) -> Result<usize, String> {
-        if !visited.insert(off) || visited.len() > 512 {
-            return Err(format!("the template's IFD at offset {off} is referenced twice (corrupt IFD links)"));
-        }
-        let o = self.order;
-        let n = o.u16(buf, off).ok_or_else(|| format!("the template's IFD at {off} lies past its end"))? as usize;
-        if off + 2 + 12 * n + 4 > buf.len() {
-            return Err(format!("the template's IFD at {off} runs past its end"));
-        }
-        let entries: Vec<Entry> = (0..n)
-            .map(|i| {
-                let e = off + 2 + 12 * i;
-                Entry {
-                    tag: o.u16(buf, e).unwrap_or(0),
-                    ty: o.u16(buf, e + 2).unwrap_or(0),
-                    count: o.u32(buf, e + 4).unwrap_or(0),
-                    field: buf[e + 8..e + 12].try_into().unwrap_or([0; 4]),
-                }
-            })
-            .collect();
-        let idx = self.dirs.len();
-        self.dirs.push(Dir { offset: off, entries: entries.clone(), pointer_at, children: Vec::new() });
-        if depth < 4 {
-            for (i, e) in entries.iter().enumerate() {
-                let pointer_tag = e.tag == Tag::SubIfds.to_u16() || e.tag == Tag::ExifIfd.to_u16();
-                if !pointer_tag || !(e.ty == 4 || e.ty == 13) {
-                    continue;
-                }
-                let count = e.count as usize;
-                let base = if count <= 1 { off + 2 + 12 * i + 8 } else { o.u32(&e.field, 0).unwrap_or(0) as usize };
-                for k in 0..count.min(64) {
-                    let at = base + 4 * k;
-                    match o.u32(buf, at) {
-                        Some(child) if child != 0 && (child as usize) < buf.len() => {
-                            let c = self.dir(buf, child as usize, at, depth + 1, visited)?;
-                            self.dirs[idx].children.push((e.tag, c));
-                        }
-                        _ => {}
-                    }
-                }
-            }
-        }
-        Ok(idx)
+        walk(buf)
     }
 
     fn entry(&self, dir: usize, t: Tag) -> Option<&Entry> {
@@ -180,7 +48,7 @@ impl Structure {
 
     /// The bytes of an entry's value (`None` when it lies outside the file or its type is unknown).
     fn bytes<'a>(&self, buf: &'a [u8], e: &'a Entry) -> Option<&'a [u8]> {
-        let size = type_size(e.ty)?.checked_mul(e.count as usize)?;
+        let size = FieldType::from_code(e.ty)?.size().checked_mul(e.count as usize)?;
         if size <= 4 {
             Some(&e.field[..size])
         } else {
@@ -194,10 +62,12 @@ impl Structure {
         let e = self.entry(dir, t)?;
         let b = self.bytes(buf, e)?;
         let o = self.order;
-        match e.ty {
-            1 | 7 => Some(b.iter().map(|&x| x as u64).collect()),
-            3 => Some((0..b.len() / 2).map(|i| o.u16(b, 2 * i).unwrap_or(0) as u64).collect()),
-            4 | 13 => Some((0..b.len() / 4).map(|i| o.u32(b, 4 * i).unwrap_or(0) as u64).collect()),
+        match FieldType::from_code(e.ty)? {
+            FieldType::Byte | FieldType::Undefined => Some(b.iter().map(|&x| x as u64).collect()),
+            FieldType::Short => Some((0..b.len() / 2).map(|i| o.u16(b, 2 * i).unwrap_or(0) as u64).collect()),
+            FieldType::Long | FieldType::Ifd => {
+                Some((0..b.len() / 4).map(|i| o.u32(b, 4 * i).unwrap_or(0) as u64).collect())
+            }
             _ => None,
         }
     }
@@ -360,11 +230,11 @@ pub(crate) fn derive(
                     out.extend_from_slice(&o.b16(v));
                 }
             }
-            edits.set(raw, Tag::Compression, 3, 1, shorts(o, &[1]));
-            edits.set(raw, Tag::BitsPerSample, 3, 1, shorts(o, &[16]));
-            edits.set(raw, Tag::StripOffsets, 4, offsets.len() as u32, longs(o, &offsets));
-            edits.set(raw, Tag::StripByteCounts, 4, counts.len() as u32, longs(o, &counts));
-            edits.set(raw, Tag::RowsPerStrip, 4, 1, longs(o, &[rows as u32]));
+            edits.set(raw, Tag::Compression, SHORT, 1, shorts(o, &[1]));
+            edits.set(raw, Tag::BitsPerSample, SHORT, 1, shorts(o, &[16]));
+            edits.set(raw, Tag::StripOffsets, LONG, offsets.len() as u32, longs(o, &offsets));
+            edits.set(raw, Tag::StripByteCounts, LONG, counts.len() as u32, longs(o, &counts));
+            edits.set(raw, Tag::RowsPerStrip, LONG, 1, longs(o, &[rows as u32]));
             for t in [
                 Tag::TileWidth,
                 Tag::TileLength,
@@ -410,27 +280,27 @@ fn metadata_edits(
             let Some(e) = s.entry(d, t) else { continue };
             has_iso |= t == Tag::IsoSpeedRatings;
             let n = e.count.max(1) as usize;
-            match e.ty {
-                3 => edits.set(d, t, 3, n as u32, shorts(o, &vec![iso.min(65535) as u16; n])),
-                _ => edits.set(d, t, 4, n as u32, longs(o, &vec![iso; n])),
+            match FieldType::from_code(e.ty) {
+                Some(FieldType::Short) => edits.set(d, t, SHORT, n as u32, shorts(o, &vec![iso.min(65535) as u16; n])),
+                _ => edits.set(d, t, LONG, n as u32, longs(o, &vec![iso; n])),
             }
         }
         if iso > 65535 && s.entry(d, Tag::IsoSpeedRatings).is_some() {
             if s.entry(d, Tag::IsoSpeed).is_none() {
-                edits.set(d, Tag::IsoSpeed, 4, 1, longs(o, &[iso]));
+                edits.set(d, Tag::IsoSpeed, LONG, 1, longs(o, &[iso]));
             }
             if s.entry(d, Tag::SensitivityType).is_none() {
-                edits.set(d, Tag::SensitivityType, 3, 1, shorts(o, &[3]));
+                edits.set(d, Tag::SensitivityType, SHORT, 1, shorts(o, &[3]));
             }
         }
     }
     if !has_iso {
         let exif = s.dirs.iter().flat_map(|d| &d.children).find(|(t, _)| *t == Tag::ExifIfd.to_u16()).map(|&(_, c)| c);
         let d = exif.unwrap_or(s.chain[0]);
-        edits.set(d, Tag::IsoSpeedRatings, 3, 1, shorts(o, &[iso.min(65535) as u16]));
+        edits.set(d, Tag::IsoSpeedRatings, SHORT, 1, shorts(o, &[iso.min(65535) as u16]));
         if iso > 65535 {
-            edits.set(d, Tag::IsoSpeed, 4, 1, longs(o, &[iso]));
-            edits.set(d, Tag::SensitivityType, 3, 1, shorts(o, &[3]));
+            edits.set(d, Tag::IsoSpeed, LONG, 1, longs(o, &[iso]));
+            edits.set(d, Tag::SensitivityType, SHORT, 1, shorts(o, &[3]));
         }
     }
 
@@ -440,7 +310,7 @@ fn metadata_edits(
         if d == raw
             && let Some(pairs) = &profile_pairs
         {
-            edits.set(d, Tag::NoiseProfile, 12, pairs.len() as u32, doubles(o, pairs));
+            edits.set(d, Tag::NoiseProfile, FieldType::Double.code(), pairs.len() as u32, doubles(o, pairs));
         } else if s.entry(d, Tag::NoiseProfile).is_some() {
             edits.remove(d, Tag::NoiseProfile);
         }
@@ -451,7 +321,7 @@ fn metadata_edits(
         }
         if let Some(e) = s.entry(d, Tag::RawDataUniqueId)
             && e.count == 16
-            && (e.ty == 1 || e.ty == 7)
+            && matches!(FieldType::from_code(e.ty), Some(FieldType::Byte | FieldType::Undefined))
         {
             edits.set(d, Tag::RawDataUniqueId, e.ty, 16, id.to_vec());
         }

@@ -21,6 +21,7 @@
 mod compressed;
 mod edit;
 mod error;
+mod ifd;
 mod profile;
 mod read;
 mod tags;

@@ -1,6 +1,5 @@
 //! Reading CFA DNGs with `rawler`: its TIFF parser for the tags, its decoders for the pixels.
 
-use std::collections::HashSet;
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::Path;
 use std::sync::Arc;
@@ -15,6 +14,7 @@ use rawler::formats::tiff::{GenericTiffReader, IFD, Value};
 use rawler::rawsource::RawSource;
 
 use super::compressed::{Codec, Segment, check_segments};
+use super::ifd::{FieldType, walk};
 use super::tags::Tag;
 use super::{Bytes, ColorTags, DngError, DngFile, DngImage};
 
@@ -507,125 +507,64 @@ const RAWLER_MAX_IFD_ENTRIES: usize = 4096;
 /// size exceeds the file, which rawler would allocate blindly — a count of 2³² DOUBLEs is a 32 GB
 /// allocation whose failure aborts the process, and no `catch_unwind` stops an abort.
 ///
-/// Two walks. The strict one follows the chain and its SubIFDs/ExifIFD pointers and refuses an IFD
-/// that is empty or runs past the file. The second mirrors where rawler 0.8 itself goes: the chain
-/// IFDs' [`RAWLER_SUB_IFD_TAGS`], whatever their type (a LONG's values, an UNDEFINED value's own
-/// offset, an unknown type's first byte). rawler ignores errors in those IFDs — an ICC profile read
-/// as an IFD is not one — so only the sizes it would allocate are checked there.
+/// Two walks. The strict one is the IFD walker of this crate ([`walk`]: the chain and its
+/// SubIFDs/ExifIFD pointers; an IFD that is empty or runs past the file is refused). The second
+/// mirrors where rawler 0.8 itself goes: the chain IFDs' [`RAWLER_SUB_IFD_TAGS`], whatever their
+/// type (a LONG's values, an UNDEFINED value's own offset, an unknown type's first byte). rawler
+/// ignores errors in those IFDs — an ICC profile read as an IFD is not one — so only the sizes it
+/// would allocate are checked there.
 fn check_structure(buf: &[u8]) -> Result<(), String> {
-    let big = match &buf[..4] {
-        b"II\x2a\0" => false,
-        b"MM\0\x2a" => true,
-        other => {
-            return Err(format!(
-                "not a TIFF/DNG file (it starts with bytes {:02x?}; a DNG starts with \"II*\\0\" or \"MM\\0*\")",
-                other
-            ));
-        }
+    let s = walk(buf)?;
+    let o = s.order;
+    // The bytes rawler allocates for an entry: a value's size, except that the IFD type (13) is
+    // unknown to rawler (a byte a value), so never more than `count · size`.
+    let rawler_size = |ty: u16, count: u32| -> u64 {
+        count as u64 * if ty == FieldType::Ifd.code() { 1 } else { FieldType::size_of_code(ty) as u64 }
     };
-    let rd16 = |o: usize| -> Option<u16> {
-        let b: [u8; 2] = buf.get(o..o.checked_add(2)?)?.try_into().ok()?;
-        Some(if big { u16::from_be_bytes(b) } else { u16::from_le_bytes(b) })
-    };
-    let rd32 = |o: usize| -> Option<u32> {
-        let b: [u8; 4] = buf.get(o..o.checked_add(4)?)?.try_into().ok()?;
-        Some(if big { u32::from_be_bytes(b) } else { u32::from_le_bytes(b) })
-    };
-    // Bytes a value of each TIFF type takes (IFD, type 13, is a LONG; unknown types are bytes).
-    let unit = |ty: u16| -> u64 {
-        match ty {
-            3 | 8 => 2,
-            4 | 9 | 11 | 13 => 4,
-            5 | 10 | 12 => 8,
-            _ => 1,
-        }
-    };
-    // The bytes rawler allocates for an entry: the same, except that type 13 is unknown to it (a
-    // byte a value), so never more than `count · unit`.
-    let rawler_size = |ty: u16, count: u32| -> u64 { count as u64 * if ty == 13 { 1 } else { unit(ty) } };
     let too_big = |t: u16, size: u64, off: usize| {
         format!("tag {t} in the IFD at offset {off} claims {size} bytes in a {}-byte file (corrupt)", buf.len())
     };
-    let first = rd32(4).unwrap_or(0) as usize;
-    if first == 0 || first >= buf.len() {
-        return Err(format!("the first IFD offset {first} lies outside the {}-byte file (truncated?)", buf.len()));
-    }
-    let mut visited = HashSet::new();
-    // (offset, depth): depth 0 is the chain.
-    let mut todo = vec![(first, 0u32)];
     // IFDs rawler follows from a chain IFD: (offset, the tag that points there).
     let mut rawler_subs: Vec<(usize, u16)> = Vec::new();
-    while let Some((off, depth)) = todo.pop() {
-        if !visited.insert(off) {
-            return Err(format!("IFD at offset {off} is referenced twice (corrupt IFD links)"));
-        }
-        if visited.len() > 512 {
-            return Err("more than 512 IFDs (corrupt IFD links)".into());
-        }
-        let n = rd16(off).ok_or_else(|| format!("IFD at offset {off} lies past the end of the file (truncated?)"))?
-            as usize;
-        if n == 0 {
-            return Err(format!("IFD at offset {off} has no entries"));
-        }
-        if off + 2 + 12 * n > buf.len() {
-            return Err(format!("IFD at offset {off} with {n} entries runs past the end of the file (truncated?)"));
-        }
-        for i in 0..n {
-            let e = off + 2 + 12 * i;
-            let (tag, ty) = (rd16(e).unwrap_or(0), rd16(e + 2).unwrap_or(0));
-            let count = rd32(e + 4).unwrap_or(0);
-            let size = count as u64 * unit(ty);
-            if size > buf.len() as u64 {
-                return Err(too_big(tag, size, off));
+    for dir in s.chain_dirs() {
+        for (i, e) in dir.entries.iter().enumerate() {
+            let (tag, ty, count) = (e.tag, e.ty, e.count);
+            if !RAWLER_SUB_IFD_TAGS.contains(&tag) {
+                continue;
             }
-            let at = if size <= 4 { Some(e + 8) } else { rd32(e + 8).map(|o| o as usize) };
-            let t = Tag::from_u16(tag);
-            if (t == Tag::SubIfds || t == Tag::ExifIfd)
-                && depth < 4
-                && unit(ty) == 4
-                && let Some(at) = at
-            {
-                for k in 0..count as usize {
-                    match rd32(at + 4 * k) {
-                        Some(o) if o != 0 => todo.push((o as usize, depth + 1)),
-                        _ => {}
-                    }
+            let at_entry = dir.offset + 2 + 12 * i;
+            // Where rawler finds the value: inline when its own size is ≤ 4 bytes (type 13 is one
+            // byte a value to rawler, four to us).
+            let at = if rawler_size(ty, count) <= 4 {
+                Some(at_entry + 8)
+            } else {
+                o.u32(buf, at_entry + 8).map(|o| o as usize)
+            };
+            match (FieldType::from_code(ty), at) {
+                (Some(FieldType::Long), Some(at)) => rawler_subs
+                    .extend((0..count as usize).filter_map(|k| o.u32(buf, at + 4 * k)).map(|o| (o as usize, tag))),
+                (Some(FieldType::Undefined), Some(at)) => rawler_subs.push((at, tag)),
+                (None | Some(FieldType::Ifd), Some(at)) if count > 0 => {
+                    rawler_subs.extend(buf.get(at).map(|&o| (o as usize, tag)));
                 }
-            }
-            if depth == 0 && RAWLER_SUB_IFD_TAGS.contains(&tag) {
-                // Where rawler finds the value: inline when its own size is ≤ 4 bytes (type 13
-                // is one byte a value to rawler, four to us).
-                let at = if rawler_size(ty, count) <= 4 { Some(e + 8) } else { rd32(e + 8).map(|o| o as usize) };
-                match (ty, at) {
-                    (4, Some(at)) => rawler_subs
-                        .extend((0..count as usize).filter_map(|k| rd32(at + 4 * k)).map(|o| (o as usize, tag))),
-                    (7, Some(at)) => rawler_subs.push((at, tag)),
-                    (0 | 13.., Some(at)) if count > 0 => {
-                        rawler_subs.extend(buf.get(at).map(|&o| (o as usize, tag)));
-                    }
-                    // rawler indexes the first value of an unknown type here, and has none.
-                    (0 | 13.., _) => {
-                        return Err(format!("tag {tag} (an IFD pointer) in the IFD at offset {off} has no value"));
-                    }
-                    _ => {}
+                // rawler indexes the first value of an unknown type here, and has none.
+                (None | Some(FieldType::Ifd), _) => {
+                    return Err(format!("tag {tag} (an IFD pointer) in the IFD at offset {} has no value", dir.offset));
                 }
+                _ => {}
             }
-        }
-        if depth == 0
-            && let Some(next) = rd32(off + 2 + 12 * n)
-            && next != 0
-        {
-            todo.push((next as usize, 0));
         }
     }
     for (off, via) in rawler_subs {
-        let Some(n) = rd16(off) else { continue };
+        let Some(n) = o.u16(buf, off) else { continue };
         for i in 0..(n as usize).min(RAWLER_MAX_IFD_ENTRIES) {
             let e = off + 2 + 12 * i;
-            let (Some(tag), Some(ty), Some(count)) = (rd16(e), rd16(e + 2), rd32(e + 4)) else { break };
+            let (Some(tag), Some(ty), Some(count)) = (o.u16(buf, e), o.u16(buf, e + 2), o.u32(buf, e + 4)) else {
+                break;
+            };
             let size = rawler_size(ty, count);
             // rawler reads the value's offset, refuses u32::MAX, then allocates.
-            if size > 4 && rd32(e + 8).is_none_or(|o| o == u32::MAX) {
+            if size > 4 && o.u32(buf, e + 8).is_none_or(|o| o == u32::MAX) {
                 continue;
             }
             if size > buf.len() as u64 && via == 34675 {

@@ -339,7 +339,7 @@ fn write_spec(path: &Path, spec: &DngSpec, pixels: &Array2<u16>) -> Result<(), D
 
 /// The output DNG's folder, created when missing (as for every CLI output).
 fn create_parent(path: &Path) -> Result<(), DngError> {
-    crate::output::create_parent(path).map_err(|e| DngError::io(path, e))
+    crate::files::create_parent(path).map_err(|e| DngError::io(path, e))
 }
 
 fn color_code(c: CfaColor) -> u8 {

@@ -6,6 +6,7 @@
 
 use std::collections::BTreeMap;
 
+pub use super::ifd::FieldType;
 pub use super::tags::{Tag, tag};
 
 /// A tag's value, typed as TIFF stores it.
@@ -26,17 +27,18 @@ pub enum TagValue {
 
 impl TagValue {
     fn type_code(&self) -> u16 {
-        match self {
-            Self::Byte(_) => 1,
-            Self::Ascii(_) => 2,
-            Self::Short(_) => 3,
-            Self::Long(_) => 4,
-            Self::Rational(_) => 5,
-            Self::Undefined(_) => 7,
-            Self::SRational(_) => 10,
-            Self::Float(_) => 11,
-            Self::Double(_) => 12,
-        }
+        let t = match self {
+            Self::Byte(_) => FieldType::Byte,
+            Self::Ascii(_) => FieldType::Ascii,
+            Self::Short(_) => FieldType::Short,
+            Self::Long(_) => FieldType::Long,
+            Self::Rational(_) => FieldType::Rational,
+            Self::Undefined(_) => FieldType::Undefined,
+            Self::SRational(_) => FieldType::SRational,
+            Self::Float(_) => FieldType::Float,
+            Self::Double(_) => FieldType::Double,
+        };
+        t.code()
     }
 
     fn count(&self) -> usize {

@@ -41,7 +41,7 @@ impl CleanImages {
             key: StepKey::new(self.reference_iso, exposure_ns),
             layout: self.layout.clone(),
             binning: self.binning.clone(),
-            policy: DriftPolicy { z: c.drift_z, floor: c.drift_floor, max: c.max_drift, normalise: c.normalise_drift },
+            policy: c.drift_policy(),
             roi: c.roi,
             flat_k: c.flat_k,
         })

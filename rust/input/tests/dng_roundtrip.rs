@@ -1,10 +1,10 @@
-//! write → read round trips of `noisecal_cli::dng`, the writer's guarantees, and `scan_folder`.
+//! write → read round trips of `noisecal_input::dng`, the writer's guarantees, and `scan_folder`.
 
 use std::path::Path;
 
 use ndarray::Array2;
-use noisecal_cli::dng::{DngError, read_dng, scan_folder, write_dng, write_dng_from_layout};
 use noisecal_core::{CfaPattern, FrameMeta, SensorLayout};
+use noisecal_input::dng::{DngError, read_dng, scan_folder, write_dng, write_dng_from_layout};
 
 /// Deterministic xorshift64* noise, so the tests need no RNG crate.
 struct Rng(u64);
@@ -141,7 +141,7 @@ fn bad_write_input_is_refused_and_leaves_existing_file_intact() {
     let names: Vec<_> = std::fs::read_dir(dir.path()).expect("ls").map(|e| e.expect("entry").file_name()).collect();
     assert_eq!(names.len(), 1, "{names:?}");
 
-    // A missing folder is created, as for every output of the CLI (issue 13 item 14); a folder
+    // A missing folder is created, as for every output of the CLI (a path that names a new folder is not an error); a folder
     // that cannot be made (a file stands in its way) is an I/O error naming the file.
     let missing = dir.path().join("no/such/dir/x.dng");
     write_dng_from_layout(&missing, &lay, &meta, "M", "N", &pixels).expect("into a missing folder");
@@ -196,7 +196,7 @@ fn missing_file_is_io_error() {
     assert!(err.to_string().contains("/definitely/not/here.dng"), "{err}");
 }
 
-/// 12 MP round trip; run with `cargo test --release -p noisecal-cli --test dng_roundtrip -- --ignored --nocapture`.
+/// 12 MP round trip; run with `cargo test --release -p noisecal-input --test dng_roundtrip -- --ignored --nocapture`.
 #[test]
 #[ignore = "timing; run in release"]
 fn read_12mp_fast() {

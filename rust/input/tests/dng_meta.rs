@@ -1,7 +1,7 @@
 //! The metadata-only DNG read (used to group capture sets) says what the full read says.
 
-use noisecal_cli::dng::{read_dng, read_dng_meta, write_dng_from_layout};
 use noisecal_core::{CfaPattern, FrameMeta, SensorLayout};
+use noisecal_input::dng::{read_dng, read_dng_meta, write_dng_from_layout};
 
 #[test]
 fn metadata_read_matches_full_read() {

@@ -13,7 +13,6 @@ use noisecal_core::format::recording;
 use noisecal_core::{CalibrationSession, FrameMeta, FrameView, ModelPack, SensorLayout, SessionConfig};
 
 use crate::source::{InputKind, Record, Source};
-use crate::support::progress_bar;
 
 /// Options a user can set on top of what the captures imply.
 #[derive(Debug, Clone, Default)]
@@ -118,11 +117,12 @@ fn recording_ends_whole(path: &Path) -> bool {
 }
 
 /// Calibrates from a DNG folder or a recording: every record of the [`Source`] into one
-/// [`CalibrationSession`], in capture order.
+/// [`CalibrationSession`], in capture order. `progress(done, total)` is told of each frame read
+/// (a front-end draws its own progress from it, or passes `&mut |_, _| {}`).
 pub fn calibrate_path(
     path: &Path,
     opts: &CalibrateOptions,
-    quiet: bool,
+    progress: &mut dyn FnMut(u64, u64),
 ) -> anyhow::Result<(ModelPack, CalibrateReport)> {
     let mut source = Source::open(path, opts.reference_iso)?;
     let info = source.info();
@@ -132,12 +132,12 @@ pub fn calibrate_path(
         check_roi(roi, &info.layout)?;
     }
     let is_recording = info.kind == InputKind::Recording;
+    let total_frames = info.frames;
     let layout = info.layout.clone();
     let mut session = CalibrationSession::new(info.layout.clone(), config)?;
     for (&iso, np) in &info.noise_profiles {
         session.set_noise_profile(iso, *np);
     }
-    let pb = progress_bar(info.frames, quiet, "calibrating");
     let mut report = CalibrateReport { warnings: info.warnings.clone(), ..Default::default() };
     let mut reasons = Vec::new();
     let mut in_dark = false;
@@ -155,7 +155,7 @@ pub fn calibrate_path(
             }
             Record::Frame(frame) => {
                 report.frames += 1;
-                pb.inc(1);
+                progress(report.frames, total_frames);
                 // A DNG folder's frame in an EV step that is dark (lens covered) is a dark frame
                 // that happened to match a step: kept for the dark step.
                 if !in_dark
@@ -179,7 +179,6 @@ pub fn calibrate_path(
                 // Only a missing tail is an interruption: a file that still ends with its End
                 // record has a damaged length or tag in the middle.
                 if is_recording && recording_ends_whole(path) {
-                    pb.finish_and_clear();
                     bail!(
                         "{} is damaged: {e:#}, yet the file ends with a whole End record, so this is not an interrupted capture but a damaged record (its length or tag); nothing was written",
                         path.display()
@@ -200,7 +199,6 @@ pub fn calibrate_path(
         }
         push_deferred(&mut session, &mut deferred, &mut report, &mut reasons);
     }
-    pb.finish_and_clear();
     if session.dark_frames() > 0 {
         report.warnings.push(format!(
             "{} dark frame(s) (lens covered, told by their content) measured the fixed pattern",
