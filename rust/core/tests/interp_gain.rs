@@ -70,7 +70,7 @@ fn bands(pack: &ModelPack, model: &IsoModel, top: f64) -> Vec<(f64, f64, f64)> {
     let per_seed: Vec<Vec<f64>> = (0..SEEDS)
         .map(|s| {
             let noisy = synthesize(&sampler, clean.view(), 500 + s);
-            let mut sums = vec![0.0; BANDS];
+            let mut sums = [0.0; BANDS];
             for (&n, &c) in noisy.iter().zip(clean.iter()) {
                 sums[band(c)] += n as f64 - c as f64;
             }

@@ -735,10 +735,8 @@ mod tests {
         (MotionProbe::new(mean, &levels, w, h, 8, &flat, &groups, 1000.0), groups)
     }
 
-    #[test]
-    fn registration_recovers_shifts_rotation_and_gain() {
-        let (w, h) = (160usize, 128usize);
-        let (probe, _) = probe_of(w, h);
+    /// The transform of an RGGB 10-bit frame at black 0 and the session's own brightness.
+    fn identity_transform(w: usize, h: usize) -> Transform {
         let layout = SensorLayout {
             width: w as u32,
             height: h as u32,
@@ -747,7 +745,14 @@ mod tests {
             white: 1023,
         };
         let meta = crate::FrameMeta { iso: 100, exposure_ns: 1, black: None };
-        let tf = Transform::of(&layout, &meta, 1.0);
+        Transform::of(&layout, &meta, 1.0)
+    }
+
+    #[test]
+    fn registration_recovers_shifts_rotation_and_gain() {
+        let (w, h) = (160usize, 128usize);
+        let (probe, _) = probe_of(w, h);
+        let tf = identity_transform(w, h);
         for (tx, ty, rot, gain) in
             [(0.3, -0.2, 0.0, 1.0), (-0.55, 0.45, 0.002, 1.05), (0.0, 0.0, 0.0, 0.97), (1.1, -0.8, -0.001, 1.0)]
         {
@@ -814,15 +819,7 @@ mod tests {
     fn glitching_pixels_are_not_motion_and_a_real_shift_is_still_found() {
         let (w, h) = (160usize, 128usize);
         let (probe, _) = probe_of(w, h);
-        let layout = SensorLayout {
-            width: w as u32,
-            height: h as u32,
-            cfa: crate::CfaPattern::Rggb,
-            black: [0.0; POSITIONS],
-            white: 1023,
-        };
-        let meta = crate::FrameMeta { iso: 100, exposure_ns: 1, black: None };
-        let tf = Transform::of(&layout, &meta, 1.0);
+        let tf = identity_transform(w, h);
         let (cx, cy) = (w as f64 / 2.0, h as f64 / 2.0);
         let mut worst_still: f64 = 0.0;
         for seed in 0..8u64 {
