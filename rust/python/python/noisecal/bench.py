@@ -38,6 +38,8 @@ import math
 import os
 import sys
 import time
+from typing import Any
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -132,7 +134,7 @@ def dead_leaves(height: int, width: int, rng: np.random.Generator) -> np.ndarray
     return img * np.exp2(e)[..., None]
 
 
-def generate_clean(n: int, height: int, width: int, layout: dict, seed: int) -> list[np.ndarray]:
+def generate_clean(n: int, height: int, width: int, layout: Mapping[str, Any], seed: int) -> list[np.ndarray]:
     """``n`` clean raw images (uint16 DN, black included) of natural-statistics scenes mosaiced for
     the pack's CFA with lamp × channel gains (R, G, B) = (0.6, 1, 0.75), the brightest green at
     0.6 … 0.95 of the range and each image 0 … 3 EV darker in turn (low light included)."""
@@ -462,7 +464,7 @@ def make_net(width: int):
     def block(i, o):
         return nn.Sequential(nn.Conv2d(i, o, 3, padding=1), nn.LeakyReLU(0.2), nn.Conv2d(o, o, 3, padding=1), nn.LeakyReLU(0.2))
 
-    class UNet(nn.Module):
+    class UNet(nn.Module):  # type: ignore[name-defined]  # torch is imported at run time (optional extra)
         def __init__(self):
             super().__init__()
             w = width
@@ -712,7 +714,7 @@ def run(args: argparse.Namespace) -> dict:
             if fname:
                 fname.write_text(json.dumps(r))
     inputs = {iso: score_input(scenes, iso, layout) for iso in sorted({iso for _, iso in jobs})}
-    out = {
+    out: dict[str, Any] = {
         "config": cfg,
         "input": inputs,
         "isos": isos,
@@ -730,7 +732,7 @@ def summary(results: list[dict]) -> list[dict]:
     """Per (model, ISO): PSNR/SSIM mean and spread over seeds, per band, and the paired difference
     to HG (same seed, same data order)."""
     rows = []
-    by = {}
+    by: dict[tuple[str, int], dict[int, dict]] = {}
     for r in results:
         by.setdefault((r["model"], r["iso"]), {})[r["seed"]] = r
     for (model, iso), per in by.items():
