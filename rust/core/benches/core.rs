@@ -2,6 +2,9 @@
 //! reference and of target accumulation in a plain loop, wall and CPU time per frame): reference accumulation, target accumulation,
 //! the estimator (one ISO, and one wide sparse position), synthesis on 1 and 2 threads, pack load. Run with `cargo bench -p noisecal-core`.
 
+mod support;
+use support::cpu_seconds;
+
 use std::hint::black_box;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
@@ -227,17 +230,6 @@ fn benches(c: &mut Criterion) {
         pack.isos.len(),
         session.checkpoint().map(|c| c.len()).unwrap_or(0)
     );
-}
-
-/// User + system CPU time of this process so far (Linux `/proc/self/stat`, 100 ticks per second);
-/// 0 elsewhere.
-fn cpu_seconds() -> f64 {
-    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else { return 0.0 };
-    // Fields after the command name (which is in parentheses): utime and stime are 14 and 15.
-    let rest = stat.rsplit_once(')').map(|(_, r)| r).unwrap_or("");
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let tick = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
-    (tick(11) + tick(12)) / 100.0
 }
 
 criterion_group!(core, benches);

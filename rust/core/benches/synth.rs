@@ -13,6 +13,9 @@
 //! With `NOISECAL_BENCH_LOOP=n` it instead times n frames in a plain loop and prints the wall and
 //! the process CPU time per frame (for `rust/python/benches/interleaved.py --cpu`).
 
+mod support;
+use support::cpu_seconds;
+
 use std::hint::black_box;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
@@ -83,17 +86,6 @@ fn benches(c: &mut Criterion) {
         b.iter(|| synthesize_at(&pixel, black_box(clean.view()), 1, (0, 0)))
     });
     g.finish();
-}
-
-/// User + system CPU time of this process so far (Linux `/proc/self/stat`, 100 ticks per second);
-/// 0 elsewhere.
-fn cpu_seconds() -> f64 {
-    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else { return 0.0 };
-    // Fields after the command name (which is in parentheses): utime and stime are 14 and 15.
-    let rest = stat.rsplit_once(')').map(|(_, r)| r).unwrap_or("");
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let tick = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
-    (tick(11) + tick(12)) / 100.0
 }
 
 criterion_group!(synth, benches);

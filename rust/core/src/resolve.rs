@@ -203,11 +203,10 @@ impl BlackAlignment {
         origin: (usize, usize),
         f: impl FnOnce(ArrayView2<'_, u16>) -> Array2<u16>,
     ) -> Array2<u16> {
-        if self.is_identity() {
-            return f(img);
+        match self.try_around(img, white, origin, |a| Ok::<_, std::convert::Infallible>(f(a))) {
+            Ok(out) => out,
+            Err(never) => match never {},
         }
-        let moved = self.apply_at(img, white, origin);
-        self.undo_at(f(moved.view()).view(), white, origin)
     }
 
     /// As [`Self::around`], for an `f` that can fail.

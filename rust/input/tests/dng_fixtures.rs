@@ -9,20 +9,8 @@ use noisecal_core::{CfaPattern, FrameMeta, SensorLayout};
 use noisecal_input::dng::tiff::{Ifd, ImageData, TagValue, TiffBuilder, pack_msb, tag, u16_bytes};
 use noisecal_input::dng::{DngError, DngSpec, dng_tiff, read_dng, write_dng_from_layout};
 
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_f491_4f6c_dd1d)
-    }
-}
-
-fn random_pixels(w: usize, h: usize, max: u16, seed: u64) -> Array2<u16> {
-    let mut rng = Rng(seed | 1);
-    Array2::from_shape_fn((h, w), |_| (rng.next() % (max as u64 + 1)) as u16)
-}
+mod support;
+use support::{Rng, random_pixels};
 
 fn save(dir: &Path, name: &str, tiff: &TiffBuilder) -> PathBuf {
     let path = dir.join(name);

@@ -2,28 +2,11 @@
 
 use std::path::Path;
 
-use ndarray::Array2;
 use noisecal_core::{CfaPattern, FrameMeta, SensorLayout};
 use noisecal_input::dng::{DngError, read_dng, scan_folder, write_dng, write_dng_from_layout};
 
-/// Deterministic xorshift64* noise, so the tests need no RNG crate.
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_f491_4f6c_dd1d)
-    }
-    fn below(&mut self, n: u64) -> u64 {
-        self.next() % n
-    }
-}
-
-fn random_pixels(w: usize, h: usize, max: u16, seed: u64) -> Array2<u16> {
-    let mut rng = Rng(seed | 1);
-    Array2::from_shape_fn((h, w), |_| rng.below(max as u64 + 1) as u16)
-}
+mod support;
+use support::random_pixels;
 
 fn layout(w: u32, h: u32, cfa: CfaPattern, black: [f32; 4], white: u16) -> SensorLayout {
     SensorLayout { width: w, height: h, cfa, black, white }

@@ -80,6 +80,18 @@ impl BrightnessSums {
     }
 }
 
+/// The rows brightness is measured on (every row pair, every fourth above 512 rows), each with
+/// its band: both ways of summing visit them in this order.
+fn sampled_rows(h: usize) -> impl Iterator<Item = (usize, usize)> {
+    let rows_per_band = h.div_ceil(BANDS).max(1);
+    let step = if h > 512 { 4 } else { 1 };
+    (0..h)
+        .step_by(2 * step)
+        .flat_map(|y| [y, y + 1])
+        .filter(move |&y| y < h)
+        .map(move |y| (y, (y / rows_per_band).min(BANDS - 1)))
+}
+
 pub(crate) fn brightness_sums(
     frame: &FrameView<'_>,
     base: &[u16],
@@ -93,12 +105,9 @@ pub(crate) fn brightness_sums(
     }
     let mut out =
         BrightnessSums { bands: vec![[0.0; 5]; BANDS], frame_pos: [0.0; POSITIONS], base_pos: [0.0; POSITIONS] };
-    let rows_per_band = h.div_ceil(BANDS).max(1);
-    let step = if h > 512 { 4 } else { 1 };
     let mut buf = vec![0u16; w];
-    for y in (0..h).step_by(2 * step).flat_map(|y| [y, y + 1]).filter(|&y| y < h) {
+    for (y, band) in sampled_rows(h) {
         frame.read_row(y, &mut buf);
-        let band = (y / rows_per_band).min(BANDS - 1);
         let mut sums = [0.0f64; 5];
         for x in 0..w {
             let c = base[y * w + x];
@@ -148,14 +157,12 @@ fn integer_brightness_sums(
     if (w as u128) * (h as u128) * largest_base * 65536 >= 1u128 << 53 {
         return None;
     }
-    let rows_per_band = h.div_ceil(BANDS).max(1);
-    let step = if h > 512 { 4 } else { 1 };
     let mut bands = vec![[0i64; 5]; BANDS];
     let (mut frame_pos, mut base_pos) = ([0i64; POSITIONS], [0i64; POSITIONS]);
     let mut buf = vec![0u16; w];
-    for y in (0..h).step_by(2 * step).flat_map(|y| [y, y + 1]).filter(|&y| y < h) {
+    for (y, band) in sampled_rows(h) {
         frame.read_row(y, &mut buf);
-        let band = &mut bands[(y / rows_per_band).min(BANDS - 1)];
+        let band = &mut bands[band];
         let parity = (y & 1) << 1;
         // Even columns, then odd ones: one position each.
         for first in 0..2 {

@@ -495,16 +495,10 @@ const MODEL_SLACK_PX: f64 = 0.15;
 /// or, when `redescend`, Tukey's biweight at [`TUKEY_C`]. An infinite `scale` (a first fit) is
 /// taken from the deviations' own MAD.
 fn robust_weights(rows: &mut [(usize, f64, [f64; PARAMS], f64)], slack: &[f64], scale: f64, redescend: bool) {
-    let mut dev = vec![0.0f64; rows.len()];
-    let mut start = 0;
-    while start < rows.len() {
-        let y = rows[start].0;
-        let end = start + rows[start..].iter().take_while(|r| r.0 == y).count();
-        let centre = median(&rows[start..end].iter().map(|r| r.3).collect::<Vec<_>>());
-        for k in start..end {
-            dev[k] = rows[k].3 - centre;
-        }
-        start = end;
+    let mut dev = Vec::with_capacity(rows.len());
+    for group in rows.chunk_by(|a, b| a.0 == b.0) {
+        let centre = median(&group.iter().map(|r| r.3).collect::<Vec<_>>());
+        dev.extend(group.iter().map(|r| r.3 - centre));
     }
     let scale = if scale.is_finite() {
         scale
@@ -552,11 +546,7 @@ fn objective(probe: &MotionProbe, samples: &[Sample], w: usize, h: usize, f: &Fi
 /// Takes each row's mean (weights `.1`) out of the Jacobian rows `.2` and residuals `.3` of its
 /// samples (`.0`: the row; samples of a row are contiguous, as the probe lists them).
 fn demean_rows(rows: &mut [(usize, f64, [f64; PARAMS], f64)]) {
-    let mut start = 0;
-    while start < rows.len() {
-        let y = rows[start].0;
-        let end = start + rows[start..].iter().take_while(|r| r.0 == y).count();
-        let group = &mut rows[start..end];
+    for group in rows.chunk_by_mut(|a, b| a.0 == b.0) {
         let wsum: f64 = group.iter().map(|r| r.1).sum();
         if wsum > 0.0 {
             let mut mj = [0.0f64; PARAMS];
@@ -574,7 +564,6 @@ fn demean_rows(rows: &mut [(usize, f64, [f64; PARAMS], f64)]) {
                 r.3 -= mr / wsum;
             }
         }
-        start = end;
     }
 }
 

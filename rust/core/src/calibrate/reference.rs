@@ -177,12 +177,20 @@ impl ReferenceBurst {
         }
         let [even_rows, odd_rows] = rows;
         let identity = tf.identity();
-        // Each position's level group of every first-frame level up to white.
-        let group_of: [Vec<u8>; POSITIONS] =
-            std::array::from_fn(|pos| (0..=white).map(|f0| groups.group(pos, f0 as f32) as u8).collect());
+        // Each position's level group of every first-frame level up to white (the first frame
+        // only keeps its values: it reads no group).
+        let group_of: [Vec<u8>; POSITIONS] = if first_frame {
+            Default::default()
+        } else {
+            std::array::from_fn(|pos| (0..=white).map(|f0| groups.group(pos, f0 as f32) as u8).collect())
+        };
         let group = |pos: usize, f0: u16| match group_of[pos].get(f0 as usize) {
             Some(&g) => g as usize,
             None => groups.group(pos, f0 as f32),
+        };
+        // A raw value as the session's code (transformed, rounded, within 0..=white).
+        let code = |pos: usize, r: u16| {
+            if identity { r as u32 } else { tf.apply(pos, r).round().clamp(0.0, white as f32) as u32 }
         };
         let work = |mut rows: Vec<RowPair<'_>>| {
             // `[n, Σd, Σd²]` per position and group, in integers (see `exact_stats`).
@@ -199,7 +207,7 @@ impl ReferenceBurst {
                 } else {
                     for (x, (v, &r)) in values.iter_mut().zip(&row_buf).enumerate() {
                         let pos = ((y & 1) << 1) | (x & 1);
-                        *v = tf.apply(pos, r).round().clamp(0.0, white as f32) as u32;
+                        *v = code(pos, r);
                     }
                 }
                 for (s, &v) in sum_row.iter_mut().zip(&values) {
@@ -234,8 +242,7 @@ impl ReferenceBurst {
                     frame.read_row(*y, &mut row_buf);
                     for (x, (&r, &f0)) in row_buf.iter().zip(first_row.iter()).enumerate() {
                         let pos = ((y & 1) << 1) | (x & 1);
-                        let v =
-                            if identity { r as u32 } else { tf.apply(pos, r).round().clamp(0.0, white as f32) as u32 };
+                        let v = code(pos, r);
                         let d = (v as i64 - f0 as i64) as f64;
                         let a = &mut acc[pos * GROUPS + group(pos, f0)];
                         a[0] += 1.0;

@@ -619,7 +619,7 @@ def run(args: argparse.Namespace) -> dict:
         realizations = min(len(v) for v in captures.values())
     else:
         realizations = 4
-    packs = {}
+    packs = {args.pack: pack}  # a model naming the main pack's file does not load it again
     specs = [parse_model(m, args.plain_pack) for m in args.models.split(",") if m.strip()]
     for c in args.components or []:
         specs.append(ModelSpec(f"noisecal:{c}", "noisecal", c))
@@ -657,8 +657,7 @@ def run(args: argparse.Namespace) -> dict:
     if args.minutes:
         probe = batch_plan(0, 6, args.batch, len(cleans), realizations, cleans[0].shape, args.crop)
         dummy = Pairs([[c] * realizations for c in cleans])
-        t = time.time()
-        train_one(dummy, cleans_norm, layout, probe[:2], args.crop, args.width, 0, device, args.lr)
+        train_one(dummy, cleans_norm, layout, probe[:2], args.crop, args.width, 0, device, args.lr)  # warm-up
         t = time.time()
         train_one(dummy, cleans_norm, layout, probe, args.crop, args.width, 0, device, args.lr)
         per_step = (time.time() - t) / len(probe)
@@ -666,7 +665,8 @@ def run(args: argparse.Namespace) -> dict:
         steps = max(20, min(steps, fit)) if args.steps_given else max(20, fit)
         say(f"--minutes {args.minutes}: {per_step * 1000:.1f} ms per step → {steps} steps per network ({n_nets} networks)")
     cfg = {
-        "pack": hashlib.blake2b(pack.to_bytes(), digest_size=8).hexdigest(),
+        # Every pack a model reads, by its file's bytes: a pack changed on disk is not resumed.
+        "packs": {p: hashlib.blake2b(Path(p).read_bytes(), digest_size=8).hexdigest() for p in sorted(packs)},
         "eval": str(Path(args.eval).resolve()),
         "train": str(Path(args.train).resolve()) if args.train else f"generated:{len(cleans)}",
         "steps": steps,
