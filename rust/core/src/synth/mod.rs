@@ -201,10 +201,12 @@ fn structured_filler<'a, const TARGET: bool>(
     });
     // The fixed pattern varies from pixel to pixel: each row's offsets are then built anew.
     let pattern = st.filter(|st| st.has_pattern()).cloned();
+    let pattern_columns = pattern.as_ref().map(|p| p.pattern_columns(origin.1, w));
     {
         Box::new(move |band: usize, chunk: &mut [u16]| {
             let mut rng = band_rng(seed, band);
             let mut pattern_row: Vec<i64> = Vec::new();
+            let mut offsets_row: Vec<i32> = Vec::with_capacity(w);
             for (r, row) in chunk.chunks_mut(w).enumerate() {
                 let y = band * BAND_ROWS + r;
                 let src = clean_row(&clean, y);
@@ -225,21 +227,14 @@ fn structured_filler<'a, const TARGET: bool>(
                 let finish = sampler.needs_finish(even) || sampler.needs_finish(odd);
                 let white = sampler.white as i32;
                 let ry = fixed(offsets.rows[y]);
-                let cols: &[i64] = match &pattern {
-                    Some(p) => {
+                let cols: &[i64] = match (&pattern, &pattern_columns) {
+                    (Some(p), Some(pc)) => {
                         pattern_row.clear();
                         pattern_row.extend_from_slice(&columns[y & 1]);
-                        p.add_pattern_row(origin.0 + y, origin.1, &mut pattern_row);
+                        p.add_pattern_row_at(pc, origin.0 + y, &mut pattern_row);
                         &pattern_row
                     }
-                    None => &columns[y & 1],
-                };
-                // `⌊o⌋ + [v < o − ⌊o⌋]` for the offset `o` and a uniform 32-bit `v`, as
-                // `⌊(o·2³² + v) / 2³²⌋`.
-                let draw = |lut: &[u16], sh: &[i64], tab: &[BinTable], c: u16, u: u32, v: u32, k: i64| -> i32 {
-                    let l = (c as usize).min(lut.len() - 1);
-                    let k = if TARGET { k + sh[l] } else { k };
-                    c as i32 + tab[lut[l] as usize].sample_u32(u) + ((k + ry + v as i64) >> 32) as i32
+                    _ => &columns[y & 1],
                 };
                 // Dither draws from a xorshift64* stream seeded by the band's stream per row (a
                 // 32-bit threshold needs no cryptographic quality).
@@ -250,29 +245,54 @@ fn structured_filler<'a, const TARGET: bool>(
                     state ^= state >> 27;
                     state.wrapping_mul(0x2545_F491_4F6C_DD1D)
                 };
-                let pairs = row.chunks_exact_mut(2).zip(src.chunks_exact(2)).zip(cols.chunks_exact(2));
+                // The row in passes, each stream drawn in its own order (a pair's pixel draw `u`
+                // from the band's stream, its dither `v` from the row's xorshift): first every
+                // pixel's integer offset `⌊o⌋ + [v < o − ⌊o⌋]` for its offset `o` and a uniform
+                // 32-bit `v`, as `⌊(o·2³² + v) / 2³²⌋`; then the pixel draws, a loop as short as
+                // the pixel-only one, so the table lookups of several pixels overlap.
+                let level = |lut: &[u16], c: u16| (c as usize).min(lut.len() - 1);
+                offsets_row.clear();
+                for (c, k) in src.chunks_exact(2).zip(cols.chunks_exact(2)) {
+                    let v = dither();
+                    let (k0, k1) = if TARGET {
+                        (k[0] + sh0[level(lut0, c[0])], k[1] + sh1[level(lut1, c[1])])
+                    } else {
+                        (k[0], k[1])
+                    };
+                    offsets_row.push(((k0 + ry + (v as u32) as i64) >> 32) as i32);
+                    offsets_row.push(((k1 + ry + (v >> 32) as i64) >> 32) as i32);
+                }
+                if w % 2 == 1 {
+                    let v = dither();
+                    let k = if TARGET { cols[w - 1] + sh0[level(lut0, src[w - 1])] } else { cols[w - 1] };
+                    offsets_row.push(((k + ry + (v as u32) as i64) >> 32) as i32);
+                }
+                let draw = |lut: &[u16], tab: &[BinTable], c: u16, u: u32, off: i32| -> i32 {
+                    c as i32 + tab[lut[level(lut, c)] as usize].sample_u32(u) + off
+                };
+                let pairs = row.chunks_exact_mut(2).zip(src.chunks_exact(2)).zip(offsets_row.chunks_exact(2));
                 if finish {
                     for (i, ((o, c), k)) in pairs.enumerate() {
-                        let (u, v) = (rng.next_u64(), dither());
-                        let a = draw(lut0, sh0, tab0, c[0], u as u32, v as u32, k[0]);
-                        let b = draw(lut1, sh1, tab1, c[1], (u >> 32) as u32, (v >> 32) as u32, k[1]);
+                        let u = rng.next_u64();
+                        let a = draw(lut0, tab0, c[0], u as u32, k[0]);
+                        let b = draw(lut1, tab1, c[1], (u >> 32) as u32, k[1]);
                         let alt = (i + (y >> 1)) & 1 == 1;
                         o[0] = sampler.finish(even, a, alt);
                         o[1] = sampler.finish(odd, b, alt);
                     }
                 } else {
                     for ((o, c), k) in pairs {
-                        let (u, v) = (rng.next_u64(), dither());
-                        let a = draw(lut0, sh0, tab0, c[0], u as u32, v as u32, k[0]);
-                        let b = draw(lut1, sh1, tab1, c[1], (u >> 32) as u32, (v >> 32) as u32, k[1]);
+                        let u = rng.next_u64();
+                        let a = draw(lut0, tab0, c[0], u as u32, k[0]);
+                        let b = draw(lut1, tab1, c[1], (u >> 32) as u32, k[1]);
                         o[0] = a.clamp(0, white) as u16;
                         o[1] = b.clamp(0, white) as u16;
                     }
                 }
                 if w % 2 == 1 {
-                    let (u, v) = (rng.next_u64(), dither());
+                    let u = rng.next_u64();
                     let alt = ((w >> 1) + (y >> 1)) & 1 == 1;
-                    let a = draw(lut0, sh0, tab0, src[w - 1], u as u32, v as u32, cols[w - 1]);
+                    let a = draw(lut0, tab0, src[w - 1], u as u32, offsets_row[w - 1]);
                     row[w - 1] = sampler.finish(even, a, alt);
                 }
             }

@@ -18,7 +18,9 @@ use crate::model::layout::POSITIONS;
 use crate::model::layout::position;
 use crate::model::pack::BinModel;
 use crate::model::pmf::Pmf;
-use crate::model::structure::{Components, FixedPattern, FrameOffsets, IsoStructure, OffsetDistribution};
+use crate::model::structure::{
+    Components, FixedPattern, FrameOffsets, IsoStructure, OffsetDistribution, grid_coord, quantile_at,
+};
 use crate::renoise::deconv::{Problem, SolverLimits, richardson_lucy};
 
 /// Grid of the offset densities (cells per DN).
@@ -88,14 +90,59 @@ impl StructureSampler {
     /// Adds the fixed pattern of sensor row `y`, columns `x0 ..`, to `row` (2⁻³² DN): the values
     /// of [`Self::pattern_at`] (tested), the shading's vertical interpolation done once per row
     /// and position.
+    #[cfg(test)]
     pub(crate) fn add_pattern_row(&self, y: usize, x0: usize, row: &mut [i64]) {
+        self.add_pattern_row_at(&self.pattern_columns(x0, row.len()), y, row);
+    }
+
+    /// What the fixed pattern of an image's rows needs of its columns, `x0 .. x0 + w`, computed
+    /// once per image instead of once per pixel: each column's shading cells.
+    pub(crate) fn pattern_columns(&self, x0: usize, w: usize) -> PatternColumns {
+        let cells = match &self.fpn {
+            Some(fp) => {
+                let gw = fp.grid[1] as usize;
+                (x0..x0 + w).map(|x| grid_coord(x, fp.size[1], gw)).collect()
+            }
+            None => Vec::new(),
+        };
+        PatternColumns { x0, cells }
+    }
+
+    /// [`Self::add_pattern_row`] with the columns' shading cells computed beforehand
+    /// ([`Self::pattern_columns`], for the same `x0` and width): the same values, bit for bit
+    /// (the same expressions, only hoisted out of the rows).
+    pub(crate) fn add_pattern_row_at(&self, columns: &PatternColumns, y: usize, row: &mut [i64]) {
         let Some(fp) = &self.fpn else { return };
-        // Per column parity, the shading grid interpolated to this row.
-        let lines: [Option<Vec<f64>>; 2] = std::array::from_fn(|px| fp.shading_line(position(y, px), y));
-        for (i, v) in row.iter_mut().enumerate() {
-            let x = x0 + i;
-            let shade = lines[x & 1].as_deref().map_or(0.0, |l| fp.shading_on_line(l, x));
-            *v += ((shade + fp.pixels[position(y, x)].at(pattern_unit(y, x))) * 4294967296.0).round() as i64;
+        let x0 = columns.x0;
+        // Per column parity, the shading grid interpolated to this row, and the residual's
+        // quantile function.
+        for px in 0..2 {
+            let x_first = x0 + px;
+            let pos = position(y, x_first);
+            let line = fp.shading_line(pos, y);
+            let q = fp.pixels[pos].quantiles.as_slice();
+            // The columns of this parity: `i` runs over `(x_first − x0) % 2 ..` in steps of two.
+            let start = px;
+            if start >= row.len() {
+                continue;
+            }
+            let values = row[start..].iter_mut().step_by(2);
+            let cells = columns.cells.get(start..).unwrap_or(&[]).iter().step_by(2);
+            match &line {
+                Some(l) => {
+                    for (k, (v, &(c0, c1, f))) in values.zip(cells).enumerate() {
+                        let x = x_first + 2 * k;
+                        let shade = l[c0] * (1.0 - f) + l[c1] * f;
+                        *v += round_to_i64((shade + quantile_at(q, pattern_unit(y, x))) * 4294967296.0);
+                    }
+                }
+                None => {
+                    for (k, v) in values.enumerate() {
+                        let x = x_first + 2 * k;
+                        *v += round_to_i64((0.0 + quantile_at(q, pattern_unit(y, x))) * 4294967296.0);
+                    }
+                }
+            }
         }
     }
 
@@ -326,6 +373,27 @@ fn convolve(a: &(i64, Vec<f64>), b: &(i64, Vec<f64>)) -> (i64, Vec<f64>) {
     (a.0 + b.0, out)
 }
 
+/// An image's columns as the fixed pattern's rows need them ([`StructureSampler::pattern_columns`]).
+pub(crate) struct PatternColumns {
+    x0: usize,
+    /// Per column, its shading cells and the fraction between them ([`grid_coord`]).
+    cells: Vec<(usize, usize, f64)>,
+}
+
+/// `v.round() as i64` (halves away from zero), without the call to libm's `round` that
+/// `f64::round` is on x86-64 without SSE4.1: the fraction `v − trunc(v)` is exact below 2⁵², and
+/// larger values (never a pattern's) take `round`.
+#[inline(always)]
+fn round_to_i64(v: f64) -> i64 {
+    if v.abs() < 4.0e15 {
+        let t = v as i64;
+        let r = v - t as f64;
+        t + (r >= 0.5) as i64 - (r <= -0.5) as i64
+    } else {
+        v.round() as i64
+    }
+}
+
 /// A sensor pixel's uniform draw of the fixed pattern (splitmix64 of its position).
 #[inline]
 fn pattern_unit(y: usize, x: usize) -> f64 {
@@ -422,6 +490,23 @@ mod tests {
         let m = vals.iter().sum::<f64>() / vals.len() as f64;
         let sd = (vals.iter().map(|v| (v - m).powi(2)).sum::<f64>() / vals.len() as f64).sqrt();
         assert!(sd > 1.5 && sd < 2.6, "pattern sd {sd}");
+    }
+
+    /// The rounding the pattern rows use is `f64::round` exactly: at halves (both signs), next
+    /// to them, at zero, at NaN, past 2⁵² and on random values of a pattern's scale.
+    #[test]
+    fn round_to_i64_is_round() {
+        let mut vals = vec![0.0, -0.0, 0.5, -0.5, 1.5, -1.5, 2.5, -2.5, f64::NAN, 1e17, -1e17, 4.0e15, -4.0e15];
+        for h in [0.5f64, 1.5, 12345.5, -0.5, -7.5] {
+            vals.extend([h.next_down(), h.next_up()]);
+        }
+        vals.push(0.49999999999999994);
+        vals.push(-0.49999999999999994);
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        vals.extend((0..100_000).map(|_| (unit(rng.next_u64()) - 0.5) * 200.0 * 4294967296.0));
+        for v in vals {
+            assert_eq!(round_to_i64(v), v.round() as i64, "{v:e}");
+        }
     }
 
     #[test]
