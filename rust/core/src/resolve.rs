@@ -16,6 +16,7 @@ use ndarray::{Array2, ArrayView2};
 use crate::ModelPack;
 use crate::derive::baselines::{self, BaselineKind};
 use crate::derive::interp;
+use crate::derive::structure::structure_at;
 use crate::error::ModelError;
 use crate::model::layout::{BlackAlignment, SensorLayout};
 use crate::model::pack::{IsoModel, ModelOrigin};
@@ -150,6 +151,22 @@ pub fn sampler_for(
         _ => (interp::gain_ratio_at(pack, model.iso, extrapolate)?, None),
     };
     sampler.clean_at(clean_at, pack.layout.black, gains, carried).map_err(ModelError::Unsupported)
+}
+
+impl IsoSampler {
+    /// The sampler of a model with every structured component the pack has for its ISO
+    /// ([`Self::with_components`] with [`Components::ALL`]).
+    pub fn new(pack: &ModelPack, model: &IsoModel) -> Self {
+        Self::with_components(pack, model, Components::ALL)
+    }
+
+    /// The sampler of a model with the components `which` asks for, of those the pack has for
+    /// its ISO: stored, or derived from the calibrated ISOs ([`structure_at`]), then handed to
+    /// the sampler ([`IsoSampler::with_structure`]); the sampler itself derives nothing.
+    pub fn with_components(pack: &ModelPack, model: &IsoModel, which: Components) -> Self {
+        let structure = if which.structured() { structure_at(pack, model.iso) } else { None };
+        Self::with_structure(pack, model, structure.as_ref(), which)
+    }
 }
 
 /// The model of `kind` at `iso`: a calibrated ISO's own, one interpolated between calibrated

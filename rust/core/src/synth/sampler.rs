@@ -6,7 +6,7 @@ use rayon::prelude::*;
 use crate::model::codes::Snap;
 use crate::model::layout::{Binning, POSITIONS};
 use crate::model::pack::{BinModel, IsoModel, ModelPack};
-use crate::model::structure::Components;
+use crate::model::structure::{Components, IsoStructure};
 use crate::synth::CleanAt;
 use crate::synth::structure::StructureSampler;
 
@@ -145,19 +145,17 @@ struct TargetMap {
 }
 
 impl IsoSampler {
-    /// The sampler of a model with every structured component the pack has for its ISO
-    /// (stored, or derived from the calibrated ISOs: [`crate::derive::structure::structure_at`]).
-    pub fn new(pack: &ModelPack, model: &IsoModel) -> Self {
-        Self::with_components(pack, model, Components::ALL)
-    }
-
-    /// The sampler of a model with the components `which` asks for (those the pack has).
-    pub fn with_components(pack: &ModelPack, model: &IsoModel, which: Components) -> Self {
-        let structure = if which.structured() {
-            crate::derive::structure::structure_at(pack, model.iso).and_then(|st| StructureSampler::new(&st, which))
-        } else {
-            None
-        };
+    /// The sampler of a model with the structured components `structure` of its ISO handed in
+    /// (the caller derives them: a pack's own, or derived from its calibrated ISOs, as
+    /// `crate::resolve`'s `IsoSampler::with_components` does), of which `which` asks for those
+    /// it adds; `None`, or `which` asking for none: the pixel-independent model alone.
+    pub fn with_structure(
+        pack: &ModelPack,
+        model: &IsoModel,
+        structure: Option<&IsoStructure>,
+        which: Components,
+    ) -> Self {
+        let structure = structure.filter(|_| which.structured()).and_then(|st| StructureSampler::new(st, which));
         let binning = pack.binning();
         let luts = std::array::from_fn(|p| binning.lut(p));
         let tables = std::array::from_fn(|p| match &structure {
