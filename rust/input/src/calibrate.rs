@@ -6,7 +6,7 @@ use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use noisecal_core::calibrate::dark::check_dark;
+use noisecal_core::calibrate::dark::{check_dark, surely_lit};
 use noisecal_core::calibrate::flat::Roi;
 use noisecal_core::error::{CodecError, SessionError};
 use noisecal_core::format::recording;
@@ -161,9 +161,11 @@ pub fn calibrate_path(
                 if !in_dark
                     && !is_recording
                     && let Some(path) = &frame.path
-                    && frame
-                        .view()
-                        .is_ok_and(|v| check_dark(&v, &frame.meta.black_or(&layout), &layout, frame.meta.iso).is_ok())
+                    && frame.view().is_ok_and(|v| {
+                        let black = frame.meta.black_or(&layout);
+                        // Most frames are lit: the quick test spares them the whole one.
+                        !surely_lit(&v, &black, &layout) && check_dark(&v, &black, &layout, frame.meta.iso).is_ok()
+                    })
                 {
                     deferred.push((path.clone(), frame.meta, frame.label()));
                     continue;
