@@ -10,6 +10,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::math::fit::{nn_poly_fit, poly_eval};
+use crate::math::round::round_half_away;
 use crate::model::layout::{POSITIONS, position};
 
 /// Marks a pixel of the clean image that is not on a flat region.
@@ -348,12 +349,12 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
             }
             report.considered[pos] += 1;
             let a = mean(i);
-            let level = (a.round().clamp(0.0, inp.white as f64) as u16).min(NOT_FLAT - 1);
+            let level = (round_half_away(a).clamp(0, inp.white as i64) as u16).min(NOT_FLAT - 1);
             let mut neighbours = 0;
             let mut flat = true;
             let mut check = |j: usize| {
                 let b = mean(j);
-                let lvl = (a.max(b).round() as usize).min(inp.white as usize);
+                let lvl = (round_half_away(a.max(b)).max(0) as usize).min(inp.white as usize);
                 neighbours += 1;
                 if (a - b).abs() as f32 > thresholds[pos][lvl] {
                     flat = false;

@@ -20,6 +20,7 @@ use crate::calibrate::line_base::LineBaseCache;
 use crate::calibrate::meta::FrameMeta;
 use crate::calibrate::motion::MotionProbe;
 use crate::error::SessionError;
+use crate::math::round::round_half_away;
 use crate::model::layout::{Binning, POSITIONS, SensorLayout};
 
 /// The most frames one burst takes (its sums are u32).
@@ -295,7 +296,7 @@ impl ReferenceBurst {
             deselect::bin_sums(&levels, w, NOT_FLAT, |pos, c| flat.mean_noise_at(&groups, pos, c), &luts);
         let m = self.frames as f64;
         let mean: Vec<u16> =
-            self.sum.iter().map(|&s| (s as f64 / m).round().clamp(0.0, self.layout.white as f64) as u16).collect();
+            self.sum.iter().map(|&s| round_half_away(s as f64 / m).clamp(0, self.layout.white as i64) as u16).collect();
         let probe = MotionProbe::new(mean, &levels, w, h, self.frames, &flat, &groups, clip_level(&self.layout));
         Ok(CleanImage {
             levels,

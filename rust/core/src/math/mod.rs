@@ -1,6 +1,8 @@
 //! Small numerics shared by both flows: non-negative polynomial fits ([`fit`]), special
-//! functions ([`special`]) and robust statistics ([`stats`]).
+//! functions ([`special`]), robust statistics ([`stats`]) and rounding for per-pixel loops
+//! ([`round`]).
 
 pub(crate) mod fit;
+pub mod round;
 pub mod special;
 pub mod stats;

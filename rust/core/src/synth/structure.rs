@@ -14,6 +14,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
+use crate::math::round::round_half_away;
 use crate::model::layout::POSITIONS;
 use crate::model::layout::position;
 use crate::model::pack::BinModel;
@@ -133,13 +134,13 @@ impl StructureSampler {
                     for (k, (v, &(c0, c1, f))) in values.zip(cells).enumerate() {
                         let x = x_first + 2 * k;
                         let shade = l[c0] * (1.0 - f) + l[c1] * f;
-                        *v += round_to_i64((shade + quantile_at(q, pattern_unit(y, x))) * 4294967296.0);
+                        *v += round_half_away((shade + quantile_at(q, pattern_unit(y, x))) * 4294967296.0);
                     }
                 }
                 None => {
                     for (k, v) in values.enumerate() {
                         let x = x_first + 2 * k;
-                        *v += round_to_i64((0.0 + quantile_at(q, pattern_unit(y, x))) * 4294967296.0);
+                        *v += round_half_away((0.0 + quantile_at(q, pattern_unit(y, x))) * 4294967296.0);
                     }
                 }
             }
@@ -380,20 +381,6 @@ pub(crate) struct PatternColumns {
     cells: Vec<(usize, usize, f64)>,
 }
 
-/// `v.round() as i64` (halves away from zero), without the call to libm's `round` that
-/// `f64::round` is on x86-64 without SSE4.1: the fraction `v − trunc(v)` is exact below 2⁵², and
-/// larger values (never a pattern's) take `round`.
-#[inline(always)]
-fn round_to_i64(v: f64) -> i64 {
-    if v.abs() < 4.0e15 {
-        let t = v as i64;
-        let r = v - t as f64;
-        t + (r >= 0.5) as i64 - (r <= -0.5) as i64
-    } else {
-        v.round() as i64
-    }
-}
-
 /// A sensor pixel's uniform draw of the fixed pattern (splitmix64 of its position).
 #[inline]
 fn pattern_unit(y: usize, x: usize) -> f64 {
@@ -490,23 +477,6 @@ mod tests {
         let m = vals.iter().sum::<f64>() / vals.len() as f64;
         let sd = (vals.iter().map(|v| (v - m).powi(2)).sum::<f64>() / vals.len() as f64).sqrt();
         assert!(sd > 1.5 && sd < 2.6, "pattern sd {sd}");
-    }
-
-    /// The rounding the pattern rows use is `f64::round` exactly: at halves (both signs), next
-    /// to them, at zero, at NaN, past 2⁵² and on random values of a pattern's scale.
-    #[test]
-    fn round_to_i64_is_round() {
-        let mut vals = vec![0.0, -0.0, 0.5, -0.5, 1.5, -1.5, 2.5, -2.5, f64::NAN, 1e17, -1e17, 4.0e15, -4.0e15];
-        for h in [0.5f64, 1.5, 12345.5, -0.5, -7.5] {
-            vals.extend([h.next_down(), h.next_up()]);
-        }
-        vals.push(0.49999999999999994);
-        vals.push(-0.49999999999999994);
-        let mut rng = ChaCha8Rng::seed_from_u64(3);
-        vals.extend((0..100_000).map(|_| (unit(rng.next_u64()) - 0.5) * 200.0 * 4294967296.0));
-        for v in vals {
-            assert_eq!(round_to_i64(v), v.round() as i64, "{v:e}");
-        }
     }
 
     #[test]
