@@ -2,6 +2,7 @@
 //! drawn for (ISO, CFA position, bin of the clean level). Seeded and reproducible whatever the
 //! thread count: each band of rows has its own ChaCha stream.
 
+mod pattern_cache;
 pub mod sampler;
 pub mod structure;
 
@@ -201,7 +202,9 @@ fn structured_filler<'a, const TARGET: bool>(
     });
     // The fixed pattern varies from pixel to pixel: each row's offsets are then built anew.
     let pattern = st.filter(|st| st.has_pattern()).cloned();
-    let pattern_columns = pattern.as_ref().map(|p| p.pattern_columns(origin.1, w));
+    // Kept by the sampler when this region was synthesized before; else drawn row by row.
+    let kept = pattern.as_ref().and_then(|p| p.kept_pattern(origin, h, w));
+    let pattern_columns = pattern.as_ref().filter(|_| kept.is_none()).map(|p| p.pattern_columns(origin.1, w));
     {
         Box::new(move |band: usize, chunk: &mut [u16]| {
             let mut rng = band_rng(seed, band);
@@ -227,8 +230,13 @@ fn structured_filler<'a, const TARGET: bool>(
                 let finish = sampler.needs_finish(even) || sampler.needs_finish(odd);
                 let white = sampler.white as i32;
                 let ry = fixed(offsets.rows[y]);
-                let cols: &[i64] = match (&pattern, &pattern_columns) {
-                    (Some(p), Some(pc)) => {
+                let cols: &[i64] = match (&kept, &pattern, &pattern_columns) {
+                    (Some(k), _, _) => {
+                        pattern_row.clear();
+                        pattern_row.extend(columns[y & 1].iter().zip(k.row(y)).map(|(c, p)| c + p));
+                        &pattern_row
+                    }
+                    (None, Some(p), Some(pc)) => {
                         pattern_row.clear();
                         pattern_row.extend_from_slice(&columns[y & 1]);
                         p.add_pattern_row_at(pc, origin.0 + y, &mut pattern_row);

@@ -10,6 +10,8 @@
 //! with `Q ∗ K ≈ P` (non-negative deconvolution, [`crate::renoise::deconv`]). A pixel's
 //! marginal stays the measured one and no variance is counted twice.
 
+use std::sync::Arc;
+
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
@@ -23,6 +25,7 @@ use crate::model::structure::{
     Components, FixedPattern, FrameOffsets, IsoStructure, OffsetDistribution, grid_coord, quantile_at,
 };
 use crate::renoise::deconv::{Problem, SolverLimits, richardson_lucy};
+use crate::synth::pattern_cache::{PatternCache, PatternRegion, Region};
 
 /// Grid of the offset densities (cells per DN).
 const GRID: f64 = 32.0;
@@ -51,6 +54,8 @@ pub struct StructureSampler {
     columns: [Option<OffsetDistribution>; 2],
     frame: Option<FrameOffsets>,
     fpn: Option<FixedPattern>,
+    /// The fixed pattern of the image region last synthesized (shared by clones).
+    pattern_cache: Arc<PatternCache>,
 }
 
 /// One image's offsets.
@@ -70,6 +75,7 @@ impl StructureSampler {
             columns: std::array::from_fn(|p| st.column(p).filter(|_| which.column).cloned()),
             frame: st.frame().filter(|_| which.frame).cloned(),
             fpn: st.fixed_pattern().filter(|_| which.fpn).cloned(),
+            pattern_cache: Arc::default(),
         };
         (s.rows.iter().chain(&s.columns).any(Option::is_some) || s.frame.is_some() || s.fpn.is_some()).then_some(s)
     }
@@ -145,6 +151,18 @@ impl StructureSampler {
                 }
             }
         }
+    }
+
+    /// The fixed pattern of an image at `origin`, `height × width`, when the sampler keeps it
+    /// ([`PatternCache`]); `None`: computed row by row ([`Self::add_pattern_row_at`]).
+    pub(crate) fn kept_pattern(
+        &self,
+        origin: (usize, usize),
+        height: usize,
+        width: usize,
+    ) -> Option<Arc<PatternRegion>> {
+        self.fpn.as_ref()?;
+        self.pattern_cache.get(self, Region { origin, height, width })
     }
 
     /// Draws an image's offsets (`origin`: the sensor row and column of its pixel (0, 0); only
@@ -469,6 +487,20 @@ mod tests {
                 let want = (s.pattern_at(y, x0 + i) * 4294967296.0).round() as i64;
                 assert!((v - want).abs() <= 1, "({y}, {}): {v} vs {want}", x0 + i);
             }
+        }
+        // Kept from a region's second request on, with the values of the rows computed one by
+        // one; another region is not served the kept one.
+        for (origin, h, w) in [((0usize, 0usize), 40usize, 60usize), ((17, 3), 9, 31)] {
+            assert!(s.kept_pattern(origin, h, w).is_none(), "first request");
+            let kept = s.kept_pattern(origin, h, w).expect("second request");
+            for y in 0..h {
+                let mut row = vec![0i64; w];
+                s.add_pattern_row(origin.0 + y, origin.1, &mut row);
+                assert_eq!(kept.row(y), &row[..], "{origin:?} row {y}");
+            }
+            let again = s.kept_pattern(origin, h, w).expect("kept");
+            assert!(Arc::ptr_eq(&kept, &again));
+            assert!(s.kept_pattern((origin.0 + 1, origin.1), h, w).is_none(), "another origin");
         }
         // The pattern is the sensor's: the same at a pixel whatever the seed; its spread is the
         // residual's and the shading's.

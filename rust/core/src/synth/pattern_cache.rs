@@ -1,0 +1,86 @@
+//! The fixed pattern of an image region kept between synthesis calls. The pattern is the
+//! sensor's (a hash of each pixel's position through the pack's quantile function, plus the
+//! shading), the same in every image: a training pipeline that synthesizes many images of one
+//! size at one origin would otherwise compute it anew, pixel by pixel, for every image. A region
+//! is kept from its second request on (a single image pays nothing for it), one region per
+//! sampler, at most [`MAX_PIXELS`] pixels of 8 bytes.
+
+use std::sync::{Arc, Mutex};
+
+use rayon::prelude::*;
+
+use crate::synth::structure::StructureSampler;
+
+/// Pixels a kept region holds at most (8 bytes each: 192 MiB).
+const MAX_PIXELS: usize = 24 << 20;
+
+/// An image region in sensor pixels: its first row and column, its height and width.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct Region {
+    pub(crate) origin: (usize, usize),
+    pub(crate) height: usize,
+    pub(crate) width: usize,
+}
+
+/// The fixed pattern of one region, 2⁻³² DN per pixel, row by row.
+#[derive(Debug)]
+pub(crate) struct PatternRegion {
+    region: Region,
+    values: Vec<i64>,
+}
+
+impl PatternRegion {
+    /// Row `y` of the region (0 = its first).
+    #[inline]
+    pub(crate) fn row(&self, y: usize) -> &[i64] {
+        let w = self.region.width;
+        &self.values[y * w..(y + 1) * w]
+    }
+}
+
+/// What a sampler keeps: the region last asked for, and the pattern of the one kept.
+#[derive(Debug, Default)]
+pub(crate) struct PatternCache {
+    state: Mutex<CacheState>,
+}
+
+#[derive(Debug, Default)]
+struct CacheState {
+    last_asked: Option<Region>,
+    kept: Option<Arc<PatternRegion>>,
+}
+
+impl PatternCache {
+    /// The pattern of `region` when it is kept, or was asked for just before (then computed
+    /// now, in parallel, and kept); `None`: the caller computes it row by row. The values are
+    /// those of [`StructureSampler::add_pattern_row_at`] on zeros, bit for bit.
+    pub(crate) fn get(&self, st: &StructureSampler, region: Region) -> Option<Arc<PatternRegion>> {
+        {
+            // A poisoned lock only loses the cache.
+            let mut s = self.state.lock().ok()?;
+            if let Some(k) = &s.kept
+                && k.region == region
+            {
+                return Some(k.clone());
+            }
+            let again = s.last_asked == Some(region);
+            s.last_asked = Some(region);
+            if !again || region.height.saturating_mul(region.width) > MAX_PIXELS || region.width == 0 {
+                return None;
+            }
+        }
+        // Built outside the lock: rayon may run another synthesis call's band on this thread
+        // while it waits, and that call takes the lock.
+        let columns = st.pattern_columns(region.origin.1, region.width);
+        let mut values = vec![0i64; region.height * region.width];
+        values
+            .par_chunks_mut(region.width)
+            .enumerate()
+            .for_each(|(y, row)| st.add_pattern_row_at(&columns, region.origin.0 + y, row));
+        let kept = Arc::new(PatternRegion { region, values });
+        if let Ok(mut s) = self.state.lock() {
+            s.kept = Some(kept.clone());
+        }
+        Some(kept)
+    }
+}
