@@ -7,6 +7,7 @@
 //! level and fitted smoothly), so a short or noisy burst does not mask out a flat chart; with a
 //! single reference frame, the spatial spread alone sets the threshold.
 
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::math::fit::{nn_poly_fit, poly_eval};
@@ -339,47 +340,67 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
         })
         .collect();
 
+    // Rows in parallel, each counting its own pixels (considered, unsteady, flat per position);
+    // the counts are summed in row order afterwards, so the report is the same on any thread count.
     let mut clean = vec![NOT_FLAT; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let i = y * w + x;
-            let pos = position(y, x);
-            if inp.roi.is_some_and(|r| !r.contains(x, y)) {
-                continue;
-            }
-            report.considered[pos] += 1;
-            let a = mean(i);
-            let level = (round_half_away(a).clamp(0, inp.white as i64) as u16).min(NOT_FLAT - 1);
-            let mut neighbours = 0;
-            let mut flat = true;
-            let mut check = |j: usize| {
-                let b = mean(j);
-                let lvl = (round_half_away(a.max(b)).max(0) as usize).min(inp.white as usize);
-                neighbours += 1;
-                if (a - b).abs() as f32 > thresholds[pos][lvl] {
-                    flat = false;
+    let row_counts: Vec<[[u64; POSITIONS]; 3]> = clean
+        .par_chunks_mut(w.max(1))
+        .enumerate()
+        .map(|(y, clean_row)| {
+            let mut counts = [[0u64; POSITIONS]; 3];
+            let [considered, unsteady, flat_count] = &mut counts;
+            for x in 0..w {
+                let i = y * w + x;
+                let pos = position(y, x);
+                if inp.roi.is_some_and(|r| !r.contains(x, y)) {
+                    continue;
                 }
-            };
-            if x >= 2 {
-                check(i - 2);
+                considered[pos] += 1;
+                let a = mean(i);
+                let level = (round_half_away(a).clamp(0, inp.white as i64) as u16).min(NOT_FLAT - 1);
+                let mut neighbours = 0;
+                let mut flat = true;
+                let mut check = |j: usize| {
+                    let b = mean(j);
+                    let lvl = (round_half_away(a.max(b)).max(0) as usize).min(inp.white as usize);
+                    neighbours += 1;
+                    if (a - b).abs() as f32 > thresholds[pos][lvl] {
+                        flat = false;
+                    }
+                };
+                if x >= 2 {
+                    check(i - 2);
+                }
+                if x + 2 < w {
+                    check(i + 2);
+                }
+                if y >= 2 {
+                    check(i - 2 * w);
+                }
+                if y + 2 < h {
+                    check(i + 2 * w);
+                }
+                if flat
+                    && neighbours >= 2
+                    && inp.frames >= 2
+                    && pixel_var(i) > spread_limits[pos][level as usize] as f64
+                {
+                    flat = false;
+                    unsteady[pos] += 1;
+                }
+                if flat && neighbours >= 2 {
+                    clean_row[x] = level;
+                    flat_count[pos] += 1;
+                }
             }
-            if x + 2 < w {
-                check(i + 2);
-            }
-            if y >= 2 {
-                check(i - 2 * w);
-            }
-            if y + 2 < h {
-                check(i + 2 * w);
-            }
-            if flat && neighbours >= 2 && inp.frames >= 2 && pixel_var(i) > spread_limits[pos][level as usize] as f64 {
-                flat = false;
-                report.unsteady[pos] += 1;
-            }
-            if flat && neighbours >= 2 {
-                clean[i] = level;
-                report.flat[pos] += 1;
-            }
+            counts
+        })
+        .collect();
+    for [considered, unsteady, flat_count] in row_counts {
+        for pos in 0..POSITIONS {
+            report.considered[pos] += considered[pos];
+            report.unsteady[pos] += unsteady[pos];
+            report.flat[pos] += flat_count[pos];
         }
     }
     (clean, report)
