@@ -11,9 +11,9 @@ use super::tags::Tag;
 
 /// A derived DNG written as its pixels are drawn, when the input stores its raw image as
 /// uncompressed 16-bit strips (any byte order, any strip order): the bytes
-/// [`derive`] would give, made in parts: the input's bytes around the stored rows of the active
-/// area ([`Self::gaps`]), those rows band by band ([`Self::encode`]), then the tag edits
-/// ([`Self::finish`]).
+/// [`derive`](super::edit::derive) would give, made in parts: the input's bytes around the
+/// stored rows of the active area ([`Self::gaps`]), those rows band by band
+/// ([`Self::encode`]), then the tag edits ([`Self::finish`]).
 #[derive(Debug)]
 pub(crate) struct StreamPlan {
     s: Structure,
@@ -31,7 +31,8 @@ pub(crate) struct StreamPlan {
 }
 
 /// The [`StreamPlan`] of an input whose active area is `(ah, aw)`, or `None` when its raw image
-/// is stored otherwise (or its IFDs lie among the stored rows): [`derive`] writes those.
+/// is stored otherwise (or its IFDs lie among the stored rows): [`derive`](super::edit::derive)
+/// writes those.
 pub(crate) fn stream_plan(buf: &[u8], (ah, aw): (usize, usize)) -> Option<StreamPlan> {
     let s = walk(buf).ok()?;
     let raw = s.raw_dir(buf)?;
@@ -155,7 +156,8 @@ impl StreamPlan {
 
     /// The tag edits, once every row is written: overwrites of the output's bytes, to be applied
     /// in order after the rows, and the bytes appended after the input's. `sampled` are the new
-    /// pixels at row-major indices that are multiples of [`UNIQUE_ID_STEP`], in order.
+    /// pixels at row-major indices that are multiples of
+    /// [`UNIQUE_ID_STEP`](super::edit::UNIQUE_ID_STEP), in order.
     #[allow(clippy::type_complexity)]
     pub(crate) fn finish(
         &self,
