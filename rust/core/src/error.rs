@@ -159,7 +159,7 @@ impl ModelError {
 
 impl Remedy {
     /// The remedy of the first error in a chain of causes (a [`ModelError`] alone or inside an
-    /// [`Error`]) that has one.
+    /// [`enum@Error`]) that has one.
     pub fn in_chain<'a>(chain: impl IntoIterator<Item = &'a (dyn std::error::Error + 'static)>) -> Option<Remedy> {
         chain.into_iter().find_map(|e| {
             e.downcast_ref::<ModelError>()
