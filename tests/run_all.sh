@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Every test of noisecal: the Rust workspace (unit, statistical, end-to-end, CLI), then the host JVM
 # harnesses (the Android capture library, and the JNI boundary driven from the app's Kotlin class),
-# then the Python package (built with `pip install ./rust/python` into a venv, tested with pytest;
+# then the Python package (one wheel built with `pip wheel ./rust/python`, installed into a venv, tested with pytest;
 # Ray is installed too when PyPI allows, for the Ray Data test; NOISECAL_NO_RAY=1 skips it), then
 # the denoiser benchmark's torch tests in a venv with torch (target/torchenv; NOISECAL_NO_TORCH=1 skips).
 # Needs cargo, java 17+, npm (the Kotlin compiler comes from npm into .tools/) and python3 with venv.
@@ -40,7 +40,11 @@ fi
 if [ "${NOISECAL_NO_RAY:-0}" != 1 ]; then
   "$venv/bin/pip" install -q "ray[data]==2.60.*" >&2 || echo "warning: Ray could not be installed; the Ray test is skipped" >&2
 fi
-"$venv/bin/pip" install -q ./rust/python >&2
+# One abi3 wheel, built once and installed into this venv and the torch one below.
+rm -rf target/wheels
+"$venv/bin/pip" wheel -q --no-deps -w target/wheels ./rust/python >&2
+wheel=$(ls target/wheels/noisecal-*.whl)
+"$venv/bin/pip" install -q --force-reinstall --no-deps "$wheel" >&2
 (cd rust/python && NOISECAL_BIN="$PWD/../../target/debug/noisecal" "../../$venv/bin/python" -m pytest -q -p no:cacheprovider tests)
 # The type stubs (python/noisecal/__init__.pyi) against the installed extension: a function, argument
 # or default added on one side only fails here.
@@ -63,7 +67,7 @@ else
   [ -x "$tvenv/bin/python" ] || python3 -m venv "$tvenv"
   if "$tvenv/bin/python" -c "import torch" 2>/dev/null || "$tvenv/bin/python" -m pip install -q "torch>=2.0" >&2; then
     "$tvenv/bin/python" -m pip install -q "maturin>=1.16,<2" numpy pytest pytest-benchmark >&2
-    "$tvenv/bin/python" -m pip install -q ./rust/python >&2
+    "$tvenv/bin/python" -m pip install -q --force-reinstall --no-deps "$wheel" >&2
     (cd rust/python && NOISECAL_BIN="$PWD/../../target/debug/noisecal" "../../$tvenv/bin/python" -m pytest -q -p no:cacheprovider tests/test_denoise_bench.py)
   else
     echo "warning: torch could not be installed from PyPI; the denoiser benchmark's torch tests are skipped" >&2

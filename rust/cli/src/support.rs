@@ -78,6 +78,7 @@ pub fn is_broken_pipe(err: &anyhow::Error) -> bool {
 pub fn error_text(e: &anyhow::Error) -> String {
     let mut out = String::new();
     let mut parent = String::new();
+    let remedy = noisecal_core::error::Remedy::in_chain(e.chain());
     for cause in e.chain() {
         let text = cause.to_string();
         if parent.is_empty() || !parent.contains(&text) {
@@ -87,6 +88,12 @@ pub fn error_text(e: &anyhow::Error) -> String {
             out.push_str(&text);
         }
         parent = text;
+    }
+    // The core names what to change; the flag that changes it is the CLI's.
+    match remedy {
+        Some(noisecal_core::error::Remedy::Extrapolate) => out.push_str(" (--extrapolate)"),
+        Some(noisecal_core::error::Remedy::ParametricModel) => out.push_str(" (--model hg or pg)"),
+        None => {}
     }
     out
 }

@@ -123,16 +123,53 @@ pub enum CodecError {
 /// Asking a model for something it does not hold.
 #[derive(Debug, Error, Clone, PartialEq)]
 pub enum ModelError {
-    #[error(
-        "ISO {iso} is outside the pack's calibrated range {min}–{max}; calibrate it, or allow extrapolation (--extrapolate)"
-    )]
+    #[error("ISO {iso} is outside the pack's calibrated range {min}–{max}; calibrate it, or allow extrapolation")]
     IsoOutOfRange { iso: u32, min: u32, max: u32 },
     #[error("ISO {iso} is not in the pack (calibrated: {available}); interpolate it or pick one of those")]
     IsoMissing { iso: u32, available: String },
     #[error("image is {width}×{height} but the pack's sensor is {expected_width}×{expected_height} with CFA {cfa}")]
     ImageMismatch { width: usize, height: usize, expected_width: usize, expected_height: usize, cfa: String },
+    /// The NoiseProfile baseline cannot be had at an ISO (no tag, or a damaged one).
+    #[error("{0}; use the hg or pg model instead")]
+    NoNoiseProfile(String),
     #[error("{0}")]
     Unsupported(String),
+}
+
+/// What a user changes to get past a [`ModelError`], for a front-end to name in its own words
+/// (the CLI's flag, Python's argument, the app's setting) after the core's message.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Remedy {
+    /// Allow extrapolation beyond the calibrated ISOs.
+    Extrapolate,
+    /// Synthesize with a parametric baseline (hg or pg) instead of the NoiseProfile one.
+    ParametricModel,
+}
+
+impl ModelError {
+    /// The remedy this error's message ends on, if any.
+    pub fn remedy(&self) -> Option<Remedy> {
+        match self {
+            ModelError::IsoOutOfRange { .. } => Some(Remedy::Extrapolate),
+            ModelError::NoNoiseProfile(_) => Some(Remedy::ParametricModel),
+            _ => None,
+        }
+    }
+}
+
+impl Remedy {
+    /// The remedy of the first error in a chain of causes (a [`ModelError`] alone or inside an
+    /// [`enum@Error`]) that has one.
+    pub fn in_chain<'a>(chain: impl IntoIterator<Item = &'a (dyn std::error::Error + 'static)>) -> Option<Remedy> {
+        chain.into_iter().find_map(|e| {
+            e.downcast_ref::<ModelError>()
+                .or_else(|| match e.downcast_ref::<Error>() {
+                    Some(Error::Model(m)) => Some(m),
+                    _ => None,
+                })
+                .and_then(ModelError::remedy)
+        })
+    }
 }
 
 /// Everything the core can fail with.

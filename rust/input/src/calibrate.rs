@@ -6,9 +6,10 @@ use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
+use noisecal_core::calibrate::SessionRecord;
 use noisecal_core::calibrate::dark::{check_dark, surely_lit};
 use noisecal_core::calibrate::flat::Roi;
-use noisecal_core::error::{CodecError, SessionError};
+use noisecal_core::error::CodecError;
 use noisecal_core::format::recording;
 use noisecal_core::{CalibrationSession, FrameMeta, FrameView, ModelPack, SensorLayout, SessionConfig};
 
@@ -145,11 +146,11 @@ pub fn calibrate_path(
     while let Some(record) = source.next_record()? {
         match record {
             Record::BeginStep { reference_exposure_ns, .. } => {
-                session.begin_step(reference_exposure_ns)?;
+                session.apply(SessionRecord::BeginStep { reference_exposure_ns })?;
                 in_dark = false;
             }
             Record::BeginDark => {
-                session.begin_dark()?;
+                session.apply(SessionRecord::BeginDark)?;
                 in_dark = true;
                 push_deferred(&mut session, &mut deferred, &mut report, &mut reasons);
             }
@@ -170,13 +171,14 @@ pub fn calibrate_path(
                     deferred.push((path.clone(), frame.meta, frame.label()));
                     continue;
                 }
-                let pushed = frame.view().map_err(SessionError::from).and_then(|v| session.push_frame(&v, &frame.meta));
-                if let Err(e) = pushed {
+                if let Some(e) = session.apply(SessionRecord::Frame { view: frame.view(), meta: &frame.meta })? {
                     report.rejected.push(format!("{}: {e}", frame.label()));
                     reasons.push(e.to_string());
                 }
             }
-            Record::NoiseProfile { iso, profile } => session.set_noise_profile(iso, profile),
+            Record::NoiseProfile { iso, profile } => {
+                session.apply(SessionRecord::NoiseProfile { iso, profile })?;
+            }
             Record::CutShort(e) => {
                 // Only a missing tail is an interruption: a file that still ends with its End
                 // record has a damaged length or tag in the middle.
@@ -250,8 +252,10 @@ fn push_deferred(
     deferred.sort_by(|a, b| a.1.iso.cmp(&b.1.iso).then(a.0.cmp(&b.0)));
     for (path, meta, label) in deferred.drain(..) {
         let pushed = crate::dng::read_dng(&path).map_err(|e| e.to_string()).and_then(|img| {
-            let v = FrameView::from_array(&img.pixels).map_err(|e| e.to_string())?;
-            session.push_frame(&v, &meta).map(|_| ()).map_err(|e| e.to_string())
+            match session.apply(SessionRecord::Frame { view: FrameView::from_array(&img.pixels), meta: &meta }) {
+                Ok(None) => Ok(()),
+                Ok(Some(e)) | Err(e) => Err(e.to_string()),
+            }
         });
         if let Err(e) = pushed {
             report.rejected.push(format!("{label}: {e}"));

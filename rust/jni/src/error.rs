@@ -23,7 +23,7 @@ pub enum BoundaryError {
     )]
     Poisoned(i64),
     #[error("{name} is {value}: {expected}")]
-    Argument { name: &'static str, value: String, expected: &'static str },
+    Argument { name: &'static str, value: String, expected: String },
     #[error(transparent)]
     Frame(#[from] FrameError),
     #[error(transparent)]
@@ -50,8 +50,8 @@ impl BoundaryError {
         Self::Io { what, path: path.into(), source }
     }
 
-    pub(crate) fn arg(name: &'static str, value: impl ToString, expected: &'static str) -> Self {
-        Self::Argument { name, value: value.to_string(), expected }
+    pub(crate) fn arg(name: &'static str, value: impl ToString, expected: impl Into<String>) -> Self {
+        Self::Argument { name, value: value.to_string(), expected: expected.into() }
     }
 }
 

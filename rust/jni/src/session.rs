@@ -12,7 +12,7 @@ use crate::files::write_atomically;
 use crate::recording::RecordingTee;
 
 /// Magic of the core's own checkpoint (also accepted by [`NativeSession::restore_file`]).
-const CORE_CHECKPOINT_MAGIC: &[u8; 8] = noisecal_core::calibrate::session::CHECKPOINT_MAGIC;
+const CORE_CHECKPOINT_MAGIC: &[u8; 8] = noisecal_core::format::checkpoint::CHECKPOINT_MAGIC;
 
 /// What `NoisecalSession.create` passes.
 #[derive(Debug, Clone)]
@@ -91,12 +91,18 @@ impl NativeSession {
         let bin_width = match p.bin_width {
             0 => None,
             // The core's rule (noisecal_core::model::bin_width), named by this boundary's argument.
-            b => Some(
-                u16::try_from(b)
-                    .ok()
-                    .and_then(|w| noisecal_core::model::bin_width::check(w).ok())
-                    .ok_or_else(|| BoundaryError::arg("binWidth", b, "pass 0 for the default or 1..=4096 levels"))?,
-            ),
+            b => Some(u16::try_from(b).ok().and_then(|w| noisecal_core::model::bin_width::check(w).ok()).ok_or_else(
+                || {
+                    BoundaryError::arg(
+                        "binWidth",
+                        b,
+                        format!(
+                            "pass 0 for the default or 1..={} levels",
+                            noisecal_core::model::bin_width::MAX_BIN_WIDTH
+                        ),
+                    )
+                },
+            )?),
         };
         let layout = SensorLayout { width, height, cfa, black, white };
         let mut config = SessionConfig::new(reference_iso);
@@ -320,14 +326,5 @@ impl NativeSession {
             log::info!("recording {} closed with {} frames ({} bytes)", path.display(), m.frames, m.bytes);
         }
         Ok(())
-    }
-}
-
-#[cfg(test)]
-mod bin_width_tests {
-    /// The message's range is the core's rule.
-    #[test]
-    fn the_accepted_range_is_the_cores() {
-        assert_eq!(noisecal_core::model::bin_width::MAX_BIN_WIDTH, 4096);
     }
 }

@@ -11,6 +11,7 @@
 
 use std::panic::{AssertUnwindSafe, catch_unwind};
 
+use noisecal_core::error::Remedy;
 use pyo3::PyErr;
 use pyo3::create_exception;
 use pyo3::exceptions::{PyTypeError, PyUserWarning, PyValueError};
@@ -40,22 +41,23 @@ create_exception!(
     "Input noisecal used as asked but that looks wrong (pixels out of range, another camera)."
 );
 
-/// Some core and input-library messages still name command-line flags: in Python they are arguments.
+/// Some input-library messages still name command-line flags: in Python they are arguments.
 fn pythonic(msg: String) -> String {
-    const FLAGS: [(&str, &str); 5] = [
-        ("--extrapolate", "extrapolate=True"),
-        ("use --model hg or pg", "use model=\"hg\" or model=\"pg\""),
-        ("--reference-iso ", "reference_iso="),
-        ("--clean-at", "clean_at"),
-        ("--components", "components"),
-    ];
+    const FLAGS: [(&str, &str); 3] =
+        [("--reference-iso ", "reference_iso="), ("--clean-at", "clean_at"), ("--components", "components")];
     FLAGS.iter().fold(msg, |m, (flag, arg)| m.replace(flag, arg))
 }
 
 /// An error of the core or the input library as a `NoisecalError` with its full chain of causes.
 pub fn to_py(e: impl Into<anyhow::Error>) -> PyErr {
     let e: anyhow::Error = e.into();
-    NoisecalError::new_err(pythonic(format!("{e:#}")))
+    // The core names what to change; the argument that changes it is Python's.
+    let remedy = match Remedy::in_chain(e.chain()) {
+        Some(Remedy::Extrapolate) => " (extrapolate=True)",
+        Some(Remedy::ParametricModel) => " (model=\"hg\" or model=\"pg\")",
+        None => "",
+    };
+    NoisecalError::new_err(pythonic(format!("{e:#}{remedy}")))
 }
 
 /// A `NoisecalError` with a message.

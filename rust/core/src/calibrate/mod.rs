@@ -21,6 +21,7 @@ pub mod dark;
 pub(crate) mod deselect;
 pub(crate) mod drift;
 pub mod estimate;
+pub mod event;
 pub mod flat;
 pub mod frame;
 mod line_base;
@@ -32,6 +33,7 @@ pub mod step;
 pub(crate) mod structure;
 mod window_counts;
 
+pub use event::SessionRecord;
 pub use flat::{NOT_FLAT, Roi};
 pub use frame::FrameView;
 pub use meta::FrameMeta;

@@ -3,7 +3,7 @@
 //! Per EV step a [`ReferenceBurst`] sums the reference frames; the first target frame closes it
 //! into the step's [`CleanImage`], and every target frame of the step is folded into its ISO's
 //! samples ([`crate::calibrate::accumulate`]). The session checks what arrives (sizes,
-//! metadata, steps, drift), keeps progress and events, checkpoints to bytes, and builds the pack
+//! metadata, steps, drift), keeps progress and events, and builds the pack
 //! at the end ([`crate::calibrate::assemble`]). Memory is O(pixels) + O(histograms) whatever the
 //! number of frames. A rejected frame changes nothing.
 
@@ -20,17 +20,11 @@ use crate::calibrate::meta::FrameMeta;
 use crate::calibrate::motion::{FrameMotion, MAX_MOTION_PX, register};
 use crate::calibrate::reference::{CleanImage, ReferenceBurst};
 use crate::calibrate::step::{STEP_TOLERANCE, StepKey};
-use crate::error::{CodecError, SessionError};
-use crate::format::codec;
+use crate::error::SessionError;
 use crate::model::histogram::NoiseHistogram;
 use crate::model::layout::{Binning, POSITIONS, SensorLayout};
 use crate::model::pack::NoiseProfile;
 use crate::model::structure::FixedPattern;
-
-pub const CHECKPOINT_MAGIC: &[u8; 8] = b"NCALCKPT";
-/// Version 3 adds the structured-noise sums; version 4 the dark frames; version 5 the motion
-/// probe of the clean image and the per-ISO motion figures.
-pub const CHECKPOINT_VERSION: u16 = 5;
 
 /// How a session calibrates.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -622,18 +616,10 @@ impl CalibrationSession {
         }
     }
 
-    /// The session as bytes, to resume after an interruption.
-    pub fn checkpoint(&self) -> Result<Vec<u8>, CodecError> {
-        codec::encode("checkpoint", CHECKPOINT_MAGIC, CHECKPOINT_VERSION, self)
-    }
-
-    /// Resumes a session from [`checkpoint`](Self::checkpoint) bytes.
-    pub fn restore(bytes: &[u8]) -> Result<Self, CodecError> {
-        let s: Self = codec::decode("checkpoint", CHECKPOINT_MAGIC, "NCALCKPT", CHECKPOINT_VERSION, bytes)?;
-        if s.layout.validate().is_err() || s.isos.values().any(|a| !a.fits(&s.binning)) {
-            return Err(CodecError::Invalid { what: "checkpoint", detail: "inconsistent session state".into() });
-        }
-        Ok(s)
+    /// Whether a session read back from bytes holds together: a valid layout, and every ISO's
+    /// histograms fitting the binning (a checkpoint's bytes may be damaged or foreign).
+    pub(crate) fn is_consistent(&self) -> bool {
+        self.layout.validate().is_ok() && self.isos.values().all(|a| a.fits(&self.binning))
     }
 
     /// The histograms of one ISO and position summed over folds (`None` for an ISO without

@@ -1,9 +1,10 @@
 //! The binary files noisecal writes and reads: one framing ([`codec`]: magic, version, length,
-//! CRC-32, bincode payload) for packs, checkpoints and recordings; the recording's records
+//! CRC-32, bincode payload) for packs, checkpoints ([`checkpoint`]) and recordings; the recording's records
 //! ([`recording`]) and their replay into a session ([`replay`]); packs of older versions
 //! ([`pack_v1`], [`pack_v2`], [`pack_v3`]; version 4 is the current structs uncompressed) and the
 //! compact payload of the current one ([`compact`]).
 
+pub mod checkpoint;
 pub(crate) mod codec;
 pub mod compact;
 pub(crate) mod pack_v1;

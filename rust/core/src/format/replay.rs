@@ -3,7 +3,7 @@
 
 use std::io::Read;
 
-use crate::calibrate::{CalibrationSession, SessionConfig};
+use crate::calibrate::{CalibrationSession, SessionConfig, SessionRecord};
 use crate::error::{CodecError, SessionError};
 use crate::format::recording::{Record, RecordingHeader, RecordingReader};
 
@@ -51,24 +51,30 @@ pub fn replay<R: Read>(
             }
             Err(e) => return Err(e.into()),
         };
-        match record {
-            Record::BeginStep { exposure_ns } => session.begin_step(exposure_ns)?,
+        let applied = match &record {
+            Record::BeginStep { exposure_ns } => {
+                session.apply(SessionRecord::BeginStep { reference_exposure_ns: *exposure_ns })?
+            }
             Record::Frame(f) => {
                 report.frames += 1;
-                let pushed = f.view().map_err(SessionError::from).and_then(|v| session.push_frame(&v, &f.meta));
-                if let Err(e) = pushed {
-                    report.rejected.push(format!(
-                        "frame {} (ISO {}, {} ns): {e}",
-                        report.frames - 1,
-                        f.meta.iso,
-                        f.meta.exposure_ns
-                    ));
-                }
-                on_frame(report.frames);
+                session.apply(SessionRecord::Frame { view: f.view(), meta: &f.meta })?
             }
-            Record::NoiseProfile { iso, profile } => session.set_noise_profile(iso, profile),
-            Record::BeginDark => session.begin_dark()?,
-            Record::End { .. } => {}
+            Record::NoiseProfile { iso, profile } => {
+                session.apply(SessionRecord::NoiseProfile { iso: *iso, profile: *profile })?
+            }
+            Record::BeginDark => session.apply(SessionRecord::BeginDark)?,
+            Record::End { .. } => None,
+        };
+        if let Record::Frame(f) = &record {
+            if let Some(e) = applied {
+                report.rejected.push(format!(
+                    "frame {} (ISO {}, {} ns): {e}",
+                    report.frames - 1,
+                    f.meta.iso,
+                    f.meta.exposure_ns
+                ));
+            }
+            on_frame(report.frames);
         }
     }
     report.complete = reader.ended();

@@ -1,7 +1,8 @@
-//! Small numerics shared by both flows: non-negative polynomial fits ([`fit`]), special
-//! functions ([`special`]), robust statistics ([`stats`]) and rounding for per-pixel loops
-//! ([`round`]).
+//! Small numerics shared by both flows: non-negative polynomial fits ([`fit`]), non-negative
+//! deconvolution on the simplex ([`deconv`]), special functions ([`special`]), robust statistics
+//! ([`stats`]) and rounding for per-pixel loops ([`round`]).
 
+pub(crate) mod deconv;
 pub(crate) mod fit;
 pub mod round;
 pub mod special;

@@ -1,6 +1,6 @@
 //! The one rule for a bin width every front-end is given (`noisecal calibrate --bin-width`,
 //! Python's `calibrate(bin_width=…)`, the app's `binWidth`): levels per bin, 1 to
-//! [`MAX_BIN_WIDTH`]. A calibration session checks it ([`crate::CalibrationSession::new`]); a
+//! [`MAX_BIN_WIDTH`]. A calibration session checks it (`CalibrationSession::new`); a
 //! front-end may check it first to name its own parameter, with [`check`]'s message after the name.
 
 use crate::error::LayoutError;

@@ -9,10 +9,11 @@
 //!
 //! The session counts, per ISO and CFA position, how often each output code occurs in the
 //! target frames (flat pixels). For every period `p ≤ 64` over which the codes seen span at
-//! least [`MIN_SPAN_PERIODS`](crate::calibrate::codes::MIN_SPAN_PERIODS) periods, the residue classes holding less than 1 % of their share
+//! least 8 periods, the residue classes holding less than 1 % of their share
 //! under a smooth distribution are empty; the lattice is the period that leaves the fewest codes
 //! allowed per unit length (a period-4 lattice also looks like a period-2 one), with at least
-//! [`MIN_SAMPLES`](crate::calibrate::codes::MIN_SAMPLES) samples; codes 0 and white (clipping) are left out. Synthesis then moves every
+//! 20 000 samples (the detection and its thresholds are the calibration's, `calibrate/codes.rs`);
+//! codes 0 and white (clipping) are left out. Synthesis then moves every
 //! value to the nearest allowed code ([`Snap`]); a value midway between two allowed codes goes
 //! down or up on alternate pixels of the same colour.
 

@@ -17,12 +17,12 @@
 use rayon::prelude::*;
 use thiserror::Error;
 
+pub use crate::math::deconv::Deconvolution;
+use crate::math::deconv::{Problem, SolverLimits, solve};
 use crate::metrics;
 use crate::model::layout::{Binning, POSITIONS};
 use crate::model::pack::IsoModel;
 use crate::model::pmf::Pmf;
-pub use crate::renoise::deconv::Deconvolution;
-use crate::renoise::deconv::{Problem, SolverLimits, solve};
 use crate::synth::sampler::BinTable;
 
 /// Settings of [`build_bridge_with`].
@@ -441,7 +441,7 @@ fn solve_bin(pa_full: &Pmf, pb_full: &Pmf, clip: (i32, i32), opts: &BridgeOption
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::renoise::deconv::convolve;
+    use crate::math::deconv::convolve;
 
     fn gauss(mu: f64, sd: f64) -> Pmf {
         let lo = (mu - 9.0 * sd).floor() as i32 - 1;

@@ -17,7 +17,6 @@
 //! same seed): the same seed gives the same bytes whatever the thread count.
 
 pub mod bridge;
-pub(crate) mod deconv;
 pub mod denoise;
 
 use ndarray::{Array2, ArrayView2};

@@ -9,8 +9,6 @@ use std::sync::{Arc, Mutex};
 
 use rayon::prelude::*;
 
-use crate::synth::structure::StructureSampler;
-
 /// Pixels a kept region holds at most (8 bytes each: 192 MiB).
 const MAX_PIXELS: usize = 24 << 20;
 
@@ -52,9 +50,14 @@ struct CacheState {
 
 impl PatternCache {
     /// The pattern of `region` when it is kept, or was asked for just before (then computed
-    /// now, in parallel, and kept); `None`: the caller computes it row by row. The values are
-    /// those of [`StructureSampler::add_pattern_row_at`] on zeros, bit for bit.
-    pub(crate) fn get(&self, st: &StructureSampler, region: Region) -> Option<Arc<PatternRegion>> {
+    /// now, in parallel, and kept); `None`: the caller computes it row by row. `filler` is called
+    /// only when the region is computed here: it gives the function that writes the pattern of
+    /// sensor row `y` onto a row of zeros, the same function the caller's row-by-row path uses,
+    /// so the kept values are its values bit for bit.
+    pub(crate) fn get<F>(&self, region: Region, filler: impl FnOnce() -> F) -> Option<Arc<PatternRegion>>
+    where
+        F: Fn(usize, &mut [i64]) + Sync,
+    {
         {
             // A poisoned lock only loses the cache.
             let mut s = self.state.lock().ok()?;
@@ -71,12 +74,9 @@ impl PatternCache {
         }
         // Built outside the lock: rayon may run another synthesis call's band on this thread
         // while it waits, and that call takes the lock.
-        let columns = st.pattern_columns(region.origin.1, region.width);
+        let fill = filler();
         let mut values = vec![0i64; region.height * region.width];
-        values
-            .par_chunks_mut(region.width)
-            .enumerate()
-            .for_each(|(y, row)| st.add_pattern_row_at(&columns, region.origin.0 + y, row));
+        values.par_chunks_mut(region.width).enumerate().for_each(|(y, row)| fill(region.origin.0 + y, row));
         let kept = Arc::new(PatternRegion { region, values });
         if let Ok(mut s) = self.state.lock() {
             s.kept = Some(kept.clone());

@@ -147,7 +147,7 @@ struct TargetMap {
 impl IsoSampler {
     /// The sampler of a model with the structured components `structure` of its ISO handed in
     /// (the caller derives them: a pack's own, or derived from its calibrated ISOs, as
-    /// `crate::resolve`'s `IsoSampler::with_components` does), of which `which` asks for those
+    /// the resolution step's `IsoSampler::with_components` does), of which `which` asks for those
     /// it adds; `None`, or `which` asking for none: the pixel-independent model alone.
     pub fn with_structure(
         pack: &ModelPack,

@@ -7,7 +7,7 @@
 //! rounded one. The pixel PMFs were measured on frames that already held these offsets, so
 //! synthesis first takes them out: per position the PMF `K` of the added integer offset is
 //! computed from the component distributions, and each bin's PMF `P` is replaced by the `Q ≥ 0`
-//! with `Q ∗ K ≈ P` (non-negative deconvolution, [`crate::renoise::deconv`]). A pixel's
+//! with `Q ∗ K ≈ P` (non-negative deconvolution, [`crate::math::deconv`]). A pixel's
 //! marginal stays the measured one and no variance is counted twice.
 
 use std::sync::Arc;
@@ -16,6 +16,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
+use crate::math::deconv::{Problem, SolverLimits, richardson_lucy};
 use crate::math::round::round_half_away;
 use crate::model::layout::POSITIONS;
 use crate::model::layout::position;
@@ -24,7 +25,6 @@ use crate::model::pmf::Pmf;
 use crate::model::structure::{
     Components, FixedPattern, FrameOffsets, IsoStructure, OffsetDistribution, grid_coord, quantile_at,
 };
-use crate::renoise::deconv::{Problem, SolverLimits, richardson_lucy};
 use crate::synth::pattern_cache::{PatternCache, PatternRegion, Region};
 
 /// Grid of the offset densities (cells per DN).
@@ -162,7 +162,10 @@ impl StructureSampler {
         width: usize,
     ) -> Option<Arc<PatternRegion>> {
         self.fpn.as_ref()?;
-        self.pattern_cache.get(self, Region { origin, height, width })
+        self.pattern_cache.get(Region { origin, height, width }, || {
+            let columns = self.pattern_columns(origin.1, width);
+            move |y: usize, row: &mut [i64]| self.add_pattern_row_at(&columns, y, row)
+        })
     }
 
     /// Draws an image's offsets (`origin`: the sensor row and column of its pixel (0, 0); only
@@ -388,7 +391,7 @@ fn on_grid(pts: &[(f64, f64)]) -> (i64, Vec<f64>) {
 
 fn convolve(a: &(i64, Vec<f64>), b: &(i64, Vec<f64>)) -> (i64, Vec<f64>) {
     let mut out = vec![0.0; a.1.len() + b.1.len() - 1];
-    crate::renoise::deconv::convolve(&a.1, &b.1, &mut out);
+    crate::math::deconv::convolve(&a.1, &b.1, &mut out);
     (a.0 + b.0, out)
 }
 
@@ -537,7 +540,7 @@ mod tests {
         // Q ∗ K over -half + k0 ..; white (the clamp) at +sd.
         let conv = |q: &[f64], q0: i32| -> (i32, Vec<f64>) {
             let mut y = vec![0.0; q.len() + k.len() - 1];
-            crate::renoise::deconv::convolve(&k, q, &mut y);
+            crate::math::deconv::convolve(&k, q, &mut y);
             (q0 + k0, y)
         };
         let clip = sd.round() as i32;

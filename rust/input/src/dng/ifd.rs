@@ -4,8 +4,9 @@
 //! and ExifIFD entries point to (four levels at most), refusing what a reader must not trust: a
 //! file that is not TIFF, an IFD loop or more than [`MAX_IFDS`] IFDs, an empty IFD or one that runs
 //! past the file, and an entry whose value would be larger than the file. The reader checks a file
-//! with it before rawler parses it (`read.rs`, which adds where rawler itself goes), and the editor
-//! of derived DNGs finds the directories it patches with it (`edit.rs`).
+//! with it before rawler parses it (`guard.rs`, which adds where rawler itself goes) and hands the
+//! walk on to read uncompressed samples in place (`raw_data.rs`); the editor of derived DNGs finds
+//! the directories it patches with it (`edit.rs`).
 
 use std::collections::HashSet;
 
@@ -15,6 +16,8 @@ use super::tags::Tag;
 pub(crate) const MAX_IFDS: usize = 512;
 /// How deep SubIFDs/ExifIFD pointers are followed below the chain.
 const MAX_DEPTH: u32 = 4;
+/// PhotometricInterpretation of a CFA raw image.
+const PHOTOMETRIC_CFA: u64 = 32803;
 
 /// A TIFF field type (TIFF 6.0 §2 and the IFD type of TIFF Technical Note 1).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -235,6 +238,65 @@ impl Structure {
     /// The chain's directories (depth 0).
     pub fn chain_dirs(&self) -> impl Iterator<Item = &Dir> {
         self.chain.iter().map(|&d| &self.dirs[d])
+    }
+}
+
+/// The structure walked by [`walk`], read the ways the editor and the raw-data reader need.
+impl Structure {
+    pub(super) fn entry(&self, dir: usize, t: Tag) -> Option<&Entry> {
+        self.dirs[dir].entries.iter().find(|e| e.tag == t.to_u16())
+    }
+
+    /// The bytes of an entry's value (`None` when it lies outside the file or its type is unknown).
+    pub(super) fn bytes<'a>(&self, buf: &'a [u8], e: &'a Entry) -> Option<&'a [u8]> {
+        let size = FieldType::from_code(e.ty)?.size().checked_mul(e.count as usize)?;
+        if size <= 4 {
+            Some(&e.field[..size])
+        } else {
+            let off = self.order.u32(&e.field, 0)? as usize;
+            buf.get(off..off.checked_add(size)?)
+        }
+    }
+
+    /// An unsigned integer value (BYTE, SHORT, LONG, IFD) as u64s.
+    pub(super) fn uints(&self, buf: &[u8], dir: usize, t: Tag) -> Option<Vec<u64>> {
+        let e = self.entry(dir, t)?;
+        let b = self.bytes(buf, e)?;
+        let o = self.order;
+        match FieldType::from_code(e.ty)? {
+            FieldType::Byte | FieldType::Undefined => Some(b.iter().map(|&x| x as u64).collect()),
+            FieldType::Short => Some((0..b.len() / 2).map(|i| o.u16(b, 2 * i).unwrap_or(0) as u64).collect()),
+            FieldType::Long | FieldType::Ifd => {
+                Some((0..b.len() / 4).map(|i| o.u32(b, 4 * i).unwrap_or(0) as u64).collect())
+            }
+            _ => None,
+        }
+    }
+
+    pub(super) fn uint(&self, buf: &[u8], dir: usize, t: Tag) -> Option<u64> {
+        self.uints(buf, dir, t)?.first().copied()
+    }
+
+    /// The full-resolution CFA raw image, found as the reader finds it: NewSubfileType 0 with
+    /// image data and CFA photometry, in the chain and its SubIFDs, in file order.
+    pub(super) fn raw_dir(&self, buf: &[u8]) -> Option<usize> {
+        pub(super) fn collect(s: &Structure, d: usize, out: &mut Vec<usize>) {
+            out.push(d);
+            for &(t, c) in &s.dirs[d].children {
+                if t == Tag::SubIfds.to_u16() {
+                    collect(s, c, out);
+                }
+            }
+        }
+        let mut all = Vec::new();
+        for &d in &self.chain {
+            collect(self, d, &mut all);
+        }
+        all.into_iter().find(|&d| {
+            self.uint(buf, d, Tag::NewSubfileType).unwrap_or(0) == 0
+                && (self.entry(d, Tag::StripOffsets).is_some() || self.entry(d, Tag::TileOffsets).is_some())
+                && self.uint(buf, d, Tag::PhotometricInterpretation) == Some(PHOTOMETRIC_CFA)
+        })
     }
 }
 

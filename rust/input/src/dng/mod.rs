@@ -21,9 +21,13 @@
 mod compressed;
 mod edit;
 mod error;
+mod guard;
 mod ifd;
+mod meta;
 mod profile;
+mod raw_data;
 mod read;
+mod stream;
 mod tags;
 pub mod tiff;
 mod write;
@@ -121,7 +125,7 @@ impl DngFile {
     /// `None` for other storage ([`write_derived`] writes those).
     pub fn streamed(&self) -> Option<DerivedStream<'_>> {
         let (h, w) = (self.image.layout.height as usize, self.image.layout.width as usize);
-        edit::stream_plan(&self.bytes, (h, w)).map(|plan| DerivedStream { template: self, plan })
+        stream::stream_plan(&self.bytes, (h, w)).map(|plan| DerivedStream { template: self, plan })
     }
 
     /// The active area's pixels: a view of the file's bytes when the raw image is stored as
@@ -131,7 +135,7 @@ impl DngFile {
     }
 
     fn view(&self) -> Option<ArrayView2<'_, u16>> {
-        edit::active_view(&self.bytes, (self.image.layout.height as usize, self.image.layout.width as usize))
+        raw_data::active_view(&self.bytes, (self.image.layout.height as usize, self.image.layout.width as usize))
     }
 
     /// The file's bytes, owned (copied only if this template is shared or mapped).

@@ -5,21 +5,23 @@ use std::path::Path;
 use std::sync::Arc;
 
 use ndarray::Array2;
-use noisecal_core::model::layout::CfaColor;
-use noisecal_core::{CfaPattern, FrameMeta, SensorLayout};
+use noisecal_core::{FrameMeta, SensorLayout};
 use rawler::RawImageData;
 use rawler::decoders::plain_image_from_ifd;
 use rawler::formats::tiff::reader::TiffReader;
-use rawler::formats::tiff::{GenericTiffReader, IFD, Value};
+use rawler::formats::tiff::{GenericTiffReader, IFD};
 use rawler::rawsource::RawSource;
 
 use super::compressed::{Codec, Segment, check_segments};
-use super::ifd::{FieldType, walk};
+use super::guard::check_structure;
+use super::ifd::Structure;
+use super::meta::{
+    active_area, ascii, black_levels, find, find_raw_ifd, has, num, nums, read_cfa, read_exposure, read_iso, subs,
+    tag_name, uint, value,
+};
 use super::tags::Tag;
 use super::{Bytes, ColorTags, DngError, DngFile, DngImage};
 
-const PHOTOMETRIC_CFA: u64 = 32803;
-const PHOTOMETRIC_LINEAR_RAW: u64 = 34892;
 const COMPRESSION_LOSSY_JPEG: u64 = 34892;
 const COMPRESSION_LOSSLESS_JPEG: u64 = 7;
 const COMPRESSION_JPEG_XL: u64 = 52546;
@@ -160,7 +162,9 @@ fn parse(src: Src<'_>, path: &Path, decode_pixels: bool) -> Result<DngImage, Dng
     if len < 8 {
         return Err(DngError::decode(path, format!("the file is only {len} bytes long; a DNG is a TIFF file")));
     }
-    check_structure(src.buf()).map_err(|d| DngError::decode(path, d))?;
+    // The one walk of the file's directories: checked here, read again by the fast path for
+    // uncompressed data.
+    let structure = check_structure(src.buf()).map_err(|d| DngError::decode(path, d))?;
 
     let tiff =
         guarded(path, "parsing the TIFF structure", || GenericTiffReader::new(&mut src.reader(), 0, 0, None, &[]))?
@@ -254,7 +258,7 @@ fn parse(src: Src<'_>, path: &Path, decode_pixels: bool) -> Result<DngImage, Dng
 
     // --- Pixels.
     let pixels = if decode_pixels {
-        decode(path, raw, &src, (width, height), (top, left, bottom, right), bits)?
+        decode(path, raw, &src, &structure, (width, height), (top, left, bottom, right), bits)?
     } else {
         Array2::zeros((0, 0))
     };
@@ -307,6 +311,7 @@ fn decode(
     path: &Path,
     raw: &IFD,
     src: &Src<'_>,
+    structure: &Structure,
     (width, height): (usize, usize),
     (top, left, bottom, right): (usize, usize, usize, usize),
     bits: u32,
@@ -345,7 +350,9 @@ fn decode(
     }
     // Uncompressed 16-bit data (Android's DngCreator, noisecal's own files) is read straight
     // into the active area; the rest goes through the decoder.
-    if let Some(pixels) = super::edit::read_active_16(src.buf(), (width, height), (top, left, bottom, right)) {
+    if let Some(pixels) =
+        super::raw_data::read_active_16(structure, src.buf(), (width, height), (top, left, bottom, right))
+    {
         return Ok(pixels);
     }
     let codec = match uint(raw, Tag::Compression) {
@@ -431,335 +438,6 @@ fn guarded<T>(path: &Path, what: &str, f: impl FnOnce() -> T) -> Result<T, DngEr
     })
 }
 
-// ---------------------------------------------------------------------------------------------
-// Tag access
-
-fn value(ifd: &IFD, t: Tag) -> Option<&Value> {
-    ifd.get_entry(t.to_u16()).map(|e| &e.value)
-}
-
-fn has(ifd: &IFD, t: Tag) -> bool {
-    ifd.get_entry(t.to_u16()).is_some()
-}
-
-/// The directories a pointer tag (SubIFDs, ExifIFD) leads to.
-fn subs(ifd: &IFD, t: Tag) -> Option<&Vec<IFD>> {
-    ifd.sub_ifds().get(&t.to_u16())
-}
-
-/// The specification's name of a tag noisecal knows (its number for any other).
-fn tag_name(t: Tag) -> String {
-    t.name().map_or_else(|| t.to_u16().to_string(), str::to_string)
-}
-
-fn find<'a>(ifds: &[&'a IFD], t: Tag) -> Option<&'a Value> {
-    ifds.iter().find_map(|ifd| value(ifd, t))
-}
-
-/// Element `i` of a numeric value as f64 (rationals divided out; a zero denominator gives None).
-fn num(v: &Value, i: usize) -> Option<f64> {
-    match v {
-        Value::Byte(x) => x.get(i).map(|&a| a as f64),
-        Value::Short(x) => x.get(i).map(|&a| a as f64),
-        Value::Long(x) => x.get(i).map(|&a| a as f64),
-        Value::SByte(x) => x.get(i).map(|&a| a as f64),
-        Value::SShort(x) => x.get(i).map(|&a| a as f64),
-        Value::SLong(x) => x.get(i).map(|&a| a as f64),
-        Value::Rational(x) => x.get(i).filter(|r| r.d != 0).map(|r| r.n as f64 / r.d as f64),
-        Value::SRational(x) => x.get(i).filter(|r| r.d != 0).map(|r| r.n as f64 / r.d as f64),
-        Value::Float(x) => x.get(i).map(|&a| a as f64),
-        Value::Double(x) => x.get(i).copied(),
-        _ => None,
-    }
-}
-
-fn nums(v: &Value) -> Vec<f64> {
-    (0..v.count()).map(|i| num(v, i).unwrap_or(f64::NAN)).collect()
-}
-
-/// First element of an unsigned integer tag.
-fn uint(ifd: &IFD, t: Tag) -> Option<u64> {
-    match value(ifd, t)? {
-        Value::Byte(x) => x.first().map(|&a| a as u64),
-        Value::Short(x) => x.first().map(|&a| a as u64),
-        Value::Long(x) => x.first().map(|&a| a as u64),
-        _ => None,
-    }
-}
-
-fn ascii(ifds: &[&IFD], t: Tag) -> String {
-    match find(ifds, t) {
-        Some(Value::Ascii(a)) => a.strings().first().map(|s| s.trim().to_string()).unwrap_or_default(),
-        _ => String::new(),
-    }
-}
-
-// ---------------------------------------------------------------------------------------------
-// Structure
-
-/// Tags of a chain IFD whose values rawler 0.8 follows as sub-IFDs, one level deep
-/// (`GenericTiffReader::wellknown_sub_ifd_tags`): SubIFDs, ExifIFD, GPSInfo and InterColorProfile.
-const RAWLER_SUB_IFD_TAGS: [u16; 4] = [330, 34665, 34853, 34675];
-/// rawler 0.8 reads at most this many entries of an IFD.
-const RAWLER_MAX_IFD_ENTRIES: usize = 4096;
-
-/// Walks the IFD structure before rawler does: rejects non-TIFF data, IFD loops and tags whose
-/// size exceeds the file, which rawler would allocate blindly — a count of 2³² DOUBLEs is a 32 GB
-/// allocation whose failure aborts the process, and no `catch_unwind` stops an abort.
-///
-/// Two walks. The strict one is the IFD walker of this crate ([`walk`]: the chain and its
-/// SubIFDs/ExifIFD pointers; an IFD that is empty or runs past the file is refused). The second
-/// mirrors where rawler 0.8 itself goes: the chain IFDs' [`RAWLER_SUB_IFD_TAGS`], whatever their
-/// type (a LONG's values, an UNDEFINED value's own offset, an unknown type's first byte). rawler
-/// ignores errors in those IFDs — an ICC profile read as an IFD is not one — so only the sizes it
-/// would allocate are checked there.
-fn check_structure(buf: &[u8]) -> Result<(), String> {
-    let s = walk(buf)?;
-    let o = s.order;
-    // The bytes rawler allocates for an entry: a value's size, except that the IFD type (13) is
-    // unknown to rawler (a byte a value), so never more than `count · size`.
-    let rawler_size = |ty: u16, count: u32| -> u64 {
-        count as u64 * if ty == FieldType::Ifd.code() { 1 } else { FieldType::size_of_code(ty) as u64 }
-    };
-    let too_big = |t: u16, size: u64, off: usize| {
-        format!("tag {t} in the IFD at offset {off} claims {size} bytes in a {}-byte file (corrupt)", buf.len())
-    };
-    // IFDs rawler follows from a chain IFD: (offset, the tag that points there).
-    let mut rawler_subs: Vec<(usize, u16)> = Vec::new();
-    for dir in s.chain_dirs() {
-        for (i, e) in dir.entries.iter().enumerate() {
-            let (tag, ty, count) = (e.tag, e.ty, e.count);
-            if !RAWLER_SUB_IFD_TAGS.contains(&tag) {
-                continue;
-            }
-            let at_entry = dir.offset + 2 + 12 * i;
-            // Where rawler finds the value: inline when its own size is ≤ 4 bytes (type 13 is one
-            // byte a value to rawler, four to us).
-            let at = if rawler_size(ty, count) <= 4 {
-                Some(at_entry + 8)
-            } else {
-                o.u32(buf, at_entry + 8).map(|o| o as usize)
-            };
-            match (FieldType::from_code(ty), at) {
-                (Some(FieldType::Long), Some(at)) => rawler_subs
-                    .extend((0..count as usize).filter_map(|k| o.u32(buf, at + 4 * k)).map(|o| (o as usize, tag))),
-                (Some(FieldType::Undefined), Some(at)) => rawler_subs.push((at, tag)),
-                (None | Some(FieldType::Ifd), Some(at)) if count > 0 => {
-                    rawler_subs.extend(buf.get(at).map(|&o| (o as usize, tag)));
-                }
-                // rawler indexes the first value of an unknown type here, and has none.
-                (None | Some(FieldType::Ifd), _) => {
-                    return Err(format!("tag {tag} (an IFD pointer) in the IFD at offset {} has no value", dir.offset));
-                }
-                _ => {}
-            }
-        }
-    }
-    for (off, via) in rawler_subs {
-        let Some(n) = o.u16(buf, off) else { continue };
-        for i in 0..(n as usize).min(RAWLER_MAX_IFD_ENTRIES) {
-            let e = off + 2 + 12 * i;
-            let (Some(tag), Some(ty), Some(count)) = (o.u16(buf, e), o.u16(buf, e + 2), o.u32(buf, e + 4)) else {
-                break;
-            };
-            let size = rawler_size(ty, count);
-            // rawler reads the value's offset, refuses u32::MAX, then allocates.
-            if size > 4 && o.u32(buf, e + 8).is_none_or(|o| o == u32::MAX) {
-                continue;
-            }
-            if size > buf.len() as u64 && via == 34675 {
-                // An ICC profile is no IFD, but rawler 0.8 parses it as one.
-                return Err(format!(
-                    "the DNG decoder (rawler) reads the InterColorProfile (tag 34675) as an IFD and would \
-                     allocate {size} bytes for what it takes for tag {tag} there; remove the profile \
-                     (exiftool -icc_profile= FILE) or re-export the DNG"
-                ));
-            }
-            if size > buf.len() as u64 {
-                return Err(format!("{} (reached through tag {via})", too_big(tag, size, off)));
-            }
-        }
-    }
-    Ok(())
-}
-
-/// The full-resolution raw image: NewSubFileType 0 in the IFD chain or its SubIFDs, CFA preferred.
-fn find_raw_ifd<'a>(path: &Path, chain: &[&'a IFD]) -> Result<&'a IFD, DngError> {
-    fn collect<'a>(ifd: &'a IFD, out: &mut Vec<&'a IFD>) {
-        out.push(ifd);
-        if let Some(subs) = subs(ifd, Tag::SubIfds) {
-            for s in subs {
-                collect(s, out);
-            }
-        }
-    }
-    let mut all = Vec::new();
-    for ifd in chain {
-        collect(ifd, &mut all);
-    }
-    let main: Vec<&IFD> = all
-        .into_iter()
-        .filter(|ifd| uint(ifd, Tag::NewSubfileType).unwrap_or(0) == 0)
-        .filter(|ifd| has(ifd, Tag::StripOffsets) || has(ifd, Tag::TileOffsets))
-        .collect();
-    if let Some(raw) = main.iter().find(|ifd| uint(ifd, Tag::PhotometricInterpretation) == Some(PHOTOMETRIC_CFA)) {
-        return Ok(raw);
-    }
-    if main.iter().any(|ifd| uint(ifd, Tag::PhotometricInterpretation) == Some(PHOTOMETRIC_LINEAR_RAW)) {
-        return Err(DngError::unsupported(
-            path,
-            "this DNG holds demosaiced (LinearRaw) data, not the sensor's CFA mosaic; capture RAW_SENSOR \
-             frames (or convert without demosaicing)",
-        ));
-    }
-    Err(DngError::decode(path, "no full-resolution CFA raw image found in the DNG"))
-}
-
-fn read_cfa(path: &Path, raw: &IFD) -> Result<CfaPattern, DngError> {
-    let pattern = value(raw, Tag::CfaPattern).ok_or(DngError::MissingTag {
-        path: path.to_path_buf(),
-        tag: "CFAPattern (33422)",
-        fix: "the raw image does not say its colour filter order; re-export the DNG with its CFA tags",
-    })?;
-    let n = pattern.count();
-    let (rows, cols) = match value(raw, Tag::CfaRepeatPatternDim) {
-        Some(v) if v.count() >= 2 => (num(v, 0).unwrap_or(0.0) as usize, num(v, 1).unwrap_or(0.0) as usize),
-        _ if n == 4 => (2, 2),
-        _ => {
-            return Err(DngError::MissingTag {
-                path: path.to_path_buf(),
-                tag: "CFARepeatPatternDim (33421)",
-                fix: "the CFA pattern size is not given; re-export the DNG with its CFA tags",
-            });
-        }
-    };
-    if (rows, cols) != (2, 2) {
-        let xtrans = if (rows, cols) == (6, 6) { " (Fujifilm X-Trans)" } else { "" };
-        return Err(DngError::unsupported(
-            path,
-            format!(
-                "CFA repeat pattern {rows}×{cols}{xtrans} is not a 2×2 Bayer mosaic; noisecal supports \
-                 RGGB/BGGR/GRBG/GBRG sensors only"
-            ),
-        ));
-    }
-    if n != 4 {
-        return Err(DngError::decode(path, format!("CFAPattern has {n} entries for a 2×2 pattern")));
-    }
-    let planes: Vec<f64> = value(raw, Tag::CfaPlaneColor).map(nums).unwrap_or_else(|| vec![0.0, 1.0, 2.0]);
-    let mut colors = [CfaColor::Green; 4];
-    let mut codes = [0u8; 4];
-    for (i, c) in colors.iter_mut().enumerate() {
-        let idx = num(pattern, i).unwrap_or(f64::NAN);
-        let plane = planes.get(idx as usize).copied().filter(|_| idx >= 0.0).unwrap_or(f64::NAN);
-        codes[i] = plane as u8;
-        *c = match plane as i64 {
-            0 => CfaColor::Red,
-            1 => CfaColor::Green,
-            2 => CfaColor::Blue,
-            _ => {
-                return Err(DngError::unsupported(
-                    path,
-                    format!(
-                        "CFA colour code {plane} (0=R 1=G 2=B 3=C 4=M 5=Y 6=W) is not an RGB Bayer filter; \
-                         noisecal supports RGGB/BGGR/GRBG/GBRG sensors only"
-                    ),
-                ));
-            }
-        };
-    }
-    CfaPattern::from_colors(colors).ok_or_else(|| {
-        DngError::unsupported(
-            path,
-            format!("CFA pattern {codes:?} (0=R 1=G 2=B) is not a Bayer order (RGGB, BGGR, GRBG or GBRG)"),
-        )
-    })
-}
-
-/// `ActiveArea` as (top, left, bottom, right); the whole image when absent.
-fn active_area(path: &Path, raw: &IFD, w: usize, h: usize) -> Result<(usize, usize, usize, usize), DngError> {
-    let Some(v) = value(raw, Tag::ActiveArea) else {
-        return Ok((0, 0, h, w));
-    };
-    let a: Vec<f64> = nums(v);
-    if a.len() != 4 || a.iter().any(|x| !x.is_finite() || *x < 0.0) {
-        return Err(DngError::decode(path, format!("ActiveArea {a:?} is not 4 non-negative numbers")));
-    }
-    let (t, l, b, r) = (a[0] as usize, a[1] as usize, a[2] as usize, a[3] as usize);
-    // Saturating: a huge value (an f64 far beyond usize) must fail here as not fitting, not overflow.
-    if t.saturating_add(2) > b || l.saturating_add(2) > r || b > h || r > w {
-        return Err(DngError::decode(path, format!("ActiveArea {t},{l},{b},{r} does not fit the {w}×{h} image")));
-    }
-    Ok((t, l, b, r))
-}
-
-/// Black level per CFA position of the active area: the mean, over that position's pixels, of the
-/// `BlackLevel` pattern (relative to the active area's origin, any repeat size) plus
-/// `BlackLevelDeltaH` of the pixel's column and `BlackLevelDeltaV` of its row.
-fn black_levels(path: &Path, raw: &IFD, aw: usize, ah: usize) -> Result<[f32; 4], DngError> {
-    let (rr, rc) = match value(raw, Tag::BlackLevelRepeatDim) {
-        Some(v) => (num(v, 0).unwrap_or(0.0) as usize, num(v, 1).unwrap_or(0.0) as usize),
-        None => (1, 1),
-    };
-    if rr == 0 || rc == 0 || rr > 64 || rc > 64 {
-        return Err(DngError::decode(path, format!("BlackLevelRepeatDim {rr}×{rc} is invalid")));
-    }
-    let mut levels = value(raw, Tag::BlackLevel).map(nums).unwrap_or_else(|| vec![0.0]);
-    if levels.iter().any(|x| !x.is_finite()) {
-        return Err(DngError::decode(path, format!("BlackLevel {levels:?} is not a list of numbers")));
-    }
-    if levels.len() == 1 {
-        levels = vec![levels[0]; rr * rc];
-    }
-    if levels.len() != rr * rc {
-        return Err(DngError::decode(
-            path,
-            format!("BlackLevel has {} values but BlackLevelRepeatDim says {rr}×{rc}", levels.len()),
-        ));
-    }
-    let delta = |t: Tag, n: usize| -> Vec<f64> {
-        value(raw, t)
-            .map(nums)
-            .unwrap_or_default()
-            .into_iter()
-            .take(n)
-            .map(|x| if x.is_finite() { x } else { 0.0 })
-            .collect()
-    };
-    let dh = delta(Tag::BlackLevelDeltaH, aw);
-    let dv = delta(Tag::BlackLevelDeltaV, ah);
-    let parity_mean = |d: &[f64], parity: usize| -> f64 {
-        let sel: Vec<f64> = d.iter().skip(parity).step_by(2).copied().collect();
-        if sel.is_empty() { 0.0 } else { sel.iter().sum::<f64>() / sel.len() as f64 }
-    };
-    // Exact mean over the active area's pixels of each position: count the rows (columns) of each
-    // parity that fall on each row (column) of the repeat pattern.
-    let residue_counts = |len: usize, parity: usize, period: usize| -> Vec<f64> {
-        let mut counts = vec![0.0; period];
-        for i in (parity..len).step_by(2) {
-            counts[i % period] += 1.0;
-        }
-        counts
-    };
-    let mut black = [0f32; 4];
-    for (pos, b) in black.iter_mut().enumerate() {
-        let (r, c) = (pos >> 1, pos & 1);
-        let rows = residue_counts(ah, r, rr);
-        let cols = residue_counts(aw, c, rc);
-        let mut sum = 0.0;
-        let mut weight = 0.0;
-        for (a, &nr) in rows.iter().enumerate() {
-            for (k, &nc) in cols.iter().enumerate() {
-                sum += nr * nc * levels[a * rc + k];
-                weight += nr * nc;
-            }
-        }
-        let base = if weight > 0.0 { sum / weight } else { levels[(r % rr) * rc + c % rc] };
-        *b = (base + parity_mean(&dh, c) + parity_mean(&dv, r)) as f32;
-    }
-    Ok(black)
-}
-
 /// Clear error for a truncated file, before the decoder sees the data. Returns the data's size.
 /// The tiles or strips of compressed raw data, each with the pixels it fills (checked to lie in the
 /// file by [`check_data_within_file`]).
@@ -830,51 +508,12 @@ fn check_data_within_file(path: &Path, raw: &IFD, file_len: usize) -> Result<u64
 // ---------------------------------------------------------------------------------------------
 // Capture metadata
 
-fn read_iso(path: &Path, ifds: &[&IFD]) -> Result<u32, DngError> {
-    let positive = |t: Tag| find(ifds, t).and_then(|v| num(v, 0)).filter(|x| x.is_finite() && *x >= 1.0);
-    let extended = || positive(Tag::IsoSpeed).or_else(|| positive(Tag::RecommendedExposureIndex));
-    let iso = match positive(Tag::IsoSpeedRatings) {
-        // 65535 means "65535 or more" (EXIF 2.3): the exact value is in ISOSpeed / REI.
-        Some(x) if x >= 65535.0 => extended().unwrap_or(x),
-        Some(x) => x,
-        None => extended().ok_or(DngError::MissingTag {
-            path: path.to_path_buf(),
-            tag: "ISOSpeedRatings / PhotographicSensitivity (0x8827)",
-            fix: "the DNG does not record its ISO; capture with an app that writes it (Android's DngCreator \
-                  and the noisecal app do), or add it with `exiftool -ISO=<value> FILE`",
-        })?,
-    };
-    Ok(iso.round().min(u32::MAX as f64) as u32)
-}
-
-fn read_exposure(path: &Path, ifds: &[&IFD]) -> Result<u64, DngError> {
-    let v = find(ifds, Tag::ExposureTime).ok_or(DngError::MissingTag {
-        path: path.to_path_buf(),
-        tag: "ExposureTime (0x829A)",
-        fix: "the DNG does not record its exposure time; capture with an app that writes it (Android's \
-              DngCreator and the noisecal app do), or add it with `exiftool -ExposureTime=<seconds> FILE`",
-    })?;
-    let ns = match v {
-        Value::Rational(r) if !r.is_empty() && r[0].d != 0 => {
-            let (n, d) = (r[0].n as u128, r[0].d as u128);
-            ((n * 1_000_000_000 + d / 2) / d).min(u64::MAX as u128) as u64
-        }
-        other => match num(other, 0) {
-            Some(s) if s.is_finite() && s > 0.0 => (s * 1e9).round().min(u64::MAX as f64) as u64,
-            _ => 0,
-        },
-    };
-    if ns == 0 {
-        return Err(DngError::decode(path, "ExposureTime is zero or not a number"));
-    }
-    Ok(ns)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::dng::tiff::TagValue;
     use crate::dng::{DngSpec, dng_tiff};
+    use noisecal_core::CfaPattern;
     use std::path::PathBuf;
 
     /// xorshift: deterministic garbage.

@@ -20,6 +20,7 @@ use noisecal_core::{FrameMeta, SensorLayout};
 use noisecal_core::model::pack::NoiseProfile;
 
 use super::edit::{self, PixelMode};
+use super::stream;
 use super::tags::Tag;
 use super::tiff::{Ifd, ImageData, TagValue, TiffBuilder, u16_bytes};
 use super::{ColorTags, DngError, DngFile, DngImage};
@@ -84,7 +85,7 @@ pub fn write_derived_owned(
 #[derive(Debug)]
 pub struct DerivedStream<'a> {
     pub(super) template: &'a DngFile,
-    pub(super) plan: edit::StreamPlan,
+    pub(super) plan: stream::StreamPlan,
 }
 
 thread_local! {

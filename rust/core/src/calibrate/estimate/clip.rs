@@ -1,8 +1,7 @@
-//! Which bins hold clipped samples (method.md, "Estimation" 2), and the clean levels each bin
-//! covers.
+//! The clip rule's thresholds and the fraction of a bin's samples that may have reached the
+//! codes the sensor writes at either end (method.md, "Estimation" 1), and the clean levels each
+//! bin covers.
 
-use crate::calibrate::estimate::Stat;
-use crate::calibrate::estimate::law::Law;
 use crate::model::histogram::NoiseHistogram;
 use crate::model::layout::Binning;
 
@@ -97,31 +96,4 @@ pub fn clip_fraction_in(first: i32, counts: &[u64], lo: i32, hi: i32, floor: i32
 
 pub(super) fn clip_fraction(h: &NoiseHistogram, lo: i32, hi: i32, floor: i32, white: i32) -> f64 {
     clip_fraction_in(h.first, &h.counts, lo, hi, floor, white)
-}
-
-/// Bins flagged as clipped, from all samples: more than [`CLIP_FRACTION`] of their samples may
-/// have reached 0 or white, or — for bins with too few samples to show a fraction that small —
-/// their levels lie within [`CLIP_SIGMAS`] standard deviations of 0 or white by the noise law
-/// fitted on the bins not flagged so far.
-pub(super) fn clip_flags(hists: &[NoiseHistogram], levels: &BinLevels) -> Vec<bool> {
-    let mut clipped: Vec<bool> = hists
-        .iter()
-        .enumerate()
-        .map(|(b, h)| clip_fraction(h, levels.lo[b], levels.hi[b], levels.floor, levels.white) > CLIP_FRACTION)
-        .collect();
-    let stats: Vec<Stat> = hists.iter().map(Stat::of).collect();
-    let law = Law::fit(&stats, &clipped, levels);
-    for (b, c) in clipped.iter_mut().enumerate() {
-        // A bin with enough samples shows its clipping itself.
-        if stats[b].n as f64 * CLIP_FRACTION >= 1.0 {
-            continue;
-        }
-        let sd = law.var[b].sqrt();
-        let to_white = (levels.white - levels.hi[b]) as f64 - law.mean[b];
-        let to_zero = (levels.lo[b] - levels.floor) as f64 + law.mean[b];
-        if to_white < CLIP_SIGMAS * sd || to_zero < CLIP_SIGMAS * sd {
-            *c = true;
-        }
-    }
-    clipped
 }

@@ -2,10 +2,14 @@
 //! for every fold, PMFs from the other folds scored on the held-out fold's samples.
 
 use crate::calibrate::estimate::clip::BinLevels;
+use crate::calibrate::estimate::pool::FILL_MIN_SAMPLES;
 use crate::calibrate::estimate::pool::{Acc, Data, laplace_mass, laplace_pmf, pool_bin};
-use crate::calibrate::estimate::{FILL_MIN_SAMPLES, POOLING_CANDIDATES, argmax};
 use crate::model::histogram::NoiseHistogram;
 use crate::model::pmf::Pmf;
+
+/// Pooling thresholds `m` (samples) tried by the cross-validation. 0 is the plain per-bin
+/// histogram.
+pub const POOLING_CANDIDATES: [u64; 9] = [0, 16, 64, 256, 1024, 4096, 16_384, 65_536, 262_144];
 
 /// A bin leaves its position's pooling for another candidate only when its own held-out samples
 /// favour that candidate by more than this log-likelihood (a likelihood ratio of e⁴ ≈ 55).
@@ -212,4 +216,9 @@ fn subtract(t: &NoiseHistogram, f: &NoiseHistogram) -> NoiseHistogram {
         out.counts[j] = out.counts[j].saturating_sub(c);
     }
     out.trimmed()
+}
+
+/// The index of the largest value (the first on ties).
+pub(super) fn argmax(v: &[f64]) -> usize {
+    (0..v.len()).min_by(|&a, &b| v[b].total_cmp(&v[a]).then(a.cmp(&b))).unwrap_or(0)
 }

@@ -2,7 +2,7 @@
 //! level (method.md, "Estimation" 3).
 
 use crate::calibrate::estimate::clip::BinLevels;
-use crate::calibrate::estimate::{MIN_VAR, Stat};
+use crate::calibrate::estimate::stat::{MIN_VAR, Stat};
 use crate::math::fit::{nn_poly_fit, poly_eval, wls};
 
 /// The local-linear law's variance window holds at least this many samples and

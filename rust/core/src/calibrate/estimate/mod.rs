@@ -44,35 +44,31 @@
 
 mod clip;
 mod cv;
+mod flags;
 mod law;
 mod pool;
+mod stat;
 
 use serde::{Deserialize, Serialize};
 
 pub use clip::{BinLevels, CLIP_FRACTION, CLIP_SIGMAS, clip_fraction_in, clip_fraction_of};
-pub use cv::{OVERRIDE_MIN_HELDOUT, OVERRIDE_NATS};
+pub use cv::{OVERRIDE_MIN_HELDOUT, OVERRIDE_NATS, POOLING_CANDIDATES};
 pub use law::Law;
 pub use pool::{FILL_MIN_SAMPLES, MAX_RADIUS, MEAN_LIMIT_SD, MEAN_LIMIT_SE};
 
 use crate::model::histogram::NoiseHistogram;
 use crate::model::pack::{BinModel, BinSource};
 use crate::model::pmf::Pmf;
-use clip::clip_flags;
-use cv::cross_validate;
+use cv::{argmax, cross_validate};
+use flags::clip_flags;
 use pool::{Acc, Data, laplace_pmf, pool_bin};
+use stat::{MIN_VAR, Stat};
 
 /// Folds of the cross-validation: target frames of an ISO take turns.
 pub const FOLDS: usize = 4;
 
-/// Pooling thresholds `m` (samples) tried by the cross-validation. 0 is the plain per-bin
-/// histogram.
-pub const POOLING_CANDIDATES: [u64; 9] = [0, 16, 64, 256, 1024, 4096, 16_384, 65_536, 262_144];
-
 /// Pooling used when the data cannot cross-validate (fewer than two folds hold samples).
 pub const DEFAULT_POOLING: u64 = 1024;
-
-/// Smallest variance any PMF is given (DN²): the quantisation of a noiseless pixel.
-pub(crate) const MIN_VAR: f64 = 1.0 / 12.0;
 
 /// How the pooling threshold is set.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -155,22 +151,6 @@ impl EstimateReport {
 pub struct PositionEstimate {
     pub bins: Vec<BinModel>,
     pub report: EstimateReport,
-}
-
-/// Sample count, mean and variance of a histogram.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub(crate) struct Stat {
-    pub(crate) n: u64,
-    pub(crate) mean: f64,
-    pub(crate) var: f64,
-}
-
-impl Stat {
-    pub(crate) fn of(h: &NoiseHistogram) -> Self {
-        let n = h.total();
-        let (mean, var) = h.moments();
-        Self { n, mean, var }
-    }
 }
 
 /// Estimates the bins of one (ISO, position) from its fold histograms (`folds[k][bin]`) and the
@@ -373,11 +353,6 @@ pub fn estimate_position(
         heldout_samples: heldout,
     };
     PositionEstimate { bins, report }
-}
-
-/// The index of the largest value (the first on ties).
-pub(crate) fn argmax(v: &[f64]) -> usize {
-    (0..v.len()).min_by(|&a, &b| v[b].total_cmp(&v[a]).then(a.cmp(&b))).unwrap_or(0)
 }
 
 /// The bin nearest to `b` (itself first, then both sides at each distance, the lower first) of

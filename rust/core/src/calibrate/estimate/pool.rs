@@ -3,7 +3,7 @@
 
 use crate::calibrate::estimate::clip::BinLevels;
 use crate::calibrate::estimate::law::{LAW_MIN_BINS_MEAN, Law, local_linear};
-use crate::calibrate::estimate::{MIN_VAR, Stat};
+use crate::calibrate::estimate::stat::{MIN_VAR, Stat};
 use crate::model::histogram::NoiseHistogram;
 use crate::model::pmf::Pmf;
 

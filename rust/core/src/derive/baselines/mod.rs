@@ -17,11 +17,11 @@
 //! The variance of every baseline is the variance of the **integer** noise (as measured), so the
 //! continuous Gaussian behind the rounding gets `σ² − 1/12`. Every baseline PMF includes the
 //! clipping at 0 and white for the levels of its bin, so PMFs can be compared with calibrated
-//! ones directly; synthesis clamps the same way ([`crate::synth::sampler::IsoSampler::noisy`]).
+//! ones directly; synthesis clamps the same way (the sampler's `IsoSampler::noisy`).
 //!
 //! A baseline becomes an ordinary [`IsoModel`] with [`Baseline::to_model`] (one PMF per
 //! position and bin, averaged over up to [`LEVELS_PER_BIN`] levels of the bin), so it reuses
-//! [`crate::synth::sampler::IsoSampler`], synthesis and every metric: that is what
+//! the sampler (`IsoSampler`), synthesis and every metric: that is what
 //! `synth --model hg|pg|noiseprofile` runs.
 //!
 //! Across ISO the baselines are interpolated "the usual parametric way" (paper §4.1, after
@@ -44,13 +44,8 @@ use crate::math::fit::{nn_poly_fit, poly_eval};
 use crate::model::layout::{Binning, POSITIONS};
 use crate::model::pack::{BinModel, IsoModel, ModelOrigin, ModelPack, NoiseProfile, PositionModel};
 use crate::model::pmf::Pmf;
+pub use pmf::{LEVELS_PER_BIN, PG_EXACT_MAX_LAMBDA};
 use pmf::{average, clip, gaussian_cells, pg_cells};
-
-/// Levels of a bin whose PMFs are averaged into the bin's baseline PMF.
-pub const LEVELS_PER_BIN: usize = 8;
-
-/// Poisson means above this use the Gaussian limit in the PG PMF.
-pub const PG_EXACT_MAX_LAMBDA: f64 = 1000.0;
 
 /// Which parametric baseline.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -141,16 +136,16 @@ pub fn fit(pack: &ModelPack, model: &IsoModel, kind: BaselineKind) -> Result<Bas
 /// any PMF.
 fn refuse_impossible(iso: u32, p: &NoiseProfile) -> Result<(), ModelError> {
     match p.problem() {
-        Some(why) => Err(ModelError::Unsupported(format!(
-            "ISO {iso}'s NoiseProfile is impossible ({why}): the camera's tag is damaged; use --model hg or pg instead"
+        Some(why) => Err(ModelError::NoNoiseProfile(format!(
+            "ISO {iso}'s NoiseProfile is impossible ({why}): the camera's tag is damaged"
         ))),
         None => Ok(()),
     }
 }
 
 fn no_profile(iso: u32) -> ModelError {
-    ModelError::Unsupported(format!(
-        "ISO {iso} has no NoiseProfile: its captures did not carry DNG tag 51041 / SENSOR_NOISE_PROFILE; use --model hg or pg instead"
+    ModelError::NoNoiseProfile(format!(
+        "ISO {iso} has no NoiseProfile: its captures did not carry DNG tag 51041 / SENSOR_NOISE_PROFILE"
     ))
 }
 
@@ -179,9 +174,9 @@ pub fn interpolate(pack: &ModelPack, iso: u32, kind: BaselineKind, extrapolate: 
     }
     if pts.is_empty() {
         return Err(match kind {
-            BaselineKind::NoiseProfile => ModelError::Unsupported(format!(
-                "no calibrated ISO next to ISO {iso} carries a NoiseProfile; use --model hg or pg instead"
-            )),
+            BaselineKind::NoiseProfile => {
+                ModelError::NoNoiseProfile(format!("no calibrated ISO next to ISO {iso} carries a NoiseProfile"))
+            }
             _ => ModelError::IsoMissing { iso, available: pack.iso_summary() },
         });
     }

@@ -5,7 +5,11 @@ use crate::math::special::{ln_gamma, normal_mass};
 use crate::model::layout::Binning;
 use crate::model::pmf::Pmf;
 
-use super::{LEVELS_PER_BIN, PG_EXACT_MAX_LAMBDA};
+/// Levels of a bin whose PMFs are averaged into the bin's baseline PMF.
+pub const LEVELS_PER_BIN: usize = 8;
+
+/// Poisson means above this use the Gaussian limit in the PG PMF.
+pub const PG_EXACT_MAX_LAMBDA: f64 = 1000.0;
 
 /// Up to [`LEVELS_PER_BIN`] integer levels spread evenly over a bin (from the black level up).
 pub fn bin_levels(binning: &Binning, pos: usize, bin: usize) -> Vec<i32> {

@@ -1,7 +1,8 @@
 //! Non-negative discrete deconvolution on the probability simplex: find `q ≥ 0, Σq = 1` with
 //! `fold(a ∗ q) ≈ b`, where `fold` piles the mass beyond two clip indices onto them. Two solvers:
 //! FISTA projected gradient on the least-squares objective, and Richardson–Lucy (multiplicative
-//! EM, minimising KL). Used by the bridge models of noise on noise ([`crate::renoise::bridge`]).
+//! EM, minimising KL). Used by the bridge models of noise on noise and by the structured components
+//! synthesis draws from (their pixel PMFs are deconvolved by the other components).
 
 /// How the deconvolution `p_a ∗ q ≈ p_b` is solved.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

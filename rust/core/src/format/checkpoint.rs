@@ -1,0 +1,27 @@
+//! A calibration session as bytes, to resume after an interruption: the session's state in the
+//! common framing ([`crate::format::codec`]) under its own magic and version.
+
+use crate::calibrate::session::CalibrationSession;
+use crate::error::CodecError;
+use crate::format::codec;
+
+pub const CHECKPOINT_MAGIC: &[u8; 8] = b"NCALCKPT";
+/// Version 3 adds the structured-noise sums; version 4 the dark frames; version 5 the motion
+/// probe of the clean image and the per-ISO motion figures.
+pub const CHECKPOINT_VERSION: u16 = 5;
+
+impl CalibrationSession {
+    /// The session as bytes, to resume after an interruption.
+    pub fn checkpoint(&self) -> Result<Vec<u8>, CodecError> {
+        codec::encode("checkpoint", CHECKPOINT_MAGIC, CHECKPOINT_VERSION, self)
+    }
+
+    /// Resumes a session from [`checkpoint`](Self::checkpoint) bytes.
+    pub fn restore(bytes: &[u8]) -> Result<Self, CodecError> {
+        let s: Self = codec::decode("checkpoint", CHECKPOINT_MAGIC, "NCALCKPT", CHECKPOINT_VERSION, bytes)?;
+        if !s.is_consistent() {
+            return Err(CodecError::Invalid { what: "checkpoint", detail: "inconsistent session state".into() });
+        }
+        Ok(s)
+    }
+}
