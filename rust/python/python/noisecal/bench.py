@@ -363,8 +363,11 @@ class Pairs:
         self.noisy = noisy
 
 
-def _synth_seed(seed: int, j: int, k: int, iso: int) -> int:
-    return (seed * 1_000_003 + j * 4099 + k * 131 + iso) % (1 << 63)
+def synth_seed(data_seed: int, j: int, k: int, iso: int) -> int:
+    """The noise seed of realization ``k`` of clean training image ``j`` at ``iso``: the package's
+    rule for a keyed sample, :func:`noisecal.seed_for` of ``"train/j/k/iso"`` under the data seed,
+    so no two (image, realization, ISO) share a seed (a linear mix of the three can collide)."""
+    return noisecal.seed_for(f"train/{j}/{k}/{iso}", data_seed)
 
 
 def make_pairs(
@@ -395,7 +398,7 @@ def make_pairs(
             else:
                 out.append(
                     [
-                        pack.renoise(f, need_iso, iso, _synth_seed(data_seed, j, k, iso), method=spec.method)
+                        pack.renoise(f, need_iso, iso, synth_seed(data_seed, j, k, iso), method=spec.method)
                         for k, f in enumerate(frames[:realizations])
                     ]
                 )
@@ -407,7 +410,7 @@ def make_pairs(
     for j, c in enumerate(cleans):
         row = []
         for k in range(realizations):
-            s = _synth_seed(data_seed, j, k, iso)
+            s = synth_seed(data_seed, j, k, iso)
             try:
                 n = p.synth(c, iso, s, model=model, components=spec.components)
             except noisecal.NoisecalError as e:
@@ -536,34 +539,33 @@ def train_one(pairs, cleans_norm, layout, plan, crop, width, seed, device, lr, p
     return net
 
 
-def score_input(scenes: list[EvalScene], iso: int, layout) -> dict:
-    """The noisy evaluation frames themselves scored against the clean images (no network)."""
+def eval_pairs(scenes: list[EvalScene], iso: int, layout) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Every evaluation frame at ``iso`` with its scene's clean image, both packed and normalised
+    (cropped to a multiple of 8): made once per ISO and scored by every network."""
     black, white = layout["black"], float(layout["white"])
-    preds, cleans = [], []
+    out = []
     for s in scenes:
         h, w = (s.clean.shape[0] // 8) * 8, (s.clean.shape[1] // 8) * 8
         c = normalise(s.clean[:h, :w], black, white)
-        for f in s.frames.get(iso, []):
-            preds.append(normalise(f[:h, :w], black, white))
-            cleans.append(c)
-    return score(preds, cleans)
-
-
-def evaluate(net, scenes: list[EvalScene], iso: int, layout, device) -> dict:
-    torch = _torch()
-    black, white = layout["black"], float(layout["white"])
-    preds, cleans = [], []
-    with torch.no_grad():
-        for s in scenes:
-            h, w = (s.clean.shape[0] // 8) * 8, (s.clean.shape[1] // 8) * 8
-            c = normalise(s.clean[:h, :w], black, white)
-            for f in s.frames.get(iso, []):
-                x = torch.from_numpy(normalise(f[:h, :w], black, white)[None]).to(device)
-                preds.append(net(x)[0].cpu().numpy())
-                cleans.append(c)
-    if not preds:
+        out.extend((normalise(f[:h, :w], black, white), c) for f in s.frames.get(iso, []))
+    if not out:
         raise BenchError(f"no evaluation frames at ISO {iso}")
-    return score(preds, cleans)
+    return out
+
+
+def score_input(pairs: list[tuple[np.ndarray, np.ndarray]]) -> dict:
+    """The noisy evaluation frames themselves scored against the clean images (no network)."""
+    return score([n for n, _ in pairs], [c for _, c in pairs])
+
+
+def evaluate(net, pairs: list[tuple[np.ndarray, np.ndarray]], device) -> dict:
+    """``net``'s output on every evaluation pair (:func:`eval_pairs`), scored."""
+    torch = _torch()
+    preds = []
+    with torch.no_grad():
+        for noisy, _ in pairs:
+            preds.append(net(torch.from_numpy(noisy[None]).to(device))[0].cpu().numpy())
+    return score(preds, [c for _, c in pairs])
 
 
 # ----------------------------------------------------------------------------------------------
@@ -682,6 +684,13 @@ def run(args: argparse.Namespace) -> dict:
     state = Path(args.state) if args.state else None
     if state:
         state.mkdir(parents=True, exist_ok=True)
+    prepared: dict[int, list] = {}
+
+    def eval_at(iso: int) -> list:
+        if iso not in prepared:
+            prepared[iso] = eval_pairs(scenes, iso, layout)
+        return prepared[iso]
+
     results = []
     done = 0
     for spec, iso in jobs:
@@ -708,12 +717,12 @@ def run(args: argparse.Namespace) -> dict:
                     print(f"{tag}: step {s}/{n} loss {loss:.4f} {time.time() - ts:.0f} s", end=end, file=sys.stderr, flush=True)
 
             net = train_one(pairs, cleans_norm, layout, plan, args.crop, args.width, seed, device, args.lr, progress)
-            r = {"model": spec.label, "kind": spec.kind, "iso": iso, "seed": seed, **evaluate(net, scenes, iso, layout, device)}
+            r = {"model": spec.label, "kind": spec.kind, "iso": iso, "seed": seed, **evaluate(net, eval_at(iso), device)}
             r["train_seconds"] = time.time() - ts
             results.append(r)
             if fname:
                 fname.write_text(json.dumps(r))
-    inputs = {iso: score_input(scenes, iso, layout) for iso in sorted({iso for _, iso in jobs})}
+    inputs = {iso: score_input(eval_at(iso)) for iso in sorted({iso for _, iso in jobs})}
     out: dict[str, Any] = {
         "config": cfg,
         "input": inputs,
@@ -882,6 +891,8 @@ def main(argv: list[str] | None = None) -> int:
             raise BenchError(f"--crop {args.crop}: use a multiple of 8, at least 16")
         if args.seeds < 1 or args.steps < 1 or args.batch < 1:
             raise BenchError("--seeds, --steps and --batch must be at least 1")
+        if not 0 <= args.data_seed < 2**64 or args.seed < 0:
+            raise BenchError("--seed and --data-seed must be 0 or more (--data-seed below 2**64)")
         out = run(args)
     except (BenchError, noisecal.NoisecalError, OSError) as e:
         print(f"error: {e}", file=sys.stderr)
