@@ -75,15 +75,15 @@ fn bench_section_shows_the_json_and_leaves_the_rest_unchanged() {
     let at = with.find("<h2 id=\"bench\">").expect("a bench section");
     let section = &with[at..with.find("<p class=\"sub\" style=\"margin-top:40px\">").expect("footer")];
     for shown in [
-        "33.46±0.12",                            // noisecal PSNR mean ± spread
-        "0.8765±0.0012",                         // its SSIM
-        "0.25±0.01",                             // Δ HG
-        "38.77±0.05",                            // its dark band
-        "33.21±0.11",                            // hg
-        "-1.07±0.09",                            // wrong's Δ HG
-        "31.01",                                 // the noisy input
-        "35.43",                                 // … its dark band
-        "22.99",                                 // … its bright band
+        "33.46±0.12",                                              // noisecal PSNR mean ± spread
+        "0.8765±0.0012",                                           // its SSIM
+        "0.25±0.01",                                               // Δ HG
+        "38.77±0.05",                                              // its dark band
+        "33.21±0.11",                                              // hg
+        "-1.07±0.09",                                              // wrong's Δ HG
+        "31.01",                                                   // the noisy input
+        "35.43",                                                   // … its dark band
+        "22.99",                                                   // … its bright band
         "6 networks, 321 steps each, batch 12, crop 40, width 14", // the run
         "12.6 min",
         "ISO 400: wrong worst: yes, clearly (by 1.07 dB)",
@@ -110,7 +110,10 @@ fn bench_section_shows_the_json_and_leaves_the_rest_unchanged() {
     std::fs::write(&json, r#"{"isos": [], "heldout": "x"}"#).expect("write");
     let err = report(&pack, Some(json.clone()), &dir.path().join("c.html")).expect_err("not a bench JSON");
     assert!(format!("{err:#}").contains("is not the JSON of `noisecal-bench --json`"), "{err:#}");
-    let empty = RESULTS.replace(&RESULTS[RESULTS.find("\"summary\"").unwrap()..RESULTS.find("\"wall_seconds\"").unwrap()], "\"summary\": [],\n ");
+    let empty = RESULTS.replace(
+        &RESULTS[RESULTS.find("\"summary\"").unwrap()..RESULTS.find("\"wall_seconds\"").unwrap()],
+        "\"summary\": [],\n ",
+    );
     std::fs::write(&json, empty).expect("write");
     let err = report(&pack, Some(json.clone()), &dir.path().join("c.html")).expect_err("empty summary");
     assert!(format!("{err:#}").contains("holds no benchmark rows"), "{err:#}");

@@ -101,7 +101,10 @@ impl BenchResults {
             format!("{} is not the JSON of `noisecal-bench --json` (give the file its --json wrote)", path.display())
         })?;
         if out.summary.is_empty() {
-            anyhow::bail!("{} holds no benchmark rows (its summary is empty): run noisecal-bench to the end", path.display());
+            anyhow::bail!(
+                "{} holds no benchmark rows (its summary is empty): run noisecal-bench to the end",
+                path.display()
+            );
         }
         Ok(out)
     }
@@ -154,7 +157,8 @@ pub fn bench_section(o: &mut String, b: &BenchResults, source: &str) -> anyhow::
         let rows: Vec<&BenchRow> = b.summary.iter().filter(|r| r.iso == iso).collect();
         let best = rows.iter().map(|r| r.psnr.mean).fold(f64::NEG_INFINITY, f64::max);
         for r in rows {
-            let interp = r.model.split(':').next() == Some("noisecal") && !calibrated.is_empty() && !calibrated.contains(&iso);
+            let interp =
+                r.model.split(':').next() == Some("noisecal") && !calibrated.is_empty() && !calibrated.contains(&iso);
             let _ = write!(
                 o,
                 "<tr{}><td class=\"l\">{}{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td>",
@@ -178,7 +182,8 @@ pub fn bench_section(o: &mut String, b: &BenchResults, source: &str) -> anyhow::
                 inp.psnr, inp.ssim
             );
             for band in BANDS {
-                let _ = write!(o, "<td>{}</td>", inp.bands.get(band).map(|s| format!("{:.2}", s.psnr)).unwrap_or_default());
+                let _ =
+                    write!(o, "<td>{}</td>", inp.bands.get(band).map(|s| format!("{:.2}", s.psnr)).unwrap_or_default());
             }
             let _ = write!(o, "</tr>");
         }
@@ -276,7 +281,10 @@ fn gain_chart(b: &BenchResults, size: (u32, u32)) -> anyhow::Result<String> {
             let x = |gi: usize| gi as f64 + 0.1 + mi as f64 * w;
             let mine: Vec<_> = bars.iter().filter(|b| b.1 == mi).collect();
             chart
-                .draw_series(mine.iter().map(|&&(gi, _, g, _)| Rectangle::new([(x(gi), 0.0), (x(gi) + w * 0.92, g)], c.filled())))
+                .draw_series(
+                    mine.iter()
+                        .map(|&&(gi, _, g, _)| Rectangle::new([(x(gi), 0.0), (x(gi) + w * 0.92, g)], c.filled())),
+                )
                 .map_err(err)?
                 .label(name.to_string())
                 .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 12, y + 5)], c.filled()));
@@ -288,16 +296,15 @@ fn gain_chart(b: &BenchResults, size: (u32, u32)) -> anyhow::Result<String> {
                 .map_err(err)?;
         }
         chart.draw_series(LineSeries::new([(0.0, 0.0), (ng, 0.0)], BLACK.stroke_width(1))).map_err(err)?;
-        let style = TextStyle::from((FONT, 13).into_font())
-            .pos(plotters::style::text_anchor::Pos::new(
-                plotters::style::text_anchor::HPos::Center,
-                plotters::style::text_anchor::VPos::Center,
-            ));
+        let style = TextStyle::from((FONT, 13).into_font()).pos(plotters::style::text_anchor::Pos::new(
+            plotters::style::text_anchor::HPos::Center,
+            plotters::style::text_anchor::VPos::Center,
+        ));
         chart
             .draw_series(
-                isos.iter()
-                    .enumerate()
-                    .map(|(gi, iso)| Text::new(format!("ISO {iso}"), (gi as f64 + 0.5, y0 + 0.05 * span), style.clone())),
+                isos.iter().enumerate().map(|(gi, iso)| {
+                    Text::new(format!("ISO {iso}"), (gi as f64 + 0.5, y0 + 0.05 * span), style.clone())
+                }),
             )
             .map_err(err)?;
         legend(&mut chart, SeriesLabelPosition::UpperLeft, 11)
