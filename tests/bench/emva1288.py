@@ -21,13 +21,20 @@ What is assumed, and why (docs/bench.md, "Real data: EMVA 1288 set 001"):
   ISO 200 is this sensor's noise. Frames 25–36 calibrate; frames 37–49 are held out for evaluation.
 - **The dark burst** is the dark step (the fixed pattern), 25 frames at each label, and its mean
   per CFA position is the black level the DNGs carry.
-- **Clean images.** For the burst: the mean of its 25 reference frames. For a photon-transfer
-  pair at exposure t (an evaluation scene of its own, ``clean.npy``): the flat field is the same
-  at every exposure up to its scale, so clean(t) = D + s·(B − D) + (d̄(t) − D̄), with B the
-  burst's clean image, D the dark burst's mean, s the pair's mean signal over B's (both measured
-  over all 307 200 pixels: their sampling error is ~10⁻⁴ of the level), and d̄(t) − D̄ the dark
-  pair's shift of the black level at t. Pairs whose mean is above 80 % of the range (near the
-  saturation of this CCD) are left out.
+- **One band of levels.** The set's only bursts are at one exposure: the pack is measured on the
+  flat field's clean levels (1944–1995 DN above black), and a non-parametric pack has no samples
+  elsewhere (no noisecal pack extrapolates a level it never saw). So the training scenes are grey
+  dead leaves spread over that band (``--generate-levels``, measured here from the burst), and the
+  evaluation set (``OUT/eval``) is the held-out burst frames against the reference burst's mean.
+- **The photon-transfer pairs** (two frames per exposure) cannot calibrate: a one-frame reference
+  keeps its whole noise in the samples (the reference's error is part of them by convention), which
+  doubles the variance. They are written as evaluation scenes of their own in ``OUT/eval-pairs``
+  (``--eval OUT/eval-pairs`` runs them; every pair below 80 % of the range, every 4th exposure),
+  each with its clean image as ``clean.npy``: the flat field is the same at every exposure up to
+  its scale, so clean(t) = D + s·(B − D) + (d̄(t) − D̄), with B the burst's clean image, D the dark
+  burst's mean, s the pair's mean signal over B's (over all 307 200 pixels: its sampling error is
+  ~10⁻⁴ of the level), and d̄(t) − D̄ the dark pair's shift of the black level at t. They lie
+  outside the pack's band: a run on them shows what a pack does off its levels.
 - **No oracle.** Nobody knows this sensor's noise; the controls are the wrong model (HG at half
   its variance), which must score clearly worst, and the noisy input.
 
