@@ -26,6 +26,9 @@ What is assumed, and why (docs/bench.md, "Real data: EMVA 1288 set 001"):
   elsewhere (no noisecal pack extrapolates a level it never saw). So the training scenes are grey
   dead leaves spread over that band (``--generate-levels``, measured here from the burst), and the
   evaluation set (``OUT/eval``) is the held-out burst frames against the reference burst's mean.
+  ``--flat`` trains on flat fields instead (``OUT/train-flat``: 12 constant images at levels
+  across the band), the evaluation scene's own kind: texture within the band is no stronger
+  than the noise, so generated scenes teach a network little.
 - **The photon-transfer pairs** (two frames per exposure) cannot calibrate: a one-frame reference
   keeps its whole noise in the samples (the reference's error is part of them by convention), which
   doubles the variance. They are written as evaluation scenes of their own in ``OUT/eval-pairs``
@@ -67,6 +70,7 @@ CFA = "RGGB"
 MAKE, MODEL = "Basler (EMVA 1288 set 001)", "12-bit mono CCD, read as RGGB"
 PAIR_EVERY = 4  # every 4th photon-transfer exposure is an evaluation scene
 PAIR_MAX = 0.8  # of the range above black: brighter pairs are left out (near saturation)
+FLAT_TRAIN = 12  # flat training images for --flat
 
 
 class ConvertError(ValueError):
@@ -210,6 +214,10 @@ def convert(src: Source, out: Path, say) -> dict:
             write(scene / f"frame_{i}.dng", f, 200, b.exposure_ns)
         pairs.append({"exposure_ns": b.exposure_ns, "level": float(level)})
     above = clean - np.mean(black)
+    lo, hi = np.percentile(above, 0.5), np.percentile(above, 99.5)
+    for i in range(FLAT_TRAIN):  # --flat: flat fields at levels spread over the band
+        level = np.mean(black) + lo + (hi - lo) * (i + 0.5) / FLAT_TRAIN
+        write(out / "train-flat" / f"flat_{i:02}.dng", np.full(clean.shape, round(level), np.uint16), 100, ref_ns)
     levels = (float(np.floor(np.percentile(above, 0.5))), float(np.ceil(np.percentile(above, 99.5))))
     say(f"black levels {[round(v, 3) for v in black]} DN; burst clean levels {levels} DN above black; {len(pairs)} pairs")
     return {"black": black, "pairs": pairs, "levels": levels}
@@ -220,6 +228,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--repo", type=Path, required=True, help="a clone of EMVA1288/datasets (bare or not)")
     p.add_argument("--out", type=Path, default=Path("target/emva001"), help="the cache [default: %(default)s]")
     p.add_argument("--generate", type=int, default=24, help="generated training scenes [default: %(default)s]")
+    p.add_argument(
+        "--flat",
+        action="store_true",
+        help="train on flat fields at levels across the pack's band (OUT/train-flat) instead of generated scenes",
+    )
     p.add_argument("--json", type=Path, help="noisecal-bench's results JSON [default: OUT/bench.json]")
     args, rest = p.parse_known_args(argv)
 
@@ -242,9 +255,8 @@ def main(argv: list[str] | None = None) -> int:
             "--pack", str(out / "full.pack"),
             "--plain-pack", str(out / "plain.pack"),
             "--eval", str(out / "eval"),
-            "--generate", str(args.generate),
-            "--mono",
-            "--generate-levels", f"{lo:g},{hi:g}",
+            *(["--train", str(out / "train-flat")] if args.flat else
+              ["--generate", str(args.generate), "--mono", "--generate-levels", f"{lo:g},{hi:g}"]),
             "--models", "noisecal,hg,pg,plain,wrong",
             "--json", str(args.json or out / "bench.json"),
             *rest,
