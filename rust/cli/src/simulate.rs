@@ -397,6 +397,33 @@ mod tests {
             let (x, y) = (std::fs::read(a.path().join(f)).expect("a"), std::fs::read(b.path().join(f)).expect("b"));
             assert!(x == y, "{} differs between 1 and 3 threads", f.display());
         }
+        // A moving scene (the random family's motion): the same bytes on any thread count too,
+        // and its evaluation frames and captures move while the clean training images stay.
+        let mut moving = model.clone();
+        moving.motion = Some(noisecal_sim::random_moving_scene(3).motion);
+        let write_moving = |threads: usize| {
+            let dir = tempfile::tempdir().expect("tempdir");
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+            pool.install(|| write_bench_set(&moving, "sim", &spec, dir.path(), || {})).expect("moving set");
+            dir
+        };
+        let (m1, m3) = (write_moving(1), write_moving(3));
+        let read = |d: &std::path::Path, f: &std::path::Path| std::fs::read(d.join(f)).expect("read");
+        let mut moved = 0;
+        for f in &files {
+            assert!(
+                read(m1.path(), f) == read(m3.path(), f),
+                "{} (moving) differs between 1 and 3 threads",
+                f.display()
+            );
+            if f.starts_with("train/clean") {
+                assert!(read(m1.path(), f) == read(a.path(), f), "the clean image {} moved", f.display());
+            } else if read(m1.path(), f) != read(a.path(), f) {
+                moved += 1;
+            }
+        }
+        assert_eq!(moved, files.len() - 2, "every evaluation frame and capture moves");
+
         let low = BenchSpec { isos: vec![50, 400], ..spec.clone() };
         let err = write_bench_set(&model, "sim", &low, a.path(), || {}).expect_err("base ISO as a target");
         assert!(err.to_string().contains("not above the sensor's base ISO 50"), "{err}");

@@ -124,3 +124,58 @@ pub fn write_dng<'py>(
         })
     })
 }
+
+/// Writes `pixels` as a fresh raw DNG described by its arguments alone (no template): the sensor's
+/// CFA order, black level per CFA position (one value for all four, or four), white level, and
+/// the frame's ISO and exposure. For converting raw frames that come in another container (a
+/// 16-bit PNG, a numpy array) into a folder `noisecal calibrate` groups by ISO × exposure.
+/// Written atomically (a temporary file, then a rename), by the writer of `noisecal simulate`.
+#[pyfunction]
+#[pyo3(signature = (path, pixels, *, cfa, black, white, iso, exposure_ns, make="noisecal", model="converted"))]
+#[allow(clippy::too_many_arguments)] // the DNG's fields, each a keyword argument
+pub fn write_raw_dng<'py>(
+    py: Python<'py>,
+    path: PathBuf,
+    pixels: &Bound<'py, PyAny>,
+    cfa: &str,
+    black: Vec<f32>,
+    white: u16,
+    iso: u32,
+    exposure_ns: u64,
+    make: &str,
+    model: &str,
+) -> PyResult<()> {
+    let pixels = checks::array::<u16>(pixels, "pixels", "uint16", |_| {
+        "raw DN, black included: np.rint(pixels).astype(np.uint16) within [0, white]".into()
+    })?;
+    let view = pixels.as_array();
+    let (imgs, batch) = checks::images(&view, "pixels")?;
+    if batch {
+        return Err(input(format!(
+            "pixels is a batch of {} images: write_raw_dng writes one (H, W) image per file",
+            imgs.len()
+        )));
+    }
+    let pixels = imgs[0].to_owned();
+    let cfa = noisecal_core::CfaPattern::parse(cfa)
+        .ok_or_else(|| input(format!("cfa {cfa:?}: use RGGB, BGGR, GRBG or GBRG")))?;
+    let black: [f32; noisecal_core::POSITIONS] = match black.as_slice() {
+        [b] => [*b; noisecal_core::POSITIONS],
+        [a, b, c, d] => [*a, *b, *c, *d],
+        other => {
+            return Err(input(format!("black has {} values: give one, or four (one per CFA position)", other.len())));
+        }
+    };
+    let (h, w) = pixels.dim();
+    let layout = noisecal_core::SensorLayout { width: w as u32, height: h as u32, cfa, black, white };
+    layout.validate().map_err(|e| input(format!("the DNG's layout: {e}")))?;
+    if iso == 0 || exposure_ns == 0 {
+        return Err(input("iso and exposure_ns must be above 0: give the frame's ISO and exposure (ns)"));
+    }
+    let meta = noisecal_core::FrameMeta::new(iso, exposure_ns);
+    py.detach(|| {
+        guarded("write_raw_dng", || {
+            pool::run(|| dng::write_dng_from_layout(&path, &layout, &meta, make, model, &pixels).map_err(to_py))
+        })
+    })
+}

@@ -35,6 +35,7 @@ fn _noisecal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(io::calibrate, m)?)?;
     m.add_function(wrap_pyfunction!(io::read_dng, m)?)?;
     m.add_function(wrap_pyfunction!(io::write_dng, m)?)?;
+    m.add_function(wrap_pyfunction!(io::write_raw_dng, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

@@ -242,6 +242,33 @@ def test_simulated_bench_set_layout(bench_set: Path, pack):
     assert abs((cap - 64).mean() / (cleans[0].astype(np.float64) - 64).mean() - 1.02) < 0.04
 
 
+def test_synth_seeds_follow_the_package_rule_and_never_repeat():
+    # Every (training image, realization, ISO) of a large run gets its own seed, the package's
+    # keyed rule (a linear mix such as j·4099 + k·131 + ISO repeats: (0, 1, 400) and (0, 0, 531)).
+    isos = [50, 100, 200, 400, 531, 800, 1600, 3200, 6400]
+    seeds = {B.synth_seed(7, j, k, iso) for j in range(300) for k in range(8) for iso in isos}
+    assert len(seeds) == 300 * 8 * len(isos)
+    assert B.synth_seed(7, 3, 1, 400) == noisecal.seed_for("train/3/1/400", 7)
+    assert B.synth_seed(7, 3, 1, 400) != B.synth_seed(8, 3, 1, 400)
+    assert all(0 <= s < 2**64 for s in seeds)
+
+
+def test_eval_pairs_are_the_normalised_frames_and_clean_images(bench_set: Path, pack):
+    scenes = B.load_eval(bench_set / "eval", pack)
+    lay = pack.layout
+    pairs = B.eval_pairs(scenes, 1600, lay)
+    assert len(pairs) == sum(len(s.frames[1600]) for s in scenes)
+    h, w = (scenes[0].clean.shape[0] // 8) * 8, (scenes[0].clean.shape[1] // 8) * 8
+    noisy, clean = pairs[0]
+    assert np.array_equal(noisy, B.normalise(scenes[0].frames[1600][0][:h, :w], lay["black"], lay["white"]))
+    assert np.array_equal(clean, B.normalise(scenes[0].clean[:h, :w], lay["black"], lay["white"]))
+    # The noisy input's score is the frames' own score against the clean images.
+    want = B.score([n for n, _ in pairs], [c for _, c in pairs])
+    assert B.score_input(pairs) == want and want["psnr"] < 60
+    with pytest.raises(B.BenchError, match="no evaluation frames at ISO 800"):
+        B.eval_pairs(scenes, 800, lay)
+
+
 def test_bad_evaluation_sets_are_named(bench_set: Path, pack, tmp_path: Path):
     bad = tmp_path / "eval"
     shutil.copytree(bench_set / "eval", bad)

@@ -145,6 +145,21 @@ impl Texture {
         let yi = (y.floor().max(0.0) as usize).min(self.height as usize - 1);
         self.rgb[yi * self.width as usize + xi][c]
     }
+
+    /// Bilinear between texel centres (edges clamped): a sub-pixel shift moves the scene, where
+    /// [`Self::at`] (nearest texel) keeps every pixel's value under shifts below half a pixel.
+    #[inline]
+    fn smooth_at(&self, x: f32, y: f32, c: usize) -> f32 {
+        let (w, h) = (self.width as usize, self.height as usize);
+        let (u, v) = ((x - 0.5).clamp(0.0, (w - 1) as f32), (y - 0.5).clamp(0.0, (h - 1) as f32));
+        let (x0, y0) = (u.floor() as usize, v.floor() as usize);
+        let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+        let (fx, fy) = (u - x0 as f32, v - y0 as f32);
+        let t = |xi: usize, yi: usize| self.rgb[yi * w + xi][c];
+        let top = t(x0, y0) + (t(x1, y0) - t(x0, y0)) * fx;
+        let bottom = t(x0, y1) + (t(x1, y1) - t(x0, y1)) * fx;
+        top + (bottom - top) * fy
+    }
 }
 
 impl Chart {
@@ -427,6 +442,14 @@ impl Chart {
         p
     }
 
+    /// [`Self::prepare_posed`] for a moving scene: a texture is sampled bilinearly, so its
+    /// sub-pixel motion shows (a chart's blurred edges move already).
+    pub(crate) fn prepare_moving(&self, jitter: (f32, f32), rotation: f32, scale: f32) -> Prepared<'_> {
+        let mut p = self.prepare_posed(jitter, rotation, scale);
+        p.smooth = true;
+        p
+    }
+
     /// Electron rate of the chart (before lamp and vignetting) for colour `c` at chart
     /// coordinates `(x, y)`.
     fn reflectance_at(&self, x: f32, y: f32, c: usize) -> f32 {
@@ -477,7 +500,7 @@ impl Chart {
         // A per-pixel scene is evaluated per pixel (the pose path with the identity pose).
         let pose =
             self.texture.is_some().then_some(Pose { dx: jitter.0, dy: jitter.1, cos: 1.0, sin: 0.0, scale: 1.0 });
-        Prepared { chart: self, fx, fy, vx, vy, pose }
+        Prepared { chart: self, fx, fy, vx, vy, pose, smooth: false }
     }
 }
 
@@ -503,6 +526,8 @@ pub(crate) struct Prepared<'a> {
     vy: Vec<f32>,
     /// Rotation or scale: the chart is evaluated per pixel.
     pose: Option<Pose>,
+    /// A texture is sampled bilinearly ([`Chart::prepare_moving`]), not at its nearest texel.
+    smooth: bool,
 }
 
 impl Prepared<'_> {
@@ -518,7 +543,11 @@ impl Prepared<'_> {
                 let u = x as f32 + 0.5 - cx - p.dx;
                 let xs = cx + (p.cos * u + p.sin * v) / p.scale;
                 let ys = cy + (-p.sin * u + p.cos * v) / p.scale;
-                *o = ch.lamp_electrons_per_s[c] * (1.0 - self.vx[x] - vy) * ch.reflectance_at(xs, ys, c);
+                let r = match &ch.texture {
+                    Some(t) if self.smooth => t.smooth_at(xs, ys, c),
+                    _ => ch.reflectance_at(xs, ys, c),
+                };
+                *o = ch.lamp_electrons_per_s[c] * (1.0 - self.vx[x] - vy) * r;
             }
             return;
         }

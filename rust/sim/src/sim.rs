@@ -395,7 +395,11 @@ impl Simulator {
         let chains = self.chains(&s);
         let fx = self.frame_effects(iso, exposure_ns, frame_index);
         let key = self.frame_key(iso, exposure_ns, frame_index);
-        let prepared = self.chart.prepare_posed(fx.jitter, fx.rotation, fx.scale);
+        let prepared = if self.model.motion.is_some() {
+            self.chart.prepare_moving(fx.jitter, fx.rotation, fx.scale)
+        } else {
+            self.chart.prepare_posed(fx.jitter, fx.rotation, fx.scale)
+        };
         let t = exposure_ns as f64 * 1e-9 * fx.flicker as f64;
         let (w, h) = (self.width(), self.height());
         let colors = self.model.cfa.colors().map(color_index);

@@ -531,3 +531,34 @@ fn a_rotated_scene_is_the_chart_seen_through_the_rotation() {
     let worst = a.iter().zip(&b).map(|(p, q)| (p - q).abs() / q.abs().max(1.0)).fold(0.0f32, f32::max);
     assert!(worst < 0.02, "rotation vs the shift it makes at row {y}: {worst:.4}");
 }
+
+#[test]
+fn a_moving_texture_moves_by_sub_pixel_shifts() {
+    // A natural scene sampled at its nearest texel ignores shifts below half a pixel; a moving
+    // scene samples it bilinearly: unmoved it is the same scene, and shifted right by 0.3 px each
+    // pixel is 0.7 of its own texel and 0.3 of its left neighbour's.
+    let chart = Chart::natural(64, 48, 7).expect("scene");
+    let mut changed = 0;
+    for y in [3usize, 20, 41] {
+        for c in 0..3usize {
+            let rates = |p: crate::chart::Prepared<'_>| {
+                let mut out = vec![0.0f32; 64];
+                p.row_rates(y, [c, c], &mut out);
+                out
+            };
+            let still = rates(chart.prepare((0.0, 0.0)));
+            let left = rates(chart.prepare((1.0, 0.0))); // each pixel sees its left neighbour's texel
+            let same = rates(chart.prepare_moving((0.0, 0.0), 0.0, 1.0));
+            let moved = rates(chart.prepare_moving((0.3, 0.0), 0.0, 1.0));
+            let nearest = rates(chart.prepare_posed((0.3, 0.0), 0.0, 1.0));
+            for x in 1..64 {
+                assert!((still[x] - same[x]).abs() <= 1e-4 * still[x].abs(), "row {y} col {x}");
+                assert_eq!(nearest[x], still[x], "nearest texel under a 0.3 px shift, row {y} col {x}");
+                let want = 0.7 * still[x] + 0.3 * left[x];
+                assert!((moved[x] - want).abs() <= 1e-3 * want.abs() + 1e-3, "row {y} col {x}: {} vs {want}", moved[x]);
+                changed += usize::from(moved[x] != still[x]);
+            }
+        }
+    }
+    assert!(changed > 100, "the shift changed {changed} pixels");
+}

@@ -46,6 +46,14 @@ pub struct Args {
     /// Some frames flicker by this fraction (e.g. 0.03).
     #[arg(long)]
     pub flicker: Option<f32>,
+    /// The scene moves between frames, as a phone on a tripod shows it: the random family's
+    /// moving scene (`random_moving_scene`, drawn from the family seed of random:SEED, else from
+    /// --seed: a walk of sub-pixel shifts with jumps, rotation, focus breathing, and in 1 draw
+    /// of 3 a flickering lamp unless --flicker is given; with random:SEED the chart's edges are
+    /// blurred too). Printed unless --quiet. With --bench the evaluation frames and training
+    /// captures move (the clean training images do not); --heldout stays still.
+    #[arg(long)]
+    pub moving: bool,
     /// With --sensor random:SEED: write the session's held-out set (same sensor and exposures,
     /// fewer frames, fresh noise, possibly another size) instead of its calibration capture.
     #[arg(long)]
@@ -120,6 +128,9 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
             if let Some(a) = args.flicker {
                 model.flicker = Some(noisecal_sim::Flicker { probability: 0.1, amplitude: a });
             }
+            if args.moving {
+                move_scene(&mut model, args.seed, args.flicker.is_some(), quiet);
+            }
             let mut s = SimSession::new(
                 model,
                 preset.name(),
@@ -146,6 +157,13 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
                 sensor.model.flicker = Some(noisecal_sim::Flicker { probability: 0.1, amplitude: a });
             }
             let mut spec = noisecal_sim::random_session(family_seed, &sensor.model);
+            if args.moving && !args.heldout {
+                let flicker = sensor.model.flicker.clone();
+                noisecal_sim::random_moving_scene(family_seed).apply(&mut sensor.model, &mut spec);
+                if args.flicker.is_some() {
+                    sensor.model.flicker = flicker;
+                }
+            }
             if args.heldout {
                 let h = &mut spec.heldout;
                 h.width = args.width.unwrap_or(h.width);
@@ -176,6 +194,19 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         eprintln!("{} frames simulated ({}×{}, {})", s.frames(), s.sim.width(), s.sim.height(), s.model);
     }
     Ok(())
+}
+
+/// `--moving` on a sensor: the motion (and, unless `--flicker` set one, the flicker) of the
+/// random family's moving scene drawn from `seed`.
+fn move_scene(model: &mut noisecal_sim::SensorModel, seed: u64, keep_flicker: bool, quiet: bool) {
+    let scene = noisecal_sim::random_moving_scene(seed);
+    model.motion = Some(scene.motion.clone());
+    if !keep_flicker {
+        model.flicker = scene.flicker.clone();
+    }
+    if !quiet {
+        eprintln!("--moving: {}", scene.describe());
+    }
 }
 
 /// What `--structured` gave the sensor, for the printed description.
@@ -216,6 +247,13 @@ fn bench_set(args: &Args, dir: &std::path::Path, quiet: bool) -> anyhow::Result<
     }
     if let Some(a) = args.flicker {
         model.flicker = Some(noisecal_sim::Flicker { probability: 0.1, amplitude: a });
+    }
+    if args.moving {
+        let seed = match choice {
+            SensorChoice::Random(family_seed) => family_seed,
+            SensorChoice::Preset(_) => args.seed,
+        };
+        move_scene(&mut model, seed, args.flicker.is_some(), quiet);
     }
     let spec = crate::simulate::BenchSpec {
         width: args.width.unwrap_or(256),

@@ -7,8 +7,10 @@
 //! the structured components per ISO (row, column and frame offsets: their distributions and
 //! their SD against ISO, which ones synthesis adds); conversion-gain switches and pack warnings;
 //! and, with an evaluation, the JSD tables and bars
-//! (leave-one-out and noise on noise when measured).
+//! (leave-one-out and noise on noise when measured); with a denoiser benchmark's results
+//! (`noisecal-bench --json`), its table and chart.
 
+pub mod bench_section;
 pub mod plots;
 pub mod structure_plots;
 
@@ -87,6 +89,17 @@ fn chosen_bins(model: &noisecal_core::model::pack::IsoModel, pos: usize, k: usiz
 
 /// Writes the report page for a pack and, optionally, an evaluation of it.
 pub fn render_html(pack: &ModelPack, pack_name: &str, eval: Option<&EvalReport>) -> anyhow::Result<String> {
+    render_html_with_bench(pack, pack_name, eval, None)
+}
+
+/// [`render_html`] with, optionally, a denoiser benchmark's results and the name of their file
+/// (a section after the evaluation's; without them the page is byte for byte `render_html`'s).
+pub fn render_html_with_bench(
+    pack: &ModelPack,
+    pack_name: &str,
+    eval: Option<&EvalReport>,
+    bench: Option<(&bench_section::BenchResults, &str)>,
+) -> anyhow::Result<String> {
     let mut o = String::new();
     let camera = format!("{} {}", pack.make, pack.model).trim().to_string();
     let _ = write!(
@@ -102,8 +115,9 @@ pub fn render_html(pack: &ModelPack, pack_name: &str, eval: Option<&EvalReport>)
     );
     let _ = write!(
         o,
-        "<nav><a href=\"#sensor\">Sensor</a><a href=\"#levels\">Variance &amp; mean</a><a href=\"#pmfs\">PMFs</a><a href=\"#coverage\">Coverage</a><a href=\"#gain\">Gain ratios</a><a href=\"#structure\">Structured noise</a><a href=\"#warnings\">Warnings</a>{}</nav>",
-        if eval.is_some() { "<a href=\"#eval\">Fidelity</a>" } else { "" }
+        "<nav><a href=\"#sensor\">Sensor</a><a href=\"#levels\">Variance &amp; mean</a><a href=\"#pmfs\">PMFs</a><a href=\"#coverage\">Coverage</a><a href=\"#gain\">Gain ratios</a><a href=\"#structure\">Structured noise</a><a href=\"#warnings\">Warnings</a>{}{}</nav>",
+        if eval.is_some() { "<a href=\"#eval\">Fidelity</a>" } else { "" },
+        if bench.is_some() { "<a href=\"#bench\">Denoiser benchmark</a>" } else { "" }
     );
 
     // Sensor and session.
@@ -271,6 +285,9 @@ pub fn render_html(pack: &ModelPack, pack_name: &str, eval: Option<&EvalReport>)
 
     if let Some(ev) = eval {
         eval_section(&mut o, ev)?;
+    }
+    if let Some((b, source)) = bench {
+        bench_section::bench_section(&mut o, b, source)?;
     }
     let _ = write!(
         o,

@@ -34,6 +34,7 @@ from ._noisecal import (
     calibrate,
     read_dng,
     write_dng,
+    write_raw_dng,
 )
 from .seeds import seed_for
 
@@ -46,6 +47,7 @@ __all__ = [
     "calibrate",
     "read_dng",
     "write_dng",
+    "write_raw_dng",
     "seed_for",
     "__version__",
 ]

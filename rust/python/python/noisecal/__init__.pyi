@@ -131,3 +131,15 @@ def write_dng(
     iso: int,
     pack: Pack | None = None,
 ) -> None: ...
+def write_raw_dng(
+    path: str | PathLike[str],
+    pixels: npt.NDArray[np.uint16],
+    *,
+    cfa: str,
+    black: Sequence[float],
+    white: int,
+    iso: int,
+    exposure_ns: int,
+    make: str = "noisecal",
+    model: str = "converted",
+) -> None: ...

@@ -134,32 +134,81 @@ def dead_leaves(height: int, width: int, rng: np.random.Generator) -> np.ndarray
     return img * np.exp2(e)[..., None]
 
 
-def generate_clean(n: int, height: int, width: int, layout: Mapping[str, Any], seed: int) -> list[np.ndarray]:
+def generate_clean(
+    n: int,
+    height: int,
+    width: int,
+    layout: Mapping[str, Any],
+    seed: int,
+    mono: bool = False,
+    levels: tuple[float, float] | None = None,
+) -> list[np.ndarray]:
     """``n`` clean raw images (uint16 DN, black included) of natural-statistics scenes mosaiced for
     the pack's CFA with lamp × channel gains (R, G, B) = (0.6, 1, 0.75), the brightest green at
-    0.6 … 0.95 of the range and each image 0 … 3 EV darker in turn (low light included)."""
+    0.6 … 0.95 of the range and each image 0 … 3 EV darker in turn (low light included). ``mono``:
+    grey scenes at gain 1 on every CFA position (a monochrome sensor read as a mosaic).
+    ``levels`` (lo, hi) in DN above black: each scene's values spread linearly over that band
+    instead (for a pack whose measured levels are a narrow band, e.g. calibrated on a flat field:
+    outside its levels a non-parametric pack has no samples to draw from)."""
     rng = np.random.default_rng(seed)
     black = np.asarray(layout["black"], dtype=np.float64)
     white = float(layout["white"])
     out = []
     for i in range(n):
-        rgb = dead_leaves(height, width, rng) * np.array([0.6, 1.0, 0.75])
+        rgb = dead_leaves(height, width, rng)
+        rgb = rgb.mean(-1, keepdims=True).repeat(3, -1) if mono else rgb * np.array([0.6, 1.0, 0.75])
         raw = mosaic(rgb, layout["cfa"]) * (0.6 + 0.35 * rng.random()) / 2 ** (i % 4)
         b = per_position(black, (height, width))
+        if levels is not None:
+            lo, hi = levels
+            v = np.clip(raw, 0, None)
+            v = (v - v.min()) / max(float(v.max() - v.min()), 1e-12)
+            out.append(np.rint(np.clip(b + lo + v * (hi - lo), 0, white)).astype(np.uint16))
+            continue
         out.append(np.rint(np.clip(b + raw * (white - b), 0, white)).astype(np.uint16))
     return out
+
+
+def parse_levels(text: str | None, layout: Mapping[str, Any]) -> tuple[float, float] | None:
+    """``--generate-levels LO,HI`` (DN above black), checked against the pack's range."""
+    if text is None:
+        return None
+    try:
+        lo, hi = (float(v) for v in text.split(","))
+    except ValueError:
+        raise BenchError(f"--generate-levels {text!r}: give LO,HI in DN above black, e.g. 1900,2060") from None
+    top = float(layout["white"]) - max(layout["black"])
+    if not 0 <= lo < hi <= top:
+        raise BenchError(f"--generate-levels {text!r}: need 0 ≤ LO < HI ≤ {top:g} (white less black)")
+    return lo, hi
 
 
 @dataclass
 class EvalScene:
     name: str
-    clean: np.ndarray  # float64 (H, W): mean of the base-ISO burst, DN
-    base_iso: int
+    clean: np.ndarray  # float64 (H, W): mean of the base-ISO burst (or the scene's clean.npy), DN
+    base_iso: int | None  # None: the clean image was given (clean.npy), not a burst
     frames: dict = field(default_factory=dict)  # target ISO -> list of uint16 (H, W)
 
 
 def _dngs(d: Path) -> list[Path]:
     return sorted(p for p in d.iterdir() if p.is_file() and p.suffix.lower() == ".dng")
+
+
+def _given_clean(d: Path, frames: list) -> np.ndarray:
+    """A scene's ``clean.npy``: its clean image in DN (black included), for real data whose clean
+    image is derived rather than a burst's mean (a flat field at another exposure, scaled from a
+    long burst); every DNG of the folder is then a target frame."""
+    try:
+        clean = np.load(d / "clean.npy", allow_pickle=False)
+    except (OSError, ValueError) as e:
+        raise BenchError(f"--eval: {d / 'clean.npy'} is not a numpy array file ({e}): save it with np.save") from e
+    shape = frames[0][0].shape
+    if clean.ndim != 2 or clean.shape != shape or not np.issubdtype(clean.dtype, np.number):
+        raise BenchError(f"--eval: {d / 'clean.npy'} is {clean.dtype} {clean.shape}; the frames are {shape}: give one number per pixel")
+    if not np.isfinite(clean).all():
+        raise BenchError(f"--eval: {d / 'clean.npy'} holds NaN or infinite values")
+    return clean.astype(np.float64)
 
 
 def load_eval(eval_dir: Path, pack) -> list[EvalScene]:
@@ -178,27 +227,33 @@ def load_eval(eval_dir: Path, pack) -> list[EvalScene]:
         frames = [noisecal.read_dng(p, pack=pack) for p in _dngs(d)]
         if not frames:
             raise BenchError(f"--eval: scene folder {d} has no DNGs")
+        shapes = {px.shape for px, _ in frames}
+        if len(shapes) != 1:
+            raise BenchError(f"--eval: scene {d.name} mixes image sizes {sorted(shapes)}")
         isos = sorted({int(m["iso"]) for _, m in frames})
+        if (d / "clean.npy").exists():
+            s = EvalScene(d.name, _given_clean(d, frames), None)
+            for px, m in frames:
+                s.frames.setdefault(int(m["iso"]), []).append(px)
+            scenes.append(s)
+            continue
         base = isos[0]
         burst = [px for px, m in frames if int(m["iso"]) == base]
         if len(burst) < 2:
             raise BenchError(
                 f"--eval: scene {d.name} has {len(burst)} frame at its lowest ISO {base}: the clean image is the mean "
-                "of a base-ISO burst, so give at least 2 (16 or more for a clean mean)"
+                "of a base-ISO burst, so give at least 2 (16 or more for a clean mean), or its clean image as clean.npy"
             )
         if len(isos) < 2:
             raise BenchError(f"--eval: scene {d.name} has frames at ISO {base} only: add frames at the target ISOs")
-        shapes = {px.shape for px, _ in frames}
-        if len(shapes) != 1:
-            raise BenchError(f"--eval: scene {d.name} mixes image sizes {sorted(shapes)}")
         clean = np.mean(np.stack(burst).astype(np.float64), axis=0)
         s = EvalScene(d.name, clean, base)
         for px, m in frames:
             if int(m["iso"]) != base:
                 s.frames.setdefault(int(m["iso"]), []).append(px)
         scenes.append(s)
-    bases = {s.base_iso for s in scenes}
-    if len(bases) != 1:
+    bases = {s.base_iso for s in scenes if s.base_iso is not None}
+    if len(bases) > 1:
         raise BenchError(f"--eval: scenes have different base ISOs {sorted(bases)}: use one base ISO for all")
     return scenes
 
@@ -363,8 +418,11 @@ class Pairs:
         self.noisy = noisy
 
 
-def _synth_seed(seed: int, j: int, k: int, iso: int) -> int:
-    return (seed * 1_000_003 + j * 4099 + k * 131 + iso) % (1 << 63)
+def synth_seed(data_seed: int, j: int, k: int, iso: int) -> int:
+    """The noise seed of realization ``k`` of clean training image ``j`` at ``iso``: the package's
+    rule for a keyed sample, :func:`noisecal.seed_for` of ``"train/j/k/iso"`` under the data seed,
+    so no two (image, realization, ISO) share a seed (a linear mix of the three can collide)."""
+    return noisecal.seed_for(f"train/{j}/{k}/{iso}", data_seed)
 
 
 def make_pairs(
@@ -395,7 +453,7 @@ def make_pairs(
             else:
                 out.append(
                     [
-                        pack.renoise(f, need_iso, iso, _synth_seed(data_seed, j, k, iso), method=spec.method)
+                        pack.renoise(f, need_iso, iso, synth_seed(data_seed, j, k, iso), method=spec.method)
                         for k, f in enumerate(frames[:realizations])
                     ]
                 )
@@ -407,7 +465,7 @@ def make_pairs(
     for j, c in enumerate(cleans):
         row = []
         for k in range(realizations):
-            s = _synth_seed(data_seed, j, k, iso)
+            s = synth_seed(data_seed, j, k, iso)
             try:
                 n = p.synth(c, iso, s, model=model, components=spec.components)
             except noisecal.NoisecalError as e:
@@ -536,34 +594,33 @@ def train_one(pairs, cleans_norm, layout, plan, crop, width, seed, device, lr, p
     return net
 
 
-def score_input(scenes: list[EvalScene], iso: int, layout) -> dict:
-    """The noisy evaluation frames themselves scored against the clean images (no network)."""
+def eval_pairs(scenes: list[EvalScene], iso: int, layout) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Every evaluation frame at ``iso`` with its scene's clean image, both packed and normalised
+    (cropped to a multiple of 8): made once per ISO and scored by every network."""
     black, white = layout["black"], float(layout["white"])
-    preds, cleans = [], []
+    out: list[tuple[np.ndarray, np.ndarray]] = []
     for s in scenes:
         h, w = (s.clean.shape[0] // 8) * 8, (s.clean.shape[1] // 8) * 8
         c = normalise(s.clean[:h, :w], black, white)
-        for f in s.frames.get(iso, []):
-            preds.append(normalise(f[:h, :w], black, white))
-            cleans.append(c)
-    return score(preds, cleans)
-
-
-def evaluate(net, scenes: list[EvalScene], iso: int, layout, device) -> dict:
-    torch = _torch()
-    black, white = layout["black"], float(layout["white"])
-    preds, cleans = [], []
-    with torch.no_grad():
-        for s in scenes:
-            h, w = (s.clean.shape[0] // 8) * 8, (s.clean.shape[1] // 8) * 8
-            c = normalise(s.clean[:h, :w], black, white)
-            for f in s.frames.get(iso, []):
-                x = torch.from_numpy(normalise(f[:h, :w], black, white)[None]).to(device)
-                preds.append(net(x)[0].cpu().numpy())
-                cleans.append(c)
-    if not preds:
+        out.extend((normalise(f[:h, :w], black, white), c) for f in s.frames.get(iso, []))
+    if not out:
         raise BenchError(f"no evaluation frames at ISO {iso}")
-    return score(preds, cleans)
+    return out
+
+
+def score_input(pairs: list[tuple[np.ndarray, np.ndarray]]) -> dict:
+    """The noisy evaluation frames themselves scored against the clean images (no network)."""
+    return score([n for n, _ in pairs], [c for _, c in pairs])
+
+
+def evaluate(net, pairs: list[tuple[np.ndarray, np.ndarray]], device) -> dict:
+    """``net``'s output on every evaluation pair (:func:`eval_pairs`), scored."""
+    torch = _torch()
+    preds = []
+    with torch.no_grad():
+        for noisy, _ in pairs:
+            preds.append(net(torch.from_numpy(noisy[None]).to(device))[0].cpu().numpy())
+    return score(preds, [c for _, c in pairs])
 
 
 # ----------------------------------------------------------------------------------------------
@@ -608,7 +665,7 @@ def run(args: argparse.Namespace) -> dict:
     else:
         n = args.generate or 16
         h, w = (scenes[0].clean.shape[0] // 2) * 2, (scenes[0].clean.shape[1] // 2) * 2
-        names, cleans = [f"gen{i:03}" for i in range(n)], generate_clean(n, h, w, layout, args.data_seed)
+        names, cleans = [f"gen{i:03}" for i in range(n)], generate_clean(n, h, w, layout, args.data_seed, args.mono, parse_levels(args.generate_levels, layout))
     captures = load_captures(Path(args.captures), names, pack) if args.captures else {}
     shapes = {c.shape for c in cleans}
     if len(shapes) != 1:
@@ -668,7 +725,9 @@ def run(args: argparse.Namespace) -> dict:
         # Every pack a model reads, by its file's bytes: a pack changed on disk is not resumed.
         "packs": {p: hashlib.blake2b(Path(p).read_bytes(), digest_size=8).hexdigest() for p in sorted(packs)},
         "eval": str(Path(args.eval).resolve()),
-        "train": str(Path(args.train).resolve()) if args.train else f"generated:{len(cleans)}",
+        "train": str(Path(args.train).resolve())
+        if args.train
+        else f"generated:{len(cleans)}" + (":mono" if args.mono else "") + (f":{args.generate_levels}" if args.generate_levels else ""),
         "steps": steps,
         "batch": args.batch,
         "crop": args.crop,
@@ -682,6 +741,13 @@ def run(args: argparse.Namespace) -> dict:
     state = Path(args.state) if args.state else None
     if state:
         state.mkdir(parents=True, exist_ok=True)
+    prepared: dict[int, list] = {}
+
+    def eval_at(iso: int) -> list:
+        if iso not in prepared:
+            prepared[iso] = eval_pairs(scenes, iso, layout)
+        return prepared[iso]
+
     results = []
     done = 0
     for spec, iso in jobs:
@@ -708,12 +774,12 @@ def run(args: argparse.Namespace) -> dict:
                     print(f"{tag}: step {s}/{n} loss {loss:.4f} {time.time() - ts:.0f} s", end=end, file=sys.stderr, flush=True)
 
             net = train_one(pairs, cleans_norm, layout, plan, args.crop, args.width, seed, device, args.lr, progress)
-            r = {"model": spec.label, "kind": spec.kind, "iso": iso, "seed": seed, **evaluate(net, scenes, iso, layout, device)}
+            r = {"model": spec.label, "kind": spec.kind, "iso": iso, "seed": seed, **evaluate(net, eval_at(iso), device)}
             r["train_seconds"] = time.time() - ts
             results.append(r)
             if fname:
                 fname.write_text(json.dumps(r))
-    inputs = {iso: score_input(scenes, iso, layout) for iso in sorted({iso for _, iso in jobs})}
+    inputs = {iso: score_input(eval_at(iso)) for iso in sorted({iso for _, iso in jobs})}
     out: dict[str, Any] = {
         "config": cfg,
         "input": inputs,
@@ -841,6 +907,11 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--eval", type=Path, help="evaluation folder: per scene a base-ISO burst and target-ISO frames")
     p.add_argument("--train", type=Path, help="folder of clean raw DNGs (base-ISO brightness)")
     p.add_argument("--generate", type=int, help="train on N built-in natural-statistics scenes instead of --train")
+    p.add_argument(
+        "--generate-levels",
+        help="LO,HI: --generate scenes spread over these DN above black (a pack calibrated on a narrow band of levels)",
+    )
+    p.add_argument("--mono", action="store_true", help="--generate grey scenes (gain 1 on every CFA position): a monochrome sensor")
     p.add_argument("--captures", type=Path, help="real captures of the training scenes (<clean stem>_*.dng): oracle, noise on noise")
     p.add_argument("--set", type=Path, help="a folder laid out as `noisecal simulate --bench` writes it")
     p.add_argument("--models", default=DEFAULT_MODELS, help=f"comma-separated [LABEL=]MODEL[:COMPONENTS][@PACK]; MODEL in {', '.join(BASE_MODELS)} [default: %(default)s]")
@@ -882,6 +953,8 @@ def main(argv: list[str] | None = None) -> int:
             raise BenchError(f"--crop {args.crop}: use a multiple of 8, at least 16")
         if args.seeds < 1 or args.steps < 1 or args.batch < 1:
             raise BenchError("--seeds, --steps and --batch must be at least 1")
+        if not 0 <= args.data_seed < 2**64 or args.seed < 0:
+            raise BenchError("--seed and --data-seed must be 0 or more (--data-seed below 2**64)")
         out = run(args)
     except (BenchError, noisecal.NoisecalError, OSError) as e:
         print(f"error: {e}", file=sys.stderr)

@@ -1,0 +1,138 @@
+"""The pieces of the real-data benchmark (tests/bench/emva1288.py, docs/bench.md "Real data"):
+``noisecal.write_raw_dng`` (a DNG from arrays and settings alone), evaluation scenes that give
+their clean image (``clean.npy``), grey and band-limited generated scenes, and the converter's PNG
+reader, descriptor parser and derived clean images, each against a known truth."""
+
+from __future__ import annotations
+
+import struct
+import sys
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import noisecal
+from noisecal import bench as B
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "tests" / "bench"))
+import emva1288 as E  # noqa: E402  (a script under tests/bench, not a package)
+
+BLACK = [14.75, 14.5, 15.25, 15.0]
+
+
+def _write(path: Path, px: np.ndarray, iso: int, exposure_ns: int = 5_160_000, **kw) -> None:
+    noisecal.write_raw_dng(path, px, cfa="RGGB", black=BLACK, white=4095, iso=iso, exposure_ns=exposure_ns, **kw)
+
+
+def test_write_raw_dng_round_trips_pixels_and_settings(tmp_path: Path):
+    rng = np.random.default_rng(1)
+    px = rng.integers(0, 4096, (48, 64)).astype(np.uint16)
+    _write(tmp_path / "a.dng", px, 200, 10_320_000, make="Basler", model="test")
+    got, meta = noisecal.read_dng(tmp_path / "a.dng")
+    assert np.array_equal(got, px)
+    assert (meta["iso"], meta["exposure_ns"], meta["cfa"], meta["white"]) == (200, 10_320_000, "RGGB", 4095)
+    assert np.allclose(meta["black"], BLACK) and (meta["make"], meta["model"]) == ("Basler", "test")
+    noisecal.write_raw_dng(tmp_path / "b.dng", px, cfa="GBRG", black=[64.0], white=4095, iso=100, exposure_ns=1000)
+    assert noisecal.read_dng(tmp_path / "b.dng")[1]["black"] == [64.0] * 4
+
+
+@pytest.mark.parametrize(
+    "kw, msg",
+    [
+        ({"cfa": "RGBW"}, 'cfa "RGBW": use RGGB'),
+        ({"black": [1.0, 2.0]}, "black has 2 values: give one, or four"),
+        ({"iso": 0}, "iso and exposure_ns must be above 0"),
+        ({"black": [5000.0]}, "the DNG's layout"),
+    ],
+)
+def test_write_raw_dng_refuses_bad_settings_by_name(tmp_path: Path, kw: dict, msg: str):
+    args = {"cfa": "RGGB", "black": BLACK, "white": 4095, "iso": 100, "exposure_ns": 1000, **kw}
+    with pytest.raises(noisecal.InputError, match=msg):
+        noisecal.write_raw_dng(tmp_path / "x.dng", np.zeros((8, 8), np.uint16), **args)
+    assert not (tmp_path / "x.dng").exists()
+
+
+def test_scenes_may_give_their_clean_image(tmp_path: Path):
+    rng = np.random.default_rng(2)
+    clean = 100 + 50 * rng.random((32, 48))
+    for name in ("a", "b"):
+        (tmp_path / "eval" / name).mkdir(parents=True)
+    np.save(tmp_path / "eval" / "a" / "clean.npy", clean)
+    for i in range(2):
+        _write(tmp_path / "eval" / "a" / f"f{i}.dng", np.rint(clean + rng.normal(0, 3, clean.shape)).astype(np.uint16), 200)
+    for i in range(3):  # a burst scene beside it
+        _write(tmp_path / "eval" / "b" / f"r{i}.dng", np.full((32, 48), 120 + i, np.uint16), 100)
+    _write(tmp_path / "eval" / "b" / "t.dng", np.full((32, 48), 121, np.uint16), 200)
+    a, b = B.load_eval(tmp_path / "eval", None)
+    assert a.base_iso is None and np.array_equal(a.clean, clean) and len(a.frames[200]) == 2
+    assert b.base_iso == 100 and np.allclose(b.clean, 121) and len(b.frames[200]) == 1
+    np.save(tmp_path / "eval" / "a" / "clean.npy", clean[:8])
+    with pytest.raises(B.BenchError, match=r"clean.npy is float64 \(8, 48\); the frames are \(32, 48\)"):
+        B.load_eval(tmp_path / "eval", None)
+    (tmp_path / "eval" / "a" / "clean.npy").write_bytes(b"not numpy")
+    with pytest.raises(B.BenchError, match="is not a numpy array file"):
+        B.load_eval(tmp_path / "eval", None)
+
+
+def test_generated_grey_and_band_limited_scenes():
+    layout = {"cfa": "RGGB", "black": BLACK, "white": 4095}
+    def plane_means(imgs):
+        return np.mean([B.pack_raw(g.astype(np.float64) - B.per_position(BLACK, g.shape)).mean((1, 2)) for g in imgs], 0)
+
+    # Every CFA position sees the same grey scene (gain 1); in colour R and B are 0.6 and 0.75 of G.
+    grey = plane_means(B.generate_clean(8, 64, 64, layout, seed=3, mono=True))
+    assert np.allclose(grey / grey.mean(), 1, atol=0.04), grey
+    colour = plane_means(B.generate_clean(8, 64, 64, layout, seed=3))
+    assert 0.45 < colour[0] / colour[1] < 0.75 and 0.6 < colour[3] / colour[1] < 0.9, colour
+    band = B.generate_clean(4, 64, 64, layout, seed=3, mono=True, levels=(1944.0, 1995.0))
+    for g in band:
+        above = g.astype(np.float64) - B.per_position(BLACK, g.shape)
+        assert above.min() >= 1943.5 and above.max() <= 1995.5 and above.max() - above.min() > 45
+    assert B.parse_levels(None, layout) is None and B.parse_levels("10,20", layout) == (10.0, 20.0)
+    for bad in ("20,10", "x", "0,5000"):
+        with pytest.raises(B.BenchError, match="--generate-levels"):
+            B.parse_levels(bad, layout)
+
+
+def _png16(img: np.ndarray, filters: int = 0) -> bytes:
+    raw = b"".join(bytes([filters]) + row.astype(">u2").tobytes() for row in img)
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    head = struct.pack(">IIBBBBB", img.shape[1], img.shape[0], 16, 0, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", head) + chunk(b"tEXt", b"k\0v") + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b"")
+
+
+def test_png_reader_and_descriptor():
+    img = np.random.default_rng(4).integers(0, 4096, (6, 10)).astype(np.uint16)
+    assert np.array_equal(E.read_png16(_png16(img), "x.png"), img)
+    with pytest.raises(E.ConvertError, match=r"x.png: PNG row filters \[1\]; only filter 0"):
+        E.read_png16(_png16(img, filters=1), "x.png")
+    with pytest.raises(E.ConvertError, match="not a PNG"):
+        E.read_png16(b"GIF89a", "x.png")
+    blocks = E.read_descriptor("# c\nv 3.0\nn 12 640 480\nb 40000.0 120.0\ni images\\b_000_snap_001.png\ni images\\b_000_snap_002.png\nd 40000.0\ni images\\d_000_snap_001.png\n")
+    assert [(b.kind, b.exposure_ns, b.images) for b in blocks] == [
+        ("b", 40000, ["images/b_000_snap_001.png", "images/b_000_snap_002.png"]),
+        ("d", 40000, ["images/d_000_snap_001.png"]),
+    ]
+
+
+def test_pair_clean_recovers_a_scaled_flat_field():
+    # Known truth: a shaded flat field with fixed pattern, the burst at signal S, a pair at 0.37·S
+    # on a black level 0.8 DN higher; the pair's clean image is recovered from noisy frames.
+    rng = np.random.default_rng(5)
+    h, w = 120, 160
+    dark = 15 + rng.normal(0, 0.5, (h, w))
+    flat = 2000 * (1 + 0.02 * rng.normal(size=(h, w))) * np.linspace(0.95, 1.05, w)[None]
+    burst_clean = dark + flat + rng.normal(0, 24 / 5, (h, w))  # a 25-frame mean's noise
+    truth = dark + 0.8 + 0.37 * flat
+    pair = [truth + rng.normal(0, 15, (h, w)) for _ in range(2)]
+    dpair = [dark + 0.8 + rng.normal(0, 3, (h, w)) for _ in range(2)]
+    got = E.pair_clean(burst_clean, dark, pair, dpair)
+    err = got - truth
+    assert abs(err.mean()) < 0.1  # the scale and the black shift
+    assert err.std() < 0.37 * 24 / 5 * 1.1  # no more than the burst mean's own noise, scaled
+    assert np.corrcoef(got.ravel(), truth.ravel())[0, 1] > 0.99

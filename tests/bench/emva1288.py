@@ -1,0 +1,268 @@
+"""The denoiser benchmark on real captures: the EMVA 1288 reference set 001, in one command.
+
+    python tests/bench/emva1288.py --repo DATASETS [--out target/emva001] [noisecal-bench options]
+
+``DATASETS`` is a clone (bare or not) of the EMVA 1288 datasets repository (``EMVA1288/datasets``
+on GitHub: ``git clone --bare https://github.com/EMVA1288/datasets target/emva/datasets.git``).
+Its set 001 (Basler AG, CC BY-SA 3.0) is a 12-bit monochrome CCD, 640×480: a flat field lit at
+50 exposures (photon-transfer pairs, two frames each, with dark pairs), a 50-frame burst at 5.16 ms
+(about half scale) and a 50-frame dark burst. This script converts it to DNGs in ``--out`` (a cache:
+kept and reused), calibrates a pack and a plain per-bin pack from it, and runs ``noisecal-bench``
+with the models ``noisecal,hg,pg,plain,wrong`` on generated grey dead-leaves scenes (``--generate
+--mono``); options after the script's own go to ``noisecal-bench`` (``--steps``, ``--seeds``, …).
+
+What is assumed, and why (docs/bench.md, "Real data: EMVA 1288 set 001"):
+
+- **A CFA on a mono sensor.** noisecal keeps its models per CFA position; the DNGs say RGGB, so
+  the four positions are four interleaved quarters of one monochrome sensor, modelled apart.
+- **ISO labels.** The camera has one gain. As for the earlier calibration of this burst, its first
+  25 frames are the reference burst at "ISO 100" with twice the exposure and its other frames the
+  targets at "ISO 200" at 5.16 ms: the same ISO × exposure, the same (true) gain, so the pack's
+  ISO 200 is this sensor's noise. Frames 25–36 calibrate; frames 37–49 are held out for evaluation.
+- **The dark burst** is the dark step (the fixed pattern), 25 frames at each label, and its mean
+  per CFA position is the black level the DNGs carry.
+- **One band of levels.** The set's only bursts are at one exposure: the pack is measured on the
+  flat field's clean levels (1944–1995 DN above black), and a non-parametric pack has no samples
+  elsewhere (no noisecal pack extrapolates a level it never saw). So the training scenes are grey
+  dead leaves spread over that band (``--generate-levels``, measured here from the burst), and the
+  evaluation set (``OUT/eval``) is the held-out burst frames against the reference burst's mean.
+  ``--flat`` trains on flat fields instead (``OUT/train-flat``: 12 constant images at levels
+  across the band), the evaluation scene's own kind: texture within the band is no stronger
+  than the noise, so generated scenes teach a network little.
+- **The photon-transfer pairs** (two frames per exposure) cannot calibrate: a one-frame reference
+  keeps its whole noise in the samples (the reference's error is part of them by convention), which
+  doubles the variance. They are written as evaluation scenes of their own in ``OUT/eval-pairs``
+  (``--eval OUT/eval-pairs`` runs them; every pair below 80 % of the range, every 4th exposure),
+  each with its clean image as ``clean.npy``: the flat field is the same at every exposure up to
+  its scale, so clean(t) = D + s·(B − D) + (d̄(t) − D̄), with B the burst's clean image, D the dark
+  burst's mean, s the pair's mean signal over B's (over all 307 200 pixels: its sampling error is
+  ~10⁻⁴ of the level), and d̄(t) − D̄ the dark pair's shift of the black level at t. They lie
+  outside the pack's band: a run on them shows what a pack does off its levels.
+- **No oracle.** Nobody knows this sensor's noise; the controls are the wrong model (HG at half
+  its variance), which must score clearly worst, and the noisy input.
+
+The frames are read from the repository's 16-bit greyscale PNGs (numpy and zlib alone: the
+package keeps numpy as its only dependency; filter type 0, as every frame of set 001 has; another
+filter is refused by name).
+"""
+
+from __future__ import annotations
+
+import argparse
+import struct
+import subprocess
+import sys
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+import noisecal
+from noisecal import bench
+
+SET = "EMVA1288_ReferenceSet_001_CCD_12Bit"
+BURST_EXPOSURE_NS = 5_160_000
+REFERENCE = 25  # burst frames that make the reference burst (the clean image)
+CALIBRATION_TARGETS = 12  # burst frames after those that calibrate; the rest are held out
+WHITE = 4095
+CFA = "RGGB"
+MAKE, MODEL = "Basler (EMVA 1288 set 001)", "12-bit mono CCD, read as RGGB"
+PAIR_EVERY = 4  # every 4th photon-transfer exposure is an evaluation scene
+PAIR_MAX = 0.8  # of the range above black: brighter pairs are left out (near saturation)
+FLAT_TRAIN = 12  # flat training images for --flat
+
+
+class ConvertError(ValueError):
+    """The data set is not what this script expects (the message names the file)."""
+
+
+def read_png16(data: bytes, name: str) -> np.ndarray:
+    """A 16-bit greyscale, non-interlaced PNG (filter type 0 on every row) as uint16 (H, W)."""
+    if data[:8] != b"\x89PNG\r\n\x1a\n":
+        raise ConvertError(f"{name}: not a PNG file")
+    at, idat, head = 8, [], None
+    while at < len(data):
+        (n,) = struct.unpack(">I", data[at : at + 4])
+        kind, body = data[at + 4 : at + 8], data[at + 8 : at + 8 + n]
+        at += 12 + n
+        if kind == b"IHDR":
+            head = struct.unpack(">IIBBBBB", body)
+        elif kind == b"IDAT":
+            idat.append(body)
+    if head is None:
+        raise ConvertError(f"{name}: a PNG without its IHDR header")
+    w, h, depth, colour, _, _, interlace = head
+    if (depth, colour, interlace) != (16, 0, 0):
+        raise ConvertError(f"{name}: a {depth}-bit PNG of colour type {colour}, interlace {interlace}: want 16-bit grey")
+    rows = np.frombuffer(zlib.decompress(b"".join(idat)), np.uint8).reshape(h, 2 * w + 1)
+    if rows[:, 0].any():
+        raise ConvertError(f"{name}: PNG row filters {sorted(set(rows[:, 0].tolist()))}; only filter 0 is read here")
+    return rows[:, 1:].copy().view(">u2").astype(np.uint16)
+
+
+@dataclass
+class Block:
+    """One line of the set's descriptor: a bright (``b``) or dark (``d``) setting and its images."""
+
+    kind: str
+    exposure_ns: int
+    images: list[str] = field(default_factory=list)
+
+
+def read_descriptor(text: str) -> list[Block]:
+    """EMVA1288_Data.txt: ``b <exposure ns> <photons>`` / ``d <exposure ns>`` lines, each followed
+    by its ``i <image path>`` lines."""
+    blocks: list[Block] = []
+    for line in text.splitlines():
+        parts = line.split()
+        if not parts or parts[0].startswith("#"):
+            continue
+        if parts[0] in ("b", "d"):
+            blocks.append(Block(parts[0], int(round(float(parts[1])))))
+        elif parts[0] == "i":
+            if not blocks:
+                raise ConvertError(f"EMVA1288_Data.txt: image {parts[1]} before any b/d line")
+            blocks[-1].images.append(parts[1].replace("\\", "/"))
+    return blocks
+
+
+class Source:
+    """The data set's files, from a git repository (bare or not: ``git show HEAD:path``) or a folder."""
+
+    def __init__(self, repo: Path):
+        self.repo = Path(repo)
+        self.folder = self.repo / SET if (self.repo / SET).is_dir() else None
+        if self.folder is None:
+            probe = subprocess.run(["git", "-C", str(self.repo), "rev-parse", "--git-dir"], capture_output=True)
+            if probe.returncode != 0:
+                raise ConvertError(
+                    f"--repo {self.repo}: neither a clone of EMVA1288/datasets nor a folder holding {SET}/: clone it "
+                    "with git clone --bare https://github.com/EMVA1288/datasets target/emva/datasets.git"
+                )
+
+    def read(self, path: str) -> bytes:
+        if self.folder is not None:
+            return (self.folder / path).read_bytes()
+        r = subprocess.run(["git", "-C", str(self.repo), "show", f"HEAD:{SET}/{path}"], capture_output=True)
+        if r.returncode != 0:
+            raise ConvertError(f"{SET}/{path}: not in {self.repo} ({r.stderr.decode(errors='replace').strip()})")
+        return r.stdout
+
+    def frames(self, block: Block) -> list[np.ndarray]:
+        return [read_png16(self.read(p), p) for p in block.images]
+
+
+def pair_clean(burst_clean: np.ndarray, dark: np.ndarray, pair: list[np.ndarray], dark_pair: list[np.ndarray]) -> np.ndarray:
+    """The clean flat field of a photon-transfer pair (module docstring): the burst's clean image
+    scaled to the pair's mean signal, on the black level of the pair's dark frames."""
+    d_mean = float(dark.mean())
+    d_shift = float(np.mean([f.mean() for f in dark_pair])) - d_mean
+    signal = float(np.mean([f.mean() for f in pair])) - d_mean - d_shift
+    s = signal / (float(burst_clean.mean()) - d_mean)
+    return dark + s * (burst_clean - dark) + d_shift
+
+
+def convert(src: Source, out: Path, say) -> dict:
+    """Writes ``out/cal`` (the calibration DNGs) and ``out/eval`` (the evaluation scenes); returns
+    what it measured (black levels, the pairs kept)."""
+    blocks = read_descriptor(src.read("EMVA1288_Data.txt").decode("utf-8", "replace"))
+    bright = [b for b in blocks if b.kind == "b"]
+    dark = [b for b in blocks if b.kind == "d"]
+    burst_b = next((b for b in bright if len(b.images) >= 2 * REFERENCE), None)
+    burst_d = next((b for b in dark if len(b.images) >= 2 * REFERENCE), None)
+    if burst_b is None or burst_d is None or burst_b.exposure_ns != BURST_EXPOSURE_NS:
+        raise ConvertError(f"EMVA1288_Data.txt: no {2 * REFERENCE}-frame bright and dark bursts at {BURST_EXPOSURE_NS} ns")
+    say(f"reading the {len(burst_b.images)}-frame burst and the {len(burst_d.images)}-frame dark burst")
+    frames, darks = src.frames(burst_b), src.frames(burst_d)
+    dark_mean = np.mean(np.stack(darks).astype(np.float64), axis=0)
+    black = [float(v) for v in bench.pack_raw(dark_mean).mean(axis=(1, 2))]
+    clean = np.mean(np.stack(frames[:REFERENCE]).astype(np.float64), axis=0)
+
+    def write(path: Path, px: np.ndarray, iso: int, exposure_ns: int):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if not path.exists():
+            noisecal.write_raw_dng(
+                path, px, cfa=CFA, black=black, white=WHITE, iso=iso, exposure_ns=exposure_ns, make=MAKE, model=MODEL
+            )
+
+    ref_ns = 2 * BURST_EXPOSURE_NS
+    for i, f in enumerate(frames[:REFERENCE]):
+        write(out / "cal" / f"ref_{i:02}.dng", f, 100, ref_ns)
+        write(out / "eval" / "burst" / f"ref_{i:02}.dng", f, 100, ref_ns)
+    for i, f in enumerate(frames[REFERENCE : REFERENCE + CALIBRATION_TARGETS]):
+        write(out / "cal" / f"target_{i:02}.dng", f, 200, BURST_EXPOSURE_NS)
+    for i, f in enumerate(frames[REFERENCE + CALIBRATION_TARGETS :]):
+        write(out / "eval" / "burst" / f"heldout_{i:02}.dng", f, 200, BURST_EXPOSURE_NS)
+    half = len(darks) // 2
+    for i, f in enumerate(darks):  # at their true exposure: the ISO-100 half matches no step
+        write(out / "cal" / f"dark_{i:02}.dng", f, 100 if i < half else 200, BURST_EXPOSURE_NS)
+    pairs = []
+    dark_by_ns = {b.exposure_ns: b for b in dark}
+    for k, b in enumerate(x for x in bright if x is not burst_b):
+        if k % PAIR_EVERY or b.exposure_ns not in dark_by_ns:
+            continue
+        pair, dpair = src.frames(b), src.frames(dark_by_ns[b.exposure_ns])
+        level = (np.mean([f.mean() for f in pair]) - np.mean(black)) / (WHITE - np.mean(black))
+        if level > PAIR_MAX:
+            continue
+        scene = out / "eval-pairs" / f"pair_{b.exposure_ns // 1000:05}us"
+        scene.mkdir(parents=True, exist_ok=True)
+        if not (scene / "clean.npy").exists():
+            np.save(scene / "clean.npy", pair_clean(clean, dark_mean, pair, dpair))
+        for i, f in enumerate(pair):
+            write(scene / f"frame_{i}.dng", f, 200, b.exposure_ns)
+        pairs.append({"exposure_ns": b.exposure_ns, "level": float(level)})
+    above = clean - np.mean(black)
+    lo, hi = np.percentile(above, 0.5), np.percentile(above, 99.5)
+    for i in range(FLAT_TRAIN):  # --flat: flat fields at levels spread over the band
+        level = np.mean(black) + lo + (hi - lo) * (i + 0.5) / FLAT_TRAIN
+        write(out / "train-flat" / f"flat_{i:02}.dng", np.full(clean.shape, round(level), np.uint16), 100, ref_ns)
+    levels = (float(np.floor(np.percentile(above, 0.5))), float(np.ceil(np.percentile(above, 99.5))))
+    say(f"black levels {[round(v, 3) for v in black]} DN; burst clean levels {levels} DN above black; {len(pairs)} pairs")
+    return {"black": black, "pairs": pairs, "levels": levels}
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--repo", type=Path, required=True, help="a clone of EMVA1288/datasets (bare or not)")
+    p.add_argument("--out", type=Path, default=Path("target/emva001"), help="the cache [default: %(default)s]")
+    p.add_argument("--generate", type=int, default=24, help="generated training scenes [default: %(default)s]")
+    p.add_argument(
+        "--flat",
+        action="store_true",
+        help="train on flat fields at levels across the pack's band (OUT/train-flat) instead of generated scenes",
+    )
+    p.add_argument("--json", type=Path, help="noisecal-bench's results JSON [default: OUT/bench.json]")
+    args, rest = p.parse_known_args(argv)
+
+    def say(*a):
+        print(*a, file=sys.stderr, flush=True)
+
+    try:
+        lo, hi = convert(Source(args.repo), args.out, say)["levels"]
+        packs = {"full.pack": False, "plain.pack": True}
+        for name, plain in packs.items():
+            if not (args.out / name).exists():
+                say(f"calibrating {name}")
+                noisecal.calibrate(args.out / "cal", plain=plain).save(args.out / name)
+    except (ConvertError, noisecal.NoisecalError, OSError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    out = args.out
+    return bench.main(
+        [
+            "--pack", str(out / "full.pack"),
+            "--plain-pack", str(out / "plain.pack"),
+            "--eval", str(out / "eval"),
+            *(["--train", str(out / "train-flat")] if args.flat else
+              ["--generate", str(args.generate), "--mono", "--generate-levels", f"{lo:g},{hi:g}"]),
+            "--models", "noisecal,hg,pg,plain,wrong",
+            "--json", str(args.json or out / "bench.json"),
+            *rest,
+        ]
+    )  # fmt: skip
+
+
+if __name__ == "__main__":
+    sys.exit(main())
