@@ -296,9 +296,11 @@ impl MotionProbe {
     }
 
     /// The mean and its gradient at `(x + ux, y + uy)` on the colour lattice of `(x, y)`
-    /// (bilinear between the four nearest same-colour pixels).
+    /// (bilinear between the four nearest same-colour pixels), and the sum of the four
+    /// weights' squares (the share of one mean pixel's noise variance the value holds: 1 on a
+    /// node, ¼ mid-way between four).
     #[inline]
-    fn warp(&self, w: usize, h: usize, x: usize, y: usize, u: [f64; 2]) -> (f64, [f64; 2]) {
+    fn warp(&self, w: usize, h: usize, x: usize, y: usize, u: [f64; 2]) -> (f64, [f64; 2], f64) {
         let along = |p: usize, d: f64, n: usize| -> (usize, f64) {
             let parity = p & 1;
             let cells = (n - parity - 1) / 2; // lattice points 0..=cells
@@ -316,7 +318,8 @@ impl MotionProbe {
         let value = top + b * (bottom - top);
         let gx = ((v01 - v00) * (1.0 - b) + (v11 - v10) * b) / 2.0;
         let gy = (bottom - top) / 2.0;
-        (value, [gx, gy])
+        let squares = ((1.0 - a).powi(2) + a * a) * ((1.0 - b).powi(2) + b * b);
+        (value, [gx, gy], squares)
     }
 }
 
@@ -390,7 +393,7 @@ fn fit(
         for s in samples {
             let (dx, dy) = ((s.x as f64 - m.centre[0]) / m.radius, (s.y as f64 - m.centre[1]) / m.radius);
             let u = m.at(s.x as f64, s.y as f64);
-            let (v, g) = probe.warp(w, h, s.x, s.y, u);
+            let (v, g, _) = probe.warp(w, h, s.x, s.y, u);
             let r = s.value - (gain[s.pos] * v + offset[s.pos]);
             let (gx, gy) = (gain[s.pos] * g[0], gain[s.pos] * g[1]);
             slack.push(MODEL_SLACK_PX * gx.hypot(gy));
@@ -526,21 +529,38 @@ fn tukey(r: f64, scale: f64) -> f64 {
 }
 
 /// The robust objective of a fit at `scale` (Tukey's biweight), each row's robust offset taken
-/// out.
-fn objective(probe: &MotionProbe, samples: &[Sample], w: usize, h: usize, f: &Fit, scale: f64) -> f64 {
+/// out, with each sample's share of the clean image's noise made the same at every motion: a
+/// warp between lattice nodes averages the mean's noise (`mean_var`: per sample, one reference
+/// frame's noise variance over the burst's frames, times the gain squared), so without that
+/// term any motion lowers the objective of a still frame by up to ¾ of it per sample and the
+/// likelihood ratio finds motion on a chart whose edges move few pixels (hard 1-px steps).
+fn objective(probe: &MotionProbe, samples: &[Sample], w: usize, h: usize, f: &Fit, scale: f64, frames: u32) -> f64 {
     let mut slack = Vec::with_capacity(samples.len());
+    let mut smoothed = Vec::with_capacity(samples.len());
     let mut rows: Vec<(usize, f64, [f64; PARAMS], f64)> = samples
         .iter()
         .map(|s| {
             let u = f.motion.at(s.x as f64, s.y as f64);
-            let (v, g) = probe.warp(w, h, s.x, s.y, u);
-            slack.push(MODEL_SLACK_PX * f.gain[s.pos] * g[0].hypot(g[1]));
-            (s.y, 1.0, [0.0; PARAMS], s.value - (f.gain[s.pos] * v + f.offset[s.pos]))
+            let (v, g, squares) = probe.warp(w, h, s.x, s.y, u);
+            let gain = f.gain[s.pos];
+            slack.push(MODEL_SLACK_PX * gain * g[0].hypot(g[1]));
+            let level = v.round().max(0.0) as usize;
+            let sd = probe.tolerance[s.pos].get(level).copied().unwrap_or(0.0) as f64 / MOTION_TOLERANCE;
+            smoothed.push(gain * gain * sd * sd / frames.max(1) as f64 * (1.0 - squares));
+            (s.y, 1.0, [0.0; PARAMS], s.value - (gain * v + f.offset[s.pos]))
         })
         .collect();
     robust_weights(&mut rows, &slack, scale, true);
     demean_rows(&mut rows);
-    rows.iter().zip(&slack).map(|(r, sl)| tukey(r.3, scale.hypot(*sl))).sum()
+    rows.iter()
+        .zip(&slack)
+        .zip(&smoothed)
+        .map(|((r, sl), sm)| {
+            let cost = tukey(r.3, scale.hypot(*sl));
+            // An outlier's cost is capped whatever the noise: only inliers get the term.
+            if r.1 > 0.0 { cost + 0.5 * sm } else { cost }
+        })
+        .sum()
 }
 
 /// Takes each row's mean (weights `.1`) out of the Jacobian rows `.2` and residuals `.3` of its
@@ -569,7 +589,8 @@ fn demean_rows(rows: &mut [(usize, f64, [f64; PARAMS], f64)]) {
 
 /// A frame's motion against the clean image whose probe is `probe` (`None` when the clean image
 /// has no edges to register on, or the fit is singular). `tf` maps the frame's raw values onto
-/// the session's black level; values above `clip` are not used.
+/// the session's black level; values above `clip` are not used; `frames`: the reference burst's
+/// frames (the clean image's noise is one frame's over their number).
 ///
 /// Motion is claimed only where the frame shows it: the fit with motion must beat the fit
 /// without (gain and offset alone) by a likelihood ratio beyond χ²₆'s 99.9 % point; then the
@@ -587,6 +608,7 @@ pub(crate) fn register(
     width: usize,
     height: usize,
     clip: f32,
+    frames: u32,
 ) -> Option<FrameMotion> {
     let (w, h) = (width, height);
     if probe.samples.len() < 64 {
@@ -611,8 +633,9 @@ pub(crate) fn register(
     let still = fit(probe, &samples, w, h, false, None, 2)?;
     let moved = fit(probe, &samples, w, h, true, Some(&still), MAX_ITERATIONS)?;
     let s0 = still.scale;
-    let ratio =
-        2.0 * (objective(probe, &samples, w, h, &still, s0) - objective(probe, &samples, w, h, &moved, s0)) / (s0 * s0);
+    let ratio = 2.0
+        * (objective(probe, &samples, w, h, &still, s0, frames) - objective(probe, &samples, w, h, &moved, s0, frames))
+        / (s0 * s0);
     let significant = ratio > CHI2_6_999;
     let mut out = if significant { moved } else { still.clone() };
     if significant {
@@ -694,6 +717,9 @@ pub(crate) fn register(
 }
 
 #[cfg(test)]
+mod still_charts;
+
+#[cfg(test)]
 mod tests {
     use super::*;
     use crate::model::layout::SensorLayout;
@@ -756,7 +782,7 @@ mod tests {
                 })
                 .collect();
             let view = FrameView::from_u16(&frame, w, h, w).expect("view");
-            let m = register(&probe, &view, &tf, w, h, 1000.0).expect("registered");
+            let m = register(&probe, &view, &tf, w, h, 1000.0, 8).expect("registered");
             let u = m.at(cx, cy);
             // Bilinear interpolation on a colour's 2-px lattice pulls a shift towards the
             // lattice: within 15 % (+ 0.01 px) of the truth.
@@ -815,13 +841,13 @@ mod tests {
             // Still, 4 % of pixels ±120 DN (120 SD) off: no motion beyond a few hundredths px.
             let frame = glitched_frame(w, h, 0.0, 0.0, 1.0, 0.04, 120.0, seed);
             let view = FrameView::from_u16(&frame, w, h, w).expect("view");
-            let m = register(&probe, &view, &tf, w, h, 1000.0).expect("registered");
+            let m = register(&probe, &view, &tf, w, h, 1000.0, 8).expect("registered");
             worst_still = worst_still.max(m.max_shift());
             // Moved by a known shift, with the same glitches: found as without them.
             let (tx, ty) = (0.3 - 0.07 * seed as f64, -0.25 + 0.05 * seed as f64);
             let frame = glitched_frame(w, h, tx, ty, 1.0, 0.04, 120.0, seed + 100);
             let view = FrameView::from_u16(&frame, w, h, w).expect("view");
-            let m = register(&probe, &view, &tf, w, h, 1000.0).expect("registered");
+            let m = register(&probe, &view, &tf, w, h, 1000.0, 8).expect("registered");
             let u = m.at(cx, cy);
             let tol = |t: f64| 0.15 * t.abs() + 0.02;
             assert!(

@@ -492,7 +492,7 @@ impl CalibrationSession {
         // each position's gain, so a drift normalisation does not change the motion it finds.
         let (sums, motion) = rayon::join(
             || brightness_sums(frame, &tp.image.levels, &ident, clip, w, h),
-            || register(&tp.image.probe, frame, &ident, w, h, clip),
+            || register(&tp.image.probe, frame, &ident, w, h, clip, tp.image.frames),
         );
         let verdict = match sums.brightness() {
             Some(fb) => {
