@@ -81,19 +81,46 @@ fn get_varint(b: &[u8], at: &mut usize) -> Option<u64> {
     None
 }
 
+/// The slopes of the previous bin's codes (`code[n] − code[n−1]` at noise value `n`), the
+/// prediction of the next bin's: neighbouring bins hold nearly the same PMF.
+#[derive(Default)]
+struct Slopes {
+    first: i32,
+    slope: Vec<u64>,
+}
+
+impl Slopes {
+    fn of(first: i32, codes: &[u64]) -> Self {
+        let slope = codes.iter().scan(0u64, |prev, &k| Some(k.wrapping_sub(std::mem::replace(prev, k)))).collect();
+        Self { first, slope }
+    }
+
+    /// The predicted slope at noise value `n`: the previous bin's there, 0 where it has no cell
+    /// (or at its first, whose slope is from 0).
+    fn at(&self, n: i32) -> u64 {
+        let i = (n as i64) - (self.first as i64);
+        if i <= 0 { 0 } else { self.slope.get(i as usize).copied().unwrap_or(0) }
+    }
+}
+
 /// The version 6 payload of `pack` (already in its stored form, [`ModelPack::compacted`]).
 pub fn encode(pack: &ModelPack) -> Result<Vec<u8>, CodecError> {
     let mut skeleton = pack.clone();
     let mut weights = Vec::new();
-    for b in skeleton.isos.iter_mut().flat_map(|m| m.positions.iter_mut()).flat_map(|p| p.bins.iter_mut()) {
-        put_varint(&mut weights, b.counts.len() as u64);
-        let mut prev = 0u64;
-        for &w in &b.counts {
-            let k = code(w);
-            put_varint(&mut weights, zigzag(k.wrapping_sub(prev) as i64));
-            prev = k;
+    for p in skeleton.isos.iter_mut().flat_map(|m| m.positions.iter_mut()) {
+        let mut above = Slopes::default();
+        for b in p.bins.iter_mut() {
+            put_varint(&mut weights, b.counts.len() as u64);
+            let codes: Vec<u64> = b.counts.iter().map(|&w| code(w)).collect();
+            let mut prev = 0u64;
+            for (i, &k) in codes.iter().enumerate() {
+                let d = k.wrapping_sub(prev);
+                put_varint(&mut weights, zigzag(d.wrapping_sub(above.at(b.first + i as i32)) as i64));
+                prev = k;
+            }
+            above = Slopes::of(b.first, &codes);
+            b.counts = Vec::new();
         }
-        b.counts = Vec::new();
     }
     let mut raw = codec::encode_payload(WHAT, &skeleton)?;
     drop(skeleton);
@@ -136,6 +163,7 @@ pub fn decode(payload: &[u8]) -> Result<ModelPack, CodecError> {
     let mut at = 0usize;
     for (i, m) in pack.isos.iter_mut().enumerate() {
         for (pos, p) in m.positions.iter_mut().enumerate() {
+            let mut above = Slopes::default();
             for (b, bin) in p.bins.iter_mut().enumerate() {
                 let here = || format!("model {i} position {pos} bin {b}");
                 let n =
@@ -146,14 +174,18 @@ pub fn decode(payload: &[u8]) -> Result<ModelPack, CodecError> {
                     return Err(damaged(&format!("{} claims {n} cells, more than the file holds", here())));
                 }
                 let mut prev = 0u64;
-                bin.counts = Vec::with_capacity(n as usize);
-                for _ in 0..n {
+                let mut codes = Vec::with_capacity(n as usize);
+                for c in 0..n as i32 {
                     let z = get_varint(weights, &mut at)
                         .ok_or_else(|| damaged(&format!("{} ends inside a weight", here())))?;
-                    prev = prev.wrapping_add(unzigzag(z) as u64);
-                    bin.counts
-                        .push(weight(prev).ok_or_else(|| damaged(&format!("{} has a weight beyond 64 bits", here())))?);
+                    prev = prev.wrapping_add(above.at(bin.first.wrapping_add(c))).wrapping_add(unzigzag(z) as u64);
+                    codes.push(prev);
                 }
+                bin.counts = codes
+                    .iter()
+                    .map(|&k| weight(k).ok_or_else(|| damaged(&format!("{} has a weight beyond 64 bits", here()))))
+                    .collect::<Result<_, _>>()?;
+                above = Slopes::of(bin.first, &codes);
             }
         }
     }
