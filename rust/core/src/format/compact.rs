@@ -1,15 +1,17 @@
-//! The compact payload of model packs from format version 6 on. A pack's bulk is its PMF
-//! weights; they are taken out of the bincode value and coded on their own:
+//! The compact payload of model packs from format version 6 on (method.md, "Pack file"). A
+//! pack's bulk is its PMF weights; they are taken out of the bincode value and coded on their own:
 //!
-//! `raw_len u64 | deflate(bincode(pack without weights) | weights)`
+//! `raw_len u64 | fields_len u64 | deflate(bincode(pack without weights) | weights)`
 //!
 //! where `weights` holds, bin after bin (ISO, CFA position, bin order), the bin's cell count and
-//! then each cell's [`code`] as the zigzagged difference from the previous cell's (the first
-//! from 0), all as LEB128 varints. The weights are the model's stored form
-//! ([`crate::model::precision`]: at most [`MANTISSA_BITS`] significant bits), whose codes are
-//! log-like (a weight below 2^[`MANTISSA_BITS`] is its own code, a larger one its exponent and
-//! mantissa), so a smooth PMF's codes change by small steps from cell to cell and its tails are
-//! runs of small numbers. Deflate is `miniz_oxide` at level [`LEVEL`].
+//! then each cell's slope (its [`code`] minus the previous cell's; the first from 0) as the
+//! zigzagged difference from the previous bin's slope at the same noise value ([`Slopes`]:
+//! neighbouring bins hold nearly the same PMF), all as LEB128 varints. The weights are the
+//! model's stored form ([`crate::model::precision`]: at most [`MANTISSA_BITS`] significant bits
+//! in a calibrated model, [`DERIVED_BITS`] in a derived one), whose codes are log-like (a weight
+//! below 2^bits is its own code, a larger one its exponent and mantissa), so a smooth PMF's codes
+//! change by small steps and its tails are runs of small numbers. Deflate is `miniz_oxide` at
+//! level [`LEVEL`].
 //!
 //! Same pack in, same bytes out (deflate is deterministic for a given `miniz_oxide`, pinned by
 //! Cargo.lock). The differences wrap in 64 bits (a bijection on `u64`): any codes round-trip and
@@ -19,36 +21,40 @@
 use crate::error::CodecError;
 use crate::format::codec;
 use crate::model::pack::ModelPack;
-use crate::model::precision::MANTISSA_BITS;
+use crate::model::precision::{DERIVED_BITS, MANTISSA_BITS};
 
 const WHAT: &str = "model pack";
 /// Deflate level.
 const LEVEL: u8 = 9;
 /// The largest uncompressed payload a pack may claim (the bincode decoder's own limit).
 const MAX_RAW: u64 = 1 << 30;
-const HALF: u64 = 1 << (MANTISSA_BITS - 1);
-
-/// The log-like code of a weight with at most [`MANTISSA_BITS`] significant bits: itself below
-/// 2^MANTISSA_BITS, else `e·2^(MANTISSA_BITS−1) + q` for `w = q·2^e`, `q` in
-/// `[2^(MANTISSA_BITS−1), 2^MANTISSA_BITS)`, `e ≥ 1` (monotone and continuous with the small
-/// weights). A weight with more significant bits loses them (the caller stores the rounded form).
-fn code(w: u64) -> u64 {
-    let bits = 64 - w.leading_zeros();
-    if bits <= MANTISSA_BITS {
-        return w;
-    }
-    let e = (bits - MANTISSA_BITS) as u64;
-    e * HALF + (w >> e)
+/// Significant bits the codes of one model's weights cover: a calibrated model's stored form
+/// keeps at most [`MANTISSA_BITS`], a derived one's [`DERIVED_BITS`].
+fn code_bits(calibrated: bool) -> u32 {
+    if calibrated { MANTISSA_BITS } else { DERIVED_BITS }
 }
 
-/// The weight of a code, or `None` when it names one beyond 64 bits.
-fn weight(c: u64) -> Option<u64> {
-    if c < 2 * HALF {
+/// The log-like code of a weight with at most `m` significant bits: itself below 2^m, else
+/// `e·2^(m−1) + q` for `w = q·2^e`, `q` in `[2^(m−1), 2^m)`, `e ≥ 1` (monotone and continuous
+/// with the small weights); `None` for a weight with more significant bits.
+fn code(w: u64, m: u32) -> Option<u64> {
+    let bits = 64 - w.leading_zeros();
+    if bits <= m {
+        return Some(w);
+    }
+    let e = (bits - m) as u64;
+    (w & ((1 << e) - 1) == 0).then(|| e * (1 << (m - 1)) + (w >> e))
+}
+
+/// The weight of a code of `m` bits, or `None` when it names one beyond 64 bits.
+fn weight(c: u64, m: u32) -> Option<u64> {
+    let half = 1u64 << (m - 1);
+    if c < 2 * half {
         return Some(c);
     }
-    let e = c / HALF - 1;
-    let q = c - e * HALF;
-    (e + MANTISSA_BITS as u64 <= 64).then(|| q << e)
+    let e = c / half - 1;
+    let q = c - e * half;
+    (e + m as u64 <= 64).then(|| q << e)
 }
 
 fn zigzag(d: i64) -> u64 {
@@ -107,19 +113,30 @@ impl Slopes {
 pub fn encode(pack: &ModelPack) -> Result<Vec<u8>, CodecError> {
     let mut skeleton = pack.clone();
     let mut weights = Vec::new();
-    for p in skeleton.isos.iter_mut().flat_map(|m| m.positions.iter_mut()) {
-        let mut above = Slopes::default();
-        for b in p.bins.iter_mut() {
-            put_varint(&mut weights, b.counts.len() as u64);
-            let codes: Vec<u64> = b.counts.iter().map(|&w| code(w)).collect();
-            let mut prev = 0u64;
-            for (i, &k) in codes.iter().enumerate() {
-                let d = k.wrapping_sub(prev);
-                put_varint(&mut weights, zigzag(d.wrapping_sub(above.at(b.first + i as i32)) as i64));
-                prev = k;
+    for m in skeleton.isos.iter_mut() {
+        let bits = code_bits(m.is_calibrated());
+        for p in m.positions.iter_mut() {
+            let mut above = Slopes::default();
+            for b in p.bins.iter_mut() {
+                put_varint(&mut weights, b.counts.len() as u64);
+                let codes: Vec<u64> = b
+                .counts
+                .iter()
+                .map(|&w| code(w, bits))
+                .collect::<Option<_>>()
+                .ok_or_else(|| CodecError::Encode {
+                    what: WHAT,
+                    detail: format!("ISO {} holds a weight with more than {bits} significant bits: store the pack's compacted form", m.iso),
+                })?;
+                let mut prev = 0u64;
+                for (i, &k) in codes.iter().enumerate() {
+                    let d = k.wrapping_sub(prev);
+                    put_varint(&mut weights, zigzag(d.wrapping_sub(above.at(b.first + i as i32)) as i64));
+                    prev = k;
+                }
+                above = Slopes::of(b.first, &codes);
+                b.counts = Vec::new();
             }
-            above = Slopes::of(b.first, &codes);
-            b.counts = Vec::new();
         }
     }
     let mut raw = codec::encode_payload(WHAT, &skeleton)?;
@@ -162,6 +179,7 @@ pub fn decode(payload: &[u8]) -> Result<ModelPack, CodecError> {
     let mut pack: ModelPack = codec::decode_payload(WHAT, fields)?;
     let mut at = 0usize;
     for (i, m) in pack.isos.iter_mut().enumerate() {
+        let bits = code_bits(m.is_calibrated());
         for (pos, p) in m.positions.iter_mut().enumerate() {
             let mut above = Slopes::default();
             for (b, bin) in p.bins.iter_mut().enumerate() {
@@ -183,7 +201,9 @@ pub fn decode(payload: &[u8]) -> Result<ModelPack, CodecError> {
                 }
                 bin.counts = codes
                     .iter()
-                    .map(|&k| weight(k).ok_or_else(|| damaged(&format!("{} has a weight beyond 64 bits", here()))))
+                    .map(|&k| {
+                        weight(k, bits).ok_or_else(|| damaged(&format!("{} has a weight beyond 64 bits", here())))
+                    })
                     .collect::<Result<_, _>>()?;
                 above = Slopes::of(bin.first, &codes);
             }

@@ -212,11 +212,12 @@ impl BinModel {
 
     /// Weights from a derived PMF (interpolated or parametric), with a fixed total so such bins
     /// serialise deterministically, in the form a pack file stores them
-    /// ([`crate::model::precision::store_bin`]: a model derived on the fly is the one a pack that
-    /// stores it loads back). `filled` marks a PMF that stands on no measured bin.
+    /// ([`crate::model::precision::quantize_derived`]: a model derived on the fly is the one a
+    /// pack that stores it loads back). `filled` marks a PMF that stands on no measured bin.
     pub fn from_pmf(p: &Pmf, samples: u64, filled: bool) -> Self {
         const SCALE: f64 = (1u64 << 24) as f64;
-        let counts: Vec<u64> = p.p.iter().map(|&x| (x * SCALE).round() as u64).collect();
+        let counts: Vec<u64> =
+            p.p.iter().map(|&x| crate::model::precision::quantize_derived((x * SCALE).round() as u64)).collect();
         let mut b = BinModel {
             first: p.first,
             counts,
@@ -229,7 +230,6 @@ impl BinModel {
             b.counts = vec![1];
             b.first = p.first + p.p.len() as i32 / 2;
         }
-        crate::model::precision::store_bin(&mut b.first, &mut b.counts);
         b
     }
 
