@@ -150,7 +150,7 @@ fn benches(c: &mut Criterion) {
         })
         .collect();
     let folds: Vec<&[noisecal_core::model::histogram::NoiseHistogram]> = wide.iter().map(|f| f.as_slice()).collect();
-    let levels = noisecal_core::calibrate::estimate::BinLevels::new(&noisecal_core::Binning::new(&layout(), 4), 0);
+    let levels = noisecal_core::model::bin_levels::BinLevels::new(&noisecal_core::Binning::new(&layout(), 4), 0);
     g.bench_function("one position, σ ≈ 60 DN, sparse", |b| {
         b.iter(|| {
             noisecal_core::calibrate::estimate::estimate_position(

@@ -164,7 +164,7 @@ fn leave_one_out_on_a_calibrated_iso_ignores_it() {
     let mut p = s.without.clone();
     p.insert(a);
     let back = ModelPack::from_bytes(&p.to_bytes().expect("encode")).expect("decode");
-    assert_eq!(back, p.compacted(), "as version 5 stores it");
+    assert_eq!(back, p.compacted(), "in the stored form a pack file keeps");
     assert_eq!(ModelPack::from_bytes(&p.to_bytes_v4().expect("encode")).expect("decode"), p);
 }
 

@@ -15,8 +15,6 @@
 //!   the file that defines the item; `mod x;` declarations are structure, not arrows; `lib.rs`
 //!   is the crate's face and outside the layers.
 //!
-//! Arrows that other branches remove are listed in [`PENDING`] with their owner; every pending
-//! arrow must still exist (a stale entry fails), so the table empties as those branches land.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -30,28 +28,6 @@ const LAYERS: &[&[&str]] = &[
     &["format", "synth"],
     &["renoise"],
     &["resolve"],
-];
-
-/// Arrows against [`LAYERS`] that another branch removes: (file, target module, owner).
-const PENDING: &[(&str, &str, &str)] = &[
-    // The estimator's report types move into model/, pack bytes and version dispatch into format/.
-    ("model/pack.rs", "calibrate", "packs"),
-    ("model/pack.rs", "format", "packs"),
-    // Weights rounded at assembly through the compact format's rule.
-    ("calibrate/assemble.rs", "format", "packs"),
-];
-
-/// File-level arrows another branch removes that close a circle: (file, target file, owner).
-const PENDING_FILE_ARROWS: &[(&str, &str, &str)] = &[
-    // The pack stores the estimator's report type and dispatches its own versions.
-    ("model/pack.rs", "calibrate/estimate/mod.rs", "packs"),
-    ("model/pack.rs", "format/compact.rs", "packs"),
-    ("model/pack.rs", "format/pack_v1.rs", "packs"),
-    ("model/pack.rs", "format/pack_v2.rs", "packs"),
-    ("model/pack.rs", "format/pack_v3.rs", "packs"),
-    // MOTION_WORTH_SAYING_PX is defined in assemble.rs but read only by accumulate.rs: it moves
-    // into accumulate.rs when assemble.rs is free to edit.
-    ("calibrate/accumulate.rs", "calibrate/assemble.rs", "packs"),
 ];
 
 #[derive(Debug, Clone, PartialEq)]
@@ -553,10 +529,8 @@ fn code_edges(k: &Crate) -> BTreeSet<(usize, usize)> {
 fn top_level_modules_obey_the_layer_order() {
     let k = Crate::load();
     let violations = layer_violations(&k);
-    let pending: BTreeSet<(String, String)> = PENDING.iter().map(|(f, t, _)| (f.to_string(), t.to_string())).collect();
     let unexpected: Vec<String> = violations
         .iter()
-        .filter(|(key, _)| !pending.contains(*key))
         .map(|((f, t), (example, doc))| {
             let kind = if *doc { "doc link" } else { "code" };
             format!(
@@ -567,29 +541,12 @@ fn top_level_modules_obey_the_layer_order() {
         })
         .collect();
     assert!(unexpected.is_empty(), "arrows up or across the layer order {LAYERS:?}:\n{}", unexpected.join("\n"));
-    let stale: Vec<String> = PENDING
-        .iter()
-        .filter(|(f, t, _)| !violations.contains_key(&(f.to_string(), t.to_string())))
-        .map(|(f, t, owner)| format!("{f} → {t} ({owner})"))
-        .collect();
-    assert!(
-        stale.is_empty(),
-        "PENDING arrows that no longer exist (remove them from the table):\n{}",
-        stale.join("\n")
-    );
 }
 
 #[test]
 fn no_circle_between_files() {
     let k = Crate::load();
-    let index = |rel: &str| k.files.iter().position(|f| f.rel == rel).unwrap_or_else(|| panic!("no file {rel}"));
-    let mut edges = code_edges(&k);
-    for (from, to, owner) in PENDING_FILE_ARROWS {
-        assert!(
-            edges.remove(&(index(from), index(to))),
-            "pending arrow {from} → {to} ({owner}) no longer exists: remove it"
-        );
-    }
+    let edges = code_edges(&k);
     let found: Vec<String> = circles(k.files.len(), &edges)
         .iter()
         .map(|c| {

@@ -123,7 +123,7 @@ fn sparse_bins_are_pooled_not_trusted() {
     let m = &pack.isos[0];
     let est = m.positions[0].estimate.as_ref().expect("a calibrated position has an estimate report");
     assert!(
-        matches!(est.choice, noisecal_core::calibrate::estimate::Choice::CrossValidated { .. }),
+        matches!(est.choice, noisecal_core::model::estimate_report::Choice::CrossValidated { .. }),
         "{:?}",
         est.choice
     );
@@ -142,7 +142,7 @@ fn sparse_bins_are_pooled_not_trusted() {
             assert!(
                 b.source == BinSource::Measured
                     || (b.source == BinSource::Filled
-                        && est.clip_mode == noisecal_core::calibrate::estimate::ClipMode::Law),
+                        && est.clip_mode == noisecal_core::model::estimate_report::ClipMode::Law),
                 "bin {i}: {:?}",
                 b.source
             );

@@ -14,8 +14,13 @@ use crate::calibrate::motion::{FrameMotion, MotionProbe, NEGLIGIBLE_MOTION_PX};
 use crate::calibrate::reference::CleanImage;
 use crate::calibrate::structure::{CELLS, FrameSums, StructureAccumulator};
 use crate::calibrate::window_counts::{LaneCounts, WindowCounts};
+
 use crate::model::histogram::NoiseHistogram;
 use crate::model::layout::{Binning, POSITIONS};
+
+/// Target frames that moved further than this (pixels) against their reference bursts are
+/// reported in the pack's warnings.
+pub const MOTION_WORTH_SAYING_PX: f64 = 0.05;
 
 /// Everything one target ISO has accumulated.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -66,10 +71,9 @@ impl MotionTally {
     }
 
     /// The largest displacement (pixels) when the chart moved enough to say so
-    /// ([`crate::calibrate::assemble::MOTION_WORTH_SAYING_PX`]).
+    /// ([`MOTION_WORTH_SAYING_PX`]).
     pub(crate) fn moved(&self) -> Option<f64> {
-        (self.frames > 0 && self.max_shift > crate::calibrate::assemble::MOTION_WORTH_SAYING_PX)
-            .then_some(self.max_shift)
+        (self.frames > 0 && self.max_shift > MOTION_WORTH_SAYING_PX).then_some(self.max_shift)
     }
 }
 

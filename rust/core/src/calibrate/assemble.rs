@@ -13,10 +13,6 @@ use crate::model::layout::POSITIONS;
 use crate::model::pack::{IsoModel, ModelOrigin, ModelPack, PositionModel};
 use crate::model::structure::{FixedPattern, IsoStructure};
 
-/// Target frames that moved further than this (pixels) against their reference bursts are
-/// reported in the pack's warnings.
-pub const MOTION_WORTH_SAYING_PX: f64 = 0.05;
-
 /// Measured noise variance (DN²) below which an ISO has no noise at all.
 pub const NO_NOISE_VARIANCE: f64 = 1e-3;
 
@@ -35,17 +31,15 @@ pub const SPARSE_POSITION_SAMPLES: u64 = 1000;
 impl CalibrationSession {
     /// Builds the model pack from everything folded in so far: per ISO and position, the
     /// estimator of [`crate::calibrate::estimate`] (pooling chosen by cross-validation over the folds unless
-    /// the configuration fixes it), then the pack's self-check ([`crate::model::check`]). Its
-    /// weights are rounded as a pack file stores them ([`ModelPack::compacted`]), so the pack in
-    /// memory is the one its file loads back.
+    /// the configuration fixes it), then the pack's self-check ([`crate::model::check`]). It is
+    /// put in the form a pack file keeps ([`ModelPack::compacted`]), so the pack in memory is the
+    /// one its file loads back.
     pub fn finish(&self) -> Result<ModelPack, SessionError> {
-        let mut pack = self.finish_exact()?;
-        crate::format::compact::round_weights(&mut pack);
-        Ok(pack)
+        Ok(self.finish_exact()?.compacted())
     }
 
-    /// [`CalibrationSession::finish`] before the weights are rounded for storage (what a
-    /// version 4 pack held): for measuring what the rounding changes.
+    /// [`CalibrationSession::finish`] before the pack is put in the form its file keeps (what a
+    /// version 4 pack held): for measuring what that changes.
     pub fn finish_exact(&self) -> Result<ModelPack, SessionError> {
         use rayon::prelude::*;
         let mut warnings: Vec<String> = self.events.iter().filter(|e| e.contains("brightness")).cloned().collect();

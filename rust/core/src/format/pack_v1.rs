@@ -1,10 +1,12 @@
 //! Model packs of format version 1, read and migrated to the current structs. Version 1 knew a
 //! bin only as measured or filled; the migration keeps every PMF as it was, records measured
-//! bins' moments, and flags bins as clipped by their noise reaching 0 or white.
+//! bins' moments, and flags bins as clipped by their noise reaching 0 or white — by the rule
+//! version 1 packs were read with ([`CLIP_FRACTION_V1`], [`clip_fraction_v1`]), frozen here so
+//! that a change to today's clip rule cannot change how a version 1 pack reads.
 
 use serde::{Deserialize, Serialize};
 
-use crate::calibrate::estimate::{BinLevels, clip_fraction_of};
+use crate::model::bin_levels::BinLevels;
 use crate::model::layout::{Binning, POSITIONS, SensorLayout};
 use crate::model::pack::{BinModel, BinSource, IsoModel, ModelOrigin, ModelPack, NoiseProfile, PositionModel};
 
@@ -96,12 +98,34 @@ impl ModelPackV1 {
     }
 }
 
+/// A version 1 bin is clipped when more than this fraction of its samples may have reached 0 or
+/// white (the estimator's threshold when version 2 replaced version 1).
+pub const CLIP_FRACTION_V1: f64 = 1e-4;
+
+/// Fraction of a histogram's samples (counts over `first ..`) that may have reached 0 or white
+/// for some integer level `lo ..= hi` of the bin: `n ≥ white − hi` or `n ≤ −lo` (version 1 packs
+/// knew no output range: the sensor's codes were `0 ..= white`).
+pub fn clip_fraction_v1(first: i32, counts: &[u64], lo: i32, hi: i32, white: i32) -> f64 {
+    let total: u64 = counts.iter().sum();
+    if total == 0 {
+        return 0.0;
+    }
+    let c: u64 = counts
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| {
+            let n = first + *i as i32;
+            n >= white - hi || n <= -lo
+        })
+        .map(|(_, &k)| k)
+        .sum();
+    c as f64 / total as f64
+}
+
 fn migrate_bin(bm: BinModelV1, levels: Option<&BinLevels>, b: usize) -> BinModel {
     let moments = crate::model::histogram::moments(bm.first, bm.counts.iter().map(|&c| c as f64));
     let clipped = levels.is_some_and(|l| {
-        b < l.len()
-            && clip_fraction_of(bm.first, &bm.counts, l.lo[b], l.hi[b], l.white)
-                > crate::calibrate::estimate::CLIP_FRACTION
+        b < l.len() && clip_fraction_v1(bm.first, &bm.counts, l.lo[b], l.hi[b], l.white) > CLIP_FRACTION_V1
     });
     BinModel {
         first: bm.first,
@@ -117,8 +141,8 @@ fn migrate_bin(bm: BinModelV1, levels: Option<&BinLevels>, b: usize) -> BinModel
 mod tests {
     use super::*;
     use crate::format::codec;
+    use crate::format::pack_file::{PACK_MAGIC, PACK_MAGIC_TEXT, PACK_VERSION};
     use crate::model::layout::CfaPattern;
-    use crate::model::pack::{PACK_MAGIC, PACK_MAGIC_TEXT};
 
     #[test]
     fn version_1_packs_load_and_keep_their_pmfs() {
@@ -167,7 +191,7 @@ mod tests {
         assert!(!b0.clipped);
         assert!(p.warnings.iter().any(|w| w.contains("version 1")));
         // Refused: a version newer than this build.
-        let newer = codec::encode("model pack", PACK_MAGIC, crate::model::pack::PACK_VERSION + 1, &v1).expect("encode");
+        let newer = codec::encode("model pack", PACK_MAGIC, PACK_VERSION + 1, &v1).expect("encode");
         let e = ModelPack::from_bytes(&newer).expect_err("newer is refused").to_string();
         assert!(e.contains("newer"), "{e}");
         let _ = PACK_MAGIC_TEXT;

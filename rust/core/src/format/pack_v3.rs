@@ -66,8 +66,8 @@ mod tests {
     use super::*;
     use crate::calibrate::{CalibrationSession, FrameMeta, FrameView, SessionConfig};
     use crate::format::codec;
+    use crate::format::pack_file::PACK_MAGIC;
     use crate::model::layout::CfaPattern;
-    use crate::model::pack::PACK_MAGIC;
 
     /// A small real pack: a flat grey field, 4 reference and 4 target frames.
     fn pack() -> ModelPack {

@@ -1,33 +1,15 @@
-//! The model pack: everything a sampler needs, serialised behind a magic, a format version and a
-//! checksum (see [`crate::format::codec`]). Same frames in, same bytes out.
+//! The model pack: everything a sampler needs, as a value (its file, behind a magic, a format
+//! version and a checksum, is the format module's `pack_file`). Same frames in, same value out.
 
 use serde::{Deserialize, Serialize};
 
-use crate::calibrate::estimate::EstimateReport;
 use crate::error::{CodecError, ModelError};
-use crate::format::codec;
+pub use crate::model::bin_source::BinSource;
 use crate::model::codes::CodeLattice;
+use crate::model::estimate_report::EstimateReport;
 use crate::model::layout::{Binning, POSITIONS, SensorLayout};
 use crate::model::pmf::Pmf;
 use crate::model::structure::IsoStructure;
-
-pub const PACK_MAGIC: &[u8; 8] = b"NCALPACK";
-pub const PACK_MAGIC_TEXT: &str = "NCALPACK";
-/// Bump on any change to the serialised structs. Version 2 adds, per bin, where its PMF comes
-/// from, its measured moments and whether it is clipped, and per position the estimator's
-/// report; version 3 adds the structured components per ISO ([`IsoStructure`]); version 4 their
-/// fixed pattern (dark frames); version 5 stores the same structs compactly (each bin's weights
-/// rounded to 9 significant bits and delta-coded, the payload deflated:
-/// [`crate::format::compact`]; [`ModelPack::compacted`] is what loads back). Versions 1 to 3
-/// are read and migrated ([`crate::format::pack_v1`], [`crate::format::pack_v2`],
-/// [`crate::format::pack_v3`]); version 4 is read as it is ([`ModelPack::to_bytes_v4`] still
-/// writes it).
-pub const PACK_VERSION: u16 = 5;
-/// The last version whose payload is the bare bincode value (what [`ModelPack::to_bytes_v4`]
-/// writes).
-pub const PACK_VERSION_UNCOMPRESSED: u16 = 4;
-/// The oldest pack version this noisecal reads.
-pub const PACK_VERSION_MIN: u16 = 1;
 
 /// The largest sensor side a pack may describe (pixels).
 pub const MAX_SIDE: u32 = 1 << 16;
@@ -121,8 +103,8 @@ pub struct IsoModel {
     /// captures carried one (DNG NoiseProfile / SENSOR_NOISE_PROFILE).
     pub noise_profile: Option<NoiseProfile>,
     /// Per CFA position, the codes the sensor writes, `[floor, ceiling]`: its output piles up
-    /// there (a full well below the reported white level, a black clamp;
-    /// [`crate::calibrate::codes::output_range`]). Synthesis clamps to it.
+    /// there (a full well below the reported white level, a black clamp: the calibration's output
+    /// range). Synthesis clamps to it.
     pub range: [[u16; 2]; POSITIONS],
     /// Per CFA position, the codes the sensor writes when it does not write every code
     /// (digital gain; [`crate::model::codes`]). Synthesis snaps its output onto them.
@@ -145,18 +127,6 @@ impl PositionModel {
     }
 }
 
-/// Where a bin's PMF comes from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub enum BinSource {
-    /// The bin's own samples only.
-    Measured,
-    /// Its own samples pooled with neighbouring bins' (moved onto it by the noise law).
-    Pooled,
-    /// Without samples of its own (or clipped, in law mode): neighbours moved by the law,
-    /// or an interpolated or parametric PMF.
-    Filled,
-}
-
 /// The noise PMF of one (ISO, position, bin): weights over `first ..` (counts for a plain
 /// histogram; for estimated bins, probabilities scaled to a fixed total).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -167,16 +137,11 @@ pub struct BinModel {
     pub samples: u64,
     pub source: BinSource,
     /// Mean and variance of the bin's own samples, when it has any, with the clean image's
-    /// selection undone ([`crate::calibrate::deselect`]; the same as measured where the reference burst
-    /// was long).
+    /// selection undone (the calibration's deselection; the same as measured where the reference
+    /// burst was long).
     pub measured: Option<[f64; 2]>,
     /// The bin's samples reach 0 or white: its measured moments are shrunk by clipping.
     pub clipped: bool,
-}
-
-/// A weight as a pack file stores it.
-fn stored(w: u64) -> u64 {
-    crate::format::compact::quantize(w)
 }
 
 impl BinModel {
@@ -185,8 +150,8 @@ impl BinModel {
         self.source == BinSource::Filled
     }
 
-    /// Weights from an estimated PMF (probabilities × 2³⁰, so packs are deterministic; rounded
-    /// for storage when the calibration finishes, [`crate::CalibrationSession::finish`]).
+    /// Weights from an estimated PMF (probabilities × 2³⁰, so packs are deterministic; kept as a
+    /// pack file keeps them when the calibration finishes, [`ModelPack::compacted`]).
     pub fn estimated(p: &Pmf, samples: u64, source: BinSource, measured: Option<[f64; 2]>, clipped: bool) -> Self {
         const SCALE: f64 = (1u64 << 30) as f64;
         let mut b = Self::from_scaled(p, SCALE);
@@ -235,12 +200,13 @@ impl BinModel {
     }
 
     /// Weights from a derived PMF (interpolated or parametric), with a fixed total so such bins
-    /// serialise deterministically, rounded as a pack file stores them (so a model derived on
-    /// the fly is the one a pack that stores it loads back). `filled` marks a PMF that stands on
-    /// no measured bin.
+    /// serialise deterministically, in the form a pack file stores them
+    /// ([`crate::model::precision::quantize_derived`]: a model derived on the fly is the one a
+    /// pack that stores it loads back). `filled` marks a PMF that stands on no measured bin.
     pub fn from_pmf(p: &Pmf, samples: u64, filled: bool) -> Self {
         const SCALE: f64 = (1u64 << 24) as f64;
-        let counts: Vec<u64> = p.p.iter().map(|&x| stored((x * SCALE).round() as u64)).collect();
+        let counts: Vec<u64> =
+            p.p.iter().map(|&x| crate::model::precision::quantize_derived((x * SCALE).round() as u64)).collect();
         let mut b = BinModel {
             first: p.first,
             counts,
@@ -349,43 +315,6 @@ impl ModelPack {
         self.isos.insert(at, m);
     }
 
-    /// The pack as a file of the current version stores it (every weight rounded to
-    /// [`crate::format::compact::MANTISSA_BITS`] significant bits): what [`ModelPack::from_bytes`]
-    /// of [`ModelPack::to_bytes`] gives. Idempotent.
-    pub fn compacted(&self) -> ModelPack {
-        let mut p = self.clone();
-        crate::format::compact::round_weights(&mut p);
-        p
-    }
-
-    /// The pack as a file of the current version (compact: [`crate::format::compact`]); it loads
-    /// back as [`ModelPack::compacted`].
-    pub fn to_bytes(&self) -> Result<Vec<u8>, CodecError> {
-        Ok(codec::encode_sealed(PACK_MAGIC, PACK_VERSION, &crate::format::compact::encode(self)?))
-    }
-
-    /// The pack as a version 4 file: the same value uncompressed and unrounded (for noisecal
-    /// builds before version 5, and for diffing packs byte by byte). It loads to the same pack.
-    pub fn to_bytes_v4(&self) -> Result<Vec<u8>, CodecError> {
-        codec::encode("model pack", PACK_MAGIC, PACK_VERSION_UNCOMPRESSED, self)
-    }
-
-    /// Reads a pack of this version or an older one (migrated; see [`crate::format::pack_v1`]).
-    pub fn from_bytes(bytes: &[u8]) -> Result<Self, CodecError> {
-        const WHAT: &str = "model pack";
-        let (version, payload) =
-            codec::decode_framing(WHAT, PACK_MAGIC, PACK_MAGIC_TEXT, PACK_VERSION_MIN..=PACK_VERSION, bytes)?;
-        let p: ModelPack = match version {
-            1 => codec::decode_payload::<crate::format::pack_v1::ModelPackV1>(WHAT, payload)?.migrate(),
-            2 => codec::decode_payload::<crate::format::pack_v2::ModelPackV2>(WHAT, payload)?.migrate(),
-            3 => codec::decode_payload::<crate::format::pack_v3::ModelPackV3>(WHAT, payload)?.migrate(),
-            PACK_VERSION_UNCOMPRESSED => codec::decode_payload(WHAT, payload)?,
-            _ => crate::format::compact::decode(payload)?,
-        };
-        p.check()?;
-        Ok(p)
-    }
-
     /// Structural checks a decoder cannot make.
     pub fn check(&self) -> Result<(), CodecError> {
         let bad = |detail: String| CodecError::Invalid { what: "model pack", detail };
@@ -459,6 +388,25 @@ impl ModelPack {
             }
         }
         Ok(())
+    }
+}
+
+impl ModelPack {
+    /// The pack as a file of the current version stores it ([`crate::model::precision`]): what
+    /// loading its file gives. Idempotent.
+    pub fn compacted(&self) -> ModelPack {
+        let mut p = self.clone();
+        for m in p.isos.iter_mut() {
+            let calibrated = m.is_calibrated();
+            for b in m.positions.iter_mut().flat_map(|q| q.bins.iter_mut()) {
+                if calibrated {
+                    crate::model::precision::store_bin(&mut b.first, &mut b.counts);
+                } else {
+                    b.counts.iter_mut().for_each(|w| *w = crate::model::precision::quantize_derived(*w));
+                }
+            }
+        }
+        p
     }
 }
 

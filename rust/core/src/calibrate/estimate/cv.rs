@@ -1,9 +1,9 @@
 //! Choosing the pooling and the clip mode by held-out likelihood (method.md, "Estimation" 5–6):
 //! for every fold, PMFs from the other folds scored on the held-out fold's samples.
 
-use crate::calibrate::estimate::clip::BinLevels;
 use crate::calibrate::estimate::pool::FILL_MIN_SAMPLES;
 use crate::calibrate::estimate::pool::{Acc, Data, laplace_mass, laplace_pmf, pool_bin};
+use crate::model::bin_levels::BinLevels;
 use crate::model::histogram::NoiseHistogram;
 use crate::model::pmf::Pmf;
 

@@ -2,9 +2,10 @@
 //! samples that may have reached either end, or, for sparse bins, by the noise law fitted on the
 //! bins not flagged so far.
 
-use crate::calibrate::estimate::clip::{BinLevels, CLIP_FRACTION, CLIP_SIGMAS, clip_fraction};
+use crate::calibrate::estimate::clip::{CLIP_FRACTION, CLIP_SIGMAS, clip_fraction};
 use crate::calibrate::estimate::law::Law;
 use crate::calibrate::estimate::stat::Stat;
+use crate::model::bin_levels::BinLevels;
 use crate::model::histogram::NoiseHistogram;
 
 /// Bins flagged as clipped, from all samples: more than [`CLIP_FRACTION`] of their samples may

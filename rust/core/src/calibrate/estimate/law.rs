@@ -1,9 +1,9 @@
 //! The noise law of one (ISO, position): mean and variance of the noise against the clean
 //! level (method.md, "Estimation" 3).
 
-use crate::calibrate::estimate::clip::BinLevels;
 use crate::calibrate::estimate::stat::{MIN_VAR, Stat};
 use crate::math::fit::{nn_poly_fit, poly_eval, wls};
+use crate::model::bin_levels::BinLevels;
 
 /// The local-linear law's variance window holds at least this many samples and
 /// [`LAW_MIN_BINS`] bins …

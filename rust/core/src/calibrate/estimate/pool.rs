@@ -1,9 +1,9 @@
 //! Pooling a bin with its neighbours, moved onto it by the noise law (method.md,
 //! "Estimation" 4), and the Laplace prior every pool carries.
 
-use crate::calibrate::estimate::clip::BinLevels;
 use crate::calibrate::estimate::law::{LAW_MIN_BINS_MEAN, Law, local_linear};
 use crate::calibrate::estimate::stat::{MIN_VAR, Stat};
+use crate::model::bin_levels::BinLevels;
 use crate::model::histogram::NoiseHistogram;
 use crate::model::pmf::Pmf;
 
