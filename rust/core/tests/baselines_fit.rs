@@ -2,6 +2,7 @@
 //! interpolate the usual parametric way.
 
 use noisecal_core::derive::baselines::{self, Baseline, BaselineKind, BaselineSource, NoiseParams};
+use noisecal_core::error::Remedy;
 use noisecal_core::model::pack::{IsoModel, ModelOrigin, ModelPack};
 use noisecal_core::synth::sampler::BinTable;
 use noisecal_core::{CfaPattern, POSITIONS, SensorLayout};
@@ -117,7 +118,8 @@ fn noise_profile_in_dn_and_synthesis_matches_variance() {
     // No profile: a clear error that names the fix.
     m.noise_profile = None;
     let e = baselines::fit(&p, &m, BaselineKind::NoiseProfile).expect_err("none");
-    assert!(e.to_string().contains("--model hg"), "{e}");
+    assert_eq!(e.remedy(), Some(Remedy::ParametricModel));
+    assert!(e.to_string().contains("use the hg or pg model"), "{e}");
 }
 
 #[test]
@@ -155,7 +157,8 @@ fn parametric_interpolation_recovers_a_linear_in_iso_and_b_quadratic_in_a() {
     q.insert(m);
     q.check().expect("a valid pack");
     let e = baselines::baseline_model(&p, 3200, BaselineKind::Hg, false).unwrap_err();
-    assert!(e.to_string().contains("--extrapolate"), "{e}");
+    assert_eq!(e.remedy(), Some(Remedy::Extrapolate));
+    assert!(e.to_string().contains("allow extrapolation") && !e.to_string().contains("--"), "{e}");
     // With extrapolation allowed the baseline is extrapolated, not refused
     // with advice to pass the flag that was given.
     let m = baselines::baseline_model(&p, 3200, BaselineKind::Hg, true).expect("extrapolated hg");

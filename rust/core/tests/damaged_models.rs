@@ -3,6 +3,7 @@
 
 use noisecal_core::derive::baselines::{self, BaselineKind};
 use noisecal_core::derive::interp;
+use noisecal_core::error::Remedy;
 use noisecal_core::model::pack::{
     BinModel, BinSource, IsoModel, MAX_SIDE, ModelOrigin, ModelPack, NoiseProfile, PositionModel,
 };
@@ -90,8 +91,10 @@ fn an_absurd_noise_profile_is_refused_without_allocating() {
     let mut p = pack();
     p.isos[0].noise_profile = Some(NoiseProfile([[1e-3, 1e10]; POSITIONS]));
     p.isos[1].noise_profile = Some(NoiseProfile([[1e-3, 1e6]; POSITIONS]));
-    let e = baselines::fit(&p, &p.isos[0], BaselineKind::NoiseProfile).unwrap_err().to_string();
-    assert!(e.contains("NoiseProfile is impossible") && e.contains("--model hg"), "{e}");
+    let err = baselines::fit(&p, &p.isos[0], BaselineKind::NoiseProfile).unwrap_err();
+    assert_eq!(err.remedy(), Some(Remedy::ParametricModel));
+    let e = err.to_string();
+    assert!(e.contains("NoiseProfile is impossible") && e.contains("hg or pg"), "{e}");
     let e = baselines::interpolate(&p, 400, BaselineKind::NoiseProfile, false).unwrap_err().to_string();
     assert!(e.contains("impossible"), "{e}");
     assert!(NoiseProfile([[2e-4, 3e-6]; POSITIONS]).is_valid());

@@ -14,7 +14,7 @@ use std::sync::OnceLock;
 use interp_sim::{sample_iso_with, sim_pack_with, simulator};
 use noisecal_core::derive::baselines::{self, BaselineKind};
 use noisecal_core::derive::interp::{self, InterpOptions, ShapeSource};
-use noisecal_core::error::ModelError;
+use noisecal_core::error::{ModelError, Remedy};
 use noisecal_core::metrics::jsd_pmf;
 use noisecal_core::model::histogram::NoiseHistogram;
 use noisecal_core::model::pack::{IsoModel, ModelOrigin, ModelPack};
@@ -135,7 +135,8 @@ fn out_of_range_is_refused_unless_extrapolating() {
     let s = setup();
     let e = interp::interpolate(&s.without, 3200, false).expect_err("outside");
     assert_eq!(e, ModelError::IsoOutOfRange { iso: 3200, min: 100, max: 1600 });
-    assert!(e.to_string().contains("--extrapolate"), "{e}");
+    assert_eq!(e.remedy(), Some(Remedy::Extrapolate));
+    assert!(e.to_string().contains("allow extrapolation") && !e.to_string().contains("--"), "{e}");
     let e = interp::interpolate(&s.without, 50, false).expect_err("outside");
     assert!(matches!(e, ModelError::IsoOutOfRange { iso: 50, .. }));
     let m = interp::interpolate(&s.without, 2000, true).expect("extrapolated");
