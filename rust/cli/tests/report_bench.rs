@@ -2,12 +2,12 @@
 //! numbers (table, controls) with its chart, a JSON of another kind is a clear error, and without
 //! `--bench` the page is the page it was, byte for byte.
 
+mod support;
+
 use std::path::{Path, PathBuf};
 
-use noisecal_cli::cmd::eval::ScoringArgs;
-use noisecal_cli::cmd::report::{Args, run};
+use noisecal_cli::cmd::report::run;
 use noisecal_cli::simulate::SimSession;
-use noisecal_core::metrics::DEFAULT_GROUP_BINS;
 use noisecal_input::calibrate::{CalibrateOptions, calibrate_path};
 use noisecal_sim::SensorModel;
 
@@ -23,22 +23,7 @@ fn pack(dir: &Path) -> PathBuf {
 }
 
 fn report(pack: &Path, bench: Option<PathBuf>, out: &Path) -> anyhow::Result<String> {
-    run(
-        Args {
-            pack: pack.to_path_buf(),
-            eval: None,
-            scoring: ScoringArgs {
-                seeds: 1,
-                leave_one_out: false,
-                renoise_from: None,
-                to: None,
-                group_bins: DEFAULT_GROUP_BINS,
-            },
-            bench,
-            output: out.to_path_buf(),
-        },
-        true,
-    )?;
+    run(support::report_args(pack, None, bench, out), true)?;
     Ok(std::fs::read_to_string(out).expect("read report"))
 }
 

@@ -1,12 +1,12 @@
 //! `noisecal report`: one self-contained HTML file, a plot in every plotting section, no external
 //! references, and the evaluation tables when asked.
 
+mod support;
+
 use std::path::Path;
 
-use noisecal_cli::cmd::eval::ScoringArgs;
-use noisecal_cli::cmd::report::{Args, run};
+use noisecal_cli::cmd::report::run;
 use noisecal_cli::simulate::SimSession;
-use noisecal_core::metrics::DEFAULT_GROUP_BINS;
 use noisecal_input::calibrate::{CalibrateOptions, calibrate_path};
 use noisecal_sim::SensorModel;
 
@@ -55,23 +55,7 @@ fn report_with_eval_is_one_self_contained_page() {
 
     // Without an evaluation.
     let plain = dir.path().join("plain.html");
-    run(
-        Args {
-            pack: pack_path.clone(),
-            eval: None,
-            scoring: ScoringArgs {
-                seeds: 1,
-                leave_one_out: false,
-                renoise_from: None,
-                to: None,
-                group_bins: DEFAULT_GROUP_BINS,
-            },
-            bench: None,
-            output: plain.clone(),
-        },
-        true,
-    )
-    .expect("report");
+    run(support::report_args(&pack_path, None, None, &plain), true).expect("report");
     let html = std::fs::read_to_string(&plain).expect("read report");
     assert!(html.starts_with("<!DOCTYPE html>") && html.trim_end().ends_with("</html>"));
     assert_self_contained(&html);
@@ -98,18 +82,12 @@ fn report_with_eval_is_one_self_contained_page() {
     // With an evaluation (run in-process on held-out captures), plus leave-one-out.
     let full = dir.path().join("full.html");
     run(
-        Args {
-            pack: pack_path.clone(),
-            eval: Some(held.clone()),
-            scoring: ScoringArgs {
-                seeds: 1,
-                leave_one_out: true,
-                renoise_from: Some(400),
-                to: Some(800),
-                group_bins: DEFAULT_GROUP_BINS,
-            },
-            bench: None,
-            output: full.clone(),
+        {
+            let mut a = support::report_args(&pack_path, Some(held.clone()), None, &full);
+            a.scoring.leave_one_out = true;
+            a.scoring.renoise_from = Some(400);
+            a.scoring.to = Some(800);
+            a
         },
         true,
     )
@@ -129,22 +107,7 @@ fn report_with_eval_is_one_self_contained_page() {
     assert!(!cells.is_empty() && cells.iter().all(|v| (0.0..=std::f64::consts::LN_2).contains(v)), "{cells:?}");
 
     // A bad --eval path is a clear error.
-    let err = run(
-        Args {
-            pack: pack_path,
-            eval: Some(dir.path().join("nope")),
-            scoring: ScoringArgs {
-                seeds: 1,
-                leave_one_out: false,
-                renoise_from: None,
-                to: None,
-                group_bins: DEFAULT_GROUP_BINS,
-            },
-            bench: None,
-            output: full,
-        },
-        true,
-    )
-    .expect_err("missing held-out set");
+    let err = run(support::report_args(&pack_path, Some(dir.path().join("nope")), None, &full), true)
+        .expect_err("missing held-out set");
     assert!(format!("{err:#}").contains("nope"), "{err:#}");
 }

@@ -57,3 +57,26 @@ pub fn simulate<'a>(
     args.extend_from_slice(rest);
     args
 }
+
+/// The arguments of an in-process `noisecal report` of `pack` into `output`: one synthetic set
+/// per model, no leave-one-out or re-noise scoring unless the caller sets them on the result.
+pub fn report_args(
+    pack: &std::path::Path,
+    eval: Option<std::path::PathBuf>,
+    bench: Option<std::path::PathBuf>,
+    output: &std::path::Path,
+) -> noisecal_cli::cmd::report::Args {
+    noisecal_cli::cmd::report::Args {
+        pack: pack.to_path_buf(),
+        eval,
+        scoring: noisecal_cli::cmd::eval::ScoringArgs {
+            seeds: 1,
+            leave_one_out: false,
+            renoise_from: None,
+            to: None,
+            group_bins: noisecal_core::metrics::DEFAULT_GROUP_BINS,
+        },
+        bench,
+        output: output.to_path_buf(),
+    }
+}

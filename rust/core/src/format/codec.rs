@@ -282,6 +282,17 @@ impl RecordSeal {
     }
 }
 
+/// A signed difference as an unsigned one whose size follows its magnitude (0, −1, 1, −2 … →
+/// 0, 1, 2, 3 …), for the compact pack payloads' varints.
+pub(crate) fn zigzag(d: i64) -> u64 {
+    ((d << 1) ^ (d >> 63)) as u64
+}
+
+/// The inverse of [`zigzag`].
+pub(crate) fn unzigzag(z: u64) -> i64 {
+    ((z >> 1) as i64) ^ -((z & 1) as i64)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

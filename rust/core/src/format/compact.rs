@@ -19,7 +19,7 @@
 //! stream holds, or bytes left over are refused as a damaged file.
 
 use crate::error::CodecError;
-use crate::format::codec;
+use crate::format::codec::{self, unzigzag, zigzag};
 use crate::model::pack::ModelPack;
 use crate::model::precision::{DERIVED_BITS, MANTISSA_BITS};
 
@@ -55,14 +55,6 @@ fn weight(c: u64, m: u32) -> Option<u64> {
     let e = c / half - 1;
     let q = c - e * half;
     (e + m as u64 <= 64).then(|| q << e)
-}
-
-fn zigzag(d: i64) -> u64 {
-    ((d << 1) ^ (d >> 63)) as u64
-}
-
-fn unzigzag(z: u64) -> i64 {
-    ((z >> 1) as i64) ^ -((z & 1) as i64)
 }
 
 fn put_varint(out: &mut Vec<u8>, mut v: u64) {

@@ -12,7 +12,7 @@
 //! version 5 file reads the same whatever a later version keeps.
 
 use crate::error::CodecError;
-use crate::format::codec;
+use crate::format::codec::{self, unzigzag, zigzag};
 use crate::model::pack::ModelPack;
 use crate::model::precision::quantize_to;
 
@@ -51,14 +51,6 @@ fn weight(c: u64) -> Option<u64> {
     let e = c / HALF - 1;
     let q = c - e * HALF;
     (e + MANTISSA_BITS as u64 <= 64).then(|| q << e)
-}
-
-fn zigzag(d: i64) -> u64 {
-    ((d << 1) ^ (d >> 63)) as u64
-}
-
-fn unzigzag(z: u64) -> i64 {
-    ((z >> 1) as i64) ^ -((z & 1) as i64)
 }
 
 /// Each bin's weights become the wrapped differences of their codes (the first from 0).
