@@ -149,12 +149,27 @@ pub fn for_each_heldout_frame(
     }
 }
 
+/// Synthetic sets each model draws per held-out target frame in [`score_heldout`]; a model
+/// scores the mean of its sets' JSDs (as [`noisecal_core::metrics::score_seeds`] does).
+pub const SYNTH_SETS: u64 = 4;
+
+/// The synthesis seed of set `set` of held-out frame `index`: the same for every model scored
+/// (common random numbers: each model's sampler turns the same uniform draw at a pixel into its
+/// own noise value, so the models' synthetic sets differ only where the models do, and the
+/// sampling noise of a JSD difference between two models shrinks to what their differences
+/// leave). With a seed of its own per model, that noise alone moved pack / plain by ±8 % per ISO
+/// on sensor 3 of the random family.
+pub fn heldout_synth_seed(index: u64, set: u64) -> u64 {
+    0x5EED_0000 + index * 7 + set * 0x1_0000_0000
+}
+
 /// Simulates a held-out set (`plan` on `sim`, frame indices shifted by `index_offset`) and
 /// scores each model on it (method.md, "Measuring fidelity"): per EV step the reference burst
 /// gives the clean image and flat mask, every target frame gives real noise on the flat pixels,
-/// and each model synthesizes the same number of frames on the same clean image. `models` maps
-/// a name to one model per target ISO of the plan (`binning` groups levels for the conditional
-/// JSD, 8 bins per group).
+/// and each model synthesizes [`SYNTH_SETS`] sets of the same number of frames on the same
+/// clean image, with the same seeds for every model ([`heldout_synth_seed`]); a model's score
+/// is the mean over its sets. `models` maps a name to one model per target ISO of the plan
+/// (`binning` groups levels for the conditional JSD, 8 bins per group).
 pub fn score_heldout(
     sim: &Simulator,
     plan: &SessionPlan,
@@ -162,7 +177,7 @@ pub fn score_heldout(
     binning: &noisecal_core::Binning,
     models: &[(&str, Vec<noisecal_core::model::pack::IsoModel>, &ModelPack)],
 ) -> Vec<IsoScores> {
-    use noisecal_core::metrics::{DEFAULT_GROUP_BINS, NoiseSamples, compare};
+    use noisecal_core::metrics::{DEFAULT_GROUP_BINS, NoiseSamples, compare, score_seeds};
     use noisecal_core::synth::sampler::IsoSampler;
     use noisecal_core::synth::synthesize;
     use std::collections::BTreeMap;
@@ -170,21 +185,25 @@ pub fn score_heldout(
     let samplers: Vec<BTreeMap<u32, IsoSampler>> =
         models.iter().map(|(_, ms, pack)| ms.iter().map(|m| (m.iso, IsoSampler::new(pack, m))).collect()).collect();
     let new_samples = || NoiseSamples::new(binning, DEFAULT_GROUP_BINS);
-    // Per ISO: real, real halves, and one synthetic accumulator per model.
-    let mut acc: BTreeMap<u32, (NoiseSamples, [NoiseSamples; 2], Vec<NoiseSamples>)> = BTreeMap::new();
+    // Per ISO: real, real halves, and per model one synthetic accumulator per set.
+    type Acc = (NoiseSamples, [NoiseSamples; 2], Vec<Vec<NoiseSamples>>);
+    let mut acc: BTreeMap<u32, Acc> = BTreeMap::new();
     let mut count: BTreeMap<u32, u64> = BTreeMap::new();
     for_each_heldout_frame(sim, plan, index_offset, binning.bin_width, |(f, c16, mask, px)| {
         let cf = c16.mapv(|v| v as f32);
         let e = acc.entry(f.iso).or_insert_with(|| {
-            (new_samples(), [new_samples(), new_samples()], models.iter().map(|_| new_samples()).collect())
+            let sets = || (0..SYNTH_SETS).map(|_| new_samples()).collect();
+            (new_samples(), [new_samples(), new_samples()], models.iter().map(|_| sets()).collect())
         });
         let k = count.entry(f.iso).or_default();
         e.0.add_frame(cf.view(), px.view(), Some(mask.view())).expect("sizes");
         e.1[(*k % 2) as usize].add_frame(cf.view(), px.view(), Some(mask.view())).expect("sizes");
         for (mi, s) in samplers.iter().enumerate() {
             if let Some(sampler) = s.get(&f.iso) {
-                let out = synthesize(sampler, c16.view(), 0x5EED_0000 + f.index * 7 + mi as u64);
-                e.2[mi].add_frame(cf.view(), out.view(), Some(mask.view())).expect("sizes");
+                for (set, out_acc) in e.2[mi].iter_mut().enumerate() {
+                    let out = synthesize(sampler, c16.view(), heldout_synth_seed(f.index, set as u64));
+                    out_acc.add_frame(cf.view(), out.view(), Some(mask.view())).expect("sizes");
+                }
             }
         }
         *k += 1;
@@ -198,8 +217,8 @@ pub fn score_heldout(
                 models: models
                     .iter()
                     .zip(&syn)
-                    .map(|((name, _, _), s)| {
-                        let sc = compare(&real, s);
+                    .map(|((name, _, _), sets)| {
+                        let sc = score_seeds(&real, sets);
                         (name.to_string(), sc.marginal_overall, sc.conditional_overall)
                     })
                     .collect(),

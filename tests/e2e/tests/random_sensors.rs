@@ -3,7 +3,8 @@
 //! Student-t or Tukey-λ read noise, gain ∝ ISO^γ, dual and digital gain, 10–14 bits, every CFA
 //! order, row noise, DSNU/PRNU, clipping at 0 and white, 2–32 frames, dense and sparse sweeps),
 //! each calibrated, then scored on an independent held-out set against the plain empirical
-//! estimator of the same frames and the heteroscedastic Gaussian fitted on them.
+//! estimator of the same frames and the heteroscedastic Gaussian fitted on them (every model
+//! drawn with the same seeds, several sets each: `noisecal_e2e::score_heldout`).
 
 use noisecal_core::derive::baselines::{BaselineKind, fit};
 use noisecal_e2e::{IsoScores, calibrate_lenient, plain_models, score_heldout};
@@ -12,6 +13,16 @@ use rayon::prelude::*;
 
 /// Sensors in the study.
 const SENSORS: u64 = 24;
+
+/// How far the pack may score above the plain histogram it smooths, marginal and conditional
+/// JSD: the noise of the ratio, not a loss. Measured over two held-out sets (`NOISECAL_HELDOUT`
+/// 0 and 1) of all 24 sensors, with common random numbers and [`noisecal_e2e::SYNTH_SETS`] sets
+/// per model: pack / plain moves with the held-out data alone by 0.017 (SD of one set's ratio)
+/// on the marginal and 0.005 on the conditional, the most 0.057 and 0.018 between the two sets
+/// (sensors with 2–3 frames per burst). The margins are three of those SDs: a pack 8 % worse than
+/// the plain histogram fails.
+const PLAIN_MARGIN_MARGINAL: f64 = 0.05;
+const PLAIN_MARGIN_CONDITIONAL: f64 = 0.02;
 
 struct Outcome {
     seed: u64,
@@ -48,10 +59,13 @@ fn run(seed: u64) -> Outcome {
     let hg: Vec<_> = pack.isos.iter().map(|m| fit(&pack, m, BaselineKind::Hg).expect("hg").to_model(&pack)).collect();
     let hsim = spec.heldout_simulator(&sensor.model, seed ^ 0xA5A5).expect("held-out simulator");
     let hplan = spec.heldout_plan(&plan).expect("held-out plan");
+    // `NOISECAL_HELDOUT=k` draws another held-out set (fresh frame indices), for measuring how
+    // much the scores move with the held-out data alone.
+    let heldout_set: u64 = std::env::var("NOISECAL_HELDOUT").ok().and_then(|s| s.trim().parse().ok()).unwrap_or(0);
     let scores = score_heldout(
         &hsim,
         &hplan,
-        spec.heldout.index_offset,
+        spec.heldout.index_offset + heldout_set * 1_000_000,
         &pack.binning(),
         &[("pack", pack.isos.clone(), &pack), ("plain", plain, &pack), ("hg", hg, &pack)],
     );
@@ -109,8 +123,13 @@ fn the_pack_holds_on_random_sensors() {
                 s.iso, s.samples
             );
         }
-        if pm > 1.1 * em || pc > 1.1 * ec {
-            failures.push(format!("seed {}: pack {pm:.5}/{pc:.5} vs plain {em:.5}/{ec:.5}", o.seed));
+        if pm > (1.0 + PLAIN_MARGIN_MARGINAL) * em || pc > (1.0 + PLAIN_MARGIN_CONDITIONAL) * ec {
+            failures.push(format!(
+                "seed {}: pack {pm:.5}/{pc:.5} vs plain {em:.5}/{ec:.5} (ratios {:.3}/{:.3}; margins {PLAIN_MARGIN_MARGINAL}/{PLAIN_MARGIN_CONDITIONAL})",
+                o.seed,
+                pm / em,
+                pc / ec
+            ));
         }
         if pm > hm || pc > hc {
             failures.push(format!("seed {}: pack {pm:.5}/{pc:.5} worse than HG {hm:.5}/{hc:.5}", o.seed));
@@ -132,8 +151,13 @@ fn the_pack_holds_on_random_sensors() {
     }
     ratios.sort_by(|a, b| a.0.total_cmp(&b.0));
     let worst_plain = ratios.iter().map(|r| r.1.max(r.2)).fold(0.0, f64::max);
+    let mut plain_ratios: Vec<f64> = ratios.iter().map(|r| r.1.max(r.2)).collect();
+    plain_ratios.sort_by(f64::total_cmp);
     println!(
-        "pack/plain worst {worst_plain:.3}; pack excess over HG excess (marginal): median {:.3}, worst {:.3}",
+        "pack/plain (worse of marginal, conditional): median {:.3}, worst {worst_plain:.3} (marginal {:.3}, conditional {:.3}); pack excess over HG excess (marginal): median {:.3}, worst {:.3}",
+        plain_ratios[plain_ratios.len() / 2],
+        ratios.iter().map(|r| r.1).fold(0.0, f64::max),
+        ratios.iter().map(|r| r.2).fold(0.0, f64::max),
         ratios[ratios.len() / 2].0,
         ratios.last().map_or(0.0, |r| r.0)
     );
