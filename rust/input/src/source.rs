@@ -112,7 +112,7 @@ pub struct Frame {
 #[derive(Debug)]
 enum Pixels {
     /// A DNG file's (memory-mapped: its uncompressed samples are read in place).
-    Dng(DngFile),
+    Dng(Box<DngFile>),
     Recorded(RecordedFrame),
 }
 
@@ -287,7 +287,7 @@ impl DngStream {
                     index,
                     meta: fr.meta,
                     path: Some(fr.path),
-                    pixels: Pixels::Dng(img),
+                    pixels: Pixels::Dng(Box::new(img)),
                 })));
             }
             let in_step = step.reference.len() + step.targets.len();
@@ -328,7 +328,7 @@ impl DngStream {
         let img = img?;
         let index = self.frames;
         self.frames += 1;
-        Ok(Some(Record::Frame(Frame { index, meta: fr.meta, path: Some(fr.path), pixels: Pixels::Dng(img) })))
+        Ok(Some(Record::Frame(Frame { index, meta: fr.meta, path: Some(fr.path), pixels: Pixels::Dng(Box::new(img)) })))
     }
 
     fn skip_step(&mut self) {
