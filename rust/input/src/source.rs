@@ -21,7 +21,7 @@ use noisecal_core::model::NoiseProfile;
 use noisecal_core::{FrameMeta, FrameView, SensorLayout, SessionConfig};
 use rayon::prelude::*;
 
-use crate::dng::{self, DngImage};
+use crate::dng::{self, DngFile};
 use crate::grouping::{self, DngFrame, DngStep};
 
 /// What a path holds.
@@ -111,7 +111,8 @@ pub struct Frame {
 
 #[derive(Debug)]
 enum Pixels {
-    Decoded(Array2<u16>),
+    /// A DNG file's (memory-mapped: its uncompressed samples are read in place).
+    Dng(Box<DngFile>),
     Recorded(RecordedFrame),
 }
 
@@ -119,7 +120,7 @@ impl Frame {
     /// The pixels as the core reads them; a recorded buffer may not be a usable frame.
     pub fn view(&self) -> Result<FrameView<'_>, FrameError> {
         match &self.pixels {
-            Pixels::Decoded(a) => FrameView::from_array(a),
+            Pixels::Dng(f) => f.frame_view(),
             Pixels::Recorded(f) => f.view(),
         }
     }
@@ -127,7 +128,7 @@ impl Frame {
     /// The pixels as an image.
     pub fn into_array(self) -> Result<Array2<u16>, FrameError> {
         match self.pixels {
-            Pixels::Decoded(a) => Ok(a),
+            Pixels::Dng(f) => Ok(f.pixels().to_owned()),
             Pixels::Recorded(f) => Ok(f.view()?.to_array()),
         }
     }
@@ -261,7 +262,7 @@ struct DngStream {
     begun: bool,
     /// Next frame of the step to read (reference frames, then targets).
     next: usize,
-    read: VecDeque<(DngFrame, Result<DngImage, dng::DngError>)>,
+    read: VecDeque<(DngFrame, Result<DngFile, dng::DngError>)>,
     frames: u64,
 }
 
@@ -286,7 +287,7 @@ impl DngStream {
                     index,
                     meta: fr.meta,
                     path: Some(fr.path),
-                    pixels: Pixels::Decoded(img.pixels),
+                    pixels: Pixels::Dng(Box::new(img)),
                 })));
             }
             let in_step = step.reference.len() + step.targets.len();
@@ -298,8 +299,8 @@ impl DngStream {
             let end = (self.next + (rayon::current_num_threads() * 2).max(2)).min(in_step);
             let group: Vec<&DngFrame> =
                 step.reference.iter().chain(&step.targets).skip(self.next).take(end - self.next).collect();
-            let imgs: Vec<Result<DngImage, dng::DngError>> =
-                group.par_iter().map(|fr| dng::read_dng(&fr.path)).collect();
+            let imgs: Vec<Result<DngFile, dng::DngError>> =
+                group.par_iter().map(|fr| dng::read_dng_source(&fr.path)).collect();
             self.read.extend(group.into_iter().cloned().zip(imgs));
             self.next = end;
         }
@@ -318,8 +319,8 @@ impl DngStream {
         if self.read.is_empty() && self.next < self.dark.len() {
             let end = (self.next + (rayon::current_num_threads() * 2).max(2)).min(self.dark.len());
             let group = &self.dark[self.next..end];
-            let imgs: Vec<Result<DngImage, dng::DngError>> =
-                group.par_iter().map(|fr| dng::read_dng(&fr.path)).collect();
+            let imgs: Vec<Result<DngFile, dng::DngError>> =
+                group.par_iter().map(|fr| dng::read_dng_source(&fr.path)).collect();
             self.read.extend(group.iter().cloned().zip(imgs));
             self.next = end;
         }
@@ -327,12 +328,7 @@ impl DngStream {
         let img = img?;
         let index = self.frames;
         self.frames += 1;
-        Ok(Some(Record::Frame(Frame {
-            index,
-            meta: fr.meta,
-            path: Some(fr.path),
-            pixels: Pixels::Decoded(img.pixels),
-        })))
+        Ok(Some(Record::Frame(Frame { index, meta: fr.meta, path: Some(fr.path), pixels: Pixels::Dng(Box::new(img)) })))
     }
 
     fn skip_step(&mut self) {

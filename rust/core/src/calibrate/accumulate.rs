@@ -13,7 +13,7 @@ use crate::calibrate::line_base::in_lines;
 use crate::calibrate::motion::{FrameMotion, MotionProbe, NEGLIGIBLE_MOTION_PX};
 use crate::calibrate::reference::CleanImage;
 use crate::calibrate::structure::{CELLS, FrameSums, StructureAccumulator};
-use crate::calibrate::window_counts::{LaneCounts, WindowCounts};
+use crate::calibrate::window_counts::{LaneCounts, LevelWindow, WindowCounts};
 
 use crate::model::histogram::NoiseHistogram;
 use crate::model::layout::{Binning, POSITIONS};
@@ -285,6 +285,7 @@ fn fold_rows(
     // Each position has at most a pixel of every other column of every other row.
     let most = w.div_ceil(2) * h.div_ceil(2);
     let (mut window0, mut window1) = (WindowCounts::new(hist0, most), WindowCounts::new(hist1, most));
+    let (levels0, levels1) = (window0.by_level(lut0), window1.by_level(lut1));
     for y in (parity..h).step_by(2) {
         let row: &[u16] = match frame.row(y) {
             std::borrow::Cow::Borrowed(r) => r,
@@ -316,50 +317,99 @@ fn fold_rows(
             &noise
         };
         rows.push(line_sums(line_values, crow, line_top, &mut cols[half], &mut masked));
-        // Even columns are position `2·parity`, odd ones `2·parity + 1`.
-        let count = |first: usize,
-                     window: &mut WindowCounts,
-                     hist: &mut Vec<NoiseHistogram>,
-                     lut: &[u16],
-                     codes: &mut LaneCounts,
-                     left_out: &mut Vec<(u8, u16)>| {
-            let pos = (parity * 2 + first) as u8;
-            let mut added = 0u64;
-            if motion.is_some() {
-                for x in (first..w).step_by(2) {
-                    let c = crow[x];
-                    if c == NOT_FLAT {
-                        continue;
-                    }
-                    codes.add((row[x] as usize).min(top), x >> 1);
-                    if !keep[x] {
-                        left_out.push((pos, c));
-                        continue;
-                    }
-                    window.add(lut[c as usize] as usize, noise[x], x >> 1, hist);
-                    added += 1;
-                }
-            } else {
-                for x in (first..w).step_by(2) {
-                    let c = crow[x];
-                    if c == NOT_FLAT {
-                        continue;
-                    }
-                    codes.add((row[x] as usize).min(top), x >> 1);
-                    window.add(lut[c as usize] as usize, noise[x], x >> 1, hist);
-                    added += 1;
-                }
+        // Even columns are position `2·parity`, odd ones `2·parity + 1`: one pass over the
+        // row's column pairs feeds both, each pixel's bin window found by its clean level.
+        let mut even =
+            PositionCounts { pos: (parity * 2) as u8, window: &mut window0, levels: &levels0, hist: &mut *hist0 };
+        let mut odd =
+            PositionCounts { pos: (parity * 2 + 1) as u8, window: &mut window1, levels: &levels1, hist: &mut *hist1 };
+        // The output codes of the flat pixels, then their noise into the bin windows: two
+        // loops, each with few enough tables to keep its pointers in registers.
+        count_codes(crow, row, top, &mut codes0, &mut codes1);
+        let pairs = crow.chunks_exact(2).zip(noise.chunks_exact(2));
+        if motion.is_some() {
+            for (j, (c, n)) in pairs.enumerate() {
+                let x = 2 * j;
+                samples += even.add_kept(c[0], n[0], j, keep[x], &mut left_out);
+                samples += odd.add_kept(c[1], n[1], j, keep[x + 1], &mut left_out);
             }
-            added
-        };
-        samples += count(0, &mut window0, hist0, lut0, &mut codes0, &mut left_out);
-        samples += count(1, &mut window1, hist1, lut1, &mut codes1, &mut left_out);
+            if w % 2 == 1 {
+                let x = w - 1;
+                samples += even.add_kept(crow[x], noise[x], x >> 1, keep[x], &mut left_out);
+            }
+        } else {
+            for (j, (c, n)) in pairs.enumerate() {
+                samples += even.add(c[0], n[0], j);
+                samples += odd.add(c[1], n[1], j);
+            }
+            if w % 2 == 1 {
+                let x = w - 1;
+                samples += even.add(crow[x], noise[x], x >> 1);
+            }
+        }
     }
     window0.flush(hist0);
     window1.flush(hist1);
     codes0.flush(codes_out0);
     codes1.flush(codes_out1);
     FoldedRows { samples, left_out, rows, cols }
+}
+
+/// One position's histogram counts for one frame, as [`fold_rows`] feeds them pixel by pixel.
+struct PositionCounts<'a> {
+    pos: u8,
+    window: &'a mut WindowCounts,
+    /// Per clean level, its bin's window.
+    levels: &'a [LevelWindow],
+    hist: &'a mut Vec<NoiseHistogram>,
+}
+
+impl PositionCounts<'_> {
+    /// Counts the noise `n` of a pixel of clean level `c` (or [`NOT_FLAT`]) in lane `lane`;
+    /// returns the samples added (0 or 1).
+    #[inline(always)]
+    fn add(&mut self, c: u16, n: i32, lane: usize) -> u64 {
+        if c == NOT_FLAT {
+            return 0;
+        }
+        self.window.add_level(self.levels[c as usize], n, lane, self.hist);
+        1
+    }
+
+    /// [`PositionCounts::add`] for a frame that moved: a flat pixel not `kept` goes to
+    /// `left_out` instead of the histograms.
+    #[inline(always)]
+    fn add_kept(&mut self, c: u16, n: i32, lane: usize, kept: bool, left_out: &mut Vec<(u8, u16)>) -> u64 {
+        if c == NOT_FLAT {
+            return 0;
+        }
+        if !kept {
+            left_out.push((self.pos, c));
+            return 0;
+        }
+        self.window.add_level(self.levels[c as usize], n, lane, self.hist);
+        1
+    }
+}
+
+/// Counts the output code `v` (at most `top`) of every flat pixel of a row (clean levels
+/// `crow`), even columns into `even`, odd ones into `odd`, each column pair in its own lane.
+#[inline]
+fn count_codes(crow: &[u16], row: &[u16], top: usize, even: &mut LaneCounts, odd: &mut LaneCounts) {
+    for (j, (c, v)) in crow.chunks_exact(2).zip(row.chunks_exact(2)).enumerate() {
+        if c[0] != NOT_FLAT {
+            even.add((v[0] as usize).min(top), j);
+        }
+        if c[1] != NOT_FLAT {
+            odd.add((v[1] as usize).min(top), j);
+        }
+    }
+    if crow.len() % 2 == 1 {
+        let x = crow.len() - 1;
+        if crow[x] != NOT_FLAT {
+            even.add((row[x] as usize).min(top), x >> 1);
+        }
+    }
 }
 
 /// Adds one row's noise over its line pixels (flat, clean level at most `line_top`) into its

@@ -160,26 +160,41 @@ fn integer_brightness_sums(
     let mut bands = vec![[0i64; 5]; BANDS];
     let (mut frame_pos, mut base_pos) = ([0i64; POSITIONS], [0i64; POSITIONS]);
     let mut buf = vec![0u16; w];
+    // `[n, Σb, Σf, Σb², Σbf]` of one compared pixel (base level `c`, frame value `v`) over black `b`.
+    #[inline(always)]
+    fn add(sums: &mut [i64; 5], c: u16, v: u16, b: i64, top: u16) {
+        if c != NOT_FLAT && c <= top {
+            let (bv, fv) = (c as i64 - b, v as i64 - b);
+            sums[0] += 1;
+            sums[1] += bv;
+            sums[2] += fv;
+            sums[3] += bv * bv;
+            sums[4] += bv * fv;
+        }
+    }
     for (y, band) in sampled_rows(h) {
-        frame.read_row(y, &mut buf);
+        // The row in place where the frame's memory allows it.
+        let row: &[u16] = match frame.row(y) {
+            std::borrow::Cow::Borrowed(r) => r,
+            std::borrow::Cow::Owned(v) => {
+                buf.copy_from_slice(&v);
+                &buf
+            }
+        };
+        let crow = &base[y * w..y * w + w];
         let band = &mut bands[band];
         let parity = (y & 1) << 1;
-        // Even columns, then odd ones: one position each.
-        for first in 0..2 {
-            let pos = parity | first;
-            let b = black[pos];
-            let mut sums = [0i64; 5];
-            for x in (first..w).step_by(2) {
-                let c = base[y * w + x];
-                let keep = (c != NOT_FLAT && c <= top) as i64;
-                let bv = (c as i64 - b) * keep;
-                let fv = (buf[x] as i64 - b) * keep;
-                sums[0] += keep;
-                sums[1] += bv;
-                sums[2] += fv;
-                sums[3] += bv * bv;
-                sums[4] += bv * fv;
-            }
+        // Even columns are one position, odd ones the other: one pass over the column pairs.
+        let (b0, b1) = (black[parity], black[parity | 1]);
+        let (mut even, mut odd) = ([0i64; 5], [0i64; 5]);
+        for (c, v) in crow.chunks_exact(2).zip(row.chunks_exact(2)) {
+            add(&mut even, c[0], v[0], b0, top);
+            add(&mut odd, c[1], v[1], b1, top);
+        }
+        if w % 2 == 1 {
+            add(&mut even, crow[w - 1], row[w - 1], b0, top);
+        }
+        for (pos, sums) in [(parity, even), (parity | 1, odd)] {
             for (o, v) in band.iter_mut().zip(sums) {
                 *o += v;
             }

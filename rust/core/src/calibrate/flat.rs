@@ -199,6 +199,31 @@ pub struct CleanInputs<'a> {
 }
 
 /// Computes the rounded clean image with [`NOT_FLAT`] where a pixel is not on a flat region.
+/// Values per (position, level group) that `fill` gathers row by row over `rows`: the rows in
+/// parallel, a run of them per task, each group's values then joined in row order, so that
+/// every group holds the same values in the same order as one pass over the rows would give.
+fn grouped_by_rows(rows: &[usize], fill: impl Fn(usize, &mut Vec<Vec<f32>>) + Sync) -> Vec<Vec<f32>> {
+    const RUN: usize = 16;
+    let parts: Vec<Vec<Vec<f32>>> = rows
+        .par_chunks(RUN)
+        .map(|run| {
+            let mut part = vec![Vec::new(); POSITIONS * GROUPS];
+            for &y in run {
+                fill(y, &mut part);
+            }
+            part
+        })
+        .collect();
+    let mut out: Vec<Vec<f32>> =
+        (0..POSITIONS * GROUPS).map(|g| Vec::with_capacity(parts.iter().map(|p| p[g].len()).sum())).collect();
+    for part in parts {
+        for (o, p) in out.iter_mut().zip(part) {
+            o.extend_from_slice(&p);
+        }
+    }
+    out
+}
+
 pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
     let (w, h) = (inp.width, inp.height);
     let m = inp.frames.max(1) as f64;
@@ -217,9 +242,9 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
     // … plus a spatial part (fixed pattern; or everything for a one-frame burst) measured as the
     // robust spread of horizontal neighbour differences on well-populated levels (patch interiors
     // dominate those; edges are spread thin over many levels).
-    let mut diffs: Vec<Vec<f32>> = vec![Vec::new(); POSITIONS * GROUPS];
     let row_step = if h > 512 { 4 } else { 1 };
-    for y in (0..h).step_by(row_step * 2).flat_map(|y| [y, y + 1]).filter(|&y| y < h) {
+    let sampled: Vec<usize> = (0..h).step_by(row_step * 2).flat_map(|y| [y, y + 1]).filter(|&y| y < h).collect();
+    let mut diffs = grouped_by_rows(&sampled, |y, diffs| {
         for x in 0..w.saturating_sub(2) {
             let i = y * w + x;
             let pos = position(y, x);
@@ -227,7 +252,7 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
             let d = (a - mean(i + 2)).abs() as f32;
             diffs[pos * GROUPS + groups.group(pos, a as f32)].push(d);
         }
-    }
+    });
     let mut report = FlatReport::default();
     let mut spatial: [Vec<f64>; POSITIONS] = Default::default();
     for pos in 0..POSITIONS {
@@ -308,14 +333,13 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
     };
     let mut group_medians = vec![f64::NAN; POSITIONS * GROUPS];
     if inp.frames >= 2 {
-        let mut vars: Vec<Vec<f32>> = vec![Vec::new(); POSITIONS * GROUPS];
-        for y in (0..h).step_by(row_step * 2).flat_map(|y| [y, y + 1]).filter(|&y| y < h) {
+        let mut vars = grouped_by_rows(&sampled, |y, vars| {
             for x in 0..w {
                 let i = y * w + x;
                 let pos = position(y, x);
                 vars[pos * GROUPS + groups.group(pos, mean(i) as f32)].push(pixel_var(i) as f32);
             }
-        }
+        });
         for (gm, v) in group_medians.iter_mut().zip(vars.iter_mut()) {
             if v.len() >= 32 {
                 let mid = v.len() / 2;
@@ -340,57 +364,71 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
         })
         .collect();
 
-    // Rows in parallel, each counting its own pixels (considered, unsteady, flat per position);
-    // the counts are summed in row order afterwards, so the report is the same on any thread count.
+    // Blocks of rows in parallel, each counting its own pixels (considered, unsteady, flat per
+    // position); the counts are summed in block order afterwards, so the report is the same on
+    // any thread count. A block first takes the means of its rows and of the two rows either
+    // side once, with each mean's level `clamp(round(mean), 0, white)`: a neighbour test reads
+    // the level of the larger mean of a pair, which is the larger of their levels (rounding and
+    // clamping never reverse an order).
+    const BLOCK_ROWS: usize = 8;
+    let top = inp.white as usize;
     let mut clean = vec![NOT_FLAT; w * h];
     let row_counts: Vec<[[u64; POSITIONS]; 3]> = clean
-        .par_chunks_mut(w.max(1))
+        .par_chunks_mut((w * BLOCK_ROWS).max(1))
         .enumerate()
-        .map(|(y, clean_row)| {
+        .map(|(block, clean_rows)| {
+            let y0 = block * BLOCK_ROWS;
+            let (lo, hi) = (y0.saturating_sub(2), (y0 + clean_rows.len() / w.max(1) + 2).min(h));
+            let means: Vec<f64> = (lo * w..hi * w).map(mean).collect();
+            let levels: Vec<u16> =
+                means.iter().map(|&a| (round_half_away(a).max(0) as usize).min(top) as u16).collect();
             let mut counts = [[0u64; POSITIONS]; 3];
             let [considered, unsteady, flat_count] = &mut counts;
-            for x in 0..w {
-                let i = y * w + x;
-                let pos = position(y, x);
-                if inp.roi.is_some_and(|r| !r.contains(x, y)) {
-                    continue;
-                }
-                considered[pos] += 1;
-                let a = mean(i);
-                let level = (round_half_away(a).clamp(0, inp.white as i64) as u16).min(NOT_FLAT - 1);
-                let mut neighbours = 0;
-                let mut flat = true;
-                let mut check = |j: usize| {
-                    let b = mean(j);
-                    let lvl = (round_half_away(a.max(b)).max(0) as usize).min(inp.white as usize);
-                    neighbours += 1;
-                    if (a - b).abs() as f32 > thresholds[pos][lvl] {
-                        flat = false;
+            for (r, clean_row) in clean_rows.chunks_mut(w.max(1)).enumerate() {
+                let y = y0 + r;
+                for x in 0..w {
+                    let i = y * w + x;
+                    let pos = position(y, x);
+                    if inp.roi.is_some_and(|r| !r.contains(x, y)) {
+                        continue;
                     }
-                };
-                if x >= 2 {
-                    check(i - 2);
-                }
-                if x + 2 < w {
-                    check(i + 2);
-                }
-                if y >= 2 {
-                    check(i - 2 * w);
-                }
-                if y + 2 < h {
-                    check(i + 2 * w);
-                }
-                if flat
-                    && neighbours >= 2
-                    && inp.frames >= 2
-                    && pixel_var(i) > spread_limits[pos][level as usize] as f64
-                {
-                    flat = false;
-                    unsteady[pos] += 1;
-                }
-                if flat && neighbours >= 2 {
-                    clean_row[x] = level;
-                    flat_count[pos] += 1;
+                    considered[pos] += 1;
+                    let k = i - lo * w;
+                    let (a, la) = (means[k], levels[k]);
+                    let level = la.min(NOT_FLAT - 1);
+                    let mut neighbours = 0;
+                    let mut flat = true;
+                    let mut check = |j: usize| {
+                        let (b, lb) = (means[j], levels[j]);
+                        neighbours += 1;
+                        if (a - b).abs() as f32 > thresholds[pos][la.max(lb) as usize] {
+                            flat = false;
+                        }
+                    };
+                    if x >= 2 {
+                        check(k - 2);
+                    }
+                    if x + 2 < w {
+                        check(k + 2);
+                    }
+                    if y >= 2 {
+                        check(k - 2 * w);
+                    }
+                    if y + 2 < h {
+                        check(k + 2 * w);
+                    }
+                    if flat
+                        && neighbours >= 2
+                        && inp.frames >= 2
+                        && pixel_var(i) > spread_limits[pos][level as usize] as f64
+                    {
+                        flat = false;
+                        unsteady[pos] += 1;
+                    }
+                    if flat && neighbours >= 2 {
+                        clean_row[x] = level;
+                        flat_count[pos] += 1;
+                    }
                 }
             }
             counts

@@ -1,7 +1,8 @@
 //! One frame's histogram counts for one CFA position, in a flat table: every bin's window is
 //! the range its [`NoiseHistogram`] covered when the frame began, its counts 32-bit and laid end
-//! to end, so that a sample costs one lookup of its bin's window and one increment, with no
-//! pointer to follow. A sample outside its bin's window goes straight to the histogram.
+//! to end, and every clean level has its bin's window beside the bin ([`LevelWindow`]), so that
+//! a sample costs one lookup by its clean level and one increment, with no pointer to follow. A
+//! sample outside its bin's window goes straight to the histogram.
 //!
 //! The histograms end as they would have with every sample added to them in turn: a histogram
 //! only grows for a sample outside its range, a range only grows, so the samples inside the
@@ -24,6 +25,15 @@ struct Window {
     first: i32,
     len: u32,
     start: u32,
+}
+
+/// A clean level's bin and that bin's [`Window`], for [`WindowCounts::add_level`].
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct LevelWindow {
+    first: i32,
+    len: u32,
+    start: u32,
+    bin: u32,
 }
 
 /// The counts of one frame, for the bins of one position.
@@ -57,16 +67,27 @@ impl WindowCounts {
         Some(Self { windows, counts: vec![0; start as usize * LANES] })
     }
 
-    /// Adds sample `n` of bin `bin` in lane `lane` (any number: taken modulo [`LANES`]); its
-    /// histogram in `hists` takes a sample outside the window.
+    /// Per clean level `0 .. lut.len()`, the window of its bin (`lut`: level → bin), so that a
+    /// sample costs one lookup by its clean level ([`WindowCounts::add_level`]).
+    pub(crate) fn by_level(&self, lut: &[u16]) -> Vec<LevelWindow> {
+        lut.iter()
+            .map(|&bin| {
+                let w = self.windows.get(bin as usize).copied().unwrap_or(Window { first: 0, len: 0, start: 0 });
+                LevelWindow { first: w.first, len: w.len, start: w.start, bin: bin as u32 }
+            })
+            .collect()
+    }
+
+    /// Adds sample `n` in lane `lane` (any number: taken modulo [`LANES`]) to the bin whose
+    /// window `lw` is (from [`WindowCounts::by_level`]); its histogram in `hists` takes a sample
+    /// outside the window.
     #[inline(always)]
-    pub(crate) fn add(&mut self, bin: usize, n: i32, lane: usize, hists: &mut [NoiseHistogram]) {
-        let w = self.windows[bin];
-        let i = n.wrapping_sub(w.first) as u32;
-        if i < w.len {
-            self.counts[(w.start + i) as usize * LANES + (lane & (LANES - 1))] += 1;
+    pub(crate) fn add_level(&mut self, lw: LevelWindow, n: i32, lane: usize, hists: &mut [NoiseHistogram]) {
+        let i = n.wrapping_sub(lw.first) as u32;
+        if i < lw.len {
+            self.counts[(lw.start + i) as usize * LANES + (lane & (LANES - 1))] += 1;
         } else {
-            hists[bin].add(n);
+            hists[lw.bin as usize].add(n);
         }
     }
 
@@ -132,15 +153,19 @@ mod tests {
                 direct[bin].add(n);
             }
             let mut w = WindowCounts::new(&windowed, frame.len());
+            // Levels 0..6 in bins of two.
+            let levels = w.by_level(&[0, 0, 1, 1, 2, 2]);
             for (lane, &(bin, n)) in frame.iter().enumerate() {
-                w.add(bin, n, lane, &mut windowed);
+                let level = 2 * bin + lane % 2;
+                w.add_level(levels[level], n, lane, &mut windowed);
             }
             w.flush(&mut windowed);
             assert_eq!(direct, windowed);
         }
         // Too many samples for 32-bit counts: every sample straight to its histogram.
         let mut w = WindowCounts::new(&windowed, u32::MAX as usize);
-        w.add(0, 3, 1, &mut windowed);
+        let levels = w.by_level(&[0, 0, 1, 1, 2, 2]);
+        w.add_level(levels[1], 3, 1, &mut windowed);
         direct[0].add(3);
         w.flush(&mut windowed);
         assert_eq!(direct, windowed);

@@ -36,7 +36,8 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use ndarray::{Array2, ArrayView2};
-use noisecal_core::{FrameMeta, SensorLayout};
+use noisecal_core::error::FrameError;
+use noisecal_core::{FrameMeta, FrameView, SensorLayout};
 
 pub use edit::PixelMode;
 pub use error::DngError;
@@ -132,6 +133,16 @@ impl DngFile {
     /// uncompressed 16-bit samples in this machine's byte order (no copy), else the decoded ones.
     pub fn pixels(&self) -> ArrayView2<'_, u16> {
         self.view().unwrap_or_else(|| self.image.pixels.view())
+    }
+
+    /// The active area as the core reads frames: in place when [`DngFile::pixels`] is a view of
+    /// the file's bytes, else over the decoded pixels.
+    pub fn frame_view(&self) -> Result<FrameView<'_>, FrameError> {
+        let (h, w) = (self.image.layout.height as usize, self.image.layout.width as usize);
+        match raw_data::active_samples(&self.bytes, (h, w)) {
+            Some((samples, stride)) => FrameView::from_u16(samples, w, h, stride),
+            None => FrameView::from_array(&self.image.pixels),
+        }
     }
 
     fn view(&self) -> Option<ArrayView2<'_, u16>> {

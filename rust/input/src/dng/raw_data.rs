@@ -114,6 +114,13 @@ pub(crate) fn read_active_16(
 /// follow each other in the file, as a view of the file's bytes: no copy. `None` for any other
 /// storage (or when the bytes are not 2-aligned in memory).
 pub(crate) fn active_view(buf: &[u8], (ah, aw): (usize, usize)) -> Option<ArrayView2<'_, u16>> {
+    let (samples, stride) = active_samples(buf, (ah, aw))?;
+    ArrayView2::from_shape((ah, aw).strides((stride, 1)), samples).ok()
+}
+
+/// [`active_view`] as the samples from the active area's first to its last, with the row
+/// stride (in samples) they are laid out with.
+pub(crate) fn active_samples(buf: &[u8], (ah, aw): (usize, usize)) -> Option<(&[u16], usize)> {
     let s = walk(buf).ok()?;
     let raw = s.raw_dir(buf)?;
     let g = geometry(&s, buf, raw).ok()?;
@@ -133,7 +140,7 @@ pub(crate) fn active_view(buf: &[u8], (ah, aw): (usize, usize)) -> Option<ArrayV
     let base = offsets[0] as usize + (top * g.width + left) * 2;
     let len = ((ah - 1) * g.width + aw) * 2;
     let samples: &[u16] = bytemuck::try_cast_slice(buf.get(base..base + len)?).ok()?;
-    ArrayView2::from_shape((ah, aw).strides((g.width, 1)), samples).ok()
+    Some((samples, g.width))
 }
 
 /// Uncompressed single-sample integer data, stored as it reads (no linearization, no
