@@ -116,6 +116,25 @@ fn dark_step_from_dng_folders_and_recordings() {
     let without = synth("1", "pixel,row,column,frame", "c.dng");
     assert_ne!(with, without, "fpn changes the output");
 
+    // A folder of one size keeps the pattern from its second file on: the same bytes as with
+    // nothing kept (--pattern-cache-mb 0), and as each file synthesized alone.
+    let folder = d.join("few");
+    std::fs::create_dir(&folder).unwrap();
+    for f in ["f00000.dng", "f00001.dng", "f00002.dng"] {
+        std::fs::copy(dngs.join(f), folder.join(f)).unwrap();
+    }
+    let run_folder = |extra: &[&str], out: &str| -> Vec<Vec<u8>> {
+        let out = d.join(out);
+        let mut args = vec!["-q", "synth", "--pack", s(&p_dng), "--iso", "800", "--seed", "3", "--seed-by", "index"];
+        args.extend(extra);
+        args.extend([s(&folder), "-o", s(&out)]);
+        ok(&args);
+        ["f00000.dng", "f00001.dng", "f00002.dng"].iter().map(|f| std::fs::read(out.join(f)).unwrap()).collect()
+    };
+    let kept = run_folder(&[], "kept");
+    assert_eq!(kept, run_folder(&["--pattern-cache-mb", "0"], "none"), "the pattern cache changes no byte");
+    assert_eq!(kept, run_folder(&["--pattern-cache-mb", "1"], "small"), "the pattern cache changes no byte");
+
     // A lit frame inside a recording's dark step is refused by name, the rest still calibrates.
     let bad = d.join("bad.rec");
     {

@@ -417,11 +417,9 @@ fn older_pack_files_load_and_migrate_to_version_6() {
     }
 }
 
-/// Bytes of one inverse-CDF table (8 per CDF entry, 4 per guide cell, as the sampler builds them).
+/// Bytes of one inverse-CDF table (its entries and its guide).
 fn table_bytes(t: &BinTable) -> usize {
-    let n = t.cdf().len();
-    let bits = (n.next_power_of_two().trailing_zeros() + 1).clamp(3, 12);
-    n * 8 + (4usize << bits)
+    t.heap_bytes()
 }
 
 /// Per-ISO sampler table bytes (with every component the pack has, as `synth` builds them).

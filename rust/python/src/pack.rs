@@ -2,6 +2,7 @@
 
 use std::collections::HashMap;
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 
 use ndarray::{Array2, Array3, ArrayD, ArrayView2, Axis};
@@ -16,7 +17,7 @@ use noisecal_core::model::structure::Components;
 use noisecal_core::renoise::{Method, Renoiser};
 use noisecal_core::resolve::{ModelKind, resolve_model};
 use noisecal_core::synth::sampler::IsoSampler;
-use noisecal_core::synth::{CleanAt, synthesize_at};
+use noisecal_core::synth::{CleanAt, DEFAULT_PATTERN_CACHE_BYTES, synthesize_at};
 use noisecal_core::{ModelPack, POSITIONS};
 
 use crate::checks::{self, OutOfRange, images};
@@ -35,11 +36,18 @@ pub struct Pack {
     /// than synthesizing a small crop, and a training loop asks for the same few ISOs again and
     /// again.
     samplers: Mutex<HashMap<SamplerKey, Arc<IsoSampler>>>,
+    /// The most bytes each sampler keeps of a fixed pattern between calls (`pattern_cache_mb`).
+    pattern_cache_bytes: AtomicUsize,
 }
 
 impl Pack {
     pub(crate) fn new(pack: ModelPack) -> Self {
-        Self { inner: Arc::new(pack), samplers: Mutex::new(HashMap::new()) }
+        Self::sharing(Arc::new(pack), DEFAULT_PATTERN_CACHE_BYTES)
+    }
+
+    /// A pack of these models with no sampler built yet.
+    fn sharing(inner: Arc<ModelPack>, pattern_cache_bytes: usize) -> Self {
+        Self { inner, samplers: Mutex::new(HashMap::new()), pattern_cache_bytes: AtomicUsize::new(pattern_cache_bytes) }
     }
 
     /// The sampler of `iso` for a model kind and noise components, built once per pack. The
@@ -59,6 +67,7 @@ impl Pack {
         }
         let resolved = resolve_model(&self.inner, iso, kind, extrapolate).map_err(to_py)?;
         let s = Arc::new(resolved.sampler(&self.inner, which, clean_at, extrapolate).map_err(to_py)?);
+        s.set_pattern_cache_bytes(self.pattern_cache_bytes.load(Ordering::Relaxed));
         self.samplers.lock().map_err(|_| err("a sampler cache was poisoned"))?.insert(key, s.clone());
         Ok(s)
     }
@@ -251,16 +260,37 @@ impl Pack {
         )
     }
 
-    /// Pickling (multiprocessing with spawn, Ray, DataLoader workers): the pack's bytes, decoded
-    /// again by `noisecal.Pack.from_bytes` on the other side.
-    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyAny>, (Bound<'py, PyBytes>,))> {
+    /// Memory (MiB) each of this pack's samplers may keep of the sensor's fixed pattern between
+    /// calls (default 192): a loop over images of one size and `cfa_origin` then reuses it
+    /// instead of computing it pixel by pixel. Set it with `set_pattern_cache_mb`.
+    #[getter]
+    fn pattern_cache_mb(&self) -> usize {
+        self.pattern_cache_bytes.load(Ordering::Relaxed) >> 20
+    }
+
+    /// Sets the memory (MiB) each sampler of this pack may keep of the fixed pattern (0: none,
+    /// every image computes it). The images are the same whatever the setting: only time and
+    /// memory change. Copies and pickles (DataLoader workers) keep the setting.
+    fn set_pattern_cache_mb(&self, mb: usize) -> PyResult<()> {
+        let bytes = mb.saturating_mul(1 << 20);
+        self.pattern_cache_bytes.store(bytes, Ordering::Relaxed);
+        for s in self.samplers.lock().map_err(|_| err("a sampler cache was poisoned"))?.values() {
+            s.set_pattern_cache_bytes(bytes);
+        }
+        Ok(())
+    }
+
+    /// Pickling (multiprocessing with spawn, Ray, DataLoader workers): the pack's bytes and its
+    /// `pattern_cache_mb`, decoded again by `noisecal.Pack.from_bytes` on the other side.
+    #[allow(clippy::type_complexity)]
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyAny>, (Bound<'py, PyBytes>, usize))> {
         let ctor = py.import("noisecal")?.getattr("_pack_from_bytes")?;
-        Ok((ctor, (self.to_bytes(py)?,)))
+        Ok((ctor, (self.to_bytes(py)?, self.pattern_cache_mb())))
     }
 
     /// A pack is immutable: a copy shares its models (and builds its own samplers).
     fn __copy__(&self) -> Self {
-        Self { inner: self.inner.clone(), samplers: Mutex::new(HashMap::new()) }
+        Self::sharing(self.inner.clone(), self.pattern_cache_bytes.load(Ordering::Relaxed))
     }
 
     /// As `__copy__`: nothing in a pack can change, so sharing its models is a deep copy.

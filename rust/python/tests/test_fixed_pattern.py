@@ -77,3 +77,32 @@ def test_noise_synth_refuses_the_default_set_it_does_not_draw(dark_pack: noiseca
 
     out = NoiseSynth(dark_pack, ISO, components="pixel")(torch.full((8, 8), 200, dtype=torch.int32))
     assert out.shape == (8, 8)
+
+
+def test_pattern_cache_setting_changes_no_byte(dark_pack: noisecal.Pack) -> None:
+    # The fixed pattern a sampler keeps between calls (from a region's second request on) only
+    # saves time: with none kept, a small limit or the default, repeated calls give the same bytes.
+    import copy
+    import pickle
+
+    black = int(round(dark_pack.layout["black"][0]))
+    clean = (black + 5 + np.arange(40 * 60).reshape(40, 60) % 300).astype(np.uint16)
+    seeds = [1, 2, 1, 3]
+
+    def runs(mb: int) -> list[np.ndarray]:
+        p = copy.copy(dark_pack)
+        p.set_pattern_cache_mb(mb)
+        assert p.pattern_cache_mb == mb
+        return [p.synth(clean, ISO, s, cfa_origin=(3, 1)) for s in seeds]
+
+    none = runs(0)
+    assert np.array_equal(none[0], none[2])
+    assert not np.array_equal(none[0], dark_pack.synth(clean, ISO, 1, cfa_origin=(3, 1), components="pixel,row,column,frame"))
+    for mb in (1, 192):
+        assert all(np.array_equal(a, b) for a, b in zip(runs(mb), none)), mb
+    # Copies and pickles (DataLoader workers) keep the setting.
+    p = copy.copy(dark_pack)
+    p.set_pattern_cache_mb(7)
+    assert copy.copy(p).pattern_cache_mb == 7
+    assert pickle.loads(pickle.dumps(p)).pattern_cache_mb == 7
+    assert dark_pack.pattern_cache_mb == 192

@@ -9,7 +9,7 @@ use noisecal_core::SensorLayout;
 use noisecal_core::model::pack::{IsoModel, NoiseProfile};
 use noisecal_core::model::structure::Components;
 use noisecal_core::synth::sampler::IsoSampler;
-use noisecal_core::synth::{CleanAt, synthesize, synthesize_bands};
+use noisecal_core::synth::{CleanAt, DEFAULT_PATTERN_CACHE_BYTES, synthesize, synthesize_bands};
 
 use noisecal_core::resolve::ModelKind;
 use noisecal_input::dng;
@@ -58,6 +58,11 @@ pub struct Args {
     /// brightness); the noise then has no mean shift.
     #[arg(long, value_parser = parse_clean_at, default_value = "reference")]
     pub clean_at: CleanAt,
+    /// Memory (MiB) for the fixed pattern kept between the files of a folder: the pattern is the
+    /// sensor's, so files of one size reuse it instead of computing it pixel by pixel again. 0
+    /// keeps nothing. The images are the same whatever the setting; only time and memory change.
+    #[arg(long, default_value_t = DEFAULT_PATTERN_CACHE_BYTES >> 20, value_name = "MB")]
+    pub pattern_cache_mb: usize,
     /// A clean raw DNG, or a folder of them.
     pub input: PathBuf,
     /// Output DNG, or a folder when the input is a folder.
@@ -98,6 +103,7 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         }
         let which = args.model.components(args.components);
         let sampler = resolved.sampler(&pack, which, args.clean_at, args.extrapolate)?;
+        sampler.set_pattern_cache_bytes(args.pattern_cache_mb.saturating_mul(1 << 20));
         let model = resolved.model;
         if args.clean_at == CleanAt::Target
             && !quiet

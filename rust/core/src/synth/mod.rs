@@ -8,6 +8,7 @@ pub mod sampler;
 pub mod structure;
 
 pub use clean_at::CleanAt;
+pub use pattern_cache::DEFAULT_PATTERN_CACHE_BYTES;
 
 use ndarray::{Array2, ArrayView2};
 use rand::{Rng, SeedableRng};

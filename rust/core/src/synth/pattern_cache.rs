@@ -3,14 +3,20 @@
 //! shading), the same in every image: a training pipeline that synthesizes many images of one
 //! size at one origin would otherwise compute it anew, pixel by pixel, for every image. A region
 //! is kept from its second request on (a single image pays nothing for it), one region per
-//! sampler, at most [`MAX_PIXELS`] pixels of 8 bytes.
+//! sampler, of at most the sampler's limit in bytes (8 per pixel; [`DEFAULT_PATTERN_CACHE_BYTES`]
+//! unless set: a process with many samplers, or many DataLoader workers, lowers it, and 0 keeps
+//! nothing). What is kept changes only the time: kept or computed, the values are the same.
 
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 
 use rayon::prelude::*;
 
-/// Pixels a kept region holds at most (8 bytes each: 192 MiB).
-const MAX_PIXELS: usize = 24 << 20;
+/// Bytes a sampler's kept region may hold unless set otherwise: 24 Mpx of 8 bytes, 192 MiB.
+pub const DEFAULT_PATTERN_CACHE_BYTES: usize = 192 << 20;
+
+/// Bytes one pixel of a kept region takes.
+const PIXEL_BYTES: usize = std::mem::size_of::<i64>();
 
 /// An image region in sensor pixels: its first row and column, its height and width.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -37,9 +43,17 @@ impl PatternRegion {
 }
 
 /// What a sampler keeps: the region last asked for, and the pattern of the one kept.
-#[derive(Debug, Default)]
+#[derive(Debug)]
 pub(crate) struct PatternCache {
     state: Mutex<CacheState>,
+    /// The most bytes a kept region may take (0: nothing is kept).
+    limit_bytes: AtomicUsize,
+}
+
+impl Default for PatternCache {
+    fn default() -> Self {
+        Self { state: Mutex::default(), limit_bytes: AtomicUsize::new(DEFAULT_PATTERN_CACHE_BYTES) }
+    }
 }
 
 #[derive(Debug, Default)]
@@ -49,6 +63,21 @@ struct CacheState {
 }
 
 impl PatternCache {
+    /// The most bytes a kept region may take.
+    pub(crate) fn limit_bytes(&self) -> usize {
+        self.limit_bytes.load(Ordering::Relaxed)
+    }
+
+    /// Sets the most bytes a kept region may take; a kept region larger than that is let go.
+    pub(crate) fn set_limit_bytes(&self, bytes: usize) {
+        self.limit_bytes.store(bytes, Ordering::Relaxed);
+        if let Ok(mut s) = self.state.lock()
+            && s.kept.as_ref().is_some_and(|k| k.region.height.saturating_mul(k.region.width) > bytes / PIXEL_BYTES)
+        {
+            s.kept = None;
+        }
+    }
+
     /// The pattern of `region` when it is kept, or was asked for just before (then computed
     /// now, in parallel, and kept); `None`: the caller computes it row by row. `filler` is called
     /// only when the region is computed here: it gives the function that writes the pattern of
@@ -68,7 +97,8 @@ impl PatternCache {
             }
             let again = s.last_asked == Some(region);
             s.last_asked = Some(region);
-            if !again || region.height.saturating_mul(region.width) > MAX_PIXELS || region.width == 0 {
+            let max_pixels = self.limit_bytes() / PIXEL_BYTES;
+            if !again || region.height.saturating_mul(region.width) > max_pixels || region.width == 0 {
                 return None;
             }
         }
@@ -79,7 +109,9 @@ impl PatternCache {
         values.par_chunks_mut(region.width).enumerate().for_each(|(y, row)| fill(region.origin.0 + y, row));
         let kept = Arc::new(PatternRegion { region, values });
         if let Ok(mut s) = self.state.lock() {
-            s.kept = Some(kept.clone());
+            // Kept only if the limit still allows it (it may have been lowered meanwhile).
+            let max_pixels = self.limit_bytes() / PIXEL_BYTES;
+            s.kept = (region.height.saturating_mul(region.width) <= max_pixels).then(|| kept.clone());
         }
         Some(kept)
     }

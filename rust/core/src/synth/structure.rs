@@ -85,6 +85,17 @@ impl StructureSampler {
         self.fpn.is_some()
     }
 
+    /// The most bytes the fixed pattern kept between calls may take ([`PatternCache`]).
+    pub fn pattern_cache_bytes(&self) -> usize {
+        self.pattern_cache.limit_bytes()
+    }
+
+    /// Sets the most bytes the fixed pattern kept between calls may take (0: nothing is kept,
+    /// each image computes it row by row); the images are the same whatever the setting.
+    pub fn set_pattern_cache_bytes(&self, bytes: usize) {
+        self.pattern_cache.set_limit_bytes(bytes);
+    }
+
     /// The fixed pattern at sensor pixel `(y, x)` (DN): its shading plus the residual's quantile
     /// at the pixel's own uniform draw (a hash of its position, the same in every image).
     #[inline]
@@ -505,6 +516,22 @@ mod tests {
             assert!(Arc::ptr_eq(&kept, &again));
             assert!(s.kept_pattern((origin.0 + 1, origin.1), h, w).is_none(), "another origin");
         }
+        // The limit: a region over it is never kept, one at it is; lowering it lets a kept
+        // region go; 0 keeps nothing.
+        let (origin, h, w) = ((2usize, 1usize), 10usize, 20usize);
+        for (limit, keeps) in [(h * w * 8 - 1, false), (h * w * 8, true), (0, false)] {
+            s.set_pattern_cache_bytes(limit);
+            assert_eq!(s.pattern_cache_bytes(), limit);
+            let _ = s.kept_pattern(origin, h, w);
+            assert_eq!(s.kept_pattern(origin, h, w).is_some(), keeps, "limit {limit}");
+        }
+        s.set_pattern_cache_bytes(1 << 20);
+        let _ = s.kept_pattern(origin, h, w);
+        let kept = s.kept_pattern(origin, h, w).expect("kept under 1 MiB");
+        s.set_pattern_cache_bytes(h * w * 8 - 8);
+        assert!(s.kept_pattern(origin, h, w).is_none(), "let go when the limit falls below it");
+        drop(kept);
+        s.set_pattern_cache_bytes(crate::synth::DEFAULT_PATTERN_CACHE_BYTES);
         // The pattern is the sensor's: the same at a pixel whatever the seed; its spread is the
         // residual's and the shading's.
         let vals: Vec<f64> =

@@ -53,6 +53,8 @@ __all__ = [
 ]
 
 
-def _pack_from_bytes(data: bytes) -> Pack:
-    """Unpickles a :class:`Pack` (``Pack.__reduce__`` gives its bytes)."""
-    return Pack.from_bytes(data)
+def _pack_from_bytes(data: bytes, pattern_cache_mb: int = 192) -> Pack:
+    """Unpickles a :class:`Pack` (``Pack.__reduce__`` gives its bytes and its ``pattern_cache_mb``)."""
+    pack = Pack.from_bytes(data)
+    pack.set_pattern_cache_mb(pattern_cache_mb)
+    return pack
