@@ -3,9 +3,10 @@
 //!
 //! `raw_len u64 | fields_len u64 | deflate(bincode(pack without weights) | weights)`
 //!
-//! The weights: per bin its cell count, then the differences of its weights' codes, each less
-//! the slope the previous bin's weights have at the same noise value ([`Slopes`]: neighbouring
-//! bins hold nearly the same PMF), all as LEB128 varints. The weights are the model's stored form
+//! The weights: per bin its cell count, the [`Predictor`] its codes are guessed with, then each
+//! code less its guess (the previous code plus the slope the previous bin's weights have at the
+//! same noise value, [`Slopes`]: neighbouring bins hold nearly the same PMF; or the previous code;
+//! or the previous code plus the slope before it), all as zigzagged LEB128 varints. The weights are the model's stored form
 //! ([`crate::model::precision`]): each holds the significant bits its bin's [`Precision`] gives
 //! its bit length, and its code is its index among the values that precision holds
 //! ([`WeightCode`]), so a code's step is one stored step whatever the bin's precision: a smooth
@@ -112,6 +113,40 @@ impl Slopes {
     }
 }
 
+/// How a cell's code is guessed from what came before it; each bin's weights are coded with
+/// whichever guesses them in the fewest bytes, named by a varint before them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Predictor {
+    /// The previous cell's code plus the previous bin's slope at this noise value (a PMF that
+    /// changes little from bin to bin, spikes of a code lattice included).
+    Above = 0,
+    /// The previous cell's code (a smooth PMF kept to few bits: runs of equal codes).
+    Previous = 1,
+    /// The previous cell's code plus the slope before it (a smooth PMF kept to many bits).
+    Linear = 2,
+}
+
+impl Predictor {
+    const ALL: [Predictor; 3] = [Predictor::Above, Predictor::Previous, Predictor::Linear];
+
+    fn from_id(id: u64) -> Option<Self> {
+        Self::ALL.into_iter().find(|p| *p as u64 == id)
+    }
+
+    /// The guess of the code after `codes` at noise value `n`.
+    fn guess(self, codes: &[u64], above: &Slopes, n: i32) -> u64 {
+        let last = codes.last().copied().unwrap_or(0);
+        match self {
+            Predictor::Above => last.wrapping_add(above.at(n)),
+            Predictor::Previous => last,
+            Predictor::Linear => match codes {
+                [.., a, b] => b.wrapping_add(b.wrapping_sub(*a)),
+                _ => last,
+            },
+        }
+    }
+}
+
 /// The PMF weights of `pack` (already in its stored form) as the payload codes them.
 pub(crate) fn weight_stream(pack: &ModelPack) -> Result<Vec<u8>, CodecError> {
     let mut out = Vec::new();
@@ -122,21 +157,33 @@ pub(crate) fn weight_stream(pack: &ModelPack) -> Result<Vec<u8>, CodecError> {
                 let code = WeightCode::new(precision_of(m, p, b.samples));
                 let above = prev.map_or_else(Slopes::default, |(f, w)| Slopes::of(f, w, &code));
                 put_varint(&mut out, b.counts.len() as u64);
-                let mut last = 0u64;
-                for (i, &w) in b.counts.iter().enumerate() {
-                    let k = code.code(w).ok_or_else(|| CodecError::Encode {
+                let codes: Vec<u64> = b
+                    .counts
+                    .iter()
+                    .map(|&w| code.code(w))
+                    .collect::<Option<_>>()
+                    .ok_or_else(|| CodecError::Encode {
                         what: WHAT,
                         detail: format!(
                             "ISO {} holds a weight with more significant bits than its bin keeps: store the pack's compacted form",
                             m.iso
                         ),
                     })?;
-                    put_varint(
-                        &mut out,
-                        zigzag(k.wrapping_sub(last).wrapping_sub(above.at(b.first + i as i32)) as i64),
-                    );
-                    last = k;
-                }
+                let coded = |predictor: Predictor| {
+                    let mut bytes = Vec::new();
+                    for (i, &k) in codes.iter().enumerate() {
+                        let guess = predictor.guess(&codes[..i], &above, b.first + i as i32);
+                        put_varint(&mut bytes, zigzag(k.wrapping_sub(guess) as i64));
+                    }
+                    bytes
+                };
+                let (predictor, bytes) = Predictor::ALL
+                    .into_iter()
+                    .map(|p| (p, coded(p)))
+                    .min_by_key(|(p, bytes)| (bytes.len(), *p as u8))
+                    .expect("predictors");
+                put_varint(&mut out, predictor as u64);
+                out.extend_from_slice(&bytes);
                 prev = Some((b.first, &b.counts));
             }
         }
@@ -208,16 +255,20 @@ pub fn decode(payload: &[u8]) -> Result<ModelPack, CodecError> {
                 if n > (weights.len() - at) as u64 {
                     return Err(damaged(&format!("{} claims {n} cells, more than the file holds", here())));
                 }
-                let mut last = 0u64;
-                let mut counts = Vec::with_capacity(n as usize);
+                let predictor = get_varint(weights, &mut at)
+                    .and_then(Predictor::from_id)
+                    .ok_or_else(|| damaged(&format!("{} names no known predictor", here())))?;
+                let mut codes = Vec::with_capacity(n as usize);
                 for c in 0..n as i32 {
                     let z = get_varint(weights, &mut at)
                         .ok_or_else(|| damaged(&format!("{} ends inside a weight", here())))?;
-                    last = last.wrapping_add(above.at(bin.first.wrapping_add(c))).wrapping_add(unzigzag(z) as u64);
-                    counts.push(
-                        code.weight(last).ok_or_else(|| damaged(&format!("{} has a code naming no weight", here())))?,
-                    );
+                    let guess = predictor.guess(&codes, &above, bin.first.wrapping_add(c));
+                    codes.push(guess.wrapping_add(unzigzag(z) as u64));
                 }
+                let counts = codes
+                    .iter()
+                    .map(|&k| code.weight(k).ok_or_else(|| damaged(&format!("{} has a code naming no weight", here()))))
+                    .collect::<Result<Vec<u64>, _>>()?;
                 bin.counts = counts;
                 prev = Some((bin.first, bin.counts.clone()));
             }
