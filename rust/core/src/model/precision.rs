@@ -226,4 +226,31 @@ mod tests {
             assert!(err <= 1.0 / (1u64 << MANTISSA_BITS) as f64 + 1e-15, "{w} → {q}");
         }
     }
+
+    /// The bits a sample count asks for hold the rounding error's variance (step²/12) below
+    /// 2^−SAMPLING_SHARE_BITS of the cell's sampling variance (w·2^SCALE_BITS/N), and are not
+    /// more than two bits above the fewest that do (the rule rounds `lg N` up, `lg 12` down and
+    /// takes each weight at the bottom of its bit length).
+    #[test]
+    fn bits_follow_the_sampling_variance() {
+        let share = (1u64 << SAMPLING_SHARE_BITS) as f64;
+        let mut state = 11u64;
+        for _ in 0..50_000 {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            let w = (state >> 34).max(1) >> (state % 29);
+            let n = 1u64 << ((state >> 8) % 26);
+            let p = Precision::for_samples(n);
+            let w = w.max(1);
+            let len = 64 - w.leading_zeros();
+            let k = p.bits(len);
+            let step = |k: u32| 2f64.powi(len as i32 - k.min(len) as i32);
+            let sampling = w as f64 * (1u64 << SCALE_BITS) as f64 / n.max(MIN_SAMPLES) as f64;
+            if k < SAMPLED_MAX_BITS {
+                assert!(step(k).powi(2) / 12.0 <= sampling / share, "w {w} N {n}: {k} bits");
+            }
+            if k > 3 && k < len {
+                assert!(step(k - 3).powi(2) / 12.0 > sampling / share, "w {w} N {n}: {k} bits, fewer would do");
+            }
+        }
+    }
 }
