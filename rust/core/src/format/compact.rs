@@ -1,86 +1,92 @@
-//! The compact payload of model packs from format version 6 on (method.md, "Pack file"). A
-//! pack's bulk is its PMF weights; they are taken out of the bincode value and coded on their own:
+//! The payload of a version 7 pack file: the pack's fields as bincode with every bin's weights
+//! taken out, then the weights as a stream, the whole deflated:
 //!
 //! `raw_len u64 | fields_len u64 | deflate(bincode(pack without weights) | weights)`
 //!
-//! where `weights` holds, bin after bin (ISO, CFA position, bin order), the bin's cell count and
-//! then each cell's slope (its [`code`] minus the previous cell's; the first from 0) as the
-//! zigzagged difference from the previous bin's slope at the same noise value ([`Slopes`]:
-//! neighbouring bins hold nearly the same PMF), all as LEB128 varints. The weights are the
-//! model's stored form ([`crate::model::precision`]: at most [`MANTISSA_BITS`] significant bits
-//! in a calibrated model, [`DERIVED_BITS`] in a derived one), whose codes are log-like (a weight
-//! below 2^bits is its own code, a larger one its exponent and mantissa), so a smooth PMF's codes
-//! change by small steps and its tails are runs of small numbers. Deflate is `miniz_oxide` at
-//! level [`LEVEL`].
+//! The weights: per bin its cell count, the [`Predictor`] its codes are guessed with, then each
+//! code less its guess (the previous code plus the slope the previous bin's weights have at the
+//! same noise value, [`Slopes`]: neighbouring bins hold nearly the same PMF; or the previous code;
+//! or the previous code plus the slope before it), all as zigzagged LEB128 varints. The weights are the model's stored form
+//! ([`crate::model::precision`]): each holds the significant bits its bin's [`Precision`] gives
+//! its bit length, and its code is its index among the values that precision holds
+//! ([`WeightCode`]), so a code's step is one stored step whatever the bin's precision: a smooth
+//! PMF's codes change by small steps and a tail kept to a bit or two is a run of near-equal
+//! numbers. The precision is not stored: it follows from fields the file holds (the model
+//! calibrated or not, the position estimated or plain, the bin's samples). Deflate is
+//! `miniz_oxide` at level [`LEVEL`].
 //!
 //! Same pack in, same bytes out (deflate is deterministic for a given `miniz_oxide`, pinned by
 //! Cargo.lock). The differences wrap in 64 bits (a bijection on `u64`): any codes round-trip and
-//! no input can overflow; a code naming a weight beyond 64 bits, a cell count beyond what the
-//! stream holds, or bytes left over are refused as a damaged file.
+//! no input can overflow; a code naming no weight, a cell count beyond what the stream holds, or
+//! bytes left over are refused as a damaged file.
 
 use crate::error::CodecError;
-use crate::format::codec::{self, unzigzag, zigzag};
-use crate::model::pack::ModelPack;
-use crate::model::precision::{DERIVED_BITS, MANTISSA_BITS};
+use crate::format::codec::{self, get_varint, put_varint, unzigzag, zigzag};
+use crate::model::pack::{IsoModel, ModelPack, PositionModel};
+use crate::model::precision::{DERIVED_BITS, Precision, bin_precision};
 
 const WHAT: &str = "model pack";
 /// Deflate level.
 const LEVEL: u8 = 9;
 /// The largest uncompressed payload a pack may claim (the bincode decoder's own limit).
 const MAX_RAW: u64 = 1 << 30;
-/// Significant bits the codes of one model's weights cover: a calibrated model's stored form
-/// keeps at most [`MANTISSA_BITS`], a derived one's [`DERIVED_BITS`].
-fn code_bits(calibrated: bool) -> u32 {
-    if calibrated { MANTISSA_BITS } else { DERIVED_BITS }
+
+/// The precision a bin of this model and position is stored with.
+fn precision_of(m: &IsoModel, p: &PositionModel, samples: u64) -> Precision {
+    if m.is_calibrated() { bin_precision(p.is_estimated(), samples) } else { Precision::fixed(DERIVED_BITS) }
 }
 
-/// The log-like code of a weight with at most `m` significant bits: itself below 2^m, else
-/// `e·2^(m−1) + q` for `w = q·2^e`, `q` in `[2^(m−1), 2^m)`, `e ≥ 1` (monotone and continuous
-/// with the small weights); `None` for a weight with more significant bits.
-fn code(w: u64, m: u32) -> Option<u64> {
-    let bits = 64 - w.leading_zeros();
-    if bits <= m {
-        return Some(w);
-    }
-    let e = (bits - m) as u64;
-    (w & ((1 << e) - 1) == 0).then(|| e * (1 << (m - 1)) + (w >> e))
+/// The codes of one precision: the values it holds, numbered in increasing order (0 is 0).
+/// `start[L]` is the code of the smallest held value of bit length `L` (`2^(L−1)`), and
+/// `start[65]` the number of codes.
+struct WeightCode {
+    precision: Precision,
+    start: [u64; 66],
 }
 
-/// The weight of a code of `m` bits, or `None` when it names one beyond 64 bits.
-fn weight(c: u64, m: u32) -> Option<u64> {
-    let half = 1u64 << (m - 1);
-    if c < 2 * half {
-        return Some(c);
-    }
-    let e = c / half - 1;
-    let q = c - e * half;
-    (e + m as u64 <= 64).then(|| q << e)
-}
-
-fn put_varint(out: &mut Vec<u8>, mut v: u64) {
-    while v >= 0x80 {
-        out.push((v as u8) | 0x80);
-        v >>= 7;
-    }
-    out.push(v as u8);
-}
-
-/// Reads a varint at `*at`, or `None` at the end of the bytes or past 64 bits.
-fn get_varint(b: &[u8], at: &mut usize) -> Option<u64> {
-    let mut v = 0u64;
-    for shift in (0..64).step_by(7) {
-        let byte = *b.get(*at)?;
-        *at += 1;
-        v |= ((byte & 0x7F) as u64).checked_shl(shift)?;
-        if byte < 0x80 {
-            return Some(v);
+impl WeightCode {
+    fn new(precision: Precision) -> Self {
+        let mut start = [0u64; 66];
+        start[1] = 1;
+        for len in 1..=64u32 {
+            let kept = precision.bits(len).min(len);
+            start[len as usize + 1] = start[len as usize] + (1u64 << (kept - 1));
         }
+        Self { precision, start }
     }
-    None
+
+    /// The code of `w`, or `None` when the precision does not hold it.
+    fn code(&self, w: u64) -> Option<u64> {
+        if w == 0 {
+            return Some(0);
+        }
+        let len = 64 - w.leading_zeros();
+        let drop = len - self.precision.bits(len).min(len);
+        (w & ((1u64 << drop) - 1) == 0).then(|| self.start[len as usize] + (w >> drop) - (1u64 << (len - 1 - drop)))
+    }
+
+    /// The weight a code names, or `None` beyond the last.
+    fn weight(&self, c: u64) -> Option<u64> {
+        if c == 0 {
+            return Some(0);
+        }
+        let len = self.start.partition_point(|&s| s <= c) - 1;
+        if len > 64 {
+            return None;
+        }
+        let len = len as u32;
+        let drop = len - self.precision.bits(len).min(len);
+        Some(((c - self.start[len as usize]) + (1u64 << (len - 1 - drop))) << drop)
+    }
+
+    /// The code of the value this precision stores `w` as (0 stays 0).
+    fn code_near(&self, w: u64) -> u64 {
+        if w == 0 { 0 } else { self.code(self.precision.round(w)).unwrap_or(0) }
+    }
 }
 
-/// The slopes of the previous bin's codes (`code[n] − code[n−1]` at noise value `n`), the
-/// prediction of the next bin's: neighbouring bins hold nearly the same PMF.
+/// The slopes of the previous bin's weights, coded at this bin's precision
+/// (`code[n] − code[n−1]` at noise value `n`): the prediction of this bin's code differences.
 #[derive(Default)]
 struct Slopes {
     first: i32,
@@ -88,8 +94,14 @@ struct Slopes {
 }
 
 impl Slopes {
-    fn of(first: i32, codes: &[u64]) -> Self {
-        let slope = codes.iter().scan(0u64, |prev, &k| Some(k.wrapping_sub(std::mem::replace(prev, k)))).collect();
+    fn of(first: i32, weights: &[u64], code: &WeightCode) -> Self {
+        let slope = weights
+            .iter()
+            .scan(0u64, |prev, &w| {
+                let k = code.code_near(w);
+                Some(k.wrapping_sub(std::mem::replace(prev, k)))
+            })
+            .collect();
         Self { first, slope }
     }
 
@@ -101,48 +113,103 @@ impl Slopes {
     }
 }
 
-/// The version 6 payload of `pack` (already in its stored form, [`ModelPack::compacted`]).
-pub fn encode(pack: &ModelPack) -> Result<Vec<u8>, CodecError> {
-    let mut skeleton = pack.clone();
-    let mut weights = Vec::new();
-    for m in skeleton.isos.iter_mut() {
-        let bits = code_bits(m.is_calibrated());
-        for p in m.positions.iter_mut() {
-            let mut above = Slopes::default();
-            for b in p.bins.iter_mut() {
-                put_varint(&mut weights, b.counts.len() as u64);
+/// How a cell's code is guessed from what came before it; each bin's weights are coded with
+/// whichever guesses them in the fewest bytes, named by a varint before them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Predictor {
+    /// The previous cell's code plus the previous bin's slope at this noise value (a PMF that
+    /// changes little from bin to bin, spikes of a code lattice included).
+    Above = 0,
+    /// The previous cell's code (a smooth PMF kept to few bits: runs of equal codes).
+    Previous = 1,
+    /// The previous cell's code plus the slope before it (a smooth PMF kept to many bits).
+    Linear = 2,
+}
+
+impl Predictor {
+    const ALL: [Predictor; 3] = [Predictor::Above, Predictor::Previous, Predictor::Linear];
+
+    fn from_id(id: u64) -> Option<Self> {
+        Self::ALL.into_iter().find(|p| *p as u64 == id)
+    }
+
+    /// The guess of the code after `codes` at noise value `n`.
+    fn guess(self, codes: &[u64], above: &Slopes, n: i32) -> u64 {
+        let last = codes.last().copied().unwrap_or(0);
+        match self {
+            Predictor::Above => last.wrapping_add(above.at(n)),
+            Predictor::Previous => last,
+            Predictor::Linear => match codes {
+                [.., a, b] => b.wrapping_add(b.wrapping_sub(*a)),
+                _ => last,
+            },
+        }
+    }
+}
+
+/// The PMF weights of `pack` (already in its stored form) as the payload codes them.
+pub(crate) fn weight_stream(pack: &ModelPack) -> Result<Vec<u8>, CodecError> {
+    let mut out = Vec::new();
+    for m in &pack.isos {
+        for p in &m.positions {
+            let mut prev: Option<(i32, &[u64])> = None;
+            for b in &p.bins {
+                let code = WeightCode::new(precision_of(m, p, b.samples));
+                let above = prev.map_or_else(Slopes::default, |(f, w)| Slopes::of(f, w, &code));
+                put_varint(&mut out, b.counts.len() as u64);
                 let codes: Vec<u64> = b
-                .counts
-                .iter()
-                .map(|&w| code(w, bits))
-                .collect::<Option<_>>()
-                .ok_or_else(|| CodecError::Encode {
-                    what: WHAT,
-                    detail: format!("ISO {} holds a weight with more than {bits} significant bits: store the pack's compacted form", m.iso),
-                })?;
-                let mut prev = 0u64;
-                for (i, &k) in codes.iter().enumerate() {
-                    let d = k.wrapping_sub(prev);
-                    put_varint(&mut weights, zigzag(d.wrapping_sub(above.at(b.first + i as i32)) as i64));
-                    prev = k;
-                }
-                above = Slopes::of(b.first, &codes);
-                b.counts = Vec::new();
+                    .counts
+                    .iter()
+                    .map(|&w| code.code(w))
+                    .collect::<Option<_>>()
+                    .ok_or_else(|| CodecError::Encode {
+                        what: WHAT,
+                        detail: format!(
+                            "ISO {} holds a weight with more significant bits than its bin keeps: store the pack's compacted form",
+                            m.iso
+                        ),
+                    })?;
+                let coded = |predictor: Predictor| {
+                    let mut bytes = Vec::new();
+                    for (i, &k) in codes.iter().enumerate() {
+                        let guess = predictor.guess(&codes[..i], &above, b.first + i as i32);
+                        put_varint(&mut bytes, zigzag(k.wrapping_sub(guess) as i64));
+                    }
+                    bytes
+                };
+                let (predictor, bytes) = Predictor::ALL
+                    .into_iter()
+                    .map(|p| (p, coded(p)))
+                    .min_by_key(|(p, bytes)| (bytes.len(), *p as u8))
+                    .expect("predictors");
+                put_varint(&mut out, predictor as u64);
+                out.extend_from_slice(&bytes);
+                prev = Some((b.first, &b.counts));
             }
         }
     }
-    let mut raw = codec::encode_payload(WHAT, &skeleton)?;
-    drop(skeleton);
-    let skeleton_len = raw.len() as u64;
+    Ok(out)
+}
+
+/// The version 7 payload of `pack` (already in its stored form, [`ModelPack::compacted`]).
+pub fn encode(pack: &ModelPack) -> Result<Vec<u8>, CodecError> {
+    let weights = weight_stream(pack)?;
+    let mut fields = pack.clone();
+    fields.isos.iter_mut().flat_map(|m| m.positions.iter_mut()).flat_map(|p| p.bins.iter_mut()).for_each(|b| {
+        b.counts = Vec::new();
+    });
+    let mut raw = codec::encode_payload(WHAT, &fields)?;
+    drop(fields);
+    let fields_len = raw.len() as u64;
     raw.extend_from_slice(&weights);
     let mut out = Vec::with_capacity(16 + raw.len() / 4);
     out.extend_from_slice(&(raw.len() as u64).to_le_bytes());
-    out.extend_from_slice(&skeleton_len.to_le_bytes());
+    out.extend_from_slice(&fields_len.to_le_bytes());
     out.extend_from_slice(&miniz_oxide::deflate::compress_to_vec(&raw, LEVEL));
     Ok(out)
 }
 
-/// The pack in a version 6 payload (checked by the caller), refusing a damaged one with a clear
+/// The pack in a version 7 payload (checked by the caller), refusing a damaged one with a clear
 /// error.
 pub fn decode(payload: &[u8]) -> Result<ModelPack, CodecError> {
     let bad = |detail: String| CodecError::Invalid { what: WHAT, detail };
@@ -151,11 +218,11 @@ pub fn decode(payload: &[u8]) -> Result<ModelPack, CodecError> {
         return Err(CodecError::Truncated { what: WHAT, len: payload.len(), expected: 16 });
     };
     let raw_len = u64::from_le_bytes(lens[..8].try_into().expect("8 bytes"));
-    let skeleton_len = u64::from_le_bytes(lens[8..].try_into().expect("8 bytes"));
+    let fields_len = u64::from_le_bytes(lens[8..].try_into().expect("8 bytes"));
     if raw_len > MAX_RAW {
         return Err(bad(format!("the payload claims {raw_len} bytes uncompressed, beyond the {MAX_RAW}-byte limit")));
     }
-    if skeleton_len > raw_len {
+    if fields_len > raw_len {
         return Err(damaged("the pack's fields claim more bytes than the payload holds"));
     }
     let raw = miniz_oxide::inflate::decompress_to_vec_with_limit(deflated, raw_len as usize).map_err(|_| {
@@ -167,15 +234,20 @@ pub fn decode(payload: &[u8]) -> Result<ModelPack, CodecError> {
             raw.len()
         )));
     }
-    let (fields, weights) = raw.split_at(skeleton_len as usize);
+    let (fields, weights) = raw.split_at(fields_len as usize);
     let mut pack: ModelPack = codec::decode_payload(WHAT, fields)?;
     let mut at = 0usize;
     for (i, m) in pack.isos.iter_mut().enumerate() {
-        let bits = code_bits(m.is_calibrated());
+        let calibrated = m.is_calibrated();
         for (pos, p) in m.positions.iter_mut().enumerate() {
-            let mut above = Slopes::default();
+            let estimated = p.is_estimated();
+            let mut prev: Option<(i32, Vec<u64>)> = None;
             for (b, bin) in p.bins.iter_mut().enumerate() {
                 let here = || format!("model {i} position {pos} bin {b}");
+                let precision =
+                    if calibrated { bin_precision(estimated, bin.samples) } else { Precision::fixed(DERIVED_BITS) };
+                let code = WeightCode::new(precision);
+                let above = prev.as_ref().map_or_else(Slopes::default, |(f, w)| Slopes::of(*f, w, &code));
                 let n =
                     get_varint(weights, &mut at).ok_or_else(|| damaged(&format!("{} has no cell count", here())))?;
                 // Every cell takes at least a byte: a count beyond the bytes left is damage (and
@@ -183,21 +255,22 @@ pub fn decode(payload: &[u8]) -> Result<ModelPack, CodecError> {
                 if n > (weights.len() - at) as u64 {
                     return Err(damaged(&format!("{} claims {n} cells, more than the file holds", here())));
                 }
-                let mut prev = 0u64;
+                let predictor = get_varint(weights, &mut at)
+                    .and_then(Predictor::from_id)
+                    .ok_or_else(|| damaged(&format!("{} names no known predictor", here())))?;
                 let mut codes = Vec::with_capacity(n as usize);
                 for c in 0..n as i32 {
                     let z = get_varint(weights, &mut at)
                         .ok_or_else(|| damaged(&format!("{} ends inside a weight", here())))?;
-                    prev = prev.wrapping_add(above.at(bin.first.wrapping_add(c))).wrapping_add(unzigzag(z) as u64);
-                    codes.push(prev);
+                    let guess = predictor.guess(&codes, &above, bin.first.wrapping_add(c));
+                    codes.push(guess.wrapping_add(unzigzag(z) as u64));
                 }
-                bin.counts = codes
+                let counts = codes
                     .iter()
-                    .map(|&k| {
-                        weight(k, bits).ok_or_else(|| damaged(&format!("{} has a weight beyond 64 bits", here())))
-                    })
-                    .collect::<Result<_, _>>()?;
-                above = Slopes::of(bin.first, &codes);
+                    .map(|&k| code.weight(k).ok_or_else(|| damaged(&format!("{} has a code naming no weight", here()))))
+                    .collect::<Result<Vec<u64>, _>>()?;
+                bin.counts = counts;
+                prev = Some((bin.first, bin.counts.clone()));
             }
         }
     }
@@ -205,4 +278,37 @@ pub fn decode(payload: &[u8]) -> Result<ModelPack, CodecError> {
         return Err(damaged(&format!("{} bytes follow the last weight", weights.len() - at)));
     }
     Ok(pack)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every held value's code names it back, codes of held values are consecutive in increasing
+    /// order, and a value not held has no code; for fixed and sample-driven precisions.
+    #[test]
+    fn codes_number_the_held_values_in_order() {
+        for precision in
+            [Precision::fixed(7), Precision::fixed(9), Precision::for_samples(0), Precision::for_samples(1 << 20)]
+        {
+            let code = WeightCode::new(precision);
+            let mut expect = 0u64;
+            for w in 0..200_000u64 {
+                match code.code(w) {
+                    Some(c) => {
+                        assert!(precision.holds(w), "{w} coded but not held");
+                        assert_eq!(c, expect, "{precision:?}: {w}");
+                        assert_eq!(code.weight(c), Some(w));
+                        expect += 1;
+                    }
+                    None => assert!(!precision.holds(w), "{precision:?}: {w} held but has no code"),
+                }
+            }
+            for w in [u64::MAX, 1 << 63, (1 << 40) + (1 << 35), 987_654_321] {
+                let q = precision.round(w);
+                assert_eq!(code.weight(code.code(q).expect("held")), Some(q));
+            }
+            assert_eq!(code.weight(code.start[65]), None, "past the last code");
+        }
+    }
 }

@@ -1,18 +1,20 @@
 //! The binary files noisecal writes and reads: one framing ([`codec`]: magic, version, length,
 //! CRC-32, bincode payload) for packs, checkpoints ([`checkpoint`]) and recordings; the recording's
 //! records ([`recording`]) and their replay into a session ([`replay`]); the pack file and its
-//! version dispatch ([`pack_file`]), the compact payload of the current version ([`compact`]) and
-//! packs of older versions ([`pack_v1`], [`pack_v2`], [`pack_v3`], [`pack_v5`]; version 4 is the
-//! current structs uncompressed).
+//! version dispatch ([`pack_file`]), where its bytes go ([`pack_sizes`]), the compact payload of
+//! the current version ([`compact`]) and packs of older versions ([`pack_v1`], [`pack_v2`],
+//! [`pack_v3`], [`pack_v5`], [`pack_v6`]; version 4 is the current structs uncompressed).
 
 pub mod checkpoint;
 pub(crate) mod codec;
 pub mod compact;
 pub mod pack_file;
+pub mod pack_sizes;
 pub(crate) mod pack_v1;
 pub(crate) mod pack_v2;
 pub(crate) mod pack_v3;
 pub mod pack_v5;
+pub mod pack_v6;
 pub(crate) mod pack_version;
 pub mod recording;
 pub mod replay;

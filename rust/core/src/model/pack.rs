@@ -125,6 +125,12 @@ impl PositionModel {
     pub fn new(bins: Vec<BinModel>) -> Self {
         Self { bins, estimate: None }
     }
+
+    /// Whether the estimator made these bins (their weights probabilities × 2³⁰), rather than
+    /// plain histograms (a `--plain` pack, or one older than the estimator).
+    pub fn is_estimated(&self) -> bool {
+        self.estimate.as_ref().is_some_and(|e| e.choice != crate::model::estimate_report::Choice::Plain)
+    }
 }
 
 /// The noise PMF of one (ISO, position, bin): weights over `first ..` (counts for a plain
@@ -398,11 +404,15 @@ impl ModelPack {
         let mut p = self.clone();
         for m in p.isos.iter_mut() {
             let calibrated = m.is_calibrated();
-            for b in m.positions.iter_mut().flat_map(|q| q.bins.iter_mut()) {
-                if calibrated {
-                    crate::model::precision::store_bin(&mut b.first, &mut b.counts);
-                } else {
-                    b.counts.iter_mut().for_each(|w| *w = crate::model::precision::quantize_derived(*w));
+            for q in m.positions.iter_mut() {
+                let estimated = q.is_estimated();
+                for b in q.bins.iter_mut() {
+                    if calibrated {
+                        let precision = crate::model::precision::bin_precision(estimated, b.samples);
+                        crate::model::precision::store_bin(&mut b.first, &mut b.counts, precision);
+                    } else {
+                        b.counts.iter_mut().for_each(|w| *w = crate::model::precision::quantize_derived(*w));
+                    }
                 }
             }
         }
