@@ -305,10 +305,32 @@ def test_cli_errors_are_one_line_without_a_traceback(bench_set: Path, session: d
     assert rc == 2 and "--plain-pack" in capsys.readouterr().err
     rc = B.main(["--pack", str(session["cli_pack"]), "--set", str(bench_set), "--crop", "36"])
     assert rc == 2 and "--crop 36: use a multiple of 8" in capsys.readouterr().err
+    for bad in ("0", "-2", "nan"):
+        rc = B.main(["--pack", str(session["cli_pack"]), "--set", str(bench_set), "--input-scale", bad])
+        assert rc == 2 and f"--input-scale {float(bad)}: give a positive number" in capsys.readouterr().err
 
 
 # ---------------------------------------------------------------------------------------------
 # With torch: determinism and the small run CI checks
+
+
+@pytest.mark.torch
+def test_input_scale_scales_what_the_layers_see_and_nothing_else():
+    """``make_net(w, s)``: the same weights as ``make_net(w)`` under the same seed, and an output of
+    ``x + correction(s·x)/s``, the unscaled network's correction taken at ``s·x`` and scaled back."""
+    torch = pytest.importorskip("torch")
+    torch.manual_seed(3)
+    plain = B.make_net(8)
+    torch.manual_seed(3)
+    scaled = B.make_net(8, 8.0)
+    sp, ss = plain.state_dict(), scaled.state_dict()
+    assert all(torch.equal(sp[k], ss[k]) for k in sp)
+    x = torch.rand(2, 4, 16, 16, generator=torch.Generator().manual_seed(1)) * 0.05
+    with torch.no_grad():
+        want = x + (plain(8.0 * x) - 8.0 * x) / 8.0
+        got = scaled(x)
+        assert torch.allclose(got, want, atol=1e-6)
+        assert not torch.allclose(got, plain(x), atol=1e-4)  # it does change what the layers see
 
 
 @pytest.mark.torch

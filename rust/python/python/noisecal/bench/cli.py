@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -47,6 +48,13 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--batch", type=int, default=16, help="crops per step [default: %(default)s]")
     p.add_argument("--crop", type=int, default=48, help="training crop side in raw pixels, a multiple of 8 [default: %(default)s]")
     p.add_argument("--width", type=int, default=16, help="UNet width (channels at the first scale) [default: %(default)s]")
+    p.add_argument(
+        "--input-scale",
+        type=float,
+        default=1.0,
+        help="the network's layers see its input (normalised to the range) times this, and their correction is divided "
+        "by it: for noise that is a small fraction of the range, e.g. dim frames [default: %(default)s]",
+    )
     p.add_argument("--lr", type=float, default=3e-3, help="Adam learning rate, cosine-decayed to 2 %% of it [default: %(default)s]")
     p.add_argument("--device", default="cpu", help="torch device: cpu, cuda, cuda:1, mps …")
     p.add_argument(
@@ -69,6 +77,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.crop % 8 or args.crop < 16:
             raise BenchError(f"--crop {args.crop}: use a multiple of 8, at least 16")
+        if not args.input_scale > 0 or not math.isfinite(args.input_scale):
+            raise BenchError(f"--input-scale {args.input_scale}: give a positive number (1 leaves the network as it is)")
         if args.seeds < 1 or args.steps < 1 or args.batch < 1:
             raise BenchError("--seeds, --steps and --batch must be at least 1")
         if not 0 <= args.data_seed < 2**64 or args.seed < 0:

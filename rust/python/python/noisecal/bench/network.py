@@ -17,8 +17,11 @@ def _torch():
     return torch
 
 
-def make_net(width: int):
-    """A compact UNet on packed 4-channel raw (two scales, residual output)."""
+def make_net(width: int, input_scale: float = 1.0):
+    """A compact UNet on packed 4-channel raw (two scales, residual output). ``input_scale``: the
+    layers see the input times this factor and their correction is divided by it, so a sensor whose
+    noise is a small fraction of the range (dim frames, a deep bit depth) reaches the layers at a
+    workable size; 1 leaves the network exactly as without it."""
     torch = _torch()
     nn = torch.nn
 
@@ -36,11 +39,16 @@ def make_net(width: int):
             self.out = nn.Conv2d(w, 4, 1)
 
         def forward(self, x):
+            if input_scale != 1.0:
+                return x + self.correction(x * input_scale) / input_scale
+            return x + self.correction(x)
+
+        def correction(self, x):
             a = self.e1(x)
             b = self.e2(self.pool(a))
             c = self.mid(self.pool(b))
             b = self.d2(torch.cat([self.u2(c), b], 1))
             a = self.d1(torch.cat([self.u1(b), a], 1))
-            return x + self.out(a)
+            return self.out(a)
 
     return UNet()

@@ -129,6 +129,8 @@ def run(args: argparse.Namespace) -> dict:
         "data_seed": args.data_seed,
         "device": args.device,
     }
+    if args.input_scale != 1.0:  # absent at 1, so the keys (and --state files) of earlier runs stay valid
+        cfg["input_scale"] = args.input_scale
     key = _config_key(cfg)
     state = Path(args.state) if args.state else None
     if state:
@@ -165,7 +167,9 @@ def run(args: argparse.Namespace) -> dict:
                     end = "\n" if s == n or not tty else "\r"
                     print(f"{tag}: step {s}/{n} loss {loss:.4f} {time.time() - ts:.0f} s", end=end, file=sys.stderr, flush=True)
 
-            net = train_one(pairs, cleans_norm, layout, plan, args.crop, args.width, seed, device, args.lr, progress)
+            net = train_one(
+                pairs, cleans_norm, layout, plan, args.crop, args.width, seed, device, args.lr, progress, args.input_scale
+            )
             r = {"model": spec.label, "kind": spec.kind, "iso": iso, "seed": seed, **evaluate(net, eval_at(iso), device)}
             r["train_seconds"] = time.time() - ts
             results.append(r)

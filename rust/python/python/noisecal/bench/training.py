@@ -26,11 +26,11 @@ def batch_plan(seed: int, steps: int, batch: int, images: int, realizations: int
     return plan
 
 
-def train_one(pairs, cleans_norm, layout, plan, crop, width, seed, device, lr, progress=None):
+def train_one(pairs, cleans_norm, layout, plan, crop, width, seed, device, lr, progress=None, input_scale=1.0):
     """Trains one network on ``pairs`` in the order ``plan``; returns it (eval mode)."""
     torch = _torch()
     torch.manual_seed(seed)
-    net = make_net(width).to(device)
+    net = make_net(width, input_scale).to(device)
     opt = torch.optim.Adam(net.parameters(), lr=lr)
     steps = len(plan)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, max(steps, 1), eta_min=lr * 0.02)
