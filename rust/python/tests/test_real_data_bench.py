@@ -136,3 +136,19 @@ def test_pair_clean_recovers_a_scaled_flat_field():
     assert abs(err.mean()) < 0.1  # the scale and the black shift
     assert err.std() < 0.37 * 24 / 5 * 1.1  # no more than the burst mean's own noise, scaled
     assert np.corrcoef(got.ravel(), truth.ravel())[0, 1] > 0.99
+
+
+def test_dithered_burst_has_the_clean_image_as_its_mean():
+    # A derived clean image handed to the calibrator as a reference burst: noiseless integer
+    # frames whose mean is the float clean image within 1/(2n) DN (plain rounding errs by up to ½).
+    rng = np.random.default_rng(11)
+    clean = 14.76 + rng.uniform(0, 400, (60, 80))
+    for n in (4, 8):
+        frames = E.dithered_burst(clean, n)
+        assert len(frames) == n and all(f.dtype == np.uint16 for f in frames)
+        err = np.mean(np.stack(frames).astype(np.float64), axis=0) - clean
+        assert np.abs(err).max() <= 0.5 / n + 1e-9
+        assert abs(err.mean()) < 0.01
+        spread = np.ptp(np.stack(frames).astype(np.int64), axis=0)
+        assert spread.max() <= 1  # no noise: neighbouring codes only
+    assert np.abs(np.rint(clean) - clean).max() > 0.45  # the test would catch plain rounding
