@@ -175,6 +175,23 @@ def test_controls_need_a_clear_margin():
     assert close["wrong_worst"] and not close["wrong_clear"] and not close["oracle_within_spread"]
 
 
+def test_gain_over_the_noisy_input_per_band():
+    # Known rows: the gain is the row's PSNR minus the noisy input's, overall and per band, at the
+    # row's ISO (the input keyed by int in a run, by str once read back from --json).
+    rows = [
+        {"model": "hg", "iso": 200, "psnr": {"mean": 55.5, "std": 0}, "bands": {"dark": {"mean": 62.0}, "shadow": {"mean": 53.0}}},
+        {"model": "hg", "iso": 400, "psnr": {"mean": 50.0, "std": 0}, "bands": {"mid": {"mean": 44.0}}},
+    ]
+    inputs = {200: {"psnr": 55.25, "bands": {"dark": {"psnr": 60.5}, "shadow": {"psnr": 53.25}}}, 400: {"psnr": 49.0, "bands": {}}}
+    for inp in (inputs, {str(k): v for k, v in inputs.items()}):
+        g = {(r["model"], r["iso"]): r for r in B.gains({"summary": rows, "input": inp})}
+        assert g[("hg", 200)]["psnr"] == pytest.approx(0.25)
+        assert g[("hg", 200)]["bands"] == pytest.approx({"dark": 1.5, "shadow": -0.25})
+        assert g[("hg", 400)]["psnr"] == pytest.approx(1.0) and g[("hg", 400)]["bands"] == {}
+    text = B.gain_table({"summary": rows, "input": inputs})
+    assert "+1.50" in text and "-0.25" in text
+
+
 # ---------------------------------------------------------------------------------------------
 # Models
 

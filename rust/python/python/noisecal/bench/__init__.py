@@ -57,7 +57,7 @@ from .models import (
 from .network import make_net
 from .training import batch_plan, train_one
 from .scoring import controls, evaluate, score_input, summary
-from .report import table
+from .report import gain_table, gains, table
 from .run import run
 from .cli import main, parser
 
@@ -76,6 +76,8 @@ __all__ = [
     "dead_leaves",
     "eval_pairs",
     "evaluate",
+    "gain_table",
+    "gains",
     "generate_clean",
     "half_variance",
     "hg_mean_offset",

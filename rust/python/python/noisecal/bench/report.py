@@ -10,6 +10,35 @@ def _fmt(m: dict, digits: int = 2) -> str:
     return f"{m['mean']:.{digits}f}±{m['std']:.{digits}f}"
 
 
+def gains(out: dict) -> list[dict]:
+    """Per summary row, the PSNR gain over the noisy input in dB, overall and per brightness band
+    (the band's pooled PSNR minus the noisy input's in that band): where the noise is small against
+    the signal every row sits near the input, and the gain is what tells a network that learned
+    from one that did not."""
+    rows = []
+    for r in out["summary"]:
+        inp = out.get("input", {}).get(r["iso"]) or out.get("input", {}).get(str(r["iso"]))
+        if not inp:
+            continue
+        g = {"model": r["model"], "iso": r["iso"], "psnr": r["psnr"]["mean"] - inp["psnr"], "bands": {}}
+        for b, m in r["bands"].items():
+            if b in inp["bands"]:
+                g["bands"][b] = m["mean"] - inp["bands"][b]["psnr"]
+        rows.append(g)
+    return rows
+
+
+def gain_table(out: dict) -> str:
+    """:func:`gains` as lines of text."""
+    bands = [b[0] for b in BANDS]
+    head = f"{'gain over input, dB':<22}{'ISO':>6}  {'all':>8}  " + "  ".join(f"{b:>8}" for b in bands)
+    lines = [head, "-" * len(head)]
+    for g in gains(out):
+        bs = "  ".join(f"{g['bands'][b]:>+8.2f}" if b in g["bands"] else f"{'':>8}" for b in bands)
+        lines.append(f"{g['model']:<22}{g['iso']:>6}  {g['psnr']:>+8.2f}  {bs}")
+    return "\n".join(lines)
+
+
 def table(out: dict) -> str:
     lines = []
     bands = [b[0] for b in BANDS]
@@ -46,4 +75,6 @@ def table(out: dict) -> str:
         f"width {out['config']['width']}), seeds {out['seeds']}, {out['wall_seconds'] / 60:.1f} min"
     )
     lines.append("PSNR/SSIM: mean±std over training seeds; bands: PSNR of the pooled error by clean level (dark < 2 % of range)")
+    if any(out.get("input", {}).values()):
+        lines += ["", gain_table(out)]
     return "\n".join(lines)
