@@ -10,6 +10,12 @@ def _fmt(m: dict, digits: int = 2) -> str:
     return f"{m['mean']:.{digits}f}±{m['std']:.{digits}f}"
 
 
+def _input_at(out: dict, iso: int) -> dict | None:
+    """The noisy input's scores at ``iso``: keyed by int in a run, by str once read back from --json."""
+    inputs = out.get("input", {})
+    return inputs.get(iso) or inputs.get(str(iso))
+
+
 def gains(out: dict) -> list[dict]:
     """Per summary row, the PSNR gain over the noisy input in dB, overall and per brightness band
     (the band's pooled PSNR minus the noisy input's in that band): where the noise is small against
@@ -17,7 +23,7 @@ def gains(out: dict) -> list[dict]:
     from one that did not."""
     rows = []
     for r in out["summary"]:
-        inp = out.get("input", {}).get(r["iso"]) or out.get("input", {}).get(str(r["iso"]))
+        inp = _input_at(out, r["iso"])
         if not inp:
             continue
         g = {"model": r["model"], "iso": r["iso"], "psnr": r["psnr"]["mean"] - inp["psnr"], "bands": {}}
@@ -33,7 +39,7 @@ def gain_table(out: dict) -> str:
     bands = [b[0] for b in BANDS]
     head = f"{'gain over input, dB':<22}{'ISO':>6}  {'all':>8}  " + "  ".join(f"{b:>8}" for b in bands)
     lines = [head, "-" * len(head)]
-    for g in gains(out):
+    for g in sorted(gains(out), key=lambda g: g["iso"]):
         bs = "  ".join(f"{g['bands'][b]:>+8.2f}" if b in g["bands"] else f"{'':>8}" for b in bands)
         lines.append(f"{g['model']:<22}{g['iso']:>6}  {g['psnr']:>+8.2f}  {bs}")
     return "\n".join(lines)
@@ -54,7 +60,7 @@ def table(out: dict) -> str:
             if r["model"].split(":")[0] == "noisecal" and iso not in calibrated:
                 name += " (interp)"
             lines.append(f"{name:<22}{iso:>6}  {_fmt(r['psnr']):>12}  {_fmt(r['ssim'], 4):>14}  {d:>12}  {bs}")
-        inp = out.get("input", {}).get(iso)
+        inp = _input_at(out, iso)
         if inp:
             bs = "  ".join(f"{inp['bands'][b]['psnr']:>12.2f}" if b in inp["bands"] else f"{'':>12}" for b in bands)
             lines.append(f"{'(noisy input)':<22}{iso:>6}  {inp['psnr']:>12.2f}  {inp['ssim']:>14.4f}  {'':>12}  {bs}")
