@@ -173,6 +173,15 @@ def test_controls_need_a_clear_margin():
     # Every seed below, but by 0.1 dB: not clear either; and an oracle 0.5 dB down is not best.
     close = B.controls([row("oracle", "oracle", 35.5, 35.5), row("hg", "hg", 36.0, 36.0), row("wrong", "wrong", 35.4, 35.4)])[800]
     assert close["wrong_worst"] and not close["wrong_clear"] and not close["oracle_within_spread"]
+    # The loud control (2× HG's variance): below HG at every seed when the evaluation penalises
+    # over-smoothing; above it (a textureless set) it is flagged, and it is not a row the wrong
+    # model must beat.
+    ok = B.controls([row("hg", "hg", 36.0, 36.2), row("loud", "loud", 35.5, 35.9), row("wrong", "wrong", 35.0, 35.1)])[800]
+    assert ok["loud_below_hg"] and ok["loud_margin_db"] == pytest.approx(0.4) and ok["wrong_clear"]
+    flat = B.controls([row("hg", "hg", 36.0, 36.2), row("loud", "loud", 36.5, 36.1), row("wrong", "wrong", 35.0, 35.1)])[800]
+    assert not flat["loud_below_hg"]
+    low = B.controls([row("hg", "hg", 36.0, 36.2), row("loud", "loud", 34.0, 34.1), row("wrong", "wrong", 35.0, 35.1)])[800]
+    assert low["wrong_clear"] and low["loud_below_hg"]
 
 
 def test_gain_over_the_noisy_input_per_band():
@@ -220,6 +229,25 @@ def test_wrong_model_has_half_the_hg_variance(pack):
         ratio = w.var() / h.var()
         assert 0.44 < ratio < 0.56, ratio  # ± ~6 σ of the ratio's sampling error at 16 384 pixels
         assert abs(w.mean() - h.mean()) < 0.2  # ~7 standard errors of the difference
+
+
+
+def test_loud_model_has_twice_the_hg_variance(pack):
+    """The ``loud`` control: var(loud) / var(hg) = 2 on a flat image (no scaling gives 1, a scale
+    of 2 instead of √2 gives 4), about HG's own mean; the ``wrong`` model is the same map at ½."""
+    clean = np.full((256, 256), 400, dtype=np.uint16)
+    noisy = pack.synth(clean, 800, 3, model="hg")
+    hg = noisy.astype(np.float64)
+    loud = B.scale_variance(noisy, clean, pack, 800, 2.0).astype(np.float64)
+    assert np.array_equal(B.scale_variance(noisy, clean, pack, 800, 0.5), B.half_variance(noisy, clean, pack, 800))
+    for p in range(4):
+        h, lo = B.pack_raw(hg)[p], B.pack_raw(loud)[p]
+        ratio = lo.var() / h.var()
+        assert 1.78 < ratio < 2.22, ratio  # ± ~6 σ of the ratio's sampling error at 16 384 pixels
+        assert abs(lo.mean() - h.mean()) < 0.3
+    pairs = B.make_pairs(B.parse_model("loud"), 800, [clean], 1, pack, {}, 1, {})
+    hgp = B.make_pairs(B.parse_model("hg"), 800, [clean], 1, pack, {}, 1, {})
+    assert np.array_equal(pairs.noisy[0][0], B.scale_variance(hgp.noisy[0][0], clean, pack, 800, 2.0))
 
 
 # ---------------------------------------------------------------------------------------------

@@ -52,6 +52,7 @@ from .models import (
     hg_mean_offset,
     make_pairs,
     parse_model,
+    scale_variance,
     synth_seed,
 )
 from .network import make_net
@@ -97,6 +98,7 @@ __all__ = [
     "psnr",
     "run",
     "score",
+    "scale_variance",
     "score_input",
     "ssim",
     "ssim_map",

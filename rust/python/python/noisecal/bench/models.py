@@ -13,7 +13,7 @@ import noisecal
 
 from .errors import BenchError
 
-BASE_MODELS = ("noisecal", "hg", "pg", "noiseprofile", "plain", "wrong", "oracle")
+BASE_MODELS = ("noisecal", "hg", "pg", "noiseprofile", "plain", "wrong", "loud", "oracle")
 RENOISE_METHODS = ("bridge", "quantile", "denoised", "naive")
 DEFAULT_MODELS = "oracle,noisecal,hg,pg,wrong"
 
@@ -47,7 +47,7 @@ def parse_model(text: str, plain_pack: str | None = None) -> ModelSpec:
                 "--models plain needs the plain per-bin pack: --plain-pack plain.pack "
                 "(made by `noisecal calibrate captures/ -o plain.pack --plain`) or plain@plain.pack"
             )
-    if comps and kind in ("oracle", "wrong"):
+    if comps and kind in ("oracle", "wrong", "loud"):
         raise BenchError(f"--models {text!r}: components apply to pack models, not {kind}")
     return ModelSpec(label.strip() or text.strip(), kind, comps.strip() or None, pack_path)
 
@@ -101,8 +101,8 @@ def make_pairs(
                 )
         return Pairs(out)
     p = packs[spec.pack_path] if spec.pack_path else pack
-    model = {"plain": "noisecal", "wrong": "hg"}.get(spec.kind, spec.kind)
-    offset = hg_mean_offset(p, iso) if spec.kind == "wrong" else None
+    model = {"plain": "noisecal", "wrong": "hg", "loud": "hg"}.get(spec.kind, spec.kind)
+    offset = hg_mean_offset(p, iso) if spec.kind in ("wrong", "loud") else None
     out = []
     for j, c in enumerate(cleans):
         row = []
@@ -114,6 +114,8 @@ def make_pairs(
                 raise BenchError(f"model {spec.label} at ISO {iso}: {e}") from e
             if spec.kind == "wrong":
                 n = half_variance(n, c, p, iso, offset)
+            elif spec.kind == "loud":
+                n = scale_variance(n, c, p, iso, 2.0, offset)
             row.append(n)
         out.append(row)
     return Pairs(out)
@@ -132,10 +134,20 @@ def hg_mean_offset(pack, iso: int) -> np.ndarray:
 def half_variance(noisy: np.ndarray, clean: np.ndarray, pack, iso: int, offset: np.ndarray | None = None) -> np.ndarray:
     """The deliberately wrong control: HG noise with half its variance, ``m + (x − m)/√2`` about
     HG's own mean ``m`` (the clean level plus :func:`hg_mean_offset`)."""
+    return scale_variance(noisy, clean, pack, iso, 0.5, offset)
+
+
+def scale_variance(
+    noisy: np.ndarray, clean: np.ndarray, pack, iso: int, factor: float, offset: np.ndarray | None = None
+) -> np.ndarray:
+    """HG noise with ``factor`` times its variance, ``m + (x − m)/√(1/factor)`` about HG's own mean
+    ``m`` (the clean level plus :func:`hg_mean_offset`): ½ is the ``wrong`` control, 2 the ``loud``
+    one (too much noise: a network trained on it smooths too much, which only an evaluation set
+    with texture penalises)."""
     offset = hg_mean_offset(pack, iso) if offset is None else offset
     white = int(pack.layout["white"])
     level = np.minimum(clean.astype(np.int64), white)
     pos = (np.arange(clean.shape[0])[:, None] % 2) * 2 + np.arange(clean.shape[1])[None, :] % 2
     m = level + offset[pos, level]
-    out = m + (noisy.astype(np.float64) - m) / math.sqrt(2)
+    out = m + (noisy.astype(np.float64) - m) / math.sqrt(1 / factor)  # ½: exactly the earlier (x − m)/√2
     return np.rint(np.clip(out, 0, white)).astype(np.uint16)

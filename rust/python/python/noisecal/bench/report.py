@@ -73,6 +73,9 @@ def table(out: dict) -> str:
         if "wrong_worst" in c:
             verdict = "yes, clearly" if c["wrong_clear"] else ("yes, but not clearly" if c["wrong_worst"] else "NO")
             parts.append(f"wrong worst: {verdict} (by {c['wrong_margin_db']:.2f} dB)")
+        if "loud_below_hg" in c:
+            verdict = "yes" if c["loud_below_hg"] else "NO: the evaluation rewards smoothing, not fidelity"
+            parts.append(f"loud (2× HG variance) below HG: {verdict} (by {c['loud_margin_db']:.2f} dB)")
         if parts:
             lines.append(f"controls at ISO {iso}: " + "; ".join(parts))
     n = len(out["networks"])

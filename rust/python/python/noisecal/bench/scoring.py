@@ -59,7 +59,11 @@ def controls(rows: list[dict]) -> dict:
     out): is the oracle best — strictly, and within the training-seed spread (``oracle_gap_db`` ≤
     max(0.1 dB, 2 × the largest seed std at the ISO)) — and is the wrong model worst, and clearly
     (``wrong_clear``: every other row beats it at every training seed, paired — same seed, same
-    data — and by ``wrong_margin_db`` > 0.3 dB on the means)?"""
+    data — and by ``wrong_margin_db`` > 0.3 dB on the means)? With a ``loud`` row (HG at twice its
+    variance): does it score below HG at every seed (``loud_below_hg``, ``loud_margin_db``)? If not,
+    the evaluation rewards smoothing more than fidelity (e.g. scenes without texture), and a model
+    with more noise than the sensor wins. The loud row is a control, not a row the wrong model
+    must beat.)"""
     out = {}
     for iso in sorted({r["iso"] for r in rows}):
         at = {r["model"]: r for r in rows if r["iso"] == iso and r.get("kind") != "renoise"}
@@ -75,7 +79,7 @@ def controls(rows: list[dict]) -> dict:
         wrong = [k for k, r in at.items() if r.get("kind") == "wrong"]
         if wrong:
             w = at[wrong[0]]
-            others = {k: r for k, r in at.items() if k != wrong[0]}
+            others = {k: r for k, r in at.items() if k != wrong[0] and r.get("kind") != "loud"}
             c["wrong_worst"] = all(mean[w["model"]] < r["psnr"]["mean"] for r in others.values())
             c["wrong_margin_db"] = (min(r["psnr"]["mean"] for r in others.values()) - mean[w["model"]]) if others else None
             ws = w.get("psnr_per_seed", {})
@@ -85,5 +89,12 @@ def controls(rows: list[dict]) -> dict:
                 for seed, v in ws.items()
             )
             c["wrong_clear"] = bool(others) and bool(ws) and paired and c["wrong_margin_db"] > 0.3
+        loud = [k for k, r in at.items() if r.get("kind") == "loud"]
+        hg = [k for k, r in at.items() if r.get("kind") == "hg"]
+        if loud and hg:
+            lo, h = at[loud[0]], at[hg[0]]
+            hs, ls = h.get("psnr_per_seed", {}), lo.get("psnr_per_seed", {})
+            c["loud_margin_db"] = mean[hg[0]] - mean[loud[0]]
+            c["loud_below_hg"] = bool(ls) and all(seed in hs and hs[seed] > v for seed, v in ls.items())
         out[iso] = c
     return out
