@@ -16,10 +16,15 @@ By default it benchmarks **low light**, where noise matters: the packs (``OUT/lo
 ``OUT/low-plain.pack``) are calibrated from ``OUT/cal-low`` — the burst's step and the dark burst
 of ``OUT/cal``, plus the photon-transfer exposures up to 20 % of the range, each a reference burst
 of 8 noiseless frames dithered to the exposure's derived clean image (below) with frame 0 of the
-pair as its target — and the evaluation set ``OUT/eval-low`` is frame 1 of the pairs below 10 %
-of the range (0.04, 0.32, 0.62, 0.90 ms: 16–346 DN above black) against the same clean images.
-The training scenes are spread over the evaluated levels (0 to the brightest evaluated clean
-level). ``--band`` runs the earlier configuration instead: the packs from ``OUT/cal`` alone,
+pair as its target. Held out: frame 1 of the pairs below 10 % of the range (0.04, 0.32, 0.62,
+0.90 ms: 16–346 DN above black), against the same clean images (``OUT/eval-low``). Flat fields
+reward smoothing, not fidelity (a network trained on too much noise smooths more and wins), so the
+evaluation set is made of them as **real-noise mosaics** (``OUT/eval-mosaic``, 4 scenes): scene m
+shows at each pixel the held-out frame of exposure (label + m) mod 4, the label a dead-leaves map
+split into 4 equal areas, with that frame's clean image — every pixel and its noise real, at its
+own level and position, each used once over the 4 scenes, and edges between levels that a network
+must keep (``--flat-eval`` evaluates on the flat fields themselves). The training scenes are
+spread over the evaluated levels (0 to the brightest evaluated clean level). ``--band`` runs the earlier configuration instead: the packs from ``OUT/cal`` alone,
 evaluated on the held-out burst frames at half scale (``OUT/eval``).
 
 What is assumed, and why (docs/bench.md, "Real data: EMVA 1288 set 001"):
@@ -91,6 +96,7 @@ FLAT_TRAIN = 12  # flat training images for --flat
 LOW_CAL_MAX = 0.2  # of the range above black: photon-transfer exposures up to this level calibrate the low pack
 LOW_EVAL_MAX = 0.1  # of the range above black: photon-transfer exposures below this level are evaluated (low light)
 LOW_REF_FRAMES = 8  # frames of each derived (noiseless, dithered) reference burst
+MOSAIC_SEED = 1288  # the dead-leaves label maps of the real-noise mosaics (OUT/eval-mosaic)
 
 
 class ConvertError(ValueError):
@@ -189,6 +195,36 @@ def dithered_burst(clean: np.ndarray, n: int) -> list[np.ndarray]:
     return [np.clip(np.floor(clean + (i + 0.5) / n), 0, WHITE).astype(np.uint16) for i in range(n)]
 
 
+def mosaic_labels(shape: tuple[int, int], classes: int, seed: int) -> np.ndarray:
+    """A dead-leaves label map (0 … classes − 1, about equal areas): grey dead leaves split at their
+    quantiles, so the mosaic's regions have the natural scenes' edges and sizes."""
+    grey = bench.dead_leaves(shape[0], shape[1], np.random.default_rng(seed)).mean(-1)
+    cuts = np.quantile(grey, np.linspace(0, 1, classes + 1)[1:-1])
+    return np.searchsorted(cuts, grey, side="right")
+
+
+def write_mosaics(folder: Path, held: list, write) -> None:
+    """Real-noise mosaics: evaluation scenes with edges whose every pixel is a real noisy pixel.
+    The held-out frames are flat fields at a few levels; scene ``m`` shows, at each pixel, the
+    frame of exposure ``(label + m) mod k`` (``label`` from :func:`mosaic_labels`) with that frame's
+    clean image, so each real pixel appears once over the ``k`` scenes, at its own level and
+    position (its noise is the sensor's, untouched), and a network that smooths across an edge
+    between levels pays for it, which flat fields never make it do."""
+    k = len(held)
+    if k < 2:
+        return
+    labels = mosaic_labels(held[0][0].shape, k, MOSAIC_SEED)
+    for m in range(k):
+        pick = (labels + m) % k
+        frame = np.choose(pick, [f for f, _, _ in held]).astype(np.uint16)
+        clean = np.choose(pick, [c for _, c, _ in held])
+        scene = folder / f"mosaic_{m}"
+        scene.mkdir(parents=True, exist_ok=True)
+        if not (scene / "clean.npy").exists():
+            np.save(scene / "clean.npy", clean)
+        write(scene / "frame.dng", frame, 200, held[0][2])
+
+
 def convert(src: Source, out: Path, say) -> dict:
     """Writes ``out/cal`` (the calibration DNGs) and ``out/eval`` (the evaluation scenes); returns
     what it measured (black levels, the pairs kept)."""
@@ -223,7 +259,7 @@ def convert(src: Source, out: Path, say) -> dict:
     half = len(darks) // 2
     for i, f in enumerate(darks):  # at their true exposure: the ISO-100 half matches no step
         write(out / "cal" / f"dark_{i:02}.dng", f, 100 if i < half else 200, BURST_EXPOSURE_NS)
-    pairs, low = [], []
+    pairs, low, held = [], [], []
     dark_by_ns = {b.exposure_ns: b for b in dark}
     for k, b in enumerate(x for x in bright if x is not burst_b):
         if b.exposure_ns not in dark_by_ns:
@@ -245,6 +281,7 @@ def convert(src: Source, out: Path, say) -> dict:
                 if not (scene / "clean.npy").exists():
                     np.save(scene / "clean.npy", pc)
                 write(scene / "frame_1.dng", pair[1], 200, b.exposure_ns)
+                held.append((pair[1], pc, b.exposure_ns))
             low.append({"exposure_ns": b.exposure_ns, "level": float(level), "evaluated": bool(level < LOW_EVAL_MAX)})
         if k % PAIR_EVERY or level > PAIR_MAX:
             continue
@@ -261,6 +298,7 @@ def convert(src: Source, out: Path, say) -> dict:
         level = np.mean(black) + lo + (hi - lo) * (i + 0.5) / FLAT_TRAIN
         write(out / "train-flat" / f"flat_{i:02}.dng", np.full(clean.shape, round(level), np.uint16), 100, ref_ns)
     levels = (float(np.floor(np.percentile(above, 0.5))), float(np.ceil(np.percentile(above, 99.5))))
+    write_mosaics(out / "eval-mosaic", held, write)
     # The low pack also holds the burst's step and the dark burst (the same frames as OUT/cal).
     for f in sorted((out / "cal").glob("*.dng")):
         if not (out / "cal-low" / f.name).exists():
@@ -288,6 +326,12 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="with --band: train on flat fields at levels across the pack's band (OUT/train-flat) instead of generated scenes",
     )
+    p.add_argument(
+        "--flat-eval",
+        action="store_true",
+        help="evaluate on the held-out low-light flat fields themselves (OUT/eval-low) rather than the real-noise "
+        "mosaics made of them (OUT/eval-mosaic); flat fields reward smoothing, not fidelity",
+    )
     p.add_argument("--json", type=Path, help="noisecal-bench's results JSON [default: OUT/bench.json]")
     args, rest = p.parse_known_args(argv)
 
@@ -310,7 +354,7 @@ def main(argv: list[str] | None = None) -> int:
         [
             "--pack", str(out / full),
             "--plain-pack", str(out / plain),
-            "--eval", str(out / ("eval" if args.band else "eval-low")),
+            "--eval", str(out / ("eval" if args.band else "eval-low" if args.flat_eval else "eval-mosaic")),
             *(["--train", str(out / "train-flat")] if args.flat else
               ["--generate", str(args.generate), "--mono", "--generate-levels", f"{lo:g},{hi:g}"]),
             "--models", "noisecal,hg,pg,plain,wrong",
