@@ -8,7 +8,7 @@ Its set 001 (Basler AG, CC BY-SA 3.0) is a 12-bit monochrome CCD, 640×480: a fl
 50 exposures (photon-transfer pairs, two frames each, with dark pairs), a 50-frame burst at 5.16 ms
 (about half scale) and a 50-frame dark burst. This script converts it to DNGs in ``--out`` (a cache:
 kept and reused), calibrates a pack and a plain per-bin pack from it, and runs ``noisecal-bench``
-with the models ``noisecal,hg,pg,plain,wrong`` on generated grey dead-leaves scenes (``--generate
+with the models ``noisecal,hg,pg,plain,wrong,loud`` on generated grey dead-leaves scenes (``--generate
 --mono``); options after the script's own go to ``noisecal-bench`` (``--steps``, ``--seeds``,
 ``--input-scale``, …).
 
@@ -357,7 +357,7 @@ def main(argv: list[str] | None = None) -> int:
             "--eval", str(out / ("eval" if args.band else "eval-low" if args.flat_eval else "eval-mosaic")),
             *(["--train", str(out / "train-flat")] if args.flat else
               ["--generate", str(args.generate), "--mono", "--generate-levels", f"{lo:g},{hi:g}"]),
-            "--models", "noisecal,hg,pg,plain,wrong",
+            "--models", "noisecal,hg,pg,plain,wrong,loud",
             "--json", str(args.json or out / "bench.json"),
             *rest,
         ]
