@@ -8,8 +8,24 @@ Its set 001 (Basler AG, CC BY-SA 3.0) is a 12-bit monochrome CCD, 640×480: a fl
 50 exposures (photon-transfer pairs, two frames each, with dark pairs), a 50-frame burst at 5.16 ms
 (about half scale) and a 50-frame dark burst. This script converts it to DNGs in ``--out`` (a cache:
 kept and reused), calibrates a pack and a plain per-bin pack from it, and runs ``noisecal-bench``
-with the models ``noisecal,hg,pg,plain,wrong`` on generated grey dead-leaves scenes (``--generate
---mono``); options after the script's own go to ``noisecal-bench`` (``--steps``, ``--seeds``, …).
+with the models ``noisecal,hg,pg,plain,wrong,loud`` on generated grey dead-leaves scenes (``--generate
+--mono``); options after the script's own go to ``noisecal-bench`` (``--steps``, ``--seeds``,
+``--input-scale``, …).
+
+By default it benchmarks **low light**, where noise matters: the packs (``OUT/low.pack``,
+``OUT/low-plain.pack``) are calibrated from ``OUT/cal-low`` — the burst's step and the dark burst
+of ``OUT/cal``, plus the photon-transfer exposures up to 20 % of the range, each a reference burst
+of 8 noiseless frames dithered to the exposure's derived clean image (below) with frame 0 of the
+pair as its target. Held out: frame 1 of the pairs below 10 % of the range (0.04, 0.32, 0.62,
+0.90 ms: 16–346 DN above black), against the same clean images (``OUT/eval-low``). Flat fields
+reward smoothing, not fidelity (a network trained on too much noise smooths more and wins), so the
+evaluation set is made of them as **real-noise mosaics** (``OUT/eval-mosaic``, 4 scenes): scene m
+shows at each pixel the held-out frame of exposure (label + m) mod 4, the label a dead-leaves map
+split into 4 equal areas, with that frame's clean image — every pixel and its noise real, at its
+own level and position, each used once over the 4 scenes, and edges between levels that a network
+must keep (``--flat-eval`` evaluates on the flat fields themselves). The training scenes are
+spread over the evaluated levels (0 to the brightest evaluated clean level). ``--band`` runs the earlier configuration instead: the packs from ``OUT/cal`` alone,
+evaluated on the held-out burst frames at half scale (``OUT/eval``).
 
 What is assumed, and why (docs/bench.md, "Real data: EMVA 1288 set 001"):
 
@@ -21,17 +37,23 @@ What is assumed, and why (docs/bench.md, "Real data: EMVA 1288 set 001"):
   ISO 200 is this sensor's noise. Frames 25–36 calibrate; frames 37–49 are held out for evaluation.
 - **The dark burst** is the dark step (the fixed pattern), 25 frames at each label, and its mean
   per CFA position is the black level the DNGs carry.
-- **One band of levels.** The set's only bursts are at one exposure: the pack is measured on the
-  flat field's clean levels (1944–1995 DN above black), and a non-parametric pack has no samples
-  elsewhere (no noisecal pack extrapolates a level it never saw). So the training scenes are grey
-  dead leaves spread over that band (``--generate-levels``, measured here from the burst), and the
-  evaluation set (``OUT/eval``) is the held-out burst frames against the reference burst's mean.
+- **One band of levels (``--band``).** The set's only bursts are at one exposure: a pack from them
+  is measured on the flat field's clean levels (1944–1995 DN above black), and a non-parametric
+  pack has no samples elsewhere (no noisecal pack extrapolates a level it never saw). So the
+  training scenes are grey dead leaves spread over that band (``--generate-levels``, measured
+  here from the burst), and the evaluation set (``OUT/eval``) is the held-out burst frames against the reference burst's mean.
   ``--flat`` trains on flat fields instead (``OUT/train-flat``: 12 constant images at levels
   across the band), the evaluation scene's own kind: texture within the band is no stronger
   than the noise, so generated scenes teach a network little.
-- **The photon-transfer pairs** (two frames per exposure) cannot calibrate: a one-frame reference
-  keeps its whole noise in the samples (the reference's error is part of them by convention), which
-  doubles the variance. They are written as evaluation scenes of their own in ``OUT/eval-pairs``
+- **The photon-transfer pairs** (two frames per exposure) cannot calibrate against one of their own
+  frames: a one-frame reference keeps its whole noise in the samples (the reference's error is part
+  of them by convention), which doubles the variance. Against their *derived* clean image (below)
+  they can: that image's error is the dark burst mean's (SD ≈ 3.7/√50 ≈ 0.5 DN) times 1 − s and the
+  burst mean's (SD ≈ 24/√25 ≈ 4.9 DN) times the exposure's scale s, 0.5–0.9 DN on the evaluated
+  exposures against a noise SD of 3.7–10.5 DN (0.7–1.9 % of the variance; in the evaluation it
+  adds the same small floor to every model's error). It is handed to the calibrator as a burst of 8 frames
+  ``floor(clean + (i + ½)/8)``, whose mean is the clean image within 1/16 DN (``OUT/cal-low``).
+  Every 4th pair below 80 % is also written as an evaluation scene of its own in ``OUT/eval-pairs``
   (``--eval OUT/eval-pairs`` runs them; every pair below 80 % of the range, every 4th exposure),
   each with its clean image as ``clean.npy``: the flat field is the same at every exposure up to
   its scale, so clean(t) = D + s·(B − D) + (d̄(t) − D̄), with B the burst's clean image, D the dark
@@ -71,6 +93,10 @@ MAKE, MODEL = "Basler (EMVA 1288 set 001)", "12-bit mono CCD, read as RGGB"
 PAIR_EVERY = 4  # every 4th photon-transfer exposure is an evaluation scene
 PAIR_MAX = 0.8  # of the range above black: brighter pairs are left out (near saturation)
 FLAT_TRAIN = 12  # flat training images for --flat
+LOW_CAL_MAX = 0.2  # of the range above black: photon-transfer exposures up to this level calibrate the low pack
+LOW_EVAL_MAX = 0.1  # of the range above black: photon-transfer exposures below this level are evaluated (low light)
+LOW_REF_FRAMES = 8  # frames of each derived (noiseless, dithered) reference burst
+MOSAIC_SEED = 1288  # the dead-leaves label maps of the real-noise mosaics (OUT/eval-mosaic)
 
 
 class ConvertError(ValueError):
@@ -163,6 +189,42 @@ def pair_clean(burst_clean: np.ndarray, dark: np.ndarray, pair: list[np.ndarray]
     return dark + s * (burst_clean - dark) + d_shift
 
 
+def dithered_burst(clean: np.ndarray, n: int) -> list[np.ndarray]:
+    """``n`` uint16 frames without noise whose mean is ``clean`` to within 1/(2n) DN: frame ``i`` is
+    ``floor(clean + (i + ½)/n)`` (a derived clean image handed to the calibrator as a reference burst)."""
+    return [np.clip(np.floor(clean + (i + 0.5) / n), 0, WHITE).astype(np.uint16) for i in range(n)]
+
+
+def mosaic_labels(shape: tuple[int, int], classes: int, seed: int) -> np.ndarray:
+    """A dead-leaves label map (0 … classes − 1, about equal areas): grey dead leaves split at their
+    quantiles, so the mosaic's regions have the natural scenes' edges and sizes."""
+    grey = bench.dead_leaves(shape[0], shape[1], np.random.default_rng(seed)).mean(-1)
+    cuts = np.quantile(grey, np.linspace(0, 1, classes + 1)[1:-1])
+    return np.searchsorted(cuts, grey, side="right")
+
+
+def write_mosaics(folder: Path, held: list, write) -> None:
+    """Real-noise mosaics: evaluation scenes with edges whose every pixel is a real noisy pixel.
+    The held-out frames are flat fields at a few levels; scene ``m`` shows, at each pixel, the
+    frame of exposure ``(label + m) mod k`` (``label`` from :func:`mosaic_labels`) with that frame's
+    clean image, so each real pixel appears once over the ``k`` scenes, at its own level and
+    position (its noise is the sensor's, untouched), and a network that smooths across an edge
+    between levels pays for it, which flat fields never make it do."""
+    k = len(held)
+    if k < 2:
+        return
+    labels = mosaic_labels(held[0][0].shape, k, MOSAIC_SEED)
+    for m in range(k):
+        pick = (labels + m) % k
+        frame = np.choose(pick, [f for f, _, _ in held]).astype(np.uint16)
+        clean = np.choose(pick, [c for _, c, _ in held])
+        scene = folder / f"mosaic_{m}"
+        scene.mkdir(parents=True, exist_ok=True)
+        if not (scene / "clean.npy").exists():
+            np.save(scene / "clean.npy", clean)
+        write(scene / "frame.dng", frame, 200, held[0][2])
+
+
 def convert(src: Source, out: Path, say) -> dict:
     """Writes ``out/cal`` (the calibration DNGs) and ``out/eval`` (the evaluation scenes); returns
     what it measured (black levels, the pairs kept)."""
@@ -197,14 +259,31 @@ def convert(src: Source, out: Path, say) -> dict:
     half = len(darks) // 2
     for i, f in enumerate(darks):  # at their true exposure: the ISO-100 half matches no step
         write(out / "cal" / f"dark_{i:02}.dng", f, 100 if i < half else 200, BURST_EXPOSURE_NS)
-    pairs = []
+    pairs, low, held = [], [], []
     dark_by_ns = {b.exposure_ns: b for b in dark}
     for k, b in enumerate(x for x in bright if x is not burst_b):
-        if k % PAIR_EVERY or b.exposure_ns not in dark_by_ns:
+        if b.exposure_ns not in dark_by_ns:
             continue
         pair, dpair = src.frames(b), src.frames(dark_by_ns[b.exposure_ns])
         level = (np.mean([f.mean() for f in pair]) - np.mean(black)) / (WHITE - np.mean(black))
-        if level > PAIR_MAX:
+        # The low-light pack (module docstring): frame 0 of each dim pair calibrates against the
+        # pair's derived clean image; frame 1 of the dimmest is held out for evaluation. An exposure
+        # within 1 % of the burst's would join the burst's step (grouping by ISO × exposure): skipped.
+        if level <= LOW_CAL_MAX and abs(b.exposure_ns / BURST_EXPOSURE_NS - 1) > 0.01:
+            pc = pair_clean(clean, dark_mean, pair, dpair)
+            us = b.exposure_ns // 1000
+            for i, f in enumerate(dithered_burst(pc, LOW_REF_FRAMES)):
+                write(out / "cal-low" / f"ref_{us:05}us_{i}.dng", f, 100, 2 * b.exposure_ns)
+            write(out / "cal-low" / f"target_{us:05}us.dng", pair[0], 200, b.exposure_ns)
+            if level < LOW_EVAL_MAX:
+                scene = out / "eval-low" / f"pt_{us:05}us"
+                scene.mkdir(parents=True, exist_ok=True)
+                if not (scene / "clean.npy").exists():
+                    np.save(scene / "clean.npy", pc)
+                write(scene / "frame_1.dng", pair[1], 200, b.exposure_ns)
+                held.append((pair[1], pc, b.exposure_ns))
+            low.append({"exposure_ns": b.exposure_ns, "level": float(level), "evaluated": bool(level < LOW_EVAL_MAX)})
+        if k % PAIR_EVERY or level > PAIR_MAX:
             continue
         scene = out / "eval-pairs" / f"pair_{b.exposure_ns // 1000:05}us"
         scene.mkdir(parents=True, exist_ok=True)
@@ -219,8 +298,17 @@ def convert(src: Source, out: Path, say) -> dict:
         level = np.mean(black) + lo + (hi - lo) * (i + 0.5) / FLAT_TRAIN
         write(out / "train-flat" / f"flat_{i:02}.dng", np.full(clean.shape, round(level), np.uint16), 100, ref_ns)
     levels = (float(np.floor(np.percentile(above, 0.5))), float(np.ceil(np.percentile(above, 99.5))))
-    say(f"black levels {[round(v, 3) for v in black]} DN; burst clean levels {levels} DN above black; {len(pairs)} pairs")
-    return {"black": black, "pairs": pairs, "levels": levels}
+    write_mosaics(out / "eval-mosaic", held, write)
+    # The low pack also holds the burst's step and the dark burst (the same frames as OUT/cal).
+    for f in sorted((out / "cal").glob("*.dng")):
+        if not (out / "cal-low" / f.name).exists():
+            (out / "cal-low" / f.name).write_bytes(f.read_bytes())
+    low_top = max(float(np.load(d / "clean.npy").max()) - min(black) for d in sorted((out / "eval-low").iterdir()))
+    say(
+        f"black levels {[round(v, 3) for v in black]} DN; burst clean levels {levels} DN above black; {len(pairs)} pairs; "
+        f"{len(low)} low-light exposures calibrate, {sum(x['evaluated'] for x in low)} evaluated (clean up to {low_top:.0f} DN)"
+    )
+    return {"black": black, "pairs": pairs, "levels": levels, "low": low, "low_levels": (0.0, float(np.ceil(low_top)))}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -229,9 +317,20 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, default=Path("target/emva001"), help="the cache [default: %(default)s]")
     p.add_argument("--generate", type=int, default=24, help="generated training scenes [default: %(default)s]")
     p.add_argument(
+        "--band",
+        action="store_true",
+        help="the burst's band instead of low light: packs from OUT/cal, evaluated on the held-out burst frames (OUT/eval)",
+    )
+    p.add_argument(
         "--flat",
         action="store_true",
-        help="train on flat fields at levels across the pack's band (OUT/train-flat) instead of generated scenes",
+        help="with --band: train on flat fields at levels across the pack's band (OUT/train-flat) instead of generated scenes",
+    )
+    p.add_argument(
+        "--flat-eval",
+        action="store_true",
+        help="evaluate on the held-out low-light flat fields themselves (OUT/eval-low) rather than the real-noise "
+        "mosaics made of them (OUT/eval-mosaic); flat fields reward smoothing, not fidelity",
     )
     p.add_argument("--json", type=Path, help="noisecal-bench's results JSON [default: OUT/bench.json]")
     args, rest = p.parse_known_args(argv)
@@ -239,25 +338,26 @@ def main(argv: list[str] | None = None) -> int:
     def say(*a):
         print(*a, file=sys.stderr, flush=True)
 
+    cal, full, plain = ("cal", "full.pack", "plain.pack") if args.band else ("cal-low", "low.pack", "low-plain.pack")
     try:
-        lo, hi = convert(Source(args.repo), args.out, say)["levels"]
-        packs = {"full.pack": False, "plain.pack": True}
-        for name, plain in packs.items():
+        got = convert(Source(args.repo), args.out, say)
+        for name, is_plain in ((full, False), (plain, True)):
             if not (args.out / name).exists():
-                say(f"calibrating {name}")
-                noisecal.calibrate(args.out / "cal", plain=plain).save(args.out / name)
+                say(f"calibrating {name} from {cal}/")
+                noisecal.calibrate(args.out / cal, plain=is_plain).save(args.out / name)
     except (ConvertError, noisecal.NoisecalError, OSError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     out = args.out
+    lo, hi = got["levels"] if args.band else got["low_levels"]
     return bench.main(
         [
-            "--pack", str(out / "full.pack"),
-            "--plain-pack", str(out / "plain.pack"),
-            "--eval", str(out / "eval"),
+            "--pack", str(out / full),
+            "--plain-pack", str(out / plain),
+            "--eval", str(out / ("eval" if args.band else "eval-low" if args.flat_eval else "eval-mosaic")),
             *(["--train", str(out / "train-flat")] if args.flat else
               ["--generate", str(args.generate), "--mono", "--generate-levels", f"{lo:g},{hi:g}"]),
-            "--models", "noisecal,hg,pg,plain,wrong",
+            "--models", "noisecal,hg,pg,plain,wrong,loud",
             "--json", str(args.json or out / "bench.json"),
             *rest,
         ]

@@ -173,6 +173,32 @@ def test_controls_need_a_clear_margin():
     # Every seed below, but by 0.1 dB: not clear either; and an oracle 0.5 dB down is not best.
     close = B.controls([row("oracle", "oracle", 35.5, 35.5), row("hg", "hg", 36.0, 36.0), row("wrong", "wrong", 35.4, 35.4)])[800]
     assert close["wrong_worst"] and not close["wrong_clear"] and not close["oracle_within_spread"]
+    # The loud control (2× HG's variance): below HG at every seed when the evaluation penalises
+    # over-smoothing; above it (a textureless set) it is flagged, and it is not a row the wrong
+    # model must beat.
+    ok = B.controls([row("hg", "hg", 36.0, 36.2), row("loud", "loud", 35.5, 35.9), row("wrong", "wrong", 35.0, 35.1)])[800]
+    assert ok["loud_below_hg"] and ok["loud_margin_db"] == pytest.approx(0.4) and ok["wrong_clear"]
+    flat = B.controls([row("hg", "hg", 36.0, 36.2), row("loud", "loud", 36.5, 36.1), row("wrong", "wrong", 35.0, 35.1)])[800]
+    assert not flat["loud_below_hg"]
+    low = B.controls([row("hg", "hg", 36.0, 36.2), row("loud", "loud", 34.0, 34.1), row("wrong", "wrong", 35.0, 35.1)])[800]
+    assert low["wrong_clear"] and low["loud_below_hg"]
+
+
+def test_gain_over_the_noisy_input_per_band():
+    # Known rows: the gain is the row's PSNR minus the noisy input's, overall and per band, at the
+    # row's ISO (the input keyed by int in a run, by str once read back from --json).
+    rows = [
+        {"model": "hg", "iso": 200, "psnr": {"mean": 55.5, "std": 0}, "bands": {"dark": {"mean": 62.0}, "shadow": {"mean": 53.0}}},
+        {"model": "hg", "iso": 400, "psnr": {"mean": 50.0, "std": 0}, "bands": {"mid": {"mean": 44.0}}},
+    ]
+    inputs = {200: {"psnr": 55.25, "bands": {"dark": {"psnr": 60.5}, "shadow": {"psnr": 53.25}}}, 400: {"psnr": 49.0, "bands": {}}}
+    for inp in (inputs, {str(k): v for k, v in inputs.items()}):
+        g = {(r["model"], r["iso"]): r for r in B.gains({"summary": rows, "input": inp})}
+        assert g[("hg", 200)]["psnr"] == pytest.approx(0.25)
+        assert g[("hg", 200)]["bands"] == pytest.approx({"dark": 1.5, "shadow": -0.25})
+        assert g[("hg", 400)]["psnr"] == pytest.approx(1.0) and g[("hg", 400)]["bands"] == {}
+    text = B.gain_table({"summary": rows, "input": inputs})
+    assert "+1.50" in text and "-0.25" in text
 
 
 # ---------------------------------------------------------------------------------------------
@@ -203,6 +229,25 @@ def test_wrong_model_has_half_the_hg_variance(pack):
         ratio = w.var() / h.var()
         assert 0.44 < ratio < 0.56, ratio  # ± ~6 σ of the ratio's sampling error at 16 384 pixels
         assert abs(w.mean() - h.mean()) < 0.2  # ~7 standard errors of the difference
+
+
+
+def test_loud_model_has_twice_the_hg_variance(pack):
+    """The ``loud`` control: var(loud) / var(hg) = 2 on a flat image (no scaling gives 1, a scale
+    of 2 instead of √2 gives 4), about HG's own mean; the ``wrong`` model is the same map at ½."""
+    clean = np.full((256, 256), 400, dtype=np.uint16)
+    noisy = pack.synth(clean, 800, 3, model="hg")
+    hg = noisy.astype(np.float64)
+    loud = B.scale_variance(noisy, clean, pack, 800, 2.0).astype(np.float64)
+    assert np.array_equal(B.scale_variance(noisy, clean, pack, 800, 0.5), B.half_variance(noisy, clean, pack, 800))
+    for p in range(4):
+        h, lo = B.pack_raw(hg)[p], B.pack_raw(loud)[p]
+        ratio = lo.var() / h.var()
+        assert 1.78 < ratio < 2.22, ratio  # ± ~6 σ of the ratio's sampling error at 16 384 pixels
+        assert abs(lo.mean() - h.mean()) < 0.3
+    pairs = B.make_pairs(B.parse_model("loud"), 800, [clean], 1, pack, {}, 1, {})
+    hgp = B.make_pairs(B.parse_model("hg"), 800, [clean], 1, pack, {}, 1, {})
+    assert np.array_equal(pairs.noisy[0][0], B.scale_variance(hgp.noisy[0][0], clean, pack, 800, 2.0))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -305,10 +350,32 @@ def test_cli_errors_are_one_line_without_a_traceback(bench_set: Path, session: d
     assert rc == 2 and "--plain-pack" in capsys.readouterr().err
     rc = B.main(["--pack", str(session["cli_pack"]), "--set", str(bench_set), "--crop", "36"])
     assert rc == 2 and "--crop 36: use a multiple of 8" in capsys.readouterr().err
+    for bad in ("0", "-2", "nan"):
+        rc = B.main(["--pack", str(session["cli_pack"]), "--set", str(bench_set), "--input-scale", bad])
+        assert rc == 2 and f"--input-scale {float(bad)}: give a positive number" in capsys.readouterr().err
 
 
 # ---------------------------------------------------------------------------------------------
 # With torch: determinism and the small run CI checks
+
+
+@pytest.mark.torch
+def test_input_scale_scales_what_the_layers_see_and_nothing_else():
+    """``make_net(w, s)``: the same weights as ``make_net(w)`` under the same seed, and an output of
+    ``x + correction(s·x)/s``, the unscaled network's correction taken at ``s·x`` and scaled back."""
+    torch = pytest.importorskip("torch")
+    torch.manual_seed(3)
+    plain = B.make_net(8)
+    torch.manual_seed(3)
+    scaled = B.make_net(8, 8.0)
+    sp, ss = plain.state_dict(), scaled.state_dict()
+    assert all(torch.equal(sp[k], ss[k]) for k in sp)
+    x = torch.rand(2, 4, 16, 16, generator=torch.Generator().manual_seed(1)) * 0.05
+    with torch.no_grad():
+        want = x + (plain(8.0 * x) - 8.0 * x) / 8.0
+        got = scaled(x)
+        assert torch.allclose(got, want, atol=1e-6)
+        assert not torch.allclose(got, plain(x), atol=1e-4)  # it does change what the layers see
 
 
 @pytest.mark.torch

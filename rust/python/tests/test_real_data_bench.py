@@ -136,3 +136,51 @@ def test_pair_clean_recovers_a_scaled_flat_field():
     assert abs(err.mean()) < 0.1  # the scale and the black shift
     assert err.std() < 0.37 * 24 / 5 * 1.1  # no more than the burst mean's own noise, scaled
     assert np.corrcoef(got.ravel(), truth.ravel())[0, 1] > 0.99
+
+
+def test_dithered_burst_has_the_clean_image_as_its_mean():
+    # A derived clean image handed to the calibrator as a reference burst: noiseless integer
+    # frames whose mean is the float clean image within 1/(2n) DN (plain rounding errs by up to ½).
+    rng = np.random.default_rng(11)
+    clean = 14.76 + rng.uniform(0, 400, (60, 80))
+    for n in (4, 8):
+        frames = E.dithered_burst(clean, n)
+        assert len(frames) == n and all(f.dtype == np.uint16 for f in frames)
+        err = np.mean(np.stack(frames).astype(np.float64), axis=0) - clean
+        assert np.abs(err).max() <= 0.5 / n + 1e-9
+        assert abs(err.mean()) < 0.01
+        spread = np.ptp(np.stack(frames).astype(np.int64), axis=0)
+        assert spread.max() <= 1  # no noise: neighbouring codes only
+    assert np.abs(np.rint(clean) - clean).max() > 0.45  # the test would catch plain rounding
+
+
+def test_real_noise_mosaics_use_every_real_pixel_once(tmp_path: Path):
+    # k flat frames at k levels → k mosaics: at every pixel the k scenes show the k frames once
+    # each (a Latin square), each with its own frame's clean image, in regions of about equal area.
+    rng = np.random.default_rng(2)
+    h, w, k = 64, 96, 4
+    held = []
+    for i in range(k):
+        clean = 15 + 80.0 * (i + 1) + rng.uniform(0, 1, (h, w))
+        held.append((np.rint(clean + rng.normal(0, 5, (h, w))).astype(np.uint16), clean, 40000 * (i + 1)))
+    written = {}
+
+    def write(path: Path, px: np.ndarray, iso: int, exposure_ns: int):
+        written[path.parent.name] = px
+
+    E.write_mosaics(tmp_path, held, write)
+    assert sorted(written) == [f"mosaic_{m}" for m in range(k)]
+    frames = np.stack([written[f"mosaic_{m}"] for m in range(k)]).astype(np.int64)
+    cleans = np.stack([np.load(tmp_path / f"mosaic_{m}" / "clean.npy") for m in range(k)])
+    src = np.stack([f for f, _, _ in held]).astype(np.int64)
+    src_clean = np.stack([c for _, c, _ in held])
+    # Which frame each scene shows at each pixel, told by its clean image (levels 80 DN apart).
+    which = np.rint((cleans - 15 - 0.5) / 80.0).astype(np.int64) - 1
+    assert (np.sort(which, axis=0) == np.arange(k)[:, None, None]).all()
+    assert np.array_equal(frames, np.take_along_axis(src, which, 0))
+    assert np.array_equal(cleans, np.take_along_axis(src_clean, which, 0))
+    area = np.bincount(which[0].ravel(), minlength=k) / (h * w)
+    assert area.min() > 0.15  # equal areas up to the quantile split of a 64×96 map
+    labels = E.mosaic_labels((h, w), k, 7)
+    edges = (np.diff(labels, axis=1) != 0).mean()
+    assert 0.01 < edges < 0.5  # regions, not noise: a label map with edges, not a random field

@@ -1,0 +1,111 @@
+"""The denoiser benchmark: does a network trained on a pack's synthetic noise denoise real captures?
+
+``noisecal-bench --pack my.pack --eval eval/ --train clean/`` (or ``python -m noisecal.bench``)
+trains the same small network (a compact UNet on packed 4-channel raw) on each noise model's
+synthetic pairs — the same clean crops in the same order, the same seeds — and scores every network
+on the real evaluation pairs: PSNR and SSIM per target ISO and per brightness band, over several
+training seeds, with the difference to HG (the paper's Table 1). ``--renoise-from A --renoise-to B``
+adds noise on noise (Table 2): networks trained on real ISO-A captures re-noised to ISO B by each
+method, scored on real ISO-B pairs, beside real ISO-B training data.
+
+Controls: ``oracle`` trains on the sensor's own noise (real captures of the training scenes, known
+for a simulated sensor: ``noisecal simulate --bench``) and ``wrong`` on HG noise with half the
+variance; the oracle should score best and the wrong model clearly worst, which shows the benchmark
+can tell models apart on this data before its verdict on the others is trusted.
+
+Inputs:
+
+- ``--eval DIR``: one sub-folder per scene holding DNGs: a burst at the lowest ISO in the folder
+  (the base ISO; its mean is the clean image) and frames at target ISOs (same ISO × exposure).
+  Frames are told apart by their ISO metadata, never by name.
+- ``--train DIR``: clean raw DNGs at the base ISO's brightness (e.g. burst means), or
+  ``--generate N`` natural-statistics scenes (dead leaves) mosaiced for the pack's CFA, black and
+  white levels. ``--set DIR`` takes the layout ``noisecal simulate --bench DIR`` writes
+  (``eval/``, ``train/clean/``, ``train/captures/``).
+- ``--captures DIR``: real captures of the training scenes, ``<clean file stem>_*.dng`` at target
+  ISOs: the ``oracle`` model's training data and the ISO-A frames noise on noise starts from.
+
+The package itself needs numpy alone; the training needs torch (``pip install noisecal[torch]``).
+The metric and data-layout functions here are numpy and import without torch.
+
+The package, one concern per module: ``layout`` (packed raw), ``scenes`` (generated training
+scenes), ``data`` (the evaluation set and training images from disk), ``metrics`` (PSNR, SSIM,
+bands), ``models`` (each model's training pairs), ``network`` (the UNet), ``training``,
+``scoring`` (networks scored, the summary and the controls), ``report`` (the table), ``run``
+(a whole run) and ``cli``. The names below are its public API.
+"""
+
+from __future__ import annotations
+
+from .errors import BenchError
+from .layout import mosaic, normalise, pack_raw, per_position, unpack_raw
+from .scenes import dead_leaves, generate_clean, parse_levels
+from .data import EvalScene, eval_pairs, load_captures, load_clean, load_eval
+from .metrics import BANDS, band_masks, psnr, score, ssim, ssim_map, summarise
+from .models import (
+    BASE_MODELS,
+    DEFAULT_MODELS,
+    RENOISE_METHODS,
+    ModelSpec,
+    Pairs,
+    half_variance,
+    hg_mean_offset,
+    make_pairs,
+    parse_model,
+    scale_variance,
+    synth_seed,
+)
+from .network import make_net
+from .training import batch_plan, train_one
+from .scoring import controls, evaluate, score_input, summary
+from .report import gain_table, gains, table
+from .run import run
+from .cli import main, parser
+
+__all__ = [
+    "BANDS",
+    "BASE_MODELS",
+    "BenchError",
+    "DEFAULT_MODELS",
+    "EvalScene",
+    "ModelSpec",
+    "Pairs",
+    "RENOISE_METHODS",
+    "band_masks",
+    "batch_plan",
+    "controls",
+    "dead_leaves",
+    "eval_pairs",
+    "evaluate",
+    "gain_table",
+    "gains",
+    "generate_clean",
+    "half_variance",
+    "hg_mean_offset",
+    "load_captures",
+    "load_clean",
+    "load_eval",
+    "main",
+    "make_net",
+    "make_pairs",
+    "mosaic",
+    "normalise",
+    "pack_raw",
+    "parse_levels",
+    "parse_model",
+    "parser",
+    "per_position",
+    "psnr",
+    "run",
+    "score",
+    "scale_variance",
+    "score_input",
+    "ssim",
+    "ssim_map",
+    "summarise",
+    "summary",
+    "synth_seed",
+    "table",
+    "train_one",
+    "unpack_raw",
+]

@@ -1,0 +1,153 @@
+"""The noise models: what produces each model's training pairs (a pack's synthesis, the
+baselines, the wrong-model control, the oracle's real captures, noise on noise), all with the
+same seeds (common random numbers)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+import noisecal
+
+from .errors import BenchError
+
+BASE_MODELS = ("noisecal", "hg", "pg", "noiseprofile", "plain", "wrong", "loud", "oracle")
+RENOISE_METHODS = ("bridge", "quantile", "denoised", "naive")
+DEFAULT_MODELS = "oracle,noisecal,hg,pg,wrong"
+
+
+@dataclass
+class ModelSpec:
+    label: str
+    kind: str  # one of BASE_MODELS, or "renoise"
+    components: str | None = None
+    pack_path: str | None = None
+    method: str | None = None  # renoise method
+    from_iso: int | None = None
+
+
+def parse_model(text: str, plain_pack: str | None = None) -> ModelSpec:
+    """``[LABEL=]MODEL[:COMPONENTS][@PACK]``: e.g. ``hg``, ``noisecal:pixel``,
+    ``interp=noisecal@held-out-isos.pack``, ``plain@plain.pack``."""
+    label, _, rest = text.rpartition("=")
+    rest = rest.strip()
+    pack_path = None
+    if "@" in rest:
+        rest, pack_path = rest.split("@", 1)
+    kind, _, comps = rest.partition(":")
+    kind = kind.strip().lower()
+    if kind not in BASE_MODELS:
+        raise BenchError(f"--models: unknown model {kind!r} in {text!r}: use {', '.join(BASE_MODELS)}")
+    if kind == "plain" and pack_path is None:
+        pack_path = plain_pack
+        if pack_path is None:
+            raise BenchError(
+                "--models plain needs the plain per-bin pack: --plain-pack plain.pack "
+                "(made by `noisecal calibrate captures/ -o plain.pack --plain`) or plain@plain.pack"
+            )
+    if comps and kind in ("oracle", "wrong", "loud"):
+        raise BenchError(f"--models {text!r}: components apply to pack models, not {kind}")
+    return ModelSpec(label.strip() or text.strip(), kind, comps.strip() or None, pack_path)
+
+
+class Pairs:
+    """Training pairs of one model at one ISO: ``noisy[j][k]`` (uint16) for clean image ``j`` and
+    realization ``k``."""
+
+    def __init__(self, noisy: list[list[np.ndarray]]):
+        self.noisy = noisy
+
+
+def synth_seed(data_seed: int, j: int, k: int, iso: int) -> int:
+    """The noise seed of realization ``k`` of clean training image ``j`` at ``iso``: the package's
+    rule for a keyed sample, :func:`noisecal.seed_for` of ``"train/j/k/iso"`` under the data seed,
+    so no two (image, realization, ISO) share a seed (a linear mix of the three can collide)."""
+    return noisecal.seed_for(f"train/{j}/{k}/{iso}", data_seed)
+
+
+def make_pairs(
+    spec: ModelSpec,
+    iso: int,
+    cleans: list[np.ndarray],
+    realizations: int,
+    pack,
+    captures: dict,
+    data_seed: int,
+    packs: dict,
+) -> Pairs:
+    """The model's noisy training images for ``cleans`` at ``iso`` (the same seeds for every
+    model: common random numbers)."""
+    if spec.kind == "oracle" or spec.kind == "renoise":
+        need_iso = iso if spec.kind == "oracle" else spec.from_iso
+        out = []
+        for j in range(len(cleans)):
+            frames = captures.get((j, need_iso), [])
+            if len(frames) < realizations:
+                raise BenchError(
+                    f"model {spec.label}: {len(frames)} real capture(s) of training image {j} at ISO {need_iso}, "
+                    f"{realizations} needed: give --captures with <clean stem>_*.dng at that ISO (noisecal simulate "
+                    "--bench writes them) or lower --realizations"
+                )
+            if spec.kind == "oracle":
+                out.append(list(frames[:realizations]))
+            else:
+                out.append(
+                    [
+                        pack.renoise(f, need_iso, iso, synth_seed(data_seed, j, k, iso), method=spec.method)
+                        for k, f in enumerate(frames[:realizations])
+                    ]
+                )
+        return Pairs(out)
+    p = packs[spec.pack_path] if spec.pack_path else pack
+    model = {"plain": "noisecal", "wrong": "hg", "loud": "hg"}.get(spec.kind, spec.kind)
+    offset = hg_mean_offset(p, iso) if spec.kind in ("wrong", "loud") else None
+    out = []
+    for j, c in enumerate(cleans):
+        row = []
+        for k in range(realizations):
+            s = synth_seed(data_seed, j, k, iso)
+            try:
+                n = p.synth(c, iso, s, model=model, components=spec.components)
+            except noisecal.NoisecalError as e:
+                raise BenchError(f"model {spec.label} at ISO {iso}: {e}") from e
+            if spec.kind == "wrong":
+                n = half_variance(n, c, p, iso, offset)
+            elif spec.kind == "loud":
+                n = scale_variance(n, c, p, iso, 2.0, offset)
+            row.append(n)
+        out.append(row)
+    return Pairs(out)
+
+
+def hg_mean_offset(pack, iso: int) -> np.ndarray:
+    """(4, white + 1): the mean of HG's noise (output − clean level) per CFA position and clean
+    level, from the sampler tables ``pack.tables(iso, model="hg")`` (the gain shift included)."""
+    t = pack.tables(iso, model="hg")
+    cdf = t["cdf"].astype(np.float64) / 2.0**32
+    pmf = np.diff(cdf, axis=-1, prepend=0.0)
+    per_bin = (pmf * (t["first"][..., None] + np.arange(pmf.shape[-1]))).sum(-1)  # (4, bins)
+    return np.take_along_axis(per_bin, t["lut"], axis=1)
+
+
+def half_variance(noisy: np.ndarray, clean: np.ndarray, pack, iso: int, offset: np.ndarray | None = None) -> np.ndarray:
+    """The deliberately wrong control: HG noise with half its variance, ``m + (x − m)/√2`` about
+    HG's own mean ``m`` (the clean level plus :func:`hg_mean_offset`)."""
+    return scale_variance(noisy, clean, pack, iso, 0.5, offset)
+
+
+def scale_variance(
+    noisy: np.ndarray, clean: np.ndarray, pack, iso: int, factor: float, offset: np.ndarray | None = None
+) -> np.ndarray:
+    """HG noise with ``factor`` times its variance, ``m + (x − m)/√(1/factor)`` about HG's own mean
+    ``m`` (the clean level plus :func:`hg_mean_offset`): ½ is the ``wrong`` control, 2 the ``loud``
+    one (too much noise: a network trained on it smooths too much, which only an evaluation set
+    with texture penalises)."""
+    offset = hg_mean_offset(pack, iso) if offset is None else offset
+    white = int(pack.layout["white"])
+    level = np.minimum(clean.astype(np.int64), white)
+    pos = (np.arange(clean.shape[0])[:, None] % 2) * 2 + np.arange(clean.shape[1])[None, :] % 2
+    m = level + offset[pos, level]
+    out = m + (noisy.astype(np.float64) - m) / math.sqrt(1 / factor)  # ½: exactly the earlier (x − m)/√2
+    return np.rint(np.clip(out, 0, white)).astype(np.uint16)

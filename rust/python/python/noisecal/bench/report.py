@@ -1,0 +1,89 @@
+"""The terminal table of a run's results (the same data ``--json`` writes and
+``noisecal report --bench`` reads)."""
+
+from __future__ import annotations
+
+from .metrics import BANDS
+
+
+def _fmt(m: dict, digits: int = 2) -> str:
+    return f"{m['mean']:.{digits}f}±{m['std']:.{digits}f}"
+
+
+def _input_at(out: dict, iso: int) -> dict | None:
+    """The noisy input's scores at ``iso``: keyed by int in a run, by str once read back from --json."""
+    inputs = out.get("input", {})
+    return inputs.get(iso) or inputs.get(str(iso))
+
+
+def gains(out: dict) -> list[dict]:
+    """Per summary row, the PSNR gain over the noisy input in dB, overall and per brightness band
+    (the band's pooled PSNR minus the noisy input's in that band): where the noise is small against
+    the signal every row sits near the input, and the gain is what tells a network that learned
+    from one that did not."""
+    rows = []
+    for r in out["summary"]:
+        inp = _input_at(out, r["iso"])
+        if not inp:
+            continue
+        g = {"model": r["model"], "iso": r["iso"], "psnr": r["psnr"]["mean"] - inp["psnr"], "bands": {}}
+        for b, m in r["bands"].items():
+            if b in inp["bands"]:
+                g["bands"][b] = m["mean"] - inp["bands"][b]["psnr"]
+        rows.append(g)
+    return rows
+
+
+def gain_table(out: dict) -> str:
+    """:func:`gains` as lines of text."""
+    bands = [b[0] for b in BANDS]
+    head = f"{'gain over input, dB':<22}{'ISO':>6}  {'all':>8}  " + "  ".join(f"{b:>8}" for b in bands)
+    lines = [head, "-" * len(head)]
+    for g in sorted(gains(out), key=lambda g: g["iso"]):
+        bs = "  ".join(f"{g['bands'][b]:>+8.2f}" if b in g["bands"] else f"{'':>8}" for b in bands)
+        lines.append(f"{g['model']:<22}{g['iso']:>6}  {g['psnr']:>+8.2f}  {bs}")
+    return "\n".join(lines)
+
+
+def table(out: dict) -> str:
+    lines = []
+    bands = [b[0] for b in BANDS]
+    head = f"{'model':<22}{'ISO':>6}  {'PSNR dB':>12}  {'SSIM':>14}  {'Δ HG dB':>12}  " + "  ".join(f"{b:>12}" for b in bands)
+    lines.append(head)
+    lines.append("-" * len(head))
+    calibrated = set(out.get("calibrated_isos", []))
+    for iso in out["isos"] + sorted({r["iso"] for r in out["summary"]} - set(out["isos"])):
+        for r in [r for r in out["summary"] if r["iso"] == iso]:
+            d = _fmt(r["delta_hg"]) if "delta_hg" in r else ""
+            bs = "  ".join(f"{_fmt(r['bands'][b]):>12}" if b in r["bands"] else f"{'':>12}" for b in bands)
+            name = r["model"]
+            if r["model"].split(":")[0] == "noisecal" and iso not in calibrated:
+                name += " (interp)"
+            lines.append(f"{name:<22}{iso:>6}  {_fmt(r['psnr']):>12}  {_fmt(r['ssim'], 4):>14}  {d:>12}  {bs}")
+        inp = _input_at(out, iso)
+        if inp:
+            bs = "  ".join(f"{inp['bands'][b]['psnr']:>12.2f}" if b in inp["bands"] else f"{'':>12}" for b in bands)
+            lines.append(f"{'(noisy input)':<22}{iso:>6}  {inp['psnr']:>12.2f}  {inp['ssim']:>14.4f}  {'':>12}  {bs}")
+        lines.append("")
+    for iso, c in out["controls"].items():
+        parts = []
+        if "oracle_best" in c:
+            verdict = "yes" if c["oracle_best"] else ("within the seed spread" if c["oracle_within_spread"] else "NO")
+            parts.append(f"oracle best: {verdict} (best − oracle {c['oracle_gap_db']:.2f} dB)")
+        if "wrong_worst" in c:
+            verdict = "yes, clearly" if c["wrong_clear"] else ("yes, but not clearly" if c["wrong_worst"] else "NO")
+            parts.append(f"wrong worst: {verdict} (by {c['wrong_margin_db']:.2f} dB)")
+        if "loud_below_hg" in c:
+            verdict = "yes" if c["loud_below_hg"] else "NO: the evaluation rewards smoothing, not fidelity"
+            parts.append(f"loud (2× HG variance) below HG: {verdict} (by {c['loud_margin_db']:.2f} dB)")
+        if parts:
+            lines.append(f"controls at ISO {iso}: " + "; ".join(parts))
+    n = len(out["networks"])
+    lines.append(
+        f"{n} networks, {out['config']['steps']} steps each (batch {out['config']['batch']}, crop {out['config']['crop']}, "
+        f"width {out['config']['width']}), seeds {out['seeds']}, {out['wall_seconds'] / 60:.1f} min"
+    )
+    lines.append("PSNR/SSIM: mean±std over training seeds; bands: PSNR of the pooled error by clean level (dark < 2 % of range)")
+    if any(out.get("input", {}).values()):
+        lines += ["", gain_table(out)]
+    return "\n".join(lines)

@@ -1,0 +1,190 @@
+"""A benchmark run: inputs resolved and checked, the jobs (model × ISO × seed, noise on noise),
+each network trained and scored (resumable from ``--state``), the results gathered."""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import noisecal
+
+from .data import eval_pairs, load_captures, load_clean, load_eval
+from .errors import BenchError
+from .layout import normalise
+from .models import RENOISE_METHODS, ModelSpec, Pairs, make_pairs, parse_model
+from .network import _torch
+from .scenes import generate_clean, parse_levels
+from .scoring import controls, evaluate, score_input, summary
+from .training import batch_plan, train_one
+
+
+def _config_key(cfg: dict) -> str:
+    return hashlib.blake2b(json.dumps(cfg, sort_keys=True).encode(), digest_size=8).hexdigest()
+
+
+def run(args: argparse.Namespace) -> dict:
+    t0 = time.time()
+    say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr, flush=True))
+    if args.set:
+        root = Path(args.set)
+        args.eval = args.eval or root / "eval"
+        if not args.train and not args.generate:
+            args.train = root / "train" / "clean"
+        if not args.captures and (root / "train" / "captures").is_dir():
+            args.captures = root / "train" / "captures"
+    if not args.pack:
+        raise BenchError("--pack is needed: the calibrated pack whose noise is benchmarked")
+    if not args.eval:
+        raise BenchError("--eval DIR is needed (or --set DIR): per scene a base-ISO burst and frames at target ISOs")
+    pack = noisecal.Pack.load(args.pack)
+    layout = pack.layout
+    scenes = load_eval(Path(args.eval), pack)
+    eval_isos = sorted({i for s in scenes for i in s.frames})
+    try:
+        isos = eval_isos if not args.isos else [int(i) for i in args.isos.split(",") if i.strip()]
+    except ValueError:
+        raise BenchError(f"--isos {args.isos!r}: give whole ISOs separated by commas, e.g. 400,1600") from None
+    missing = [i for i in isos if i not in eval_isos]
+    if missing:
+        raise BenchError(f"--isos {missing}: the evaluation set has frames at ISOs {eval_isos} only")
+    if args.train:
+        names, cleans = load_clean(Path(args.train), pack)
+    else:
+        n = args.generate or 16
+        h, w = (scenes[0].clean.shape[0] // 2) * 2, (scenes[0].clean.shape[1] // 2) * 2
+        names, cleans = [f"gen{i:03}" for i in range(n)], generate_clean(n, h, w, layout, args.data_seed, args.mono, parse_levels(args.generate_levels, layout))
+    captures = load_captures(Path(args.captures), names, pack) if args.captures else {}
+    shapes = {c.shape for c in cleans}
+    if len(shapes) != 1:
+        raise BenchError(f"--train: clean images of different sizes {sorted(shapes)}: use one size (crops are drawn from each)")
+    if args.realizations:
+        realizations = args.realizations
+    elif captures:
+        realizations = min(len(v) for v in captures.values())
+    else:
+        realizations = 4
+    packs = {args.pack: pack}  # a model naming the main pack's file does not load it again
+    specs = [parse_model(m, args.plain_pack) for m in args.models.split(",") if m.strip()]
+    for c in args.components or []:
+        specs.append(ModelSpec(f"noisecal:{c}", "noisecal", c))
+    for s in specs:
+        if s.pack_path and s.pack_path not in packs:
+            packs[s.pack_path] = noisecal.Pack.load(s.pack_path)
+        if s.kind == "oracle" and not captures:
+            raise BenchError(
+                "model oracle trains on the sensor's own noise: give --captures (real captures of the training scenes, "
+                "<clean stem>_*.dng; `noisecal simulate --bench DIR` writes them) or drop oracle from --models"
+            )
+    labels = [s.label for s in specs]
+    if len(set(labels)) != len(labels):
+        raise BenchError(f"--models: labels repeat in {labels}: name them LABEL=MODEL")
+    jobs = [(s, iso) for s in specs for iso in isos]
+    if args.renoise_from is not None:
+        a, b = args.renoise_from, args.renoise_to
+        if b is None or b not in eval_isos or not captures:
+            raise BenchError(
+                "noise on noise needs --renoise-to B at an ISO of the evaluation set and --captures holding real ISO-A "
+                "captures of the training scenes"
+            )
+        for m in RENOISE_METHODS:
+            jobs.append((ModelSpec(f"{m} {a}→{b}", "renoise", method=m, from_iso=a), b))
+        if not any(s.kind == "oracle" for s in specs):
+            jobs.append((ModelSpec(f"real {b}", "oracle"), b))
+    cleans_norm = [normalise(c, layout["black"], layout["white"]) for c in cleans]
+    seeds = list(range(args.seed, args.seed + args.seeds))
+    torch = _torch()
+    device = torch.device(args.device)
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    steps = args.steps
+    n_nets = len(jobs) * len(seeds)
+    if args.minutes:
+        probe = batch_plan(0, 6, args.batch, len(cleans), realizations, cleans[0].shape, args.crop)
+        dummy = Pairs([[c] * realizations for c in cleans])
+        train_one(dummy, cleans_norm, layout, probe[:2], args.crop, args.width, 0, device, args.lr)  # warm-up
+        t = time.time()
+        train_one(dummy, cleans_norm, layout, probe, args.crop, args.width, 0, device, args.lr)
+        per_step = (time.time() - t) / len(probe)
+        fit = int(args.minutes * 60 * 0.85 / (n_nets * per_step))
+        steps = max(20, min(steps, fit)) if args.steps_given else max(20, fit)
+        say(f"--minutes {args.minutes}: {per_step * 1000:.1f} ms per step → {steps} steps per network ({n_nets} networks)")
+    cfg = {
+        # Every pack a model reads, by its file's bytes: a pack changed on disk is not resumed.
+        "packs": {p: hashlib.blake2b(Path(p).read_bytes(), digest_size=8).hexdigest() for p in sorted(packs)},
+        "eval": str(Path(args.eval).resolve()),
+        "train": str(Path(args.train).resolve())
+        if args.train
+        else f"generated:{len(cleans)}" + (":mono" if args.mono else "") + (f":{args.generate_levels}" if args.generate_levels else ""),
+        "steps": steps,
+        "batch": args.batch,
+        "crop": args.crop,
+        "width": args.width,
+        "lr": args.lr,
+        "realizations": realizations,
+        "data_seed": args.data_seed,
+        "device": args.device,
+    }
+    if args.input_scale != 1.0:  # absent at 1, so the keys (and --state files) of earlier runs stay valid
+        cfg["input_scale"] = args.input_scale
+    key = _config_key(cfg)
+    state = Path(args.state) if args.state else None
+    if state:
+        state.mkdir(parents=True, exist_ok=True)
+    prepared: dict[int, list] = {}
+
+    def eval_at(iso: int) -> list:
+        if iso not in prepared:
+            prepared[iso] = eval_pairs(scenes, iso, layout)
+        return prepared[iso]
+
+    results = []
+    done = 0
+    for spec, iso in jobs:
+        pairs = None
+        for seed in seeds:
+            done += 1
+            tag = f"[{done}/{n_nets}] {spec.label} ISO {iso} seed {seed}"
+            fname = None
+            if state:
+                fname = state / f"{key}-{hashlib.blake2b(f'{spec}|{iso}|{seed}'.encode(), digest_size=6).hexdigest()}.json"
+                if fname.exists():
+                    results.append(json.loads(fname.read_text()))
+                    say(f"{tag}: resumed from {fname.name}")
+                    continue
+            if pairs is None:
+                pairs = make_pairs(spec, iso, cleans, realizations, pack, captures, args.data_seed, packs)
+            plan = batch_plan(seed, steps, args.batch, len(cleans), realizations, cleans[0].shape, args.crop)
+            ts = time.time()
+
+            def progress(s, n, loss, tag=tag, ts=ts):
+                tty = sys.stderr.isatty()
+                if not args.quiet and (s == n or s % max(1, n // (20 if tty else 4)) == 0):
+                    end = "\n" if s == n or not tty else "\r"
+                    print(f"{tag}: step {s}/{n} loss {loss:.4f} {time.time() - ts:.0f} s", end=end, file=sys.stderr, flush=True)
+
+            net = train_one(
+                pairs, cleans_norm, layout, plan, args.crop, args.width, seed, device, args.lr, progress, args.input_scale
+            )
+            r = {"model": spec.label, "kind": spec.kind, "iso": iso, "seed": seed, **evaluate(net, eval_at(iso), device)}
+            r["train_seconds"] = time.time() - ts
+            results.append(r)
+            if fname:
+                fname.write_text(json.dumps(r))
+    inputs = {iso: score_input(eval_at(iso)) for iso in sorted({iso for _, iso in jobs})}
+    out: dict[str, Any] = {
+        "config": cfg,
+        "input": inputs,
+        "isos": isos,
+        "calibrated_isos": pack.calibrated_isos,
+        "seeds": seeds,
+        "networks": results,
+        "summary": summary(results),
+        "wall_seconds": time.time() - t0,
+    }
+    out["controls"] = controls(out["summary"])
+    return out

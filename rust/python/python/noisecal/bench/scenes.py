@@ -1,0 +1,92 @@
+"""The built-in clean training images: natural-statistics scenes (dead leaves) mosaiced for a
+pack's CFA, channel gains and black/white levels (``--generate``, ``--generate-levels``, ``--mono``)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from .errors import BenchError
+from .layout import mosaic, per_position
+
+
+def dead_leaves(height: int, width: int, rng: np.random.Generator) -> np.ndarray:
+    """A natural-statistics RGB scene (H, W, 3) in [0, 1]: opaque discs front to back, radii with
+    density ∝ r⁻³ (1.5 px … a quarter of the larger side), log-uniform luminance over 0.004 … 0.9,
+    random chroma, under a smooth illumination gradient of up to 2 stops (as ``Chart::natural``)."""
+    img = np.zeros((height, width, 3))
+    covered = np.zeros((height, width), dtype=bool)
+    rmin, rmax = 1.5, max(2.0, max(height, width) / 4)
+    a, b = rmin**-2, rmax**-2
+    yy, xx = np.mgrid[0:height, 0:width] + 0.5
+    for _ in range(20000):
+        if covered.all():
+            break
+        r = (a - rng.random() * (a - b)) ** -0.5
+        cx, cy = rng.random() * (width + 2 * r) - r, rng.random() * (height + 2 * r) - r
+        lum = math.exp(math.log(0.004) + rng.random() * math.log(0.9 / 0.004))
+        chroma = 0.6 + 0.8 * rng.random(3)
+        color = np.minimum(lum * chroma / chroma.mean(), 1.0)
+        y0, y1 = max(0, int(cy - r)), min(height, int(cy + r) + 1)
+        x0, x1 = max(0, int(cx - r)), min(width, int(cx + r) + 1)
+        if y0 >= y1 or x0 >= x1:
+            continue
+        disc = ((yy[y0:y1, x0:x1] - cy) ** 2 + (xx[y0:y1, x0:x1] - cx) ** 2 <= r * r) & ~covered[y0:y1, x0:x1]
+        img[y0:y1, x0:x1][disc] = color
+        covered[y0:y1, x0:x1] |= disc
+    g = rng.random(2) * 2 - 1
+    norm = max(abs(g).sum(), 1e-9)
+    e = 2 * ((g[0] * xx / width + g[1] * yy / height) - np.maximum(g, 0).sum()) / norm
+    return img * np.exp2(e)[..., None]
+
+
+def generate_clean(
+    n: int,
+    height: int,
+    width: int,
+    layout: Mapping[str, Any],
+    seed: int,
+    mono: bool = False,
+    levels: tuple[float, float] | None = None,
+) -> list[np.ndarray]:
+    """``n`` clean raw images (uint16 DN, black included) of natural-statistics scenes mosaiced for
+    the pack's CFA with lamp × channel gains (R, G, B) = (0.6, 1, 0.75), the brightest green at
+    0.6 … 0.95 of the range and each image 0 … 3 EV darker in turn (low light included). ``mono``:
+    grey scenes at gain 1 on every CFA position (a monochrome sensor read as a mosaic).
+    ``levels`` (lo, hi) in DN above black: each scene's values spread linearly over that band
+    instead (for a pack whose measured levels are a narrow band, e.g. calibrated on a flat field:
+    outside its levels a non-parametric pack has no samples to draw from)."""
+    rng = np.random.default_rng(seed)
+    black = np.asarray(layout["black"], dtype=np.float64)
+    white = float(layout["white"])
+    out = []
+    for i in range(n):
+        rgb = dead_leaves(height, width, rng)
+        rgb = rgb.mean(-1, keepdims=True).repeat(3, -1) if mono else rgb * np.array([0.6, 1.0, 0.75])
+        raw = mosaic(rgb, layout["cfa"]) * (0.6 + 0.35 * rng.random()) / 2 ** (i % 4)
+        b = per_position(black, (height, width))
+        if levels is not None:
+            lo, hi = levels
+            v = np.clip(raw, 0, None)
+            v = (v - v.min()) / max(float(v.max() - v.min()), 1e-12)
+            out.append(np.rint(np.clip(b + lo + v * (hi - lo), 0, white)).astype(np.uint16))
+            continue
+        out.append(np.rint(np.clip(b + raw * (white - b), 0, white)).astype(np.uint16))
+    return out
+
+
+def parse_levels(text: str | None, layout: Mapping[str, Any]) -> tuple[float, float] | None:
+    """``--generate-levels LO,HI`` (DN above black), checked against the pack's range."""
+    if text is None:
+        return None
+    try:
+        lo, hi = (float(v) for v in text.split(","))
+    except ValueError:
+        raise BenchError(f"--generate-levels {text!r}: give LO,HI in DN above black, e.g. 1900,2060") from None
+    top = float(layout["white"]) - max(layout["black"])
+    if not 0 <= lo < hi <= top:
+        raise BenchError(f"--generate-levels {text!r}: need 0 ≤ LO < HI ≤ {top:g} (white less black)")
+    return lo, hi

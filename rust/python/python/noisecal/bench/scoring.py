@@ -1,0 +1,100 @@
+"""Scoring: networks and the noisy input on the evaluation pairs, the per-(model, ISO) summary
+over seeds with the paired difference to HG, and the controls (oracle best, wrong clearly worst)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .metrics import BANDS, score, summarise
+from .network import _torch
+
+
+def score_input(pairs: list[tuple[np.ndarray, np.ndarray]]) -> dict:
+    """The noisy evaluation frames themselves scored against the clean images (no network)."""
+    return score([n for n, _ in pairs], [c for _, c in pairs])
+
+
+def evaluate(net, pairs: list[tuple[np.ndarray, np.ndarray]], device) -> dict:
+    """``net``'s output on every evaluation pair (:func:`eval_pairs`), scored."""
+    torch = _torch()
+    preds = []
+    with torch.no_grad():
+        for noisy, _ in pairs:
+            preds.append(net(torch.from_numpy(noisy[None]).to(device))[0].cpu().numpy())
+    return score(preds, [c for _, c in pairs])
+
+
+def summary(results: list[dict]) -> list[dict]:
+    """Per (model, ISO): PSNR/SSIM mean and spread over seeds, per band, and the paired difference
+    to HG (same seed, same data order)."""
+    rows = []
+    by: dict[tuple[str, int], dict[int, dict]] = {}
+    for r in results:
+        by.setdefault((r["model"], r["iso"]), {})[r["seed"]] = r
+    for (model, iso), per in by.items():
+        row = {
+            "model": model,
+            "kind": next(iter(per.values()))["kind"],
+            "iso": iso,
+            "psnr": summarise([r["psnr"] for r in per.values()]),
+            "psnr_per_seed": {str(k): v["psnr"] for k, v in sorted(per.items())},
+            "ssim": summarise([r["ssim"] for r in per.values()]),
+            "bands": {},
+        }
+        for name, *_ in BANDS:
+            vals = [r["bands"][name]["psnr"] for r in per.values() if name in r["bands"]]
+            if vals:
+                row["bands"][name] = summarise(vals)
+        hg = by.get(("hg", iso))
+        if hg and model != "hg":
+            common = sorted(set(per) & set(hg))
+            if common:
+                row["delta_hg"] = summarise([per[s]["psnr"] - hg[s]["psnr"] for s in common])
+        rows.append(row)
+    return rows
+
+
+def controls(rows: list[dict]) -> dict:
+    """Per ISO, among the rows trained on synthetic or real noise at that ISO (noise on noise left
+    out): is the oracle best — strictly, and within the training-seed spread (``oracle_gap_db`` ≤
+    max(0.1 dB, 2 × the largest seed std at the ISO)) — and is the wrong model worst, and clearly
+    (``wrong_clear``: every other row beats it at every training seed, paired — same seed, same
+    data — and by ``wrong_margin_db`` > 0.3 dB on the means)? With a ``loud`` row (HG at twice its
+    variance): does it score below HG at every seed (``loud_below_hg``, ``loud_margin_db``)? If not,
+    the evaluation rewards smoothing more than fidelity (e.g. scenes without texture), and a model
+    with more noise than the sensor wins. The loud row is a control, not a row the wrong model
+    must beat.)"""
+    out = {}
+    for iso in sorted({r["iso"] for r in rows}):
+        at = {r["model"]: r for r in rows if r["iso"] == iso and r.get("kind") != "renoise"}
+        mean = {k: r["psnr"]["mean"] for k, r in at.items()}
+        spread = max((r["psnr"]["std"] for r in at.values()), default=0.0)
+        c = {"spread_db": spread}
+        oracle = [k for k, r in at.items() if r.get("kind") == "oracle"]
+        if oracle:
+            o = mean[oracle[0]]
+            c["oracle_best"] = o == max(mean.values())
+            c["oracle_gap_db"] = max(mean.values()) - o
+            c["oracle_within_spread"] = c["oracle_gap_db"] <= max(0.1, 2 * spread)
+        wrong = [k for k, r in at.items() if r.get("kind") == "wrong"]
+        if wrong:
+            w = at[wrong[0]]
+            others = {k: r for k, r in at.items() if k != wrong[0] and r.get("kind") != "loud"}
+            c["wrong_worst"] = all(mean[w["model"]] < r["psnr"]["mean"] for r in others.values())
+            c["wrong_margin_db"] = (min(r["psnr"]["mean"] for r in others.values()) - mean[w["model"]]) if others else None
+            ws = w.get("psnr_per_seed", {})
+            paired = all(
+                seed in r.get("psnr_per_seed", {}) and r["psnr_per_seed"][seed] > v
+                for r in others.values()
+                for seed, v in ws.items()
+            )
+            c["wrong_clear"] = bool(others) and bool(ws) and paired and c["wrong_margin_db"] > 0.3
+        loud = [k for k, r in at.items() if r.get("kind") == "loud"]
+        hg = [k for k, r in at.items() if r.get("kind") == "hg"]
+        if loud and hg:
+            lo, h = at[loud[0]], at[hg[0]]
+            hs, ls = h.get("psnr_per_seed", {}), lo.get("psnr_per_seed", {})
+            c["loud_margin_db"] = mean[hg[0]] - mean[loud[0]]
+            c["loud_below_hg"] = bool(ls) and all(seed in hs and hs[seed] > v for seed, v in ls.items())
+        out[iso] = c
+    return out
