@@ -24,7 +24,9 @@ use crate::calibrate::flat::{FlatReport, Groups, NOT_FLAT};
 use crate::calibrate::frame::FrameView;
 use crate::math::fit::{invert, poly_eval, solve};
 use crate::math::stats::median;
+
 use crate::model::layout::{POSITIONS, position};
+use robust::{Row, demean_rows, median_in_place, robust_weights, tukey};
 
 /// A flat pixel is left out of a frame when the frame's motion changes its clean level by more
 /// than this many standard deviations of one frame's noise at its level (a motion error of at
@@ -347,6 +349,15 @@ const CHI2_2_999: f64 = 13.816;
 const CHI2_4_999: f64 = 18.467;
 const CHI2_6_999: f64 = 22.458;
 
+/// A frame whose [`motion_score`] is below this is still: the motion fit, the likelihood ratio
+/// and the halves are skipped. Half the ratio's threshold, so only a frame whose ratio the
+/// score's quadratic approximation misses by a factor of two could differ. Compared frame by
+/// frame with the full path on the registration tests, the still charts and the moving study
+/// (3 224 frames): 663 skipped, none of them one the full path found moving; the lowest score
+/// of a frame it found moving was 12.2 (0.027 px), the next 15.7. The bench's still 12 MP chart
+/// (2-frame reference) scores 1.4–8.2 (before the clean-noise term: 31–40).
+const NO_MOTION_SCORE: f64 = CHI2_6_999 / 2.0;
+
 /// One Gauss–Newton fit of a frame on the clean image.
 #[derive(Clone)]
 struct Fit {
@@ -359,6 +370,144 @@ struct Fit {
     normal: Vec<Vec<f64>>,
     /// Per anchor, squared residual over a reference frame's noise variance.
     anchor_ratios: Vec<f64>,
+}
+
+/// Into `rows`, per sample at motion `m`, gain and offset: its row, weight 1, Jacobian row (the
+/// motion's six columns zero unless `free_motion`) and residual; into `slack` its slack
+/// ([`MODEL_SLACK_PX`] times its gradient). Both are cleared first: a fit reuses them at every
+/// iteration (at 5 000 samples a fresh `rows` is 0.7 MB of newly mapped, zeroed pages).
+#[allow(clippy::too_many_arguments)]
+fn rows_at(
+    probe: &MotionProbe,
+    samples: &[Sample],
+    w: usize,
+    h: usize,
+    m: &FrameMotion,
+    gain: &[f64; POSITIONS],
+    offset: &[f64; POSITIONS],
+    free_motion: bool,
+    rows: &mut Vec<Row<PARAMS>>,
+    slack: &mut Vec<f64>,
+) {
+    // Each row has an offset of its own (row noise: one offset per row and frame, several
+    // DN at a high ISO): rows are fixed effects, taken out of the residuals and of the
+    // Jacobian by demeaning within the row. A vertical motion moves a row's edges, not the
+    // row as a whole, so it stays identified where a row crosses both patches and gaps.
+    rows.clear();
+    slack.clear();
+    for s in samples {
+        let (dx, dy) = ((s.x as f64 - m.centre[0]) / m.radius, (s.y as f64 - m.centre[1]) / m.radius);
+        let u = m.at(s.x as f64, s.y as f64);
+        let (v, g, _) = probe.warp(w, h, s.x, s.y, u);
+        let r = s.value - (gain[s.pos] * v + offset[s.pos]);
+        let (gx, gy) = (gain[s.pos] * g[0], gain[s.pos] * g[1]);
+        slack.push(MODEL_SLACK_PX * gx.hypot(gy));
+        let mut j = [0.0f64; PARAMS];
+        if free_motion {
+            j[0] = gx;
+            j[1] = gy;
+            j[2] = gx * dx;
+            j[3] = gx * dy;
+            j[4] = gy * dx;
+            j[5] = gy * dy;
+        }
+        j[6 + 2 * s.pos] = v;
+        // The row effects hold each row's first position's offset: only the second
+        // position's offset (its difference) is a parameter.
+        if s.pos & 1 == 1 {
+            j[7 + 2 * s.pos] = 1.0;
+        }
+        rows.push((s.y, 1.0, j, r));
+    }
+}
+
+/// The weighted normal equations `[JᵀWJ | JᵀWr]` of weighted, row-demeaned `rows` (a tiny
+/// ridge keeps fixed parameters and positions without samples, a mono crop, solvable); into
+/// `residuals` (cleared first) the absolute residuals, and into `anchor_ratios` each anchor's
+/// squared residual over a reference frame's noise variance.
+fn normal_equations(
+    samples: &[Sample],
+    rows: &[Row<PARAMS>],
+    residuals: &mut Vec<f64>,
+    anchor_ratios: &mut Vec<f64>,
+) -> Vec<Vec<f64>> {
+    anchor_ratios.clear();
+    residuals.clear();
+    let mut a = vec![vec![0.0f64; PARAMS + 1]; PARAMS];
+    for (k, s) in samples.iter().enumerate() {
+        let (_, wgt, j, r) = &rows[k];
+        let wgt = *wgt;
+        residuals.push(r.abs());
+        if let Some(sd) = s.anchor_sd {
+            anchor_ratios.push(r * r / (sd as f64 * sd as f64).max(1e-6));
+        }
+        // A row holds two positions: about 9 of the 14 columns are non-zero.
+        let mut nz = [0usize; PARAMS];
+        let mut k = 0;
+        for (i, &v) in j.iter().enumerate() {
+            if v != 0.0 {
+                nz[k] = i;
+                k += 1;
+            }
+        }
+        let nz = &nz[..k];
+        for &r1 in nz {
+            let wj = wgt * j[r1];
+            for &c1 in nz {
+                a[r1][c1] += wj * j[c1];
+            }
+            a[r1][PARAMS] += wj * r;
+        }
+    }
+    for (k, row) in a.iter_mut().enumerate() {
+        row[k] += 1e-9 * (1.0 + row[k]);
+    }
+    a
+}
+
+/// The score statistic of motion at the still fit `still`: the decrease of the weighted squared
+/// residuals (in units of the fit's scale) that one Gauss–Newton step with the motion freed
+/// predicts, `bᵀA⁻¹b / scale²`, with Huber weights as the motion fit's first steps (Tukey's
+/// would give a moved frame's edges, outliers to a still fit, no weight). At no motion a
+/// sample's gradient on the lattice, `(mean(x + 2) − mean(x)) / 2`, shares the clean image's
+/// noise at `x` with its residual: `b` is taken less that expectation (`gain²·σ²/frames / 2`
+/// per sample and direction, `σ²` one reference frame's noise variance at its level), which
+/// grows with the number of samples and made a still chart's score 17–40 instead of χ²₆'s 6.
+/// For a small motion the score is the likelihood ratio's quadratic approximation: well below
+/// the ratio's threshold ([`NO_MOTION_SCORE`]) the frame is still without fitting the motion.
+fn motion_score(probe: &MotionProbe, samples: &[Sample], w: usize, h: usize, still: &Fit, frames: u32) -> Option<f64> {
+    let (mut rows, mut slack) = (Vec::with_capacity(samples.len()), Vec::with_capacity(samples.len()));
+    rows_at(probe, samples, w, h, &still.motion, &still.gain, &still.offset, true, &mut rows, &mut slack);
+    robust_weights(&mut rows, &slack, still.scale, false);
+    // The clean image's noise in each sample's gradient and residual, weighted, less the share
+    // its row's mean takes out.
+    let m = &still.motion;
+    let mut bias = [0.0f64; 6];
+    let mut at = 0;
+    for group in rows.chunk_by(|a, b| a.0 == b.0) {
+        let wsum: f64 = group.iter().map(|r| r.1).sum();
+        for (k, r) in group.iter().enumerate() {
+            let s = &samples[at + k];
+            let level = r.2[6 + 2 * s.pos].round().max(0.0) as usize;
+            let sd = probe.tolerance[s.pos].get(level).copied().unwrap_or(0.0) as f64 / MOTION_TOLERANCE;
+            let g = still.gain[s.pos];
+            let e = r.1 * (1.0 - r.1 / wsum.max(f64::MIN_POSITIVE)) * g * g * sd * sd / frames.max(1) as f64 / 2.0;
+            let (dx, dy) = ((s.x as f64 - m.centre[0]) / m.radius, (s.y as f64 - m.centre[1]) / m.radius);
+            for (b, c) in bias.iter_mut().zip([1.0, 1.0, dx, dy, dx, dy]) {
+                *b += e * c;
+            }
+        }
+        at += group.len();
+    }
+    demean_rows(&mut rows);
+    let mut a = normal_equations(samples, &rows, &mut Vec::with_capacity(samples.len()), &mut Vec::new());
+    for (row, b) in a.iter_mut().zip(bias) {
+        row[PARAMS] -= b;
+    }
+    let b: Vec<f64> = a.iter().map(|r| r[PARAMS]).collect();
+    let d = solve(a)?;
+    let s = d.iter().zip(&b).map(|(d, b)| d * b).sum::<f64>() / (still.scale * still.scale);
+    s.is_finite().then_some(s)
 }
 
 /// Fits gain and offset per position and, when `free_motion`, the motion field, starting from
@@ -380,40 +529,10 @@ fn fit(
     let mut scale = start.map_or(f64::INFINITY, |f| f.scale);
     let mut normal = Vec::new();
     let mut anchor_ratios = Vec::new();
+    let (mut rows, mut slack) = (Vec::with_capacity(samples.len()), Vec::with_capacity(samples.len()));
+    let mut residuals = Vec::with_capacity(samples.len());
     for it in 0..iterations {
-        anchor_ratios.clear();
-        let mut a = vec![vec![0.0f64; PARAMS + 1]; PARAMS];
-        let mut residuals = Vec::with_capacity(samples.len());
-        // Each row has an offset of its own (row noise: one offset per row and frame, several
-        // DN at a high ISO): rows are fixed effects, taken out of the residuals and of the
-        // Jacobian by demeaning within the row. A vertical motion moves a row's edges, not the
-        // row as a whole, so it stays identified where a row crosses both patches and gaps.
-        let mut rows: Vec<(usize, f64, [f64; PARAMS], f64)> = Vec::with_capacity(samples.len());
-        let mut slack = Vec::with_capacity(samples.len());
-        for s in samples {
-            let (dx, dy) = ((s.x as f64 - m.centre[0]) / m.radius, (s.y as f64 - m.centre[1]) / m.radius);
-            let u = m.at(s.x as f64, s.y as f64);
-            let (v, g, _) = probe.warp(w, h, s.x, s.y, u);
-            let r = s.value - (gain[s.pos] * v + offset[s.pos]);
-            let (gx, gy) = (gain[s.pos] * g[0], gain[s.pos] * g[1]);
-            slack.push(MODEL_SLACK_PX * gx.hypot(gy));
-            let mut j = [0.0f64; PARAMS];
-            if free_motion {
-                j[0] = gx;
-                j[1] = gy;
-                j[2] = gx * dx;
-                j[3] = gx * dy;
-                j[4] = gy * dx;
-                j[5] = gy * dy;
-            }
-            j[6 + 2 * s.pos] = v;
-            // The row effects hold each row's first position's offset: only the second
-            // position's offset (its difference) is a parameter.
-            if s.pos & 1 == 1 {
-                j[7 + 2 * s.pos] = 1.0;
-            }
-            rows.push((s.y, 1.0, j, r));
-        }
+        rows_at(probe, samples, w, h, &m, &gain, &offset, free_motion, &mut rows, &mut slack);
         // Huber weights first (the motion is not yet fitted: an edge's residual is its signal),
         // then, once the motion is, redescending ones: a pixel that glitched (hot, flickering,
         // RTS) or did something else (dust, a reflection) weighs nothing, in the fit and in its
@@ -421,36 +540,7 @@ fn fit(
         let redescend = it >= if free_motion { 2 } else { 1 };
         robust_weights(&mut rows, &slack, scale, redescend);
         demean_rows(&mut rows);
-        for (k, s) in samples.iter().enumerate() {
-            let (_, wgt, j, r) = &rows[k];
-            let wgt = *wgt;
-            residuals.push(r.abs());
-            if let Some(sd) = s.anchor_sd {
-                anchor_ratios.push(r * r / (sd as f64 * sd as f64).max(1e-6));
-            }
-            // A row holds two positions: about 9 of the 14 columns are non-zero.
-            let mut nz = [0usize; PARAMS];
-            let mut k = 0;
-            for (i, &v) in j.iter().enumerate() {
-                if v != 0.0 {
-                    nz[k] = i;
-                    k += 1;
-                }
-            }
-            let nz = &nz[..k];
-            for &r1 in nz {
-                let wj = wgt * j[r1];
-                for &c1 in nz {
-                    a[r1][c1] += wj * j[c1];
-                }
-                a[r1][PARAMS] += wj * r;
-            }
-        }
-        // A tiny ridge keeps fixed parameters and positions without samples (a mono crop)
-        // solvable.
-        for (k, row) in a.iter_mut().enumerate() {
-            row[k] += 1e-9 * (1.0 + row[k]);
-        }
+        let a = normal_equations(samples, &rows, &mut residuals, &mut anchor_ratios);
         normal = a.iter().map(|r| r[..PARAMS].to_vec()).collect();
         let d = solve(a)?;
         m.t[0] += d[0];
@@ -464,7 +554,7 @@ fn fit(
             offset[p] += d[7 + 2 * p];
         }
         if !residuals.is_empty() {
-            scale = (1.4826 * median(&residuals)).max(0.25);
+            scale = (1.4826 * median_in_place(&mut residuals)).max(0.25);
         }
         if !m.t.iter().chain(m.a.iter().flatten()).chain(&gain).chain(&offset).all(|v| v.is_finite()) {
             return None;
@@ -482,51 +572,11 @@ fn fit(
     Some(Fit { motion: m, gain, offset, scale, normal, anchor_ratios })
 }
 
-/// Tukey's biweight constant (95 % efficiency on Gaussian noise).
-const TUKEY_C: f64 = 4.685;
-
 /// How far (pixels) the motion model may miss at an edge (a bilinear warp on a colour's 2-px
 /// lattice pulls a sub-pixel shift by up to 15–20 %): a sample's residual is judged against
 /// the noise and this much motion along its gradient, so a steep edge the model misses is not
 /// taken for a glitch.
 const MODEL_SLACK_PX: f64 = 0.15;
-
-/// Sets each sample's weight (`.1`) from its residual (`.3`) less its row's median residual
-/// (the row offset, estimated robustly: a glitch of a hundred SD moves a row's mean by several
-/// SD of the noise, and every residual of the row with it), at the sample's own scale
-/// `hypot(scale, slack)` (`slack`: [`MODEL_SLACK_PX`] times its gradient): Huber's at 3 scales
-/// or, when `redescend`, Tukey's biweight at [`TUKEY_C`]. An infinite `scale` (a first fit) is
-/// taken from the deviations' own MAD.
-fn robust_weights(rows: &mut [(usize, f64, [f64; PARAMS], f64)], slack: &[f64], scale: f64, redescend: bool) {
-    let mut dev = Vec::with_capacity(rows.len());
-    for group in rows.chunk_by(|a, b| a.0 == b.0) {
-        let centre = median(&group.iter().map(|r| r.3).collect::<Vec<_>>());
-        dev.extend(group.iter().map(|r| r.3 - centre));
-    }
-    let scale = if scale.is_finite() {
-        scale
-    } else {
-        (1.4826 * median(&dev.iter().map(|d| d.abs()).collect::<Vec<_>>())).max(0.25)
-    };
-    for ((r, d), sl) in rows.iter_mut().zip(&dev).zip(slack) {
-        let z = (d / scale.hypot(*sl)).abs();
-        r.1 = if redescend {
-            if z < TUKEY_C { (1.0 - (z / TUKEY_C).powi(2)).powi(2) } else { 0.0 }
-        } else if z <= 3.0 {
-            1.0
-        } else {
-            3.0 / z
-        };
-    }
-}
-
-/// Tukey's biweight loss of a residual at `scale` (bounded: a glitch costs what any outlier does).
-#[inline]
-fn tukey(r: f64, scale: f64) -> f64 {
-    let z = (r / scale).abs();
-    let c2 = TUKEY_C * TUKEY_C;
-    scale * scale * if z < TUKEY_C { c2 / 6.0 * (1.0 - (1.0 - z * z / c2).powi(3)) } else { c2 / 6.0 }
-}
 
 /// The robust objective of a fit at `scale` (Tukey's biweight), each row's robust offset taken
 /// out, with each sample's share of the clean image's noise made the same at every motion: a
@@ -537,7 +587,7 @@ fn tukey(r: f64, scale: f64) -> f64 {
 fn objective(probe: &MotionProbe, samples: &[Sample], w: usize, h: usize, f: &Fit, scale: f64, frames: u32) -> f64 {
     let mut slack = Vec::with_capacity(samples.len());
     let mut smoothed = Vec::with_capacity(samples.len());
-    let mut rows: Vec<(usize, f64, [f64; PARAMS], f64)> = samples
+    let mut rows: Vec<Row<PARAMS>> = samples
         .iter()
         .map(|s| {
             let u = f.motion.at(s.x as f64, s.y as f64);
@@ -561,30 +611,6 @@ fn objective(probe: &MotionProbe, samples: &[Sample], w: usize, h: usize, f: &Fi
             if r.1 > 0.0 { cost + 0.5 * sm } else { cost }
         })
         .sum()
-}
-
-/// Takes each row's mean (weights `.1`) out of the Jacobian rows `.2` and residuals `.3` of its
-/// samples (`.0`: the row; samples of a row are contiguous, as the probe lists them).
-fn demean_rows(rows: &mut [(usize, f64, [f64; PARAMS], f64)]) {
-    for group in rows.chunk_by_mut(|a, b| a.0 == b.0) {
-        let wsum: f64 = group.iter().map(|r| r.1).sum();
-        if wsum > 0.0 {
-            let mut mj = [0.0f64; PARAMS];
-            let mut mr = 0.0;
-            for r in group.iter() {
-                for k in 0..PARAMS {
-                    mj[k] += r.1 * r.2[k];
-                }
-                mr += r.1 * r.3;
-            }
-            for r in group.iter_mut() {
-                for k in 0..PARAMS {
-                    r.2[k] -= mj[k] / wsum;
-                }
-                r.3 -= mr / wsum;
-            }
-        }
-    }
 }
 
 /// A frame's motion against the clean image whose probe is `probe` (`None` when the clean image
@@ -631,12 +657,17 @@ pub(crate) fn register(
     // Without motion the model is linear in gain and offset: two passes (the second at the
     // residuals' own scale) fit it.
     let still = fit(probe, &samples, w, h, false, None, 2)?;
+    let score = motion_score(probe, &samples, w, h, &still, frames);
+    if score.is_some_and(|s| s < NO_MOTION_SCORE) {
+        return Some(with_noise_scale(still).motion);
+    }
     let moved = fit(probe, &samples, w, h, true, Some(&still), MAX_ITERATIONS)?;
     let s0 = still.scale;
     let ratio = 2.0
         * (objective(probe, &samples, w, h, &still, s0, frames) - objective(probe, &samples, w, h, &moved, s0, frames))
         / (s0 * s0);
     let significant = ratio > CHI2_6_999;
+
     let mut out = if significant { moved } else { still.clone() };
     if significant {
         // The same motion must show in both halves of the samples (alternate row pairs: their
@@ -707,15 +738,20 @@ pub(crate) fn register(
         m.t = [kept[0], kept[1]];
         m.a = [[kept[2], kept[3]], [kept[4], kept[5]]];
     }
-    // The anchors' squared residuals over a reference frame's noise variance: their median is
-    // 0.455 of the variance ratio for Gaussian noise (χ²₁'s median), and the same ratio holds
-    // for any one shape of noise at both ISOs.
-    if out.anchor_ratios.len() >= 32 {
-        out.motion.noise_scale = (median(&out.anchor_ratios) / 0.455).sqrt().clamp(1.0, 1e3);
-    }
-    Some(out.motion)
+    Some(with_noise_scale(out).motion)
 }
 
+/// `f` with its motion's noise scale set from the anchors' squared residuals over a reference
+/// frame's noise variance: their median is 0.455 of the variance ratio for Gaussian noise
+/// (χ²₁'s median), and the same ratio holds for any one shape of noise at both ISOs.
+fn with_noise_scale(mut f: Fit) -> Fit {
+    if f.anchor_ratios.len() >= 32 {
+        f.motion.noise_scale = (median(&f.anchor_ratios) / 0.455).sqrt().clamp(1.0, 1e3);
+    }
+    f
+}
+
+mod robust;
 #[cfg(test)]
 mod still_charts;
 
