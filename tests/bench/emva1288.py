@@ -71,10 +71,8 @@ filter is refused by name).
 from __future__ import annotations
 
 import argparse
-import struct
 import subprocess
 import sys
-import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -82,6 +80,7 @@ import numpy as np
 
 import noisecal
 from noisecal import bench
+from png16 import ConvertError, read_png16
 
 SET = "EMVA1288_ReferenceSet_001_CCD_12Bit"
 BURST_EXPOSURE_NS = 5_160_000
@@ -97,34 +96,6 @@ LOW_CAL_MAX = 0.2  # of the range above black: photon-transfer exposures up to t
 LOW_EVAL_MAX = 0.1  # of the range above black: photon-transfer exposures below this level are evaluated (low light)
 LOW_REF_FRAMES = 8  # frames of each derived (noiseless, dithered) reference burst
 MOSAIC_SEED = 1288  # the dead-leaves label maps of the real-noise mosaics (OUT/eval-mosaic)
-
-
-class ConvertError(ValueError):
-    """The data set is not what this script expects (the message names the file)."""
-
-
-def read_png16(data: bytes, name: str) -> np.ndarray:
-    """A 16-bit greyscale, non-interlaced PNG (filter type 0 on every row) as uint16 (H, W)."""
-    if data[:8] != b"\x89PNG\r\n\x1a\n":
-        raise ConvertError(f"{name}: not a PNG file")
-    at, idat, head = 8, [], None
-    while at < len(data):
-        (n,) = struct.unpack(">I", data[at : at + 4])
-        kind, body = data[at + 4 : at + 8], data[at + 8 : at + 8 + n]
-        at += 12 + n
-        if kind == b"IHDR":
-            head = struct.unpack(">IIBBBBB", body)
-        elif kind == b"IDAT":
-            idat.append(body)
-    if head is None:
-        raise ConvertError(f"{name}: a PNG without its IHDR header")
-    w, h, depth, colour, _, _, interlace = head
-    if (depth, colour, interlace) != (16, 0, 0):
-        raise ConvertError(f"{name}: a {depth}-bit PNG of colour type {colour}, interlace {interlace}: want 16-bit grey")
-    rows = np.frombuffer(zlib.decompress(b"".join(idat)), np.uint8).reshape(h, 2 * w + 1)
-    if rows[:, 0].any():
-        raise ConvertError(f"{name}: PNG row filters {sorted(set(rows[:, 0].tolist()))}; only filter 0 is read here")
-    return rows[:, 1:].copy().view(">u2").astype(np.uint16)
 
 
 @dataclass

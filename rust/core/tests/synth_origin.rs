@@ -3,56 +3,16 @@
 
 use ndarray::Array2;
 use noisecal_core::model::layout::position;
-use noisecal_core::model::pack::{BinModel, BinSource, IsoModel, ModelOrigin, ModelPack, PositionModel};
+mod support;
+
+use noisecal_core::model::pack::{IsoModel, ModelPack};
 use noisecal_core::synth::sampler::IsoSampler;
 use noisecal_core::synth::{synthesize, synthesize_at};
-use noisecal_core::{CfaPattern, POSITIONS, SensorLayout};
 
 /// A pack whose noise is a single value per CFA position: `+10·(p + 1)` DN at position `p`, so
 /// every output pixel names the position whose PMF drew it.
 fn tagged_pack() -> (ModelPack, IsoModel) {
-    let layout = SensorLayout { width: 64, height: 64, cfa: CfaPattern::Rggb, black: [64.0; POSITIONS], white: 1023 };
-    let bin_width = 4u16;
-    let bins = ((1023.0 - 64.0) / bin_width as f32).floor() as usize + 1;
-    let positions = (0..POSITIONS)
-        .map(|p| {
-            PositionModel::new(
-                (0..bins)
-                    .map(|_| BinModel {
-                        first: 10 * (p as i32 + 1),
-                        counts: vec![1],
-                        samples: 1,
-                        source: BinSource::Measured,
-                        measured: None,
-                        clipped: false,
-                    })
-                    .collect(),
-            )
-        })
-        .collect();
-    let model = IsoModel {
-        iso: 100,
-        origin: ModelOrigin::Calibrated,
-        frames: 1,
-        drift_frames: 0,
-        gain_ratio: [1.0; POSITIONS],
-        noise_profile: None,
-        range: [[0, 1023]; POSITIONS],
-        lattice: [None; POSITIONS],
-        positions,
-    };
-    let pack = ModelPack {
-        layout,
-        make: "test".into(),
-        model: "tagged".into(),
-        bin_width,
-        reference_iso: 100,
-        pooling: None,
-        isos: vec![model.clone()],
-        warnings: vec![],
-        structure: vec![],
-    };
-    (pack, model)
+    support::one_iso_pack((64, 64), 4, (1, 1), "tagged", |p| (10 * (p as i32 + 1), vec![1]))
 }
 
 #[test]

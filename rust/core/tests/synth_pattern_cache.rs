@@ -3,11 +3,13 @@
 //! the bytes of the row-by-row computation, on one thread and on three.
 
 use ndarray::Array2;
-use noisecal_core::model::pack::{BinModel, BinSource, IsoModel, ModelOrigin, ModelPack, PositionModel};
+mod support;
+
+use noisecal_core::model::pack::{IsoModel, ModelPack};
 use noisecal_core::model::structure::{Components, FixedPattern, IsoStructure, OffsetDistribution, QUANTILES};
 use noisecal_core::synth::sampler::IsoSampler;
 use noisecal_core::synth::{DEFAULT_PATTERN_CACHE_BYTES, synthesize_at};
-use noisecal_core::{CfaPattern, POSITIONS, SensorLayout};
+use noisecal_core::POSITIONS;
 
 const H: usize = 40;
 const W: usize = 61;
@@ -15,49 +17,8 @@ const ORIGIN: (usize, usize) = (3, 1);
 
 /// A 10-bit pack of one ISO whose bins all draw a small skewed PMF over −6 … 6 DN.
 fn pack() -> (ModelPack, IsoModel) {
-    let layout = SensorLayout { width: 128, height: 96, cfa: CfaPattern::Rggb, black: [64.0; POSITIONS], white: 1023 };
-    let bin_width = 8u16;
-    let bins = ((1023.0 - 64.0) / bin_width as f32).floor() as usize + 1;
     let counts: Vec<u64> = (0..13u64).map(|i| 1 + (i * 37 + 11) % 50 + 200 / (1 + i.abs_diff(6))).collect();
-    let positions = (0..POSITIONS)
-        .map(|_| {
-            PositionModel::new(
-                (0..bins)
-                    .map(|_| BinModel {
-                        first: -6,
-                        counts: counts.clone(),
-                        samples: 1000,
-                        source: BinSource::Measured,
-                        measured: None,
-                        clipped: false,
-                    })
-                    .collect(),
-            )
-        })
-        .collect();
-    let model = IsoModel {
-        iso: 100,
-        origin: ModelOrigin::Calibrated,
-        frames: 8,
-        drift_frames: 0,
-        gain_ratio: [1.0; POSITIONS],
-        noise_profile: None,
-        range: [[0, 1023]; POSITIONS],
-        lattice: [None; POSITIONS],
-        positions,
-    };
-    let pack = ModelPack {
-        layout,
-        make: "test".into(),
-        model: "pattern".into(),
-        bin_width,
-        reference_iso: 100,
-        pooling: None,
-        isos: vec![model.clone()],
-        warnings: vec![],
-        structure: vec![],
-    };
-    (pack, model)
+    support::one_iso_pack((128, 96), 8, (8, 1000), "pattern", |_| (-6, counts.clone()))
 }
 
 /// A spread of `sd` DN (a scaled uniform quantile function: the shape does not matter here).

@@ -2,37 +2,21 @@
 
     python3 tests/data/emva001/make_crop.py DATASETS [OUT]
 
-DATASETS: a clone, bare or not, of github.com/EMVA1288/datasets. Standard library only: the
-frames are 16-bit greyscale PNGs with filter type 0 on every row (any other is refused).
+DATASETS: a clone, bare or not, of github.com/EMVA1288/datasets. Needs numpy; the frames are
+16-bit greyscale PNGs with filter type 0 on every row, read by tests/bench/png16.py (the real-data
+bench's reader; any other PNG is refused).
 """
 
-import struct
 import subprocess
 import sys
-import zlib
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
+from png16 import ConvertError, read_png16  # noqa: E402  (a module under tests/bench, not a package)
 
 SET = "EMVA1288_ReferenceSet_001_CCD_12Bit"
 FRAMES = 50  # images/b_s_000_snap_000.png … _049.png: the 50-frame burst at 5.16 ms
 X0, Y0, W, H = 256, 208, 128, 64  # the crop: the frame's centre (640 × 480), even offsets
-
-
-def png16(data: bytes, name: str) -> tuple[int, int, bytes]:
-    """A 16-bit greyscale, non-interlaced PNG as (width, height, filtered rows)."""
-    if data[:8] != b"\x89PNG\r\n\x1a\n":
-        sys.exit(f"{name}: not a PNG file")
-    at, idat, head = 8, [], None
-    while at < len(data):
-        (n,) = struct.unpack(">I", data[at : at + 4])
-        kind, body = data[at + 4 : at + 8], data[at + 8 : at + 8 + n]
-        at += 12 + n
-        if kind == b"IHDR":
-            head = struct.unpack(">IIBBBBB", body)
-        elif kind == b"IDAT":
-            idat.append(body)
-    if head is None or head[2:5] != (16, 0, 0) or head[6] != 0:
-        sys.exit(f"{name}: not a 16-bit greyscale non-interlaced PNG")
-    return head[0], head[1], zlib.decompress(b"".join(idat))
 
 
 def main() -> None:
@@ -42,14 +26,11 @@ def main() -> None:
     for k in range(FRAMES):
         name = f"{SET}/images/b_s_000_snap_{k:03d}.png"
         data = subprocess.run(["git", "-C", str(repo), "show", f"HEAD:{name}"], capture_output=True, check=True).stdout
-        w, h, raw = png16(data, name)
-        stride = 2 * w + 1
-        for y in range(Y0, Y0 + H):
-            row = raw[y * stride : (y + 1) * stride]
-            if row[0] != 0:
-                sys.exit(f"{name}: row {y} uses PNG filter {row[0]}; only filter 0 is read here")
-            values = struct.unpack(f">{W}H", row[1 + 2 * X0 : 1 + 2 * (X0 + W)])
-            crop += struct.pack(f"<{W}H", *values)
+        try:
+            frame = read_png16(data, name)
+        except ConvertError as e:
+            sys.exit(str(e))
+        crop += frame[Y0 : Y0 + H, X0 : X0 + W].astype("<u2").tobytes()
     out.write_bytes(bytes(crop))
     print(f"{out}: {FRAMES} frames of {W}×{H} from x={X0}, y={Y0}, {len(crop)} bytes")
 

@@ -282,6 +282,53 @@ impl RecordSeal {
     }
 }
 
+/// Deflate level of the compact pack payloads (versions 6 and 7).
+const DEFLATE_LEVEL: u8 = 9;
+/// The largest uncompressed payload a compact pack may claim (the bincode decoder's own limit).
+const MAX_INFLATED: u64 = 1 << 30;
+
+/// The compact pack payloads' envelope (versions 6 and 7): the uncompressed length and the
+/// length of the bincode fields (little-endian u64 each), then the fields followed by the weight
+/// stream, deflated together.
+pub(crate) fn deflate_fields_and_weights(mut fields: Vec<u8>, weights: &[u8]) -> Vec<u8> {
+    let fields_len = fields.len() as u64;
+    fields.extend_from_slice(weights);
+    let mut out = Vec::with_capacity(16 + fields.len() / 4);
+    out.extend_from_slice(&(fields.len() as u64).to_le_bytes());
+    out.extend_from_slice(&fields_len.to_le_bytes());
+    out.extend_from_slice(&miniz_oxide::deflate::compress_to_vec(&fields, DEFLATE_LEVEL));
+    out
+}
+
+/// The inflated payload of [`deflate_fields_and_weights`] and where its weight stream starts,
+/// refusing a damaged envelope with a clear error.
+pub(crate) fn inflate_fields_and_weights(what: &'static str, payload: &[u8]) -> Result<(Vec<u8>, usize), CodecError> {
+    let bad = |detail: String| CodecError::Invalid { what, detail };
+    let Some((lens, deflated)) = payload.split_first_chunk::<16>() else {
+        return Err(CodecError::Truncated { what, len: payload.len(), expected: 16 });
+    };
+    let raw_len = u64::from_le_bytes(lens[..8].try_into().expect("8 bytes"));
+    let fields_len = u64::from_le_bytes(lens[8..].try_into().expect("8 bytes"));
+    if raw_len > MAX_INFLATED {
+        return Err(bad(format!(
+            "the payload claims {raw_len} bytes uncompressed, beyond the {MAX_INFLATED}-byte limit"
+        )));
+    }
+    if fields_len > raw_len {
+        return Err(bad("the pack's fields claim more bytes than the payload holds: the file is damaged".into()));
+    }
+    let raw = miniz_oxide::inflate::decompress_to_vec_with_limit(deflated, raw_len as usize).map_err(|_| {
+        bad(format!("the compressed payload does not inflate to its stated {raw_len} bytes: the file is damaged"))
+    })?;
+    if raw.len() as u64 != raw_len {
+        return Err(bad(format!(
+            "the compressed payload inflates to {} bytes, not its stated {raw_len}: the file is damaged",
+            raw.len()
+        )));
+    }
+    Ok((raw, fields_len as usize))
+}
+
 /// A signed difference as an unsigned one whose size follows its magnitude (0, −1, 1, −2 … →
 /// 0, 1, 2, 3 …), for the compact pack payloads' varints.
 pub(crate) fn zigzag(d: i64) -> u64 {

@@ -12,8 +12,8 @@
 //! ([`WeightCode`]), so a code's step is one stored step whatever the bin's precision: a smooth
 //! PMF's codes change by small steps and a tail kept to a bit or two is a run of near-equal
 //! numbers. The precision is not stored: it follows from fields the file holds (the model
-//! calibrated or not, the position estimated or plain, the bin's samples). Deflate is
-//! `miniz_oxide` at level [`LEVEL`].
+//! calibrated or not, the position estimated or plain, the bin's samples). The envelope (lengths,
+//! deflate) is version 6's, [`codec::deflate_fields_and_weights`].
 //!
 //! Same pack in, same bytes out (deflate is deterministic for a given `miniz_oxide`, pinned by
 //! Cargo.lock). The differences wrap in 64 bits (a bijection on `u64`): any codes round-trip and
@@ -26,10 +26,6 @@ use crate::model::pack::{IsoModel, ModelPack, PositionModel};
 use crate::model::precision::{DERIVED_BITS, Precision, bin_precision};
 
 const WHAT: &str = "model pack";
-/// Deflate level.
-const LEVEL: u8 = 9;
-/// The largest uncompressed payload a pack may claim (the bincode decoder's own limit).
-const MAX_RAW: u64 = 1 << 30;
 
 /// The precision a bin of this model and position is stored with.
 fn precision_of(m: &IsoModel, p: &PositionModel, samples: u64) -> Precision {
@@ -198,43 +194,17 @@ pub fn encode(pack: &ModelPack) -> Result<Vec<u8>, CodecError> {
     fields.isos.iter_mut().flat_map(|m| m.positions.iter_mut()).flat_map(|p| p.bins.iter_mut()).for_each(|b| {
         b.counts = Vec::new();
     });
-    let mut raw = codec::encode_payload(WHAT, &fields)?;
+    let fields_bytes = codec::encode_payload(WHAT, &fields)?;
     drop(fields);
-    let fields_len = raw.len() as u64;
-    raw.extend_from_slice(&weights);
-    let mut out = Vec::with_capacity(16 + raw.len() / 4);
-    out.extend_from_slice(&(raw.len() as u64).to_le_bytes());
-    out.extend_from_slice(&fields_len.to_le_bytes());
-    out.extend_from_slice(&miniz_oxide::deflate::compress_to_vec(&raw, LEVEL));
-    Ok(out)
+    Ok(codec::deflate_fields_and_weights(fields_bytes, &weights))
 }
 
 /// The pack in a version 7 payload (checked by the caller), refusing a damaged one with a clear
 /// error.
 pub fn decode(payload: &[u8]) -> Result<ModelPack, CodecError> {
-    let bad = |detail: String| CodecError::Invalid { what: WHAT, detail };
-    let damaged = |what: &str| bad(format!("{what}: the file is damaged"));
-    let Some((lens, deflated)) = payload.split_first_chunk::<16>() else {
-        return Err(CodecError::Truncated { what: WHAT, len: payload.len(), expected: 16 });
-    };
-    let raw_len = u64::from_le_bytes(lens[..8].try_into().expect("8 bytes"));
-    let fields_len = u64::from_le_bytes(lens[8..].try_into().expect("8 bytes"));
-    if raw_len > MAX_RAW {
-        return Err(bad(format!("the payload claims {raw_len} bytes uncompressed, beyond the {MAX_RAW}-byte limit")));
-    }
-    if fields_len > raw_len {
-        return Err(damaged("the pack's fields claim more bytes than the payload holds"));
-    }
-    let raw = miniz_oxide::inflate::decompress_to_vec_with_limit(deflated, raw_len as usize).map_err(|_| {
-        bad(format!("the compressed payload does not inflate to its stated {raw_len} bytes: the file is damaged"))
-    })?;
-    if raw.len() as u64 != raw_len {
-        return Err(bad(format!(
-            "the compressed payload inflates to {} bytes, not its stated {raw_len}: the file is damaged",
-            raw.len()
-        )));
-    }
-    let (fields, weights) = raw.split_at(fields_len as usize);
+    let damaged = |what: &str| CodecError::Invalid { what: WHAT, detail: format!("{what}: the file is damaged") };
+    let (raw, fields_len) = codec::inflate_fields_and_weights(WHAT, payload)?;
+    let (fields, weights) = raw.split_at(fields_len);
     let mut pack: ModelPack = codec::decode_payload(WHAT, fields)?;
     let mut at = 0usize;
     for (i, m) in pack.isos.iter_mut().enumerate() {
