@@ -33,9 +33,15 @@ const GRID: f64 = 32.0;
 /// 5–6): the shape error is second order in the share (the excess kurtosis of `Q ∗ K` comes out
 /// `(1 − share)²` of the measured one), while Richardson–Lucy would cost `n · K` per iteration.
 const RESCALE_ONLY: f64 = 0.1;
-/// Richardson–Lucy iterations at most, and the work (`iterations · n · K`) per bin at most.
+/// Richardson–Lucy iterations at most, and the work (`iterations · n · K`) per bin at most, `n`
+/// the PMF's support less its negligible tails ([`TAIL_MASS`]).
 const RL_ITERATIONS: usize = 200;
 const RL_WORK: f64 = 4e6;
+/// The mass each end of a PMF may hold beyond the support that sets the Richardson–Lucy
+/// iteration count and the start's moments: the stored tail reaches out to cells of 2⁻²⁰ of the
+/// largest (a cut that moves at most about 10⁻⁶ of the mass) or further, and the iterations and
+/// the start, thus the synthesized noise, must not follow how far it reaches.
+const TAIL_MASS: f64 = 1e-5;
 /// Richardson–Lucy iterations at most for a clipped bin below [`RESCALE_ONLY`].
 const CLIPPED_SMALL_SHARE_ITERATIONS: usize = 20;
 /// The least mass an end cell of a clipped bin holds to be the clamp's pile (a floor count of
@@ -263,10 +269,15 @@ fn deconvolve_bin(b: &BinModel, k0: i32, kernel: &[f64]) -> BinModel {
 /// [`deconvolve_bin`] with at most `max_iterations` Richardson–Lucy iterations.
 fn deconvolve_bin_within(b: &BinModel, k0: i32, kernel: &[f64], max_iterations: usize) -> BinModel {
     let pmf = b.pmf();
-    if pmf.p.len() < kernel.len() + 2 {
+    let (lo, hi) = core_span(&pmf.p);
+    let core = hi - lo + 1;
+    if core < kernel.len() + 2 {
         return b.clone();
     }
-    let (pm, pv) = pmf.moments();
+    // The moments of the support less its negligible tails: a tail of 10⁻⁶ of the mass far out
+    // would move the variance, thus the start, by as much as the iterations then fail to undo.
+    let (pm, pv) = Pmf::from_weights(pmf.first + lo as i32, pmf.p[lo..=hi].iter().copied())
+        .map_or_else(|| pmf.moments(), |c| c.moments());
     let km: f64 = kernel.iter().enumerate().map(|(i, p)| (k0 + i as i32) as f64 * p).sum();
     let kv: f64 = kernel.iter().enumerate().map(|(i, p)| ((k0 + i as i32) as f64 - km).powi(2) * p).sum();
     if pv <= kv + 1.0 / 12.0 {
@@ -275,24 +286,28 @@ fn deconvolve_bin_within(b: &BinModel, k0: i32, kernel: &[f64], max_iterations: 
     let n = pmf.p.len();
     let start_only = kv < RESCALE_ONLY * pv;
     // Richardson–Lucy costs `n · K` per iteration: bounded per bin, so a wide bin with a long
-    // kernel cannot stall the sampler build (the start is already close there).
+    // kernel cannot stall the sampler build (the start is already close there). The bound counts
+    // the support less its negligible tails, so the tails' reach does not set the iterations.
     // A clipped bin where the kernel is a small share of the variance starts close (the pile
     // past the clip, the rest narrowed) and needs few iterations to fit the cells next to the
     // clip: 20 leave a JSD near 10⁻⁵ on clipped Gaussians, far below a bin's sampling floor.
     let cap = if start_only { max_iterations.min(CLIPPED_SMALL_SHARE_ITERATIONS) } else { max_iterations };
-    let iterations = (RL_WORK / (n * kernel.len()) as f64).min(cap as f64) as usize;
-    // Which end holds the clamp's pile: in a clipped bin, the heavier end cell, if it holds at
-    // least `PILE_MIN`. A bin whose samples reached a clip can have no pile at either end of its
+    let iterations = (RL_WORK / (core * kernel.len()) as f64).min(cap as f64) as usize;
+    // Which end holds the clamp's pile: in a clipped bin, the heavier end cell that is a pile
+    // ([`is_pile`]). A bin whose samples reached a clip can have no pile at either end of its
     // PMF (pooled neighbours, whose clips sit elsewhere, leave floor-count tails past its own):
     // such a bin is deconvolved as an unclipped one, since there is nothing at an end to fold.
-    let (low, high) = match b.clipped && pmf.p[0].max(pmf.p[n - 1]) >= PILE_MIN {
-        false => (false, false),
-        true if pmf.p[0] >= pmf.p[n - 1] => (true, false),
-        true => (false, true),
+    let pile_lo = b.clipped && is_pile([pmf.p[0], pmf.p[1], pmf.p[2], pmf.p[3]]);
+    let pile_hi = b.clipped && is_pile([pmf.p[n - 1], pmf.p[n - 2], pmf.p[n - 3], pmf.p[n - 4]]);
+    let (low, high) = match (pile_lo, pile_hi) {
+        (false, false) => (false, false),
+        (true, true) if pmf.p[0] >= pmf.p[n - 1] => (true, false),
+        (true, true) => (false, true),
+        (lo, hi) => (lo, hi),
     };
     let clipped = low || high;
     let start = match clipped {
-        false => pmf.rescaled(pm - km, pv - kv),
+        false => narrowed(&pmf, pm - km, pm, pv, kv),
         true => clipped_start(&pmf, low, k0, kernel.len(), km, kv),
     };
     if (start_only && !clipped) || iterations < 10 {
@@ -311,6 +326,49 @@ fn deconvolve_bin_within(b: &BinModel, k0: i32, kernel: &[f64], max_iterations: 
     let problem = Problem { a: kernel.to_vec(), b: target, clip_lo: ext_lo, clip_hi: ext_lo + n - 1 };
     richardson_lucy(&problem, &mut q, &SolverLimits { max_iterations: iterations, tolerance: 1e-5 });
     from_weights(b, q_first, &q)
+}
+
+/// Whether the end cell of `run` (the end cell first, then its three neighbours inward) is the
+/// clamp's pile: it holds at least [`PILE_MIN`] and stands above the log-quadratic run of its
+/// three neighbours (by a fifth), as the mass a clamp piled from the whole tail beyond does. The
+/// end of a decaying tail does not, wherever the stored tail was cut: a Gaussian's sits on that
+/// run, a Student-t's falls below it. With the end cell's mass alone counted, a tail cut at
+/// 2⁻²⁰ of the peak could end in a cell of a few 10⁻⁶ and be folded as a pile at a clip the
+/// sensor does not have.
+fn is_pile(run: [f64; 4]) -> bool {
+    let [end, a, b, c] = run;
+    // log end > 3 log a − 3 log b + log c + log 1.2, without the logarithms.
+    end >= PILE_MIN && a > 0.0 && c > 0.0 && end * b.powi(3) > 1.2 * a.powi(3) * c
+}
+
+/// `pmf`'s shape narrowed by the variance `kv` about its core ([`core_span`]), whose mean and
+/// variance are `cm`, `cv`, and centred at `mu` ([`Pmf::rescaled`], Eq. 5–6, with the affine
+/// factor and centre of the core's moments instead of the whole PMF's).
+fn narrowed(pmf: &Pmf, mu: f64, cm: f64, cv: f64, kv: f64) -> Pmf {
+    let (m, v) = pmf.moments();
+    // `rescaled` maps `n` to `mu' + a'(n − m)` with `a' = √((var − 1/12) / (v + 1/12))`; the
+    // core's map is `mu + a(n − cm)`, `a = √((cv − kv − 1/12) / (cv + 1/12))`.
+    let a2 = ((cv - kv - 1.0 / 12.0).max(1e-4)) / (cv + 1.0 / 12.0);
+    let var = 1.0 / 12.0 + a2 * (v + 1.0 / 12.0);
+    pmf.rescaled(mu + a2.sqrt() * (m - cm), var)
+}
+
+/// The index span of `p`'s support less its negligible tails: without the cells at each end
+/// that together hold at most [`TAIL_MASS`] of the total.
+fn core_span(p: &[f64]) -> (usize, usize) {
+    let bound = TAIL_MASS * p.iter().sum::<f64>();
+    let outer = |cells: &mut dyn Iterator<Item = &f64>| {
+        let mut cum = 0.0;
+        cells
+            .take_while(|&&x| {
+                cum += x;
+                cum <= bound
+            })
+            .count()
+    };
+    let lo = outer(&mut p.iter()).min(p.len() - 1);
+    let hi = (p.len() - 1 - outer(&mut p.iter().rev())).max(lo);
+    (lo, hi)
 }
 
 /// The start (and, below [`RESCALE_ONLY`], the result) for a clipped bin: the clamp's pile is
