@@ -297,8 +297,9 @@ fn deconvolve_bin_within(b: &BinModel, k0: i32, kernel: &[f64], max_iterations: 
     // ([`is_pile`]). A bin whose samples reached a clip can have no pile at either end of its
     // PMF (pooled neighbours, whose clips sit elsewhere, leave floor-count tails past its own):
     // such a bin is deconvolved as an unclipped one, since there is nothing at an end to fold.
-    let pile_lo = b.clipped && is_pile([pmf.p[0], pmf.p[1], pmf.p[2], pmf.p[3]]);
-    let pile_hi = b.clipped && is_pile([pmf.p[n - 1], pmf.p[n - 2], pmf.p[n - 3], pmf.p[n - 4]]);
+    // (A PMF of fewer than four cells has no trend to stand above: no pile.)
+    let pile_lo = b.clipped && n >= 4 && is_pile([pmf.p[0], pmf.p[1], pmf.p[2], pmf.p[3]]);
+    let pile_hi = b.clipped && n >= 4 && is_pile([pmf.p[n - 1], pmf.p[n - 2], pmf.p[n - 3], pmf.p[n - 4]]);
     let (low, high) = match (pile_lo, pile_hi) {
         (false, false) => (false, false),
         (true, true) if pmf.p[0] >= pmf.p[n - 1] => (true, false),
