@@ -5,11 +5,11 @@
 use ndarray::Array2;
 mod support;
 
+use noisecal_core::POSITIONS;
 use noisecal_core::model::pack::{IsoModel, ModelPack};
 use noisecal_core::model::structure::{Components, FixedPattern, IsoStructure, OffsetDistribution, QUANTILES};
 use noisecal_core::synth::sampler::IsoSampler;
 use noisecal_core::synth::{DEFAULT_PATTERN_CACHE_BYTES, synthesize_at};
-use noisecal_core::POSITIONS;
 
 const H: usize = 40;
 const W: usize = 61;
