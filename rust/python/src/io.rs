@@ -84,18 +84,7 @@ pub fn write_dng<'py>(
     iso: u32,
     pack: Option<PyRef<'py, Pack>>,
 ) -> PyResult<()> {
-    let pixels = checks::array::<u16>(pixels, "pixels", "uint16", |_| {
-        "raw DN, black included (what synth returns): np.rint(pixels).astype(np.uint16) within [0, white]".into()
-    })?;
-    let view = pixels.as_array();
-    let (imgs, batch) = checks::images(&view, "pixels")?;
-    if batch {
-        return Err(input(format!(
-            "pixels is a batch of {} images: write_dng writes one (H, W) image per file",
-            imgs.len()
-        )));
-    }
-    let pixels = imgs[0].to_owned();
+    let pixels = one_image(pixels, "write_dng", " (what synth returns)")?;
     let pack = pack.map(|p| p.inner.clone());
     py.detach(|| {
         guarded("write_dng", || {
@@ -145,18 +134,7 @@ pub fn write_raw_dng<'py>(
     make: &str,
     model: &str,
 ) -> PyResult<()> {
-    let pixels = checks::array::<u16>(pixels, "pixels", "uint16", |_| {
-        "raw DN, black included: np.rint(pixels).astype(np.uint16) within [0, white]".into()
-    })?;
-    let view = pixels.as_array();
-    let (imgs, batch) = checks::images(&view, "pixels")?;
-    if batch {
-        return Err(input(format!(
-            "pixels is a batch of {} images: write_raw_dng writes one (H, W) image per file",
-            imgs.len()
-        )));
-    }
-    let pixels = imgs[0].to_owned();
+    let pixels = one_image(pixels, "write_raw_dng", "")?;
     let cfa = noisecal_core::CfaPattern::parse(cfa)
         .ok_or_else(|| input(format!("cfa {cfa:?}: use RGGB, BGGR, GRBG or GBRG")))?;
     let black: [f32; noisecal_core::POSITIONS] = match black.as_slice() {
@@ -178,4 +156,21 @@ pub fn write_raw_dng<'py>(
             pool::run(|| dng::write_dng_from_layout(&path, &layout, &meta, make, model, &pixels).map_err(to_py))
         })
     })
+}
+
+/// The one (H, W) uint16 image `pixels` a DNG writer (`writer`) takes, refused by name if it is
+/// of another type or a batch; `source` says where such pixels come from, in the hint.
+fn one_image(pixels: &Bound<'_, PyAny>, writer: &str, source: &str) -> PyResult<ndarray::Array2<u16>> {
+    let pixels = checks::array::<u16>(pixels, "pixels", "uint16", |_| {
+        format!("raw DN, black included{source}: np.rint(pixels).astype(np.uint16) within [0, white]")
+    })?;
+    let view = pixels.as_array();
+    let (imgs, batch) = checks::images(&view, "pixels")?;
+    if batch {
+        return Err(input(format!(
+            "pixels is a batch of {} images: {writer} writes one (H, W) image per file",
+            imgs.len()
+        )));
+    }
+    Ok(imgs[0].to_owned())
 }

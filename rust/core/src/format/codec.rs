@@ -284,38 +284,58 @@ impl RecordSeal {
 
 /// Deflate level of the compact pack payloads (versions 6 and 7).
 const DEFLATE_LEVEL: u8 = 9;
-/// The largest uncompressed payload a compact pack may claim (the bincode decoder's own limit).
-const MAX_INFLATED: u64 = 1 << 30;
+/// The largest uncompressed payload a pack may claim (the bincode decoder's own limit).
+pub(crate) const MAX_INFLATED: u64 = 1 << 30;
 
 /// The compact pack payloads' envelope (versions 6 and 7): the uncompressed length and the
-/// length of the bincode fields (little-endian u64 each), then the fields followed by the weight
-/// stream, deflated together.
-pub(crate) fn deflate_fields_and_weights(mut fields: Vec<u8>, weights: &[u8]) -> Vec<u8> {
-    let fields_len = fields.len() as u64;
-    fields.extend_from_slice(weights);
-    let mut out = Vec::with_capacity(16 + fields.len() / 4);
-    out.extend_from_slice(&(fields.len() as u64).to_le_bytes());
+/// length of the bincode `fields` (little-endian u64 each), then the fields followed by the
+/// weight stream, deflated together.
+pub(crate) fn deflate_fields_and_weights<T: Serialize>(
+    what: &'static str,
+    fields: &T,
+    weights: &[u8],
+) -> Result<Vec<u8>, CodecError> {
+    let mut raw = encode_payload(what, fields)?;
+    let fields_len = raw.len() as u64;
+    raw.extend_from_slice(weights);
+    let mut out = Vec::with_capacity(16 + raw.len() / 4);
+    out.extend_from_slice(&(raw.len() as u64).to_le_bytes());
     out.extend_from_slice(&fields_len.to_le_bytes());
-    out.extend_from_slice(&miniz_oxide::deflate::compress_to_vec(&fields, DEFLATE_LEVEL));
-    out
+    out.extend_from_slice(&miniz_oxide::deflate::compress_to_vec(&raw, DEFLATE_LEVEL));
+    Ok(out)
 }
 
-/// The inflated payload of [`deflate_fields_and_weights`] and where its weight stream starts,
-/// refusing a damaged envelope with a clear error.
-pub(crate) fn inflate_fields_and_weights(what: &'static str, payload: &[u8]) -> Result<(Vec<u8>, usize), CodecError> {
-    let bad = |detail: String| CodecError::Invalid { what, detail };
+/// The fields and the weight stream of [`deflate_fields_and_weights`], refusing a damaged
+/// envelope with a clear error.
+pub(crate) fn inflate_fields_and_weights<T: DeserializeOwned>(
+    what: &'static str,
+    payload: &[u8],
+) -> Result<(T, Vec<u8>), CodecError> {
     let Some((lens, deflated)) = payload.split_first_chunk::<16>() else {
         return Err(CodecError::Truncated { what, len: payload.len(), expected: 16 });
     };
     let raw_len = u64::from_le_bytes(lens[..8].try_into().expect("8 bytes"));
     let fields_len = u64::from_le_bytes(lens[8..].try_into().expect("8 bytes"));
+    // (A claim beyond the limit is refused by `inflate_exact` as such.)
+    if fields_len > raw_len && raw_len <= MAX_INFLATED {
+        return Err(CodecError::Invalid {
+            what,
+            detail: "the pack's fields claim more bytes than the payload holds: the file is damaged".into(),
+        });
+    }
+    let mut raw = inflate_exact(what, raw_len, deflated)?;
+    let weights = raw.split_off(fields_len as usize);
+    Ok((decode_payload(what, &raw)?, weights))
+}
+
+/// `deflated` inflated to exactly `raw_len` bytes (at most [`MAX_INFLATED`]), refusing a claim
+/// beyond the limit or a stream that does not inflate to its stated length.
+pub(crate) fn inflate_exact(what: &'static str, raw_len: u64, deflated: &[u8]) -> Result<Vec<u8>, CodecError> {
+    let bad = |detail: String| CodecError::Invalid { what, detail };
     if raw_len > MAX_INFLATED {
         return Err(bad(format!(
             "the payload claims {raw_len} bytes uncompressed, beyond the {MAX_INFLATED}-byte limit"
         )));
-    }
-    if fields_len > raw_len {
-        return Err(bad("the pack's fields claim more bytes than the payload holds: the file is damaged".into()));
     }
     let raw = miniz_oxide::inflate::decompress_to_vec_with_limit(deflated, raw_len as usize).map_err(|_| {
         bad(format!("the compressed payload does not inflate to its stated {raw_len} bytes: the file is damaged"))
@@ -326,7 +346,7 @@ pub(crate) fn inflate_fields_and_weights(what: &'static str, payload: &[u8]) -> 
             raw.len()
         )));
     }
-    Ok((raw, fields_len as usize))
+    Ok(raw)
 }
 
 /// A signed difference as an unsigned one whose size follows its magnitude (0, −1, 1, −2 … →

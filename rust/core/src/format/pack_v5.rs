@@ -19,8 +19,6 @@ use crate::model::precision::quantize_to;
 const WHAT: &str = "model pack";
 /// Deflate level.
 const LEVEL: u8 = 9;
-/// The largest uncompressed payload a pack may claim (the bincode decoder's own limit).
-const MAX_RAW: u64 = 1 << 30;
 /// Significant bits a version 5 weight keeps.
 pub const MANTISSA_BITS: u32 = 9;
 const HALF: u64 = 1 << (MANTISSA_BITS - 1);
@@ -101,23 +99,10 @@ pub fn encode(pack: &ModelPack) -> Result<Vec<u8>, CodecError> {
 /// The pack in a version 5 payload (checked by the caller), refusing a damaged one with a clear
 /// error.
 pub fn decode(payload: &[u8]) -> Result<ModelPack, CodecError> {
-    let bad = |detail: String| CodecError::Invalid { what: WHAT, detail };
     let Some((len, deflated)) = payload.split_first_chunk::<8>() else {
         return Err(CodecError::Truncated { what: WHAT, len: payload.len(), expected: 8 });
     };
-    let raw_len = u64::from_le_bytes(*len);
-    if raw_len > MAX_RAW {
-        return Err(bad(format!("the payload claims {raw_len} bytes uncompressed, beyond the {MAX_RAW}-byte limit")));
-    }
-    let raw = miniz_oxide::inflate::decompress_to_vec_with_limit(deflated, raw_len as usize).map_err(|_| {
-        bad(format!("the compressed payload does not inflate to its stated {raw_len} bytes: the file is damaged"))
-    })?;
-    if raw.len() as u64 != raw_len {
-        return Err(bad(format!(
-            "the compressed payload inflates to {} bytes, not its stated {raw_len}: the file is damaged",
-            raw.len()
-        )));
-    }
+    let raw = codec::inflate_exact(WHAT, u64::from_le_bytes(*len), deflated)?;
     let mut pack: ModelPack = codec::decode_payload(WHAT, &raw)?;
     delta_decode(&mut pack)?;
     Ok(pack)
@@ -129,34 +114,9 @@ mod tests {
 
     #[test]
     fn weights_round_to_their_significant_bits_and_codes_invert() {
-        let mut ws: Vec<u64> = (0..5000).collect();
-        ws.extend([
-            511,
-            512,
-            513,
-            1023,
-            1024,
-            1025,
-            1 << 30,
-            (1 << 30) + 12345,
-            987_654_321,
-            u64::MAX,
-            u64::MAX - 1,
-            1 << 63,
-        ]);
-        let mut state = 7u64;
-        for _ in 0..20000 {
-            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            ws.push(state >> (state % 60));
-        }
-        for &w in &ws {
-            let q = quantize(w);
-            assert_eq!(quantize(q), q, "idempotent at {w}");
-            if w < 1 << MANTISSA_BITS {
-                assert_eq!(q, w);
-            }
-            let err = (q as f64 - w as f64).abs() / (w.max(1) as f64);
-            assert!(err <= 1.0 / (1u64 << MANTISSA_BITS) as f64 + 1e-15, "{w} → {q}");
+        // Version 5 rounds with the pack model's rule at its own 9 bits.
+        for (w, q) in crate::model::precision::tests::assert_rounds_to_bits(MANTISSA_BITS) {
+            assert_eq!(quantize(w), q);
             assert_eq!(weight(code(q)), Some(q), "{w} → {q} → {}", code(q));
         }
         // Codes are monotone in the weight and step by one across the exact range's end.
@@ -202,7 +162,7 @@ mod tests {
     fn damaged_payloads_are_refused_with_words() {
         let e = decode(&[1, 2, 3]).unwrap_err().to_string();
         assert!(!e.is_empty());
-        let mut huge = (MAX_RAW + 1).to_le_bytes().to_vec();
+        let mut huge = (codec::MAX_INFLATED + 1).to_le_bytes().to_vec();
         huge.extend_from_slice(&[0; 16]);
         let e = decode(&huge).unwrap_err().to_string();
         assert!(e.contains("limit"), "{e}");

@@ -121,18 +121,15 @@ pub fn encode(pack: &ModelPack) -> Result<Vec<u8>, CodecError> {
             }
         }
     }
-    let fields_bytes = codec::encode_payload(WHAT, &skeleton)?;
-    drop(skeleton);
-    Ok(codec::deflate_fields_and_weights(fields_bytes, &weights))
+    codec::deflate_fields_and_weights(WHAT, &skeleton, &weights)
 }
 
 /// The pack in a version 6 payload (checked by the caller), refusing a damaged one with a clear
 /// error.
 pub fn decode(payload: &[u8]) -> Result<ModelPack, CodecError> {
     let damaged = |what: &str| CodecError::Invalid { what: WHAT, detail: format!("{what}: the file is damaged") };
-    let (raw, fields_len) = codec::inflate_fields_and_weights(WHAT, payload)?;
-    let (fields, weights) = raw.split_at(fields_len);
-    let mut pack: ModelPack = codec::decode_payload(WHAT, fields)?;
+    let (mut pack, weights): (ModelPack, Vec<u8>) = codec::inflate_fields_and_weights(WHAT, payload)?;
+    let weights = &weights[..];
     let mut at = 0usize;
     for (i, m) in pack.isos.iter_mut().enumerate() {
         let bits = code_bits(m.is_calibrated());

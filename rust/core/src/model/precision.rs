@@ -204,26 +204,46 @@ pub fn store_bin(first: &mut i32, counts: &mut Vec<u64>, precision: Precision) {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    #[test]
-    fn weights_round_to_their_significant_bits() {
+    /// Weights that probe rounding: every small one, the edges of 9 and 10 bits, large and extreme
+    /// ones, and 20 000 spread over every magnitude (a fixed LCG).
+    pub(crate) fn rounding_probe_weights() -> Vec<u64> {
         let mut ws: Vec<u64> = (0..5000).collect();
-        ws.extend([511, 512, 513, 1023, 1024, 1025, 1 << 30, (1 << 30) + 12345, 987_654_321, u64::MAX, 1 << 63]);
+        ws.extend([511, 512, 513, 1023, 1024, 1025, 1 << 30, (1 << 30) + 12345, 987_654_321]);
+        ws.extend([u64::MAX, u64::MAX - 1, 1 << 63]);
         let mut state = 7u64;
         for _ in 0..20000 {
             state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
             ws.push(state >> (state % 60));
         }
-        for &w in &ws {
-            let q = quantize(w);
-            assert_eq!(quantize(q), q, "idempotent at {w}");
-            if w < 1 << MANTISSA_BITS {
+        ws
+    }
+
+    /// `quantize_to(·, bits)` is idempotent, exact below `2^bits` and within `2^−bits` relative
+    /// error everywhere, over [`rounding_probe_weights`]; gives the rounded weights.
+    pub(crate) fn assert_rounds_to_bits(bits: u32) -> Vec<(u64, u64)> {
+        let mut out = Vec::new();
+        for w in rounding_probe_weights() {
+            let q = quantize_to(w, bits);
+            assert_eq!(quantize_to(q, bits), q, "idempotent at {w} ({bits} bits)");
+            if w < 1 << bits {
                 assert_eq!(q, w);
             }
             let err = (q as f64 - w as f64).abs() / (w.max(1) as f64);
-            assert!(err <= 1.0 / (1u64 << MANTISSA_BITS) as f64 + 1e-15, "{w} → {q}");
+            assert!(err <= 1.0 / (1u64 << bits) as f64 + 1e-15, "{w} → {q} ({bits} bits)");
+            out.push((w, q));
+        }
+        out
+    }
+
+    #[test]
+    fn weights_round_to_their_significant_bits() {
+        assert_rounds_to_bits(MANTISSA_BITS);
+        assert_rounds_to_bits(DERIVED_BITS);
+        for w in rounding_probe_weights() {
+            assert_eq!(quantize(w), quantize_to(w, MANTISSA_BITS));
         }
     }
 
