@@ -103,10 +103,6 @@ fn band_filler<'a>(
                 let (lut0, tab0) = sampler.position_tables(even);
                 let (lut1, tab1) = sampler.position_tables(odd);
                 let lattice = sampler.needs_finish(even) || sampler.needs_finish(odd);
-                let draw = |lut: &[u16], tab: &[BinTable], c: u16, u: u32| -> i32 {
-                    let l = (c as usize).min(lut.len() - 1);
-                    c as i32 + tab[lut[l] as usize].sample_u32(u)
-                };
                 let white = sampler.white as i32;
                 // One 64-bit draw feeds an even and an odd pixel: the stream is fixed by the band.
                 if lattice {
@@ -235,15 +231,12 @@ fn structured_filler<'a, const TARGET: bool>(
                     let k = if TARGET { cols[w - 1] + sh0[level(lut0, src[w - 1])] } else { cols[w - 1] };
                     offsets_row.push(((k + ry + (v as u32) as i64) >> 32) as i32);
                 }
-                let draw = |lut: &[u16], tab: &[BinTable], c: u16, u: u32, off: i32| -> i32 {
-                    c as i32 + tab[lut[level(lut, c)] as usize].sample_u32(u) + off
-                };
                 let pairs = row.chunks_exact_mut(2).zip(src.chunks_exact(2)).zip(offsets_row.chunks_exact(2));
                 if finish {
                     for (i, ((o, c), k)) in pairs.enumerate() {
                         let u = rng.next_u64();
-                        let a = draw(lut0, tab0, c[0], u as u32, k[0]);
-                        let b = draw(lut1, tab1, c[1], (u >> 32) as u32, k[1]);
+                        let a = draw(lut0, tab0, c[0], u as u32) + k[0];
+                        let b = draw(lut1, tab1, c[1], (u >> 32) as u32) + k[1];
                         let alt = (i + (y >> 1)) & 1 == 1;
                         o[0] = sampler.finish(even, a, alt);
                         o[1] = sampler.finish(odd, b, alt);
@@ -251,8 +244,8 @@ fn structured_filler<'a, const TARGET: bool>(
                 } else {
                     for ((o, c), k) in pairs {
                         let u = rng.next_u64();
-                        let a = draw(lut0, tab0, c[0], u as u32, k[0]);
-                        let b = draw(lut1, tab1, c[1], (u >> 32) as u32, k[1]);
+                        let a = draw(lut0, tab0, c[0], u as u32) + k[0];
+                        let b = draw(lut1, tab1, c[1], (u >> 32) as u32) + k[1];
                         o[0] = a.clamp(0, white) as u16;
                         o[1] = b.clamp(0, white) as u16;
                     }
@@ -260,12 +253,21 @@ fn structured_filler<'a, const TARGET: bool>(
                 if w % 2 == 1 {
                     let u = rng.next_u64();
                     let alt = ((w >> 1) + (y >> 1)) & 1 == 1;
-                    let a = draw(lut0, tab0, src[w - 1], u as u32, offsets_row[w - 1]);
+                    let a = draw(lut0, tab0, src[w - 1], u as u32) + offsets_row[w - 1];
                     row[w - 1] = sampler.finish(even, a, alt);
                 }
             }
         })
     }
+}
+
+/// `c + n`, `n` drawn with the 32-bit uniform `u` from the table of clean level `c`'s bin
+/// (levels past the map take its last bin). A function rather than a closure in each row loop:
+/// the compiler left the closure out of line, a call per pixel.
+#[inline(always)]
+fn draw(lut: &[u16], tab: &[BinTable], c: u16, u: u32) -> i32 {
+    let l = (c as usize).min(lut.len() - 1);
+    c as i32 + tab[lut[l] as usize].sample_u32(u)
 }
 
 /// Row `y` of the clean image as a slice (borrowed when the view is contiguous).
