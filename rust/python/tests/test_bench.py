@@ -74,6 +74,15 @@ def test_bench_package_synth(benchmark, bench_pack, clean):
     assert out.shape == clean.shape and out.dtype == np.uint16
 
 
+def test_bench_package_synth_pixel(benchmark, bench_pack, clean):
+    """The pixel-independent model alone (`components="pixel"`): the yardstick of what the default
+    components (row, column, frame offsets, fixed pattern) cost on top."""
+    bench_pack.synth(clean, ISO, SEED, components="pixel")
+    benchmark.extra_info["mpix"] = H * W / 1e6
+    out = benchmark(bench_pack.synth, clean, ISO, SEED, components="pixel")
+    assert out.shape == clean.shape and out.dtype == np.uint16
+
+
 def test_bench_numpy_synth(benchmark, bench_pack, clean):
     synth = NumpySynth(bench_pack.tables(ISO))
     rng = np.random.default_rng(0)
