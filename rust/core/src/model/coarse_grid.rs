@@ -13,9 +13,9 @@
 //!
 //! Which bins are kept coarse, and how wide ([`choose_step`]), is decided at calibration on the
 //! exact PMF: cells at most a quarter of its standard deviation wide ([`SD_PER_CELL`]), its mean
-//! and variance kept as well as the per-DN stored form keeps them, give or take 2⁻¹⁰ of its SD and
-//! of itself ([`MOMENT_TOLERANCE`]), and no single DN moved further from its weight than sampling
-//! noise allows ([`MAX_CELL_DEVIANCE`]: a pile or a spike is not smeared). Measured on the demo's, the 14-bit phone's and random-family packs, the
+//! and variance kept as well as the per-DN stored form keeps them, give or take an eighth of their
+//! sampling standard errors ([`moment_tolerance`]), and no single DN moved further from its weight
+//! than sampling noise allows ([`MAX_CELL_DEVIANCE`]: a pile or a spike is not smeared). Measured on the demo's, the 14-bit phone's and random-family packs, the
 //! held-out cross-entropy of the PMFs kept so is lower than the exact ones' (the exact PMF of a
 //! wide bin carries its pool's sampling noise at 1 DN; see `rust/core/tests/pack_compact.rs`).
 //! The file stores the step (`crate::format::compact`); the decision is not repeated at load.
@@ -73,20 +73,35 @@ pub fn is_expansion(w: &[u64], k: usize) -> bool {
 /// little over a quarter of its SD: the expansion keeps its variance to 10⁻³, tested below).
 pub const SD_PER_CELL: f64 = 4.0;
 
-/// The coarse stored form may move the mean by at most this share of the SD, and the variance by
-/// at most this share of itself, more than the per-DN stored form does (a tenth of the relative
-/// standard error √(2/N) of a bin of 10⁶).
-pub const MOMENT_TOLERANCE: f64 = 1.0 / 1024.0;
+/// The coarse stored form may move the mean and the variance by at most this share of their
+/// sampling standard errors (`SD/√N`, `var·√(2/N)`, `N` the bin's samples, at least
+/// [`MIN_SAMPLES`]) more than the per-DN stored form does: the share the precision gives a
+/// weight's rounding error of its own sampling error ([`crate::model::precision`]).
+pub const SE_SHARE: f64 = 1.0 / 8.0;
 
-/// No DN may differ from its re-expansion by a Poisson deviance beyond this at the bin's sample
-/// count (at least [`MIN_SAMPLES`]): about 6 σ, beyond what noise gives over the 10⁴ cells of a
-/// wide PMF, where a pile at a clipped end or a spike deviates by hundreds.
+/// How far the coarse stored form of a bin of `samples` samples may move its mean (as a share of
+/// its SD) and its variance (as a share of itself) beyond the per-DN stored form.
+pub fn moment_tolerance(samples: u64) -> (f64, f64) {
+    let n = samples.max(MIN_SAMPLES) as f64;
+    (SE_SHARE / n.sqrt(), SE_SHARE * (2.0 / n).sqrt())
+}
+
+/// No DN may differ from its stored form by a Poisson deviance beyond this at the bin's own sample
+/// count (at least [`DEVIANCE_MIN_SAMPLES`]): about 6 σ, beyond what noise gives over the 10⁴
+/// cells of a wide PMF, where a pile of a tenth of the bin's samples at a clipped end deviates by
+/// hundreds.
 pub const MAX_CELL_DEVIANCE: f64 = 40.0;
+
+/// The sample count the deviance is taken at for a bin with fewer of its own: the fewest the
+/// estimator pools for a bin without samples of its own (its PMF is then a sum of single samples,
+/// each a spike at this count; the precision's floor [`MIN_SAMPLES`] would read one sample's spike
+/// as a pile).
+pub const DEVIANCE_MIN_SAMPLES: u64 = 256;
 
 /// The widest of [`GRID_STEPS`] the exact PMF `w` of a bin of `samples` samples of its own,
 /// stored at `precision`, may be kept at, or 1 (kept per DN): its stored form there
 /// ([`store_coarse`]) must keep the mean and variance as well as the per-DN stored form does,
-/// give or take [`MOMENT_TOLERANCE`], and move no DN by more than [`MAX_CELL_DEVIANCE`].
+/// give or take [`moment_tolerance`], and move no DN by more than [`MAX_CELL_DEVIANCE`].
 pub fn choose_step(w: &[u64], samples: u64, precision: Precision) -> usize {
     let t: f64 = w.iter().map(|&c| c as f64).sum();
     if t <= 0.0 {
@@ -94,18 +109,17 @@ pub fn choose_step(w: &[u64], samples: u64, precision: Precision) -> usize {
     }
     let (mean, var) = moments(0, w);
     let sd = var.sqrt();
-    let n = samples.max(MIN_SAMPLES) as f64;
+    let n = samples.max(DEVIANCE_MIN_SAMPLES) as f64;
     let (mut f1, mut w1) = (0i32, w.to_vec());
     crate::model::precision::store_bin(&mut f1, &mut w1, precision);
     let (m1, v1) = moments(f1, &w1);
     let (mean_slack, var_slack) = ((m1 - mean).abs(), (v1 - var).abs());
+    let (mean_tol, var_tol) = moment_tolerance(samples);
     for &k in GRID_STEPS.iter().rev().filter(|&&k| k as f64 * SD_PER_CELL <= sd) {
         let (mut fx, mut x) = (0i32, w.to_vec());
         store_coarse(&mut fx, &mut x, k, precision);
         let (mx, vx) = moments(fx, &x);
-        if (mx - mean).abs() > MOMENT_TOLERANCE * sd + mean_slack
-            || (vx - var).abs() > MOMENT_TOLERANCE * var + var_slack
-        {
+        if (mx - mean).abs() > mean_tol * sd + mean_slack || (vx - var).abs() > var_tol * var + var_slack {
             continue;
         }
         let tx: f64 = x.iter().map(|&c| c as f64).sum();
