@@ -18,7 +18,7 @@
 //! than sampling noise allows ([`MAX_CELL_DEVIANCE`]: a pile or a spike is not smeared). Measured on the demo's, the 14-bit phone's and random-family packs, the
 //! held-out cross-entropy of the PMFs kept so is lower than the exact ones' (the exact PMF of a
 //! wide bin carries its pool's sampling noise at 1 DN; see `rust/core/tests/pack_compact.rs`).
-//! The file stores the step (`crate::format::compact`); the decision is not repeated at load.
+//! The pack file stores the step with the bin; the decision is not repeated at load.
 
 use crate::model::precision::{MIN_SAMPLES, Precision, cut_tails, round_by_diffusion};
 
