@@ -279,6 +279,19 @@ pub fn decode(payload: &[u8]) -> Result<ModelPack, CodecError> {
 mod tests {
     use super::*;
 
+    /// The step codes name exactly 1 DN and the grid's steps (`log2 k`); any other is refused.
+    #[test]
+    fn step_codes_name_the_grid_steps_only() {
+        let named: Vec<usize> = (0..64).filter_map(step_of).collect();
+        let mut want = vec![1];
+        want.extend(GRID_STEPS);
+        assert_eq!(named, want);
+        for (code, k) in want.iter().enumerate() {
+            assert_eq!(step_of(code as u64), Some(*k));
+        }
+        assert_eq!(step_of(u64::MAX / 4), None);
+    }
+
     /// Every held value's code names it back, codes of held values are consecutive in increasing
     /// order, and a value not held has no code; for fixed and sample-driven precisions.
     #[test]
