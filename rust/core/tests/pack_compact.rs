@@ -1,26 +1,31 @@
-//! Compact packs (format version 7): a calibrated pack written compactly loads to its stored
-//! form ([`ModelPack::compacted`]: each weight to the bits its bin's samples justify, rounded by
-//! error diffusion, tails cut where they hold no measurable mass); that form costs no held-out
-//! likelihood beyond its budget and synthesizes images alike in distribution; older versions
-//! still load; the file is a fraction of version 6's size.
+//! Compact packs (format version 8): a calibrated pack written compactly loads to its stored
+//! form ([`ModelPack::compacted`]: each weight, or each cell mass of a bin kept on a coarse grid,
+//! to the bits its bin's samples justify, rounded by error diffusion, tails cut where they hold no
+//! measurable mass); that form costs no held-out likelihood beyond its budget and synthesizes
+//! images alike in distribution; older versions still load; the file is a fraction of version
+//! 7's size.
 //!
 //! `cargo test -p noisecal-core --release --test pack_compact -- --ignored --nocapture` prints
 //! the sizes (and where the bytes go), held-out cross-entropy and sampler tables of the demo's
-//! pack, the 14-bit phone's and random-family sensors' packs in versions 6 and 7.
+//! pack, the 14-bit phone's and random-family sensors' packs in versions 7 and 8.
 
 use ndarray::Array2;
 use noisecal_core::format::pack_file::{PACK_MAGIC, PACK_VERSION};
 use noisecal_core::format::pack_sizes::part_sizes;
+use noisecal_core::model::coarse_grid::{moment_tolerance, stored_step};
 use noisecal_core::model::precision::{MIN_SAMPLES, Precision, TAIL_BITS, bin_precision};
 use noisecal_core::synth::sampler::{BinTable, IsoSampler};
 use noisecal_core::synth::synthesize;
 use noisecal_core::{CalibrationSession, ModelPack, SessionConfig};
 use noisecal_sim::{Chart, SensorModel, SessionPlan, Simulator, random_sensor, random_session};
 
-/// Version 7 against version 6, in tenths: measured 0.661× on the small pack, 0.556× on random
-/// sensor 1 (14-bit); bounds with a margin.
-const SMALL_PACK_V7_TENTHS: usize = 7;
-const RANDOM_PACK_V7_TENTHS: usize = 6;
+/// Version 8 against version 7, in tenths: measured 0.515× on the small pack (10-bit, narrow
+/// PMFs), 0.056× on random sensor 1 (14-bit); bounds with a margin.
+const SMALL_PACK_V8_TENTHS: usize = 6;
+const RANDOM_PACK_V8_TENTHS: usize = 1;
+
+/// The goal per calibrated ISO at any bit depth: measured 96 KB on random sensor 1 (14-bit).
+const BYTES_PER_CALIBRATED_ISO: usize = 150_000;
 
 fn calibrate(sim: &Simulator, plan: &SessionPlan) -> ModelPack {
     let mut config = SessionConfig::new(plan.reference_iso);
@@ -120,13 +125,38 @@ fn ramp(pack: &ModelPack) -> Array2<u16> {
 /// 2^−TAIL_BITS of its bin's largest, and the stored CDF (left of the peak) and survival function
 /// (right of it) within a step of the exact ones plus what the cut tails held: the rounding moves
 /// no mass farther than the cell's own step. Returns the largest share of a bin's mass the cut
-/// tails held.
-fn check_stored_form(exact: &ModelPack, stored: &ModelPack) -> f64 {
+/// tails held. A bin kept on a coarse grid is checked by its moments instead: its mean and
+/// variance as close to the exact ones as the per-DN stored form's, give or take an eighth of
+/// their sampling standard errors ([`moment_tolerance`]). Returns also how many bins are kept
+/// coarse.
+fn check_stored_form(exact: &ModelPack, stored: &ModelPack) -> (f64, usize) {
     let mut worst_cut = 0.0f64;
+    let mut coarse = 0;
     for (me, ms) in exact.isos.iter().zip(&stored.isos) {
         for (pe, ps) in me.positions.iter().zip(&ms.positions) {
             for (be, bs) in pe.bins.iter().zip(&ps.bins) {
                 let precision = bin_precision(pe.is_estimated(), be.samples);
+                if stored_step(&bs.counts, precision) > 1 {
+                    coarse += 1;
+                    assert!(bs.first >= be.first, "a coarse bin starts inside the exact one");
+                    let moments = |first: i32, w: &[u64]| {
+                        let (m, v) = noisecal_core::model::histogram::moments(0, w.iter().map(|&c| c as f64));
+                        (m + first as f64, v)
+                    };
+                    let (m0, v0) = moments(be.first, &be.counts);
+                    let (m8, v8) = moments(bs.first, &bs.counts);
+                    let (mut f7, mut w7) = (be.first, be.counts.clone());
+                    noisecal_core::model::precision::store_bin(&mut f7, &mut w7, precision);
+                    let (m7, v7) = moments(f7, &w7);
+                    let (mean_tol, var_tol) = moment_tolerance(be.samples);
+                    let (mean_tol, var_tol) = (mean_tol * 1.001, var_tol * 1.001);
+                    assert!(
+                        (m8 - m0).abs() <= mean_tol * v0.sqrt() + (m7 - m0).abs(),
+                        "mean {m0} → {m8} (per DN {m7})"
+                    );
+                    assert!((v8 - v0).abs() <= var_tol * v0 + (v7 - v0).abs(), "variance {v0} → {v8} (per DN {v7})");
+                    continue;
+                }
                 let max = *be.counts.iter().max().expect("cells") as f64;
                 let off = (bs.first - be.first) as usize;
                 assert!(
@@ -177,7 +207,7 @@ fn check_stored_form(exact: &ModelPack, stored: &ModelPack) -> f64 {
             }
         }
     }
-    worst_cut
+    (worst_cut, coarse)
 }
 
 /// Noise histograms (DN) of `images` drawn from one pack on one clean image: `(value, count)`.
@@ -216,26 +246,29 @@ fn spread(v: &mut [i64]) -> (f64, f64, f64) {
 #[test]
 fn compact_packs_round_trip_and_migrate() {
     let p = small_pack();
-    let v7 = p.to_bytes().expect("bytes");
+    let v8 = p.to_bytes().expect("bytes");
+    let v7 = p.to_bytes_v7().expect("bytes");
     let v6 = p.to_bytes_v6().expect("bytes");
     let v5 = p.to_bytes_v5().expect("bytes");
     let v4 = p.to_bytes_v4().expect("bytes");
-    assert_eq!(&v7[..8], PACK_MAGIC);
-    assert_eq!(u16::from_le_bytes([v7[8], v7[9]]), PACK_VERSION);
-    assert_eq!(PACK_VERSION, 7);
-    assert_eq!(u16::from_le_bytes([v6[8], v6[9]]), 6);
-    assert_eq!(u16::from_le_bytes([v5[8], v5[9]]), 5);
-    assert_eq!(u16::from_le_bytes([v4[8], v4[9]]), 4);
+    assert_eq!(&v8[..8], PACK_MAGIC);
+    assert_eq!(u16::from_le_bytes([v8[8], v8[9]]), PACK_VERSION);
+    assert_eq!(PACK_VERSION, 8);
+    for (bytes, version) in [(&v7, 7), (&v6, 6), (&v5, 5), (&v4, 4)] {
+        assert_eq!(u16::from_le_bytes([bytes[8], bytes[9]]), version);
+    }
     // Deterministic bytes.
-    assert_eq!(v7, p.to_bytes().expect("bytes"));
-    let from7 = ModelPack::from_bytes(&v7).expect("a version 7 pack loads");
+    assert_eq!(v8, p.to_bytes().expect("bytes"));
+    let from8 = ModelPack::from_bytes(&v8).expect("a version 8 pack loads");
+    let from7 = ModelPack::from_bytes(&v7).expect("a version 7 pack still loads");
     let from6 = ModelPack::from_bytes(&v6).expect("a version 6 pack still loads");
     let from5 = ModelPack::from_bytes(&v5).expect("a version 5 pack still loads");
     let from4 = ModelPack::from_bytes(&v4).expect("a version 4 pack still loads");
     assert_eq!(from4, p, "version 4 loads byte for byte as before");
-    assert_eq!(from7, p.compacted());
+    assert_eq!(from8, p.compacted());
+    assert_eq!(from7, noisecal_core::format::pack_v7::stored_form(&p), "version 7 loads as version 7 stored it");
     assert_eq!(from6, noisecal_core::format::pack_v6::stored_form(&p), "version 6 loads as version 6 stored it");
-    assert_eq!(from7.compacted(), from7, "compacting is idempotent");
+    assert_eq!(from8.compacted(), from8, "compacting is idempotent");
     // Version 5 loads as version 5 rounded it (9 significant bits, tails kept).
     let mut rounded5 = p.clone();
     rounded5
@@ -246,26 +279,39 @@ fn compact_packs_round_trip_and_migrate() {
         .flat_map(|b| b.counts.iter_mut())
         .for_each(|w| *w = noisecal_core::format::pack_v5::quantize(*w));
     assert_eq!(from5, rounded5);
-    // Migrated to version 7: a version 4 file gives the same bytes as the pack itself; a loaded
-    // version 7 written again, the same bytes; a version 5 or 6 file, its own stored form.
-    assert_eq!(from4.to_bytes().expect("bytes"), v7);
-    assert_eq!(ModelPack::from_bytes(&from6.to_bytes().expect("bytes")).expect("loads"), from6.compacted());
-    assert_eq!(from7.to_bytes().expect("bytes"), v7);
-    assert_eq!(ModelPack::from_bytes(&from5.to_bytes().expect("bytes")).expect("loads"), from5.compacted());
+    // Migrated to version 8: a version 4 file gives the same bytes as the pack itself; a loaded
+    // version 8 written again, the same bytes; a version 5, 6 or 7 file, its own stored form
+    // compacted (and that again the same).
+    assert_eq!(from4.to_bytes().expect("bytes"), v8);
+    assert_eq!(from8.to_bytes().expect("bytes"), v8);
+    for older in [&from7, &from6, &from5] {
+        let back = ModelPack::from_bytes(&older.to_bytes().expect("bytes")).expect("loads");
+        assert_eq!(back, older.compacted());
+        assert_eq!(back.to_bytes().expect("bytes"), older.to_bytes().expect("bytes"));
+    }
     // The cut tails hold at most the far tails of a bin's pseudo-sample (1/(N+1) of an N-sample
     // pool).
-    let cut = check_stored_form(&p, &from7);
-    eprintln!("the cut tails held at most {cut:.2e} of a bin's mass");
+    let (cut, coarse) = check_stored_form(&p, &from8);
+    let bins: usize = p.isos.iter().flat_map(|m| &m.positions).map(|q| q.bins.len()).sum();
+    eprintln!("the cut tails held at most {cut:.2e} of a bin's mass; {coarse} of {bins} bins kept on a coarse grid");
     assert!(cut < 1e-4, "a bin's cut tails held {cut} of its mass");
+    assert!(coarse > 0, "no bin of the small pack is kept coarse: the grid is not exercised");
     // A model derived on the fly (interpolated) is the one a pack that stores it loads back,
     // so synthesis at a derived ISO gives the same bytes whether the pack stores it or not.
-    let (m, _) = noisecal_core::derive::interp::model_for(&from7, 400, false).expect("interpolated");
-    let mut with = from7.clone();
+    let (m, _) = noisecal_core::derive::interp::model_for(&from8, 400, false).expect("interpolated");
+    let mut with = from8.clone();
     with.insert(m.clone().into_owned());
     let back = ModelPack::from_bytes(&with.to_bytes().expect("bytes")).expect("loads");
     assert_eq!(back.iso(400), Some(m.as_ref()));
-    eprintln!("version 4 {} bytes, version 5 {}, version 6 {}, version 7 {}", v4.len(), v5.len(), v6.len(), v7.len());
-    assert!(v7.len() * 10 <= v6.len() * SMALL_PACK_V7_TENTHS, "version 7 {} bytes, version 6 {}", v7.len(), v6.len());
+    eprintln!(
+        "version 4 {} bytes, version 5 {}, version 6 {}, version 7 {}, version 8 {}",
+        v4.len(),
+        v5.len(),
+        v6.len(),
+        v7.len(),
+        v8.len()
+    );
+    assert!(v8.len() * 10 <= v7.len() * SMALL_PACK_V8_TENTHS, "version 8 {} bytes, version 7 {}", v8.len(), v7.len());
 }
 
 /// Rounding by error diffusion keeps a bin's mean and variance well inside their sampling noise
@@ -383,14 +429,17 @@ fn synthesis_from_the_stored_pack_matches_in_distribution() {
     }
 }
 
-/// Size bound on a random-family sensor's pack, and its round trip.
+/// Size bounds on a 14-bit random-family sensor's pack (against version 7, and per calibrated
+/// ISO), and its round trip.
 #[test]
 fn a_random_sensors_pack_is_compact() {
     let p = random_pack(1);
-    let v7 = p.to_bytes().expect("bytes");
-    let v6 = p.to_bytes_v6().expect("bytes");
-    assert_eq!(ModelPack::from_bytes(&v7).expect("loads"), p.compacted());
-    assert!(v7.len() * 10 <= v6.len() * RANDOM_PACK_V7_TENTHS, "version 7 {} bytes, version 6 {}", v7.len(), v6.len());
+    let v8 = p.to_bytes().expect("bytes");
+    let v7 = p.to_bytes_v7().expect("bytes");
+    assert_eq!(ModelPack::from_bytes(&v8).expect("loads"), p.compacted());
+    assert!(v8.len() * 10 <= v7.len() * RANDOM_PACK_V8_TENTHS, "version 8 {} bytes, version 7 {}", v8.len(), v7.len());
+    let calibrated = p.calibrated_isos().len();
+    assert!(v8.len() <= BYTES_PER_CALIBRATED_ISO * calibrated, "{} bytes for {calibrated} calibrated ISOs", v8.len());
 }
 
 /// Damage inside the compressed payload (with the CRC recomputed, as a fuzzer's mutants may
@@ -398,11 +447,11 @@ fn a_random_sensors_pack_is_compact() {
 #[test]
 fn damaged_compact_packs_are_refused() {
     let p = small_pack();
-    let v7 = p.to_bytes().expect("bytes");
+    let v8 = p.to_bytes().expect("bytes");
     let header = 8 + 2 + 2 + 8 + 4;
     let mut state = 0x2545_F491_4F6C_DD1Du64;
     for k in 0..200 {
-        let mut b = v7.clone();
+        let mut b = v8.clone();
         state ^= state << 13;
         state ^= state >> 7;
         state ^= state << 17;
@@ -415,8 +464,8 @@ fn damaged_compact_packs_are_refused() {
             q.check().expect("a loaded pack passes its checks");
         }
     }
-    for cut in [header, header + 3, header + 8, header + 16, v7.len() - 1] {
-        let mut b = v7[..cut].to_vec();
+    for cut in [header, header + 3, header + 8, header + 16, v8.len() - 1] {
+        let mut b = v8[..cut].to_vec();
         let len = (cut - header) as u64;
         b[12..20].copy_from_slice(&len.to_le_bytes());
         let crc = crc32fast_hash(&b[header..]);
@@ -438,7 +487,7 @@ fn crc32fast_hash(b: &[u8]) -> u32 {
 }
 
 /// Sizes (and where the bytes go), held-out cross-entropy and sampler tables of the exact pack
-/// and of its version 7 file (with the same stored form coded as version 6 for comparison),
+/// and of its version 8 file (and its version 7 file, as the previous noisecal wrote it),
 /// for the report: the demo's phone, the 14-bit dual-gain phone and random-family sensors
 /// (`NOISECAL_SEEDS=0,1,2`).
 #[test]
@@ -466,22 +515,27 @@ fn pack_sizes() {
     }
     for (name, p, held) in &packs {
         let t0 = std::time::Instant::now();
-        let v7 = p.to_bytes().expect("bytes");
+        let v8 = p.to_bytes().expect("bytes");
         let enc = t0.elapsed();
         let t0 = std::time::Instant::now();
-        let back = ModelPack::from_bytes(&v7).expect("loads");
+        let back = ModelPack::from_bytes(&v8).expect("loads");
         let dec = t0.elapsed();
         assert_eq!(back, p.compacted());
-        let v6 = p.to_bytes_v6().expect("bytes");
+        let v7 = p.to_bytes_v7().expect("bytes");
+        let from7 = ModelPack::from_bytes(&v7).expect("loads");
         let (ce, out) = cross_entropy(p, held);
-        let (ce7, out7) = cross_entropy(&back, held);
+        let (ce8, out8) = cross_entropy(&back, held);
+        let (ce7, out7) = cross_entropy(&from7, held);
         let cal = p.isos.iter().filter(|m| m.is_calibrated()).count().max(1);
+        let (_, coarse) = check_stored_form(p, &back);
         println!(
-            "{name}\n  {} ISOs ({cal} calibrated): version 7 {} bytes ({} per calibrated ISO); its stored form coded as version 6 {} bytes; encode {enc:?}, load {dec:?}\n  held-out cross-entropy exact {ce:.6} → stored {ce7:.6} nats ({:+.2e} relative); held-out samples outside the support {out:.2e} → {out7:.2e}",
+            "{name}\n  {} ISOs ({cal} calibrated): version 8 {} bytes ({} per calibrated ISO); version 7 {} bytes ({} per calibrated ISO); encode {enc:?}, load {dec:?}; {coarse} bins kept coarse\n  held-out cross-entropy exact {ce:.6} → version 8 {ce8:.6} nats ({:+.2e} relative; version 7 {:+.2e}); held-out samples outside the support {out:.2e} → {out8:.2e} (version 7 {out7:.2e})",
             p.isos.len(),
+            v8.len(),
+            v8.len() / cal,
             v7.len(),
             v7.len() / cal,
-            v6.len(),
+            (ce8 - ce) / ce,
             (ce7 - ce) / ce,
         );
         let bins: Vec<&noisecal_core::model::pack::BinModel> =
@@ -520,7 +574,8 @@ fn pack_sizes() {
             println!("  sampler tables ISO {iso}: exact {:.2} MB, stored {:.2} MB", *x as f64 / 1e6, *y as f64 / 1e6);
         }
         if let Ok(dir) = std::env::var("NOISECAL_DUMP") {
-            let stem = name.split([':', ' ']).next().unwrap_or("pack");
+            let stem = name.split([':', ' ', '(']).filter(|w| !w.is_empty()).take(2).collect::<Vec<_>>().join("-");
+            std::fs::write(format!("{dir}/{stem}.v8.pack"), &v8).expect("write");
             std::fs::write(format!("{dir}/{stem}.v7.pack"), &v7).expect("write");
             std::fs::write(format!("{dir}/{stem}.v4.pack"), p.to_bytes_v4().expect("bytes")).expect("write");
             std::fs::write(format!("{dir}/{stem}.held.pack"), held.to_bytes_v4().expect("bytes")).expect("write");
@@ -528,11 +583,12 @@ fn pack_sizes() {
     }
 }
 
-/// The fuzz corpus's packs (written by older noisecal builds, versions 3, 5 and 6) still load,
-/// and written as version 7 load back in their stored form. `NOISECAL_WRITE_SEEDS=1` writes those
-/// version 7 files into the corpus as seeds (`*-v7.pack`).
+/// The fuzz corpus's packs (written by older noisecal builds, versions 3, 5, 6 and 7) still
+/// load, and written as version 8 load back in their stored form. `NOISECAL_WRITE_SEEDS=1`
+/// writes those version 8 files into the corpus as seeds (`*-v8.pack`): this test is what makes
+/// the corpus's pack seeds of the current version.
 #[test]
-fn older_pack_files_load_and_migrate_to_version_7() {
+fn older_pack_files_load_and_migrate_to_version_8() {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/fuzz-corpus/pack");
     let files = [
         ("plain", 3),
@@ -542,16 +598,18 @@ fn older_pack_files_load_and_migrate_to_version_7() {
         ("two-isos-v5", 5),
         ("plain-v6", 6),
         ("two-isos-v6", 6),
+        ("plain-v7", 7),
+        ("two-isos-v7", 7),
     ];
     for (name, version) in files {
         let bytes = std::fs::read(dir.join(format!("{name}.pack"))).expect("read seed");
         assert_eq!(u16::from_le_bytes([bytes[8], bytes[9]]), version, "{name} is a version {version} file");
         let old = ModelPack::from_bytes(&bytes).expect("an older pack loads");
-        let v7 = old.to_bytes().expect("bytes");
-        assert_eq!(ModelPack::from_bytes(&v7).expect("loads"), old.compacted(), "{name}");
+        let v8 = old.to_bytes().expect("bytes");
+        assert_eq!(ModelPack::from_bytes(&v8).expect("loads"), old.compacted(), "{name}");
         assert_eq!(ModelPack::from_bytes(&old.to_bytes_v4().expect("bytes")).expect("loads"), old, "{name}");
         if std::env::var_os("NOISECAL_WRITE_SEEDS").is_some() && version == 3 && name != "interpolated" {
-            std::fs::write(dir.join(format!("{name}-v7.pack")), &v7).expect("write seed");
+            std::fs::write(dir.join(format!("{name}-v8.pack")), &v8).expect("write seed");
         }
     }
 }

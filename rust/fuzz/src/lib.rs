@@ -223,7 +223,7 @@ fn run_jni_frame(input: &[u8]) -> String {
 }
 
 /// Seeds of the `jni-frame` target: valid pushes of synthetic frames (the other targets' seeds
-/// are files noisecal writes, made by `tests/fuzz-corpus/make.sh`).
+/// are files noisecal writes: docs/fuzzing.md, "Corpus", says what wrote each).
 pub fn jni_seeds() -> Vec<Vec<u8>> {
     let mut seeds = Vec::new();
     for (k, (w, h, pad)) in [(8u8, 8u8, 0u8), (16, 12, 2), (4, 4, 7)].into_iter().enumerate() {

@@ -1,31 +1,46 @@
-//! The payload of a version 7 pack file: the pack's fields as bincode with every bin's weights
+//! The payload of a version 8 pack file: the pack's fields as bincode with every bin's weights
 //! taken out, then the weights as a stream, the whole deflated:
 //!
 //! `raw_len u64 | fields_len u64 | deflate(bincode(pack without weights) | weights)`
 //!
-//! The weights: per bin its cell count, the [`Predictor`] its codes are guessed with, then each
-//! code less its guess (the previous code plus the slope the previous bin's weights have at the
-//! same noise value, [`Slopes`]: neighbouring bins hold nearly the same PMF; or the previous code;
-//! or the previous code plus the slope before it), all as zigzagged LEB128 varints. The weights are the model's stored form
-//! ([`crate::model::precision`]): each holds the significant bits its bin's [`Precision`] gives
-//! its bit length, and its code is its index among the values that precision holds
-//! ([`WeightCode`]), so a code's step is one stored step whatever the bin's precision: a smooth
-//! PMF's codes change by small steps and a tail kept to a bit or two is a run of near-equal
-//! numbers. The precision is not stored: it follows from fields the file holds (the model
-//! calibrated or not, the position estimated or plain, the bin's samples). The envelope (lengths,
-//! deflate) is version 6's, [`codec::deflate_fields_and_weights`].
+//! The weights: per bin its cell count, then one varint naming its [`Predictor`] and its grid
+//! step (`predictor + 4·log2 k`: a bin kept in cells of `k` DN, [`crate::model::coarse_grid`],
+//! stores the masses of its cells and is re-expanded at load; `k = 1` stores a weight per DN),
+//! then each cell's code less its guess (the previous code plus the slope the previous bin's
+//! weights, summed over this bin's cells, have at the same noise value, [`Slopes`]: neighbouring
+//! bins hold nearly the same PMF; or the previous code; or the previous code plus the slope before
+//! it), all as zigzagged LEB128 varints. The weights are the model's stored form
+//! ([`crate::model::precision`]): each weight (or cell mass) holds the significant bits its bin's
+//! [`Precision`] gives its bit length, and its code is its index among the values that precision
+//! holds ([`WeightCode`]), so a code's step is one stored step whatever the bin's precision. The
+//! precision is not stored: it follows from fields the file holds (the model calibrated or not,
+//! the position estimated or plain, the bin's samples). The envelope (lengths, deflate) is
+//! version 6's, [`codec::deflate_fields_and_weights`]. Version 7 (the same without grid steps) is
+//! read by [`super::pack_v7`].
 //!
 //! Same pack in, same bytes out (deflate is deterministic for a given `miniz_oxide`, pinned by
 //! Cargo.lock). The differences wrap in 64 bits (a bijection on `u64`): any codes round-trip and
-//! no input can overflow; a code naming no weight, a cell count beyond what the stream holds, or
-//! bytes left over are refused as a damaged file.
+//! no input can overflow; a code naming no weight, a cell count beyond what the stream holds, an
+//! unknown predictor or step, more cells than [`MAX_CELLS`] once expanded, or bytes left over are
+//! refused as a damaged file.
 
 use crate::error::CodecError;
 use crate::format::codec::{self, get_varint, put_varint, unzigzag, zigzag};
+use crate::model::coarse_grid::{GRID_STEPS, cell_masses, expand, stored_step};
 use crate::model::pack::{IsoModel, ModelPack, PositionModel};
 use crate::model::precision::{DERIVED_BITS, Precision, bin_precision};
 
 const WHAT: &str = "model pack";
+
+/// The most cells (once re-expanded) a file's bins may hold together: 2²⁸ (2 GB of weights),
+/// beyond any pack noisecal writes (the 14-bit phone's 3 ISOs hold 1.5·10⁷); a damaged count or
+/// step cannot ask for more.
+pub const MAX_CELLS: u64 = 1 << 28;
+
+/// The steps a bin may be kept at, by their code (`log2 k`).
+fn step_of(code: u64) -> Option<usize> {
+    std::iter::once(1).chain(GRID_STEPS).find(|k| k.trailing_zeros() as u64 == code)
+}
 
 /// The precision a bin of this model and position is stored with.
 fn precision_of(m: &IsoModel, p: &PositionModel, samples: u64) -> Precision {
@@ -81,31 +96,36 @@ impl WeightCode {
     }
 }
 
-/// The slopes of the previous bin's weights, coded at this bin's precision
-/// (`code[n] − code[n−1]` at noise value `n`): the prediction of this bin's code differences.
+/// The slopes of the previous bin's weights summed over this bin's cells (`first`, `k` DN each),
+/// coded at this bin's precision (`code[j] − code[j−1]`, the cell before the first included): the
+/// prediction of this bin's code differences.
 #[derive(Default)]
 struct Slopes {
-    first: i32,
     slope: Vec<u64>,
 }
 
 impl Slopes {
-    fn of(first: i32, weights: &[u64], code: &WeightCode) -> Self {
-        let slope = weights
-            .iter()
-            .scan(0u64, |prev, &w| {
-                let k = code.code_near(w);
-                Some(k.wrapping_sub(std::mem::replace(prev, k)))
+    fn of(prev: Option<(i32, &[u64])>, first: i32, k: usize, cells: usize, code: &WeightCode) -> Self {
+        let Some((pf, pw)) = prev else { return Self::default() };
+        let mass = |j: i64| -> u64 {
+            let lo = first as i64 + j * k as i64 - pf as i64;
+            (lo..lo + k as i64)
+                .filter_map(|i| usize::try_from(i).ok().and_then(|i| pw.get(i)))
+                .fold(0u64, |a, &w| a.saturating_add(w))
+        };
+        let mut prev_code = code.code_near(mass(-1));
+        let slope = (0..cells as i64)
+            .map(|j| {
+                let c = code.code_near(mass(j));
+                c.wrapping_sub(std::mem::replace(&mut prev_code, c))
             })
             .collect();
-        Self { first, slope }
+        Self { slope }
     }
 
-    /// The predicted slope at noise value `n`: the previous bin's there, 0 where it has no cell
-    /// (or at its first, whose slope is from 0).
-    fn at(&self, n: i32) -> u64 {
-        let i = (n as i64) - (self.first as i64);
-        if i <= 0 { 0 } else { self.slope.get(i as usize).copied().unwrap_or(0) }
+    /// The predicted slope at cell `j`.
+    fn at(&self, j: usize) -> u64 {
+        self.slope.get(j).copied().unwrap_or(0)
     }
 }
 
@@ -129,11 +149,11 @@ impl Predictor {
         Self::ALL.into_iter().find(|p| *p as u64 == id)
     }
 
-    /// The guess of the code after `codes` at noise value `n`.
-    fn guess(self, codes: &[u64], above: &Slopes, n: i32) -> u64 {
+    /// The guess of the code after `codes` (of cell `codes.len()`).
+    fn guess(self, codes: &[u64], above: &Slopes) -> u64 {
         let last = codes.last().copied().unwrap_or(0);
         match self {
-            Predictor::Above => last.wrapping_add(above.at(n)),
+            Predictor::Above => last.wrapping_add(above.at(codes.len())),
             Predictor::Previous => last,
             Predictor::Linear => match codes {
                 [.., a, b] => b.wrapping_add(b.wrapping_sub(*a)),
@@ -150,11 +170,13 @@ pub(crate) fn weight_stream(pack: &ModelPack) -> Result<Vec<u8>, CodecError> {
         for p in &m.positions {
             let mut prev: Option<(i32, &[u64])> = None;
             for b in &p.bins {
-                let code = WeightCode::new(precision_of(m, p, b.samples));
-                let above = prev.map_or_else(Slopes::default, |(f, w)| Slopes::of(f, w, &code));
-                put_varint(&mut out, b.counts.len() as u64);
-                let codes: Vec<u64> = b
-                    .counts
+                let precision = precision_of(m, p, b.samples);
+                let code = WeightCode::new(precision);
+                let k = stored_step(&b.counts, precision);
+                let values = if k > 1 { cell_masses(&b.counts, k) } else { b.counts.clone() };
+                let above = Slopes::of(prev, b.first, k, values.len(), &code);
+                put_varint(&mut out, values.len() as u64);
+                let codes: Vec<u64> = values
                     .iter()
                     .map(|&w| code.code(w))
                     .collect::<Option<_>>()
@@ -167,9 +189,8 @@ pub(crate) fn weight_stream(pack: &ModelPack) -> Result<Vec<u8>, CodecError> {
                     })?;
                 let coded = |predictor: Predictor| {
                     let mut bytes = Vec::new();
-                    for (i, &k) in codes.iter().enumerate() {
-                        let guess = predictor.guess(&codes[..i], &above, b.first + i as i32);
-                        put_varint(&mut bytes, zigzag(k.wrapping_sub(guess) as i64));
+                    for (i, &c) in codes.iter().enumerate() {
+                        put_varint(&mut bytes, zigzag(c.wrapping_sub(predictor.guess(&codes[..i], &above)) as i64));
                     }
                     bytes
                 };
@@ -178,7 +199,7 @@ pub(crate) fn weight_stream(pack: &ModelPack) -> Result<Vec<u8>, CodecError> {
                     .map(|p| (p, coded(p)))
                     .min_by_key(|(p, bytes)| (bytes.len(), *p as u8))
                     .expect("predictors");
-                put_varint(&mut out, predictor as u64);
+                put_varint(&mut out, predictor as u64 + 4 * k.trailing_zeros() as u64);
                 out.extend_from_slice(&bytes);
                 prev = Some((b.first, &b.counts));
             }
@@ -187,7 +208,7 @@ pub(crate) fn weight_stream(pack: &ModelPack) -> Result<Vec<u8>, CodecError> {
     Ok(out)
 }
 
-/// The version 7 payload of `pack` (already in its stored form, [`ModelPack::compacted`]).
+/// The version 8 payload of `pack` (already in its stored form, [`ModelPack::compacted`]).
 pub fn encode(pack: &ModelPack) -> Result<Vec<u8>, CodecError> {
     let weights = weight_stream(pack)?;
     let mut fields = pack.clone();
@@ -197,13 +218,14 @@ pub fn encode(pack: &ModelPack) -> Result<Vec<u8>, CodecError> {
     codec::deflate_fields_and_weights(WHAT, &fields, &weights)
 }
 
-/// The pack in a version 7 payload (checked by the caller), refusing a damaged one with a clear
+/// The pack in a version 8 payload (checked by the caller), refusing a damaged one with a clear
 /// error.
 pub fn decode(payload: &[u8]) -> Result<ModelPack, CodecError> {
     let damaged = |what: &str| CodecError::Invalid { what: WHAT, detail: format!("{what}: the file is damaged") };
     let (mut pack, weights): (ModelPack, Vec<u8>) = codec::inflate_fields_and_weights(WHAT, payload)?;
     let weights = &weights[..];
     let mut at = 0usize;
+    let mut cells = 0u64;
     for (i, m) in pack.isos.iter_mut().enumerate() {
         let calibrated = m.is_calibrated();
         for (pos, p) in m.positions.iter_mut().enumerate() {
@@ -214,7 +236,6 @@ pub fn decode(payload: &[u8]) -> Result<ModelPack, CodecError> {
                 let precision =
                     if calibrated { bin_precision(estimated, bin.samples) } else { Precision::fixed(DERIVED_BITS) };
                 let code = WeightCode::new(precision);
-                let above = prev.as_ref().map_or_else(Slopes::default, |(f, w)| Slopes::of(*f, w, &code));
                 let n =
                     get_varint(weights, &mut at).ok_or_else(|| damaged(&format!("{} has no cell count", here())))?;
                 // Every cell takes at least a byte: a count beyond the bytes left is damage (and
@@ -222,21 +243,28 @@ pub fn decode(payload: &[u8]) -> Result<ModelPack, CodecError> {
                 if n > (weights.len() - at) as u64 {
                     return Err(damaged(&format!("{} claims {n} cells, more than the file holds", here())));
                 }
-                let predictor = get_varint(weights, &mut at)
-                    .and_then(Predictor::from_id)
+                let mode =
+                    get_varint(weights, &mut at).ok_or_else(|| damaged(&format!("{} has no predictor", here())))?;
+                let predictor = Predictor::from_id(mode % 4)
                     .ok_or_else(|| damaged(&format!("{} names no known predictor", here())))?;
+                let k = step_of(mode / 4).ok_or_else(|| damaged(&format!("{} names no known grid step", here())))?;
+                cells = cells.saturating_add(n.saturating_mul(k as u64));
+                if cells > MAX_CELLS {
+                    return Err(damaged(&format!("{} takes the pack beyond {MAX_CELLS} cells", here())));
+                }
+                let above = Slopes::of(prev.as_ref().map(|(f, w)| (*f, &w[..])), bin.first, k, n as usize, &code);
                 let mut codes = Vec::with_capacity(n as usize);
-                for c in 0..n as i32 {
+                for _ in 0..n {
                     let z = get_varint(weights, &mut at)
                         .ok_or_else(|| damaged(&format!("{} ends inside a weight", here())))?;
-                    let guess = predictor.guess(&codes, &above, bin.first.wrapping_add(c));
+                    let guess = predictor.guess(&codes, &above);
                     codes.push(guess.wrapping_add(unzigzag(z) as u64));
                 }
-                let counts = codes
+                let values = codes
                     .iter()
                     .map(|&k| code.weight(k).ok_or_else(|| damaged(&format!("{} has a code naming no weight", here()))))
                     .collect::<Result<Vec<u64>, _>>()?;
-                bin.counts = counts;
+                bin.counts = if k > 1 { expand(&values, k) } else { values };
                 prev = Some((bin.first, bin.counts.clone()));
             }
         }
@@ -250,6 +278,19 @@ pub fn decode(payload: &[u8]) -> Result<ModelPack, CodecError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The step codes name exactly 1 DN and the grid's steps (`log2 k`); any other is refused.
+    #[test]
+    fn step_codes_name_the_grid_steps_only() {
+        let named: Vec<usize> = (0..64).filter_map(step_of).collect();
+        let mut want = vec![1];
+        want.extend(GRID_STEPS);
+        assert_eq!(named, want);
+        for (code, k) in want.iter().enumerate() {
+            assert_eq!(step_of(code as u64), Some(*k));
+        }
+        assert_eq!(step_of(u64::MAX / 4), None);
+    }
 
     /// Every held value's code names it back, codes of held values are consecutive in increasing
     /// order, and a value not held has no code; for fixed and sample-driven precisions.

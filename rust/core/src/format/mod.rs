@@ -3,7 +3,7 @@
 //! records ([`recording`]) and their replay into a session ([`replay`]); the pack file and its
 //! version dispatch ([`pack_file`]), where its bytes go ([`pack_sizes`]), the compact payload of
 //! the current version ([`compact`]) and packs of older versions ([`pack_v1`], [`pack_v2`],
-//! [`pack_v3`], [`pack_v5`], [`pack_v6`]; version 4 is the current structs uncompressed).
+//! [`pack_v3`], [`pack_v5`], [`pack_v6`], [`pack_v7`]; version 4 is the current structs uncompressed).
 
 pub mod checkpoint;
 pub(crate) mod codec;
@@ -15,6 +15,7 @@ pub(crate) mod pack_v2;
 pub(crate) mod pack_v3;
 pub mod pack_v5;
 pub mod pack_v6;
+pub mod pack_v7;
 pub(crate) mod pack_version;
 pub mod recording;
 pub mod replay;

@@ -1,6 +1,6 @@
 //! A model pack as a file: the magic and format version, the payload of the current version
 //! ([`compact`]), and the dispatch that reads every older version and migrates
-//! it to the current structs ([`pack_v1`] … [`pack_v6`]).
+//! it to the current structs ([`pack_v1`] … [`pack_v7`]).
 //!
 //! Version history: 2 adds, per bin, where its PMF comes from, its measured moments and whether it
 //! is clipped, and per position the estimator's report; 3 the structured components per ISO; 4
@@ -8,16 +8,18 @@
 //! significant bits, delta-coded, deflated); 6 keeps each bin's PMF only as far as its tails hold
 //! measurable mass, its weights to 7 significant bits ([`pack_v6`]); 7 keeps each weight to the
 //! bits its bin's samples justify, rounded by error diffusion ([`crate::model::precision`]), and
-//! codes it as [`compact`] says. Version 4 is read as it is ([`ModelPack::to_bytes_v4`] still writes it, for diffing packs
+//! codes it ([`pack_v7`]); 8 keeps a wide bin's PMF as the masses of cells several DN wide where it
+//! is smooth over them ([`crate::model::coarse_grid`]), re-expanded at load, and codes it as
+//! [`compact`] says. Version 4 is read as it is ([`ModelPack::to_bytes_v4`] still writes it, for diffing packs
 //! byte by byte).
 
 use crate::error::CodecError;
-use crate::format::{codec, compact, pack_v1, pack_v2, pack_v3, pack_v5, pack_v6};
+use crate::format::{codec, compact, pack_v1, pack_v2, pack_v3, pack_v5, pack_v6, pack_v7};
 use crate::model::pack::ModelPack;
 
 pub use crate::format::pack_version::{
     PACK_MAGIC, PACK_MAGIC_TEXT, PACK_VERSION, PACK_VERSION_MIN, PACK_VERSION_UNCOMPRESSED, PACK_VERSION_V5,
-    PACK_VERSION_V6,
+    PACK_VERSION_V6, PACK_VERSION_V7,
 };
 
 const WHAT: &str = "model pack";
@@ -46,6 +48,12 @@ impl ModelPack {
         Ok(codec::encode_sealed(PACK_MAGIC, PACK_VERSION_V6, &pack_v6::encode(&pack_v6::stored_form(self))?))
     }
 
+    /// The pack as a version 7 file (in version 7's stored form, [`pack_v7::stored_form`]), for
+    /// noisecal builds before version 8 and for migration tests.
+    pub fn to_bytes_v7(&self) -> Result<Vec<u8>, CodecError> {
+        Ok(codec::encode_sealed(PACK_MAGIC, PACK_VERSION_V7, &pack_v7::encode(&pack_v7::stored_form(self))?))
+    }
+
     /// Reads a pack of this version or an older one (migrated).
     pub fn from_bytes(bytes: &[u8]) -> Result<Self, CodecError> {
         let (version, payload) =
@@ -57,6 +65,7 @@ impl ModelPack {
             PACK_VERSION_UNCOMPRESSED => codec::decode_payload(WHAT, payload)?,
             PACK_VERSION_V5 => pack_v5::decode(payload)?,
             PACK_VERSION_V6 => pack_v6::decode(payload)?,
+            PACK_VERSION_V7 => pack_v7::decode(payload)?,
             _ => compact::decode(payload)?,
         };
         p.check()?;

@@ -6,6 +6,7 @@ pub mod bin_levels;
 pub mod bin_source;
 pub mod bin_width;
 pub mod check;
+pub mod coarse_grid;
 pub mod codes;
 pub mod estimate_report;
 pub mod histogram;

@@ -398,18 +398,30 @@ impl ModelPack {
 }
 
 impl ModelPack {
-    /// The pack as a file of the current version stores it ([`crate::model::precision`]): what
-    /// loading its file gives. Idempotent.
+    /// The pack as a file of the current version stores it ([`crate::model::precision`],
+    /// [`crate::model::coarse_grid`]): what loading its file gives. Idempotent: a bin already in
+    /// its stored form at a coarse step is left as it is.
     pub fn compacted(&self) -> ModelPack {
+        use crate::model::coarse_grid::{choose_step, is_stored, store_coarse};
         let mut p = self.clone();
         for m in p.isos.iter_mut() {
             let calibrated = m.is_calibrated();
-            for q in m.positions.iter_mut() {
+            for (pos, q) in m.positions.iter_mut().enumerate() {
                 let estimated = q.is_estimated();
+                // A sensor that writes only some codes has a PMF of spikes: kept per DN.
+                let may_coarsen = estimated && m.lattice[pos].is_none();
                 for b in q.bins.iter_mut() {
                     if calibrated {
                         let precision = crate::model::precision::bin_precision(estimated, b.samples);
-                        crate::model::precision::store_bin(&mut b.first, &mut b.counts, precision);
+                        if may_coarsen && is_stored(&b.counts, precision) {
+                            continue;
+                        }
+                        let k = if may_coarsen { choose_step(&b.counts, b.samples, precision) } else { 1 };
+                        if k > 1 {
+                            store_coarse(&mut b.first, &mut b.counts, k, precision);
+                        } else {
+                            crate::model::precision::store_bin(&mut b.first, &mut b.counts, precision);
+                        }
                     } else {
                         b.counts.iter_mut().for_each(|w| *w = crate::model::precision::quantize_derived(*w));
                     }

@@ -179,6 +179,15 @@ fn diffuse<'a>(cells: impl Iterator<Item = &'a mut u64>, precision: Precision) -
 /// of it. Idempotent: weights already held by their bits round to themselves with nothing
 /// carried, the largest stays the largest (the first of equals), and the cut keeps it.
 pub fn store_bin(first: &mut i32, counts: &mut Vec<u64>, precision: Precision) {
+    round_by_diffusion(counts, precision);
+    cut_tails(first, counts);
+}
+
+/// The rounding of [`store_bin`] alone (no cut): each weight to the bits `precision` gives it,
+/// by error diffusion from either end in towards the largest weight, which takes what is left.
+/// Also rounds the cell masses of a coarse grid ([`crate::model::coarse_grid`]), a mass being
+/// measured to the same variance `p/N` as a weight.
+pub fn round_by_diffusion(counts: &mut [u64], precision: Precision) {
     let Some(peak) = counts
         .iter()
         .enumerate()
@@ -194,6 +203,11 @@ pub fn store_bin(first: &mut i32, counts: &mut Vec<u64>, precision: Precision) {
     // The largest weight takes what is left, to the nearest value held (it stays the largest:
     // the error is below the largest step passed, which is at most its own).
     *top = precision.round((*top as i128 + carry).clamp(1, u64::MAX as i128) as u64);
+}
+
+/// Cuts both tails of `counts` to [`measurable_span`] at [`TAIL_BITS`], moving `first` with the
+/// left cut.
+pub fn cut_tails(first: &mut i32, counts: &mut Vec<u64>) {
     if let Some((lo, hi)) = measurable_span(counts, TAIL_BITS)
         && (lo > 0 || hi + 1 < counts.len())
     {

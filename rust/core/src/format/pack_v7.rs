@@ -1,0 +1,306 @@
+//! Model packs of format version 7, read and migrated (and still written by [`encode`], for
+//! migration tests). The payload: the pack's fields as bincode with every bin's weights
+//! taken out, then the weights as a stream, the whole deflated:
+//!
+//! `raw_len u64 | fields_len u64 | deflate(bincode(pack without weights) | weights)`
+//!
+//! The weights: per bin its cell count, the [`Predictor`] its codes are guessed with, then each
+//! code less its guess (the previous code plus the slope the previous bin's weights have at the
+//! same noise value, [`Slopes`]: neighbouring bins hold nearly the same PMF; or the previous code;
+//! or the previous code plus the slope before it), all as zigzagged LEB128 varints. The weights are the model's stored form
+//! ([`crate::model::precision`]): each holds the significant bits its bin's [`Precision`] gives
+//! its bit length, and its code is its index among the values that precision holds
+//! ([`WeightCode`]), so a code's step is one stored step whatever the bin's precision: a smooth
+//! PMF's codes change by small steps and a tail kept to a bit or two is a run of near-equal
+//! numbers. The precision is not stored: it follows from fields the file holds (the model
+//! calibrated or not, the position estimated or plain, the bin's samples). The envelope (lengths,
+//! deflate) is version 6's, [`codec::deflate_fields_and_weights`].
+//!
+//! The coding is frozen here; its stored form ([`stored_form`]: every bin kept per DN) is the
+//! rounding and tail cut of [`crate::model::precision`], which version 8 keeps for the bins it
+//! does not keep on a coarse grid.
+//!
+//! Same pack in, same bytes out (deflate is deterministic for a given `miniz_oxide`, pinned by
+//! Cargo.lock). The differences wrap in 64 bits (a bijection on `u64`): any codes round-trip and
+//! no input can overflow; a code naming no weight, a cell count beyond what the stream holds, or
+//! bytes left over are refused as a damaged file.
+
+use crate::error::CodecError;
+use crate::format::codec::{self, get_varint, put_varint, unzigzag, zigzag};
+use crate::model::pack::{IsoModel, ModelPack, PositionModel};
+use crate::model::precision::{DERIVED_BITS, Precision, bin_precision, quantize_derived, store_bin};
+
+const WHAT: &str = "model pack";
+
+/// The precision a bin of this model and position is stored with.
+fn precision_of(m: &IsoModel, p: &PositionModel, samples: u64) -> Precision {
+    if m.is_calibrated() { bin_precision(p.is_estimated(), samples) } else { Precision::fixed(DERIVED_BITS) }
+}
+
+/// The codes of one precision: the values it holds, numbered in increasing order (0 is 0).
+/// `start[L]` is the code of the smallest held value of bit length `L` (`2^(L−1)`), and
+/// `start[65]` the number of codes.
+struct WeightCode {
+    precision: Precision,
+    start: [u64; 66],
+}
+
+impl WeightCode {
+    fn new(precision: Precision) -> Self {
+        let mut start = [0u64; 66];
+        start[1] = 1;
+        for len in 1..=64u32 {
+            let kept = precision.bits(len).min(len);
+            start[len as usize + 1] = start[len as usize] + (1u64 << (kept - 1));
+        }
+        Self { precision, start }
+    }
+
+    /// The code of `w`, or `None` when the precision does not hold it.
+    fn code(&self, w: u64) -> Option<u64> {
+        if w == 0 {
+            return Some(0);
+        }
+        let len = 64 - w.leading_zeros();
+        let drop = len - self.precision.bits(len).min(len);
+        (w & ((1u64 << drop) - 1) == 0).then(|| self.start[len as usize] + (w >> drop) - (1u64 << (len - 1 - drop)))
+    }
+
+    /// The weight a code names, or `None` beyond the last.
+    fn weight(&self, c: u64) -> Option<u64> {
+        if c == 0 {
+            return Some(0);
+        }
+        let len = self.start.partition_point(|&s| s <= c) - 1;
+        if len > 64 {
+            return None;
+        }
+        let len = len as u32;
+        let drop = len - self.precision.bits(len).min(len);
+        Some(((c - self.start[len as usize]) + (1u64 << (len - 1 - drop))) << drop)
+    }
+
+    /// The code of the value this precision stores `w` as (0 stays 0).
+    fn code_near(&self, w: u64) -> u64 {
+        if w == 0 { 0 } else { self.code(self.precision.round(w)).unwrap_or(0) }
+    }
+}
+
+/// The slopes of the previous bin's weights, coded at this bin's precision
+/// (`code[n] − code[n−1]` at noise value `n`): the prediction of this bin's code differences.
+#[derive(Default)]
+struct Slopes {
+    first: i32,
+    slope: Vec<u64>,
+}
+
+impl Slopes {
+    fn of(first: i32, weights: &[u64], code: &WeightCode) -> Self {
+        let slope = weights
+            .iter()
+            .scan(0u64, |prev, &w| {
+                let k = code.code_near(w);
+                Some(k.wrapping_sub(std::mem::replace(prev, k)))
+            })
+            .collect();
+        Self { first, slope }
+    }
+
+    /// The predicted slope at noise value `n`: the previous bin's there, 0 where it has no cell
+    /// (or at its first, whose slope is from 0).
+    fn at(&self, n: i32) -> u64 {
+        let i = (n as i64) - (self.first as i64);
+        if i <= 0 { 0 } else { self.slope.get(i as usize).copied().unwrap_or(0) }
+    }
+}
+
+/// How a cell's code is guessed from what came before it; each bin's weights are coded with
+/// whichever guesses them in the fewest bytes, named by a varint before them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Predictor {
+    /// The previous cell's code plus the previous bin's slope at this noise value (a PMF that
+    /// changes little from bin to bin, spikes of a code lattice included).
+    Above = 0,
+    /// The previous cell's code (a smooth PMF kept to few bits: runs of equal codes).
+    Previous = 1,
+    /// The previous cell's code plus the slope before it (a smooth PMF kept to many bits).
+    Linear = 2,
+}
+
+impl Predictor {
+    const ALL: [Predictor; 3] = [Predictor::Above, Predictor::Previous, Predictor::Linear];
+
+    fn from_id(id: u64) -> Option<Self> {
+        Self::ALL.into_iter().find(|p| *p as u64 == id)
+    }
+
+    /// The guess of the code after `codes` at noise value `n`.
+    fn guess(self, codes: &[u64], above: &Slopes, n: i32) -> u64 {
+        let last = codes.last().copied().unwrap_or(0);
+        match self {
+            Predictor::Above => last.wrapping_add(above.at(n)),
+            Predictor::Previous => last,
+            Predictor::Linear => match codes {
+                [.., a, b] => b.wrapping_add(b.wrapping_sub(*a)),
+                _ => last,
+            },
+        }
+    }
+}
+
+/// `pack` as a version 7 file stores it: each calibrated bin rounded and cut by
+/// [`store_bin`] at its [`bin_precision`], each derived weight by [`quantize_derived`].
+pub fn stored_form(pack: &ModelPack) -> ModelPack {
+    let mut p = pack.clone();
+    for m in p.isos.iter_mut() {
+        let calibrated = m.is_calibrated();
+        for q in m.positions.iter_mut() {
+            let estimated = q.is_estimated();
+            for b in q.bins.iter_mut() {
+                if calibrated {
+                    store_bin(&mut b.first, &mut b.counts, bin_precision(estimated, b.samples));
+                } else {
+                    b.counts.iter_mut().for_each(|w| *w = quantize_derived(*w));
+                }
+            }
+        }
+    }
+    p
+}
+
+/// The PMF weights of `pack` (already in version 7's stored form) as the payload codes them.
+fn weight_stream(pack: &ModelPack) -> Result<Vec<u8>, CodecError> {
+    let mut out = Vec::new();
+    for m in &pack.isos {
+        for p in &m.positions {
+            let mut prev: Option<(i32, &[u64])> = None;
+            for b in &p.bins {
+                let code = WeightCode::new(precision_of(m, p, b.samples));
+                let above = prev.map_or_else(Slopes::default, |(f, w)| Slopes::of(f, w, &code));
+                put_varint(&mut out, b.counts.len() as u64);
+                let codes: Vec<u64> = b
+                    .counts
+                    .iter()
+                    .map(|&w| code.code(w))
+                    .collect::<Option<_>>()
+                    .ok_or_else(|| CodecError::Encode {
+                        what: WHAT,
+                        detail: format!(
+                            "ISO {} holds a weight with more significant bits than its bin keeps: store the pack's compacted form",
+                            m.iso
+                        ),
+                    })?;
+                let coded = |predictor: Predictor| {
+                    let mut bytes = Vec::new();
+                    for (i, &k) in codes.iter().enumerate() {
+                        let guess = predictor.guess(&codes[..i], &above, b.first + i as i32);
+                        put_varint(&mut bytes, zigzag(k.wrapping_sub(guess) as i64));
+                    }
+                    bytes
+                };
+                let (predictor, bytes) = Predictor::ALL
+                    .into_iter()
+                    .map(|p| (p, coded(p)))
+                    .min_by_key(|(p, bytes)| (bytes.len(), *p as u8))
+                    .expect("predictors");
+                put_varint(&mut out, predictor as u64);
+                out.extend_from_slice(&bytes);
+                prev = Some((b.first, &b.counts));
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// The version 7 payload of `pack` (already in version 7's stored form, [`stored_form`]).
+pub fn encode(pack: &ModelPack) -> Result<Vec<u8>, CodecError> {
+    let weights = weight_stream(pack)?;
+    let mut fields = pack.clone();
+    fields.isos.iter_mut().flat_map(|m| m.positions.iter_mut()).flat_map(|p| p.bins.iter_mut()).for_each(|b| {
+        b.counts = Vec::new();
+    });
+    codec::deflate_fields_and_weights(WHAT, &fields, &weights)
+}
+
+/// The pack in a version 7 payload (checked by the caller), refusing a damaged one with a clear
+/// error.
+pub fn decode(payload: &[u8]) -> Result<ModelPack, CodecError> {
+    let damaged = |what: &str| CodecError::Invalid { what: WHAT, detail: format!("{what}: the file is damaged") };
+    let (mut pack, weights): (ModelPack, Vec<u8>) = codec::inflate_fields_and_weights(WHAT, payload)?;
+    let weights = &weights[..];
+    let mut at = 0usize;
+    for (i, m) in pack.isos.iter_mut().enumerate() {
+        let calibrated = m.is_calibrated();
+        for (pos, p) in m.positions.iter_mut().enumerate() {
+            let estimated = p.is_estimated();
+            let mut prev: Option<(i32, Vec<u64>)> = None;
+            for (b, bin) in p.bins.iter_mut().enumerate() {
+                let here = || format!("model {i} position {pos} bin {b}");
+                let precision =
+                    if calibrated { bin_precision(estimated, bin.samples) } else { Precision::fixed(DERIVED_BITS) };
+                let code = WeightCode::new(precision);
+                let above = prev.as_ref().map_or_else(Slopes::default, |(f, w)| Slopes::of(*f, w, &code));
+                let n =
+                    get_varint(weights, &mut at).ok_or_else(|| damaged(&format!("{} has no cell count", here())))?;
+                // Every cell takes at least a byte: a count beyond the bytes left is damage (and
+                // never allocated).
+                if n > (weights.len() - at) as u64 {
+                    return Err(damaged(&format!("{} claims {n} cells, more than the file holds", here())));
+                }
+                let predictor = get_varint(weights, &mut at)
+                    .and_then(Predictor::from_id)
+                    .ok_or_else(|| damaged(&format!("{} names no known predictor", here())))?;
+                let mut codes = Vec::with_capacity(n as usize);
+                for c in 0..n as i32 {
+                    let z = get_varint(weights, &mut at)
+                        .ok_or_else(|| damaged(&format!("{} ends inside a weight", here())))?;
+                    let guess = predictor.guess(&codes, &above, bin.first.wrapping_add(c));
+                    codes.push(guess.wrapping_add(unzigzag(z) as u64));
+                }
+                let counts = codes
+                    .iter()
+                    .map(|&k| code.weight(k).ok_or_else(|| damaged(&format!("{} has a code naming no weight", here()))))
+                    .collect::<Result<Vec<u64>, _>>()?;
+                bin.counts = counts;
+                prev = Some((bin.first, bin.counts.clone()));
+            }
+        }
+    }
+    if at != weights.len() {
+        return Err(damaged(&format!("{} bytes follow the last weight", weights.len() - at)));
+    }
+    Ok(pack)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every held value's code names it back, codes of held values are consecutive in increasing
+    /// order, and a value not held has no code; for fixed and sample-driven precisions.
+    #[test]
+    fn codes_number_the_held_values_in_order() {
+        for precision in
+            [Precision::fixed(7), Precision::fixed(9), Precision::for_samples(0), Precision::for_samples(1 << 20)]
+        {
+            let code = WeightCode::new(precision);
+            let mut expect = 0u64;
+            for w in 0..200_000u64 {
+                match code.code(w) {
+                    Some(c) => {
+                        assert!(precision.holds(w), "{w} coded but not held");
+                        assert_eq!(c, expect, "{precision:?}: {w}");
+                        assert_eq!(code.weight(c), Some(w));
+                        expect += 1;
+                    }
+                    None => assert!(!precision.holds(w), "{precision:?}: {w} held but has no code"),
+                }
+            }
+            for w in [u64::MAX, 1 << 63, (1 << 40) + (1 << 35), 987_654_321] {
+                let q = precision.round(w);
+                assert_eq!(code.weight(code.code(q).expect("held")), Some(q));
+            }
+            assert_eq!(code.weight(code.start[65]), None, "past the last code");
+        }
+    }
+}
