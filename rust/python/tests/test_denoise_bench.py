@@ -287,6 +287,58 @@ def test_simulated_bench_set_layout(bench_set: Path, pack):
     assert abs((cap - 64).mean() / (cleans[0].astype(np.float64) - 64).mean() - 1.02) < 0.04
 
 
+def _band_variance_ratios(outs, refs, cleans, lay) -> dict:
+    """Per band of the clean level (fraction of the range above black): the variance of
+    ``outs − cleans`` over that of ``refs − cleans``, pooled over the images."""
+    edges = [0.0, 0.02, 0.1, 0.4, 1.01]
+    acc: dict = {}
+    for o, r, c in zip(outs, refs, cleans):
+        frac = B.pack_raw(c.astype(np.float64))
+        b = np.asarray(lay["black"], np.float64).reshape(4, 1, 1)
+        frac = (frac - b) / (lay["white"] - b)
+        eo, er = (B.pack_raw(x.astype(np.float64) - c) for x in (o, r))
+        for i in range(len(edges) - 1):
+            m = (frac >= edges[i]) & (frac < edges[i + 1])
+            a = acc.setdefault(i, [[], []])
+            a[0].append(eo[m])
+            a[1].append(er[m])
+    out = {}
+    for i, (eo, er) in acc.items():
+        eo, er = np.concatenate(eo), np.concatenate(er)
+        if eo.size >= 2000:
+            out[i] = eo.var() / er.var()
+    return out
+
+
+def test_renoise_estimate_gives_the_target_isos_variance_on_textured_scenes(bench_set: Path, pack):
+    """Noise on noise (ISO 100 → 800) on the textured training scenes: with the known clean image
+    as its estimate, the bridge puts ISO 800's variance on every band of levels (against the pack's
+    own ISO-800 synthesis of the same clean images); the built-in filter blurs across edges, so
+    the darkest pixels, beside bright ones, get a brighter level's noise."""
+    names, cleans = B.load_clean(bench_set / "train" / "clean", pack)
+    cleans = cleans[:6]
+    lay = pack.layout
+    src = [pack.synth(c, 100, B.synth_seed(5, j, 0, 100)) for j, c in enumerate(cleans)]
+    ref = [pack.synth(c, 800, B.synth_seed(5, j, 1, 800)) for j, c in enumerate(cleans)]
+    est = B.estimates_for("clean", [[s] for s in src], cleans, None, lay, "cpu")
+    assert all(np.array_equal(e[0], c.astype(np.float32)) for e, c in zip(est, cleans))
+    assert B.estimates_for("filter", [[s] for s in src], cleans, None, lay, "cpu") is None
+    seeds = [B.synth_seed(5, j, 0, 800) for j in range(len(cleans))]
+    with_clean = [pack.renoise(s, 100, 800, k, estimate=e[0]) for s, e, k in zip(src, est, seeds)]
+    with_filter = [pack.renoise(s, 100, 800, k) for s, k in zip(src, seeds)]
+    r_clean = _band_variance_ratios(with_clean, ref, [c.astype(np.float64) for c in cleans], lay)
+    r_filter = _band_variance_ratios(with_filter, ref, [c.astype(np.float64) for c in cleans], lay)
+    print("bridge variance / ISO-800 synthesis by band, clean estimate:", r_clean, "filter:", r_filter)
+    assert len(r_clean) >= 3, r_clean
+    for band, r in r_clean.items():
+        assert 0.9 < r < 1.1, (band, r_clean)
+    # Measured: clean 0.99 / 1.02 / 1.00, filter 1.44 / 1.00 / 0.83 (phone10 dead leaves, 6 scenes).
+    assert r_filter[0] > r_clean[0] + 0.2, (r_filter, r_clean)
+    with pytest.raises(B.BenchError, match="--renoise-estimate \\['magic'\\]: use some of denoiser, filter, clean"):
+        B.parse_estimates("denoiser,magic")
+    assert B.parse_estimates("clean, filter,clean") == ["clean", "filter"]
+
+
 def test_synth_seeds_follow_the_package_rule_and_never_repeat():
     # Every (training image, realization, ISO) of a large run gets its own seed, the package's
     # keyed rule (a linear mix such as j·4099 + k·131 + ISO repeats: (0, 1, 400) and (0, 0, 531)).
