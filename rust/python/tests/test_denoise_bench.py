@@ -339,6 +339,25 @@ def test_renoise_estimate_gives_the_target_isos_variance_on_textured_scenes(benc
     assert B.parse_estimates("clean, filter,clean") == ["clean", "filter"]
 
 
+def test_noiseprofile_model_runs_on_a_simulated_session_with_the_sensors_variance(bench_set: Path):
+    """`simulate --noise-profile` sessions carry the sensor's true NoiseProfile, so the bench's
+    `noiseprofile` model trains on them: its noise has the real captures' variance per band of
+    levels (known truth: the simulated sensor's own frames of the same scenes)."""
+    pack = noisecal.Pack.load(_ci_pack(bench_set))
+    names, cleans = B.load_clean(bench_set / "train" / "clean", pack)
+    caps = B.load_captures(bench_set / "train" / "captures", names, pack)
+    pairs = B.make_pairs(B.parse_model("noiseprofile"), 1600, cleans, 2, pack, caps, 1, {})
+    real = [caps[(j, 1600)][k] for j in range(len(cleans)) for k in range(2)]
+    synth = [pairs.noisy[j][k] for j in range(len(cleans)) for k in range(2)]
+    cl = [c.astype(np.float64) for c in cleans for _ in range(2)]
+    # Each variance about its own band mean: the profile carries no gain shift, the real frames do.
+    ratios = _band_variance_ratios(synth, real, cl, pack.layout)
+    print("noiseprofile variance / real ISO-1600 variance by band:", ratios)
+    assert len(ratios) >= 3, ratios
+    for band, r in ratios.items():
+        assert 0.85 < r < 1.15, (band, ratios)
+
+
 def test_synth_seeds_follow_the_package_rule_and_never_repeat():
     # Every (training image, realization, ISO) of a large run gets its own seed, the package's
     # keyed rule (a linear mix such as j·4099 + k·131 + ISO repeats: (0, 1, 400) and (0, 0, 531)).
@@ -448,6 +467,25 @@ def test_training_is_deterministic(bench_set: Path, pack):
 
 
 @pytest.mark.torch
+def test_the_denoiser_estimate_maps_back_to_dn_at_any_even_size(pack):
+    """The clean estimate of noise on noise: a network applied to a raw capture, in DN on the
+    capture's grid. With a zero correction (the UNet's output layer zeroed) it gives the capture
+    back exactly, also at sizes whose packed image the UNet's two scales must pad (not ÷ 4)."""
+    torch = pytest.importorskip("torch")
+    net = B.make_net(8)
+    with torch.no_grad():
+        net.out.weight.zero_()
+        net.out.bias.zero_()
+    net.eval()
+    rng = np.random.default_rng(4)
+    for shape in [(32, 48), (30, 22), (2, 6)]:
+        raw = rng.integers(64, 1024, shape).astype(np.uint16)
+        est = B.denoise(net, raw, pack.layout, "cpu")
+        assert est.dtype == np.float32 and est.shape == shape
+        np.testing.assert_allclose(est, raw.astype(np.float32), atol=1e-3)
+
+
+@pytest.mark.torch
 def test_small_run_controls_in_order(bench_set: Path, tmp_path: Path, capsys):
     """CI's small configuration: oracle, noisecal, HG and the wrong model at ISO 1600, 2 seeds of
     a few hundred steps on 32-pixel crops. Every network must beat the noisy input (the machinery
@@ -487,7 +525,7 @@ def _ci_pack(bench_set: Path) -> Path:
     if not p.exists():
         cal = bench_set.parent / "cal"
         run(_cli(), "simulate", "--dngs", cal, "--isos", "1600", "--frames", "8", "--width", "128", "--height", "96",
-            "--seed", "3")
+            "--seed", "3", "--noise-profile")
         noisecal.calibrate(cal).save(p)
         shutil.rmtree(cal)
     return p
