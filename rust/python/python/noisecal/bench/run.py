@@ -13,9 +13,9 @@ from typing import Any
 
 import noisecal
 
-from .estimate import DEFAULT_ESTIMATE, estimates_for, parse_estimates
 from .data import eval_pairs, load_captures, load_clean, load_eval
 from .errors import BenchError
+from .estimate import DEFAULT_ESTIMATE, estimates_for, parse_estimates
 from .layout import normalise
 from .models import RENOISE_METHODS, ModelSpec, Pairs, make_pairs, parse_model
 from .network import _torch
