@@ -5,7 +5,8 @@
 //!
 //! - **Work:** [`eval`] scores a pack on held-out captures (one file per job); [`models`] parses
 //!   `--model` and says on stderr which model a command uses and how an input's black level is
-//!   carried; [`simulate`] writes simulated sessions.
+//!   carried; [`simulate`] writes simulated sessions, and
+//!   [`truth_profile`] the NoiseProfile their DNGs may carry.
 //! - **Out:** [`report`] renders the HTML report; [`support`] holds what every command shares
 //!   (progress, stdout, error text); [`seeds`] the seed of each file of a folder run (the rule the
 //!   Python package shares).
@@ -18,3 +19,4 @@ pub mod report;
 pub mod seeds;
 pub mod simulate;
 pub mod support;
+pub mod truth_profile;

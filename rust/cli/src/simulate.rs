@@ -23,6 +23,9 @@ pub struct SimSession {
     pub index_offset: u64,
     /// Dark frames (lens covered) per ISO, written after the lit frames (a recording's dark step).
     pub dark_frames: u32,
+    /// Whether the DNGs carry the sensor's true NoiseProfile at their ISO
+    /// ([`crate::truth_profile::truth_noise_profile`]); recordings never do.
+    pub noise_profile: bool,
 }
 
 /// Sensor presets by bit depth.
@@ -84,7 +87,15 @@ impl SimSession {
     /// A session from a simulator and a plan (frame indices start at 0).
     pub fn from_parts(sim: Simulator, plan: SessionPlan, name: &str) -> anyhow::Result<Self> {
         plan.validate()?;
-        Ok(Self { sim, plan, make: "noisecal".into(), model: name.into(), index_offset: 0, dark_frames: 0 })
+        Ok(Self {
+            sim,
+            plan,
+            make: "noisecal".into(),
+            model: name.into(),
+            index_offset: 0,
+            dark_frames: 0,
+            noise_profile: false,
+        })
     }
 
     /// The session `spec` of a random-family sensor with noise seed `seed`: its calibration
@@ -119,7 +130,15 @@ impl SimSession {
         let sim = Simulator::new(model, chart, seed)?;
         let plan = SessionPlan::for_simulator(&sim, target_isos, frames_per_burst)?.with_ev_steps(ev_steps);
         plan.validate()?;
-        Ok(Self { sim, plan, make: "noisecal".into(), model: name.into(), index_offset: 0, dark_frames: 0 })
+        Ok(Self {
+            sim,
+            plan,
+            make: "noisecal".into(),
+            model: name.into(),
+            index_offset: 0,
+            dark_frames: 0,
+            noise_profile: false,
+        })
     }
 
     /// Frames the session writes, dark frames included.
@@ -159,6 +178,7 @@ impl SimSession {
             None => None,
         };
         let frames: Vec<_> = self.plan.frames().collect();
+        let profiles = Profiles::new(&self.sim, self.noise_profile && dngs.is_some());
         let stride = layout.width as usize * 2 + padding;
         let chunk = (rayon::current_num_threads() * 2).max(2);
         let mut last_step = None;
@@ -170,7 +190,16 @@ impl SimSession {
             for (f, (pixels, meta)) in group.iter().zip(caps) {
                 if let Some(d) = dngs {
                     let path = d.join(format!("f{:05}.dng", f.index));
-                    dng::write_dng_from_layout(&path, &layout, &meta, &self.make, &self.model, &pixels)?;
+                    let np = profiles.at(meta.iso)?;
+                    dng::write_dng_from_layout_with_profile(
+                        &path,
+                        &layout,
+                        &meta,
+                        &self.make,
+                        &self.model,
+                        &pixels,
+                        np.as_ref(),
+                    )?;
                 }
                 if let Some(w) = writer.as_mut() {
                     if last_step != Some(f.step) {
@@ -197,7 +226,16 @@ impl SimSession {
                 for (pixels, meta) in caps {
                     if let Some(d) = dngs {
                         let path = d.join(format!("f{index:05}.dng"));
-                        dng::write_dng_from_layout(&path, &layout, &meta, &self.make, &self.model, &pixels)?;
+                        let np = profiles.at(meta.iso)?;
+                        dng::write_dng_from_layout_with_profile(
+                            &path,
+                            &layout,
+                            &meta,
+                            &self.make,
+                            &self.model,
+                            &pixels,
+                            np.as_ref(),
+                        )?;
                     }
                     if let Some(w) = writer.as_mut() {
                         let bytes = noisecal_sim::to_padded_le_bytes(&pixels, stride);
@@ -232,15 +270,64 @@ pub struct BenchSpec {
     pub train_frames: u32,
     /// Noise seed (the sensor's PRNU/DSNU and every frame); scenes are seeded from it too.
     pub seed: u64,
+    /// Whether every DNG carries the sensor's true NoiseProfile at its ISO.
+    pub noise_profile: bool,
 }
 
 impl BenchSpec {
-    /// Frames (and clean images) written.
-    pub fn frames(&self) -> usize {
-        let per_eval = self.burst as usize + self.isos.len();
+    /// Frames (and clean images) written; `moving`: a moving scene's evaluation scenes have no
+    /// burst (their clean images are the truth, see [`write_bench_set`]).
+    pub fn frames(&self, moving: bool) -> usize {
+        let per_eval = if moving { 0 } else { self.burst as usize } + self.isos.len();
         let per_train = 1 + self.isos.len() * self.train_frames as usize;
         self.scenes as usize * per_eval + self.train_scenes as usize * per_train
     }
+}
+
+/// The true NoiseProfile per ISO, computed once per ISO when wanted.
+struct Profiles<'a> {
+    sim: &'a Simulator,
+    on: bool,
+    cache: std::sync::Mutex<std::collections::BTreeMap<u32, noisecal_core::model::pack::NoiseProfile>>,
+}
+
+impl<'a> Profiles<'a> {
+    fn new(sim: &'a Simulator, on: bool) -> Self {
+        Self { sim, on, cache: Default::default() }
+    }
+
+    /// The profile at `iso`, or `None` when profiles are not written.
+    fn at(&self, iso: u32) -> anyhow::Result<Option<noisecal_core::model::pack::NoiseProfile>> {
+        if !self.on {
+            return Ok(None);
+        }
+        let mut cache = self.cache.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(p) = cache.get(&iso) {
+            return Ok(Some(*p));
+        }
+        let p = crate::truth_profile::truth_noise_profile(self.sim, iso)?;
+        cache.insert(iso, p);
+        Ok(Some(p))
+    }
+}
+
+/// `a` as a numpy `.npy` file (format 1.0, little-endian float32, C order), atomically. Written by
+/// hand: the format is a fixed header and the raw values, and the workspace has no npy crate.
+fn write_npy_f32(path: &Path, a: &ndarray::Array2<f32>) -> anyhow::Result<()> {
+    let (h, w) = a.dim();
+    let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({h}, {w}), }}");
+    // Magic (6) + version (2) + length (2) + header + '\n', padded to a multiple of 64 bytes.
+    let pad = (64 - (10 + header.len() + 1) % 64) % 64;
+    header.push_str(&" ".repeat(pad));
+    header.push('\n');
+    let mut bytes = Vec::with_capacity(10 + header.len() + 4 * h * w);
+    bytes.extend_from_slice(b"\x93NUMPY\x01\x00");
+    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    bytes.extend_from_slice(header.as_bytes());
+    for v in a.iter() {
+        bytes.extend_from_slice(&v.to_le_bytes());
+    }
+    noisecal_io::write_bytes_atomic(path, &bytes).with_context(|| format!("cannot write {}", path.display()))
 }
 
 /// Frame indices of training scenes start here (evaluation scenes below it): fresh noise.
@@ -251,7 +338,10 @@ const SCENE_FRAMES: u64 = 1 << 20;
 /// Writes a denoiser-benchmark set (see `noisecal simulate --bench`) into `dir`:
 /// `eval/sceneNNN/ref_KKK.dng` (the base-ISO burst) and `eval/sceneNNN/iso<ISO>.dng`;
 /// `train/clean/sceneNNN.dng` (the noiseless base-ISO image, rounded) and
-/// `train/captures/sceneNNN_iso<ISO>_<K>.dng`. Scene `i` is exposed `−(i mod 4)` EV below
+/// `train/captures/sceneNNN_iso<ISO>_<K>.dng`. A moving scene (`model.motion`) would blur a
+/// burst's mean, so its evaluation frames come with their truth instead:
+/// `eval/sceneNNN_iso<ISO>/iso<ISO>.dng` and `clean.npy`, the frame's own noiseless image at the
+/// base ISO's brightness ([`Simulator::clean_expected_frame`], float32 DN), and no burst. Scene `i` is exposed `−(i mod 4)` EV below
 /// the exposure that puts its brightest texel at 84 % of the range at the base ISO; a target ISO keeps ISO × exposure. Deterministic in
 /// the spec on any thread count.
 pub fn write_bench_set(
@@ -274,6 +364,7 @@ pub fn write_bench_set(
         std::fs::create_dir_all(d).with_context(|| format!("cannot create {}", d.display()))?;
     }
     let make = "noisecal";
+    let moving = model.motion.is_some();
     let scene_sim = |scene_seed: u64| -> anyhow::Result<Simulator> {
         let chart = Chart::natural(spec.width, spec.height, scene_seed)?;
         Ok(Simulator::new(model.clone(), chart, spec.seed)?)
@@ -287,19 +378,41 @@ pub fn write_bench_set(
         let sim = scene_sim(spec.seed.wrapping_mul(1_000_003).wrapping_add(i as u64))?;
         let layout = sim.layout();
         let d = eval.join(format!("scene{i:03}"));
-        std::fs::create_dir_all(&d).with_context(|| format!("cannot create {}", d.display()))?;
         let first = i as u64 * SCENE_FRAMES;
-        let mut jobs: Vec<(u32, u64, std::path::PathBuf)> =
-            (0..spec.burst).map(|k| (base, first + k as u64, d.join(format!("ref_{k:03}.dng")))).collect();
+        let mut jobs: Vec<(u32, u64, std::path::PathBuf)> = Vec::new();
+        if !moving {
+            std::fs::create_dir_all(&d).with_context(|| format!("cannot create {}", d.display()))?;
+            jobs.extend((0..spec.burst).map(|k| (base, first + k as u64, d.join(format!("ref_{k:03}.dng")))));
+        }
         for (j, &iso) in spec.isos.iter().enumerate() {
-            jobs.push((iso, first + (spec.burst as usize + j) as u64, d.join(format!("iso{iso}.dng"))));
+            let index = first + (spec.burst as usize + j) as u64;
+            let path = if moving {
+                let own = eval.join(format!("scene{i:03}_iso{iso}"));
+                std::fs::create_dir_all(&own).with_context(|| format!("cannot create {}", own.display()))?;
+                let truth =
+                    sim.clean_expected_frame(iso, exposure(&sim, i, iso)?, index, base, exposure(&sim, i, base)?)?;
+                write_npy_f32(&own.join("clean.npy"), &truth)?;
+                own.join(format!("iso{iso}.dng"))
+            } else {
+                d.join(format!("iso{iso}.dng"))
+            };
+            jobs.push((iso, index, path));
         }
         let caps: Vec<_> = jobs
             .par_iter()
             .map(|(iso, k, _)| sim.capture(*iso, exposure(&sim, i, *iso)?, *k).map_err(anyhow::Error::from))
             .collect::<anyhow::Result<Vec<_>>>()?;
+        let profiles = Profiles::new(&sim, spec.noise_profile);
         for ((_, _, path), (pixels, meta)) in jobs.iter().zip(caps) {
-            dng::write_dng_from_layout(path, &layout, &meta, make, name, &pixels)?;
+            dng::write_dng_from_layout_with_profile(
+                path,
+                &layout,
+                &meta,
+                make,
+                name,
+                &pixels,
+                profiles.at(meta.iso)?.as_ref(),
+            )?;
             tick();
         }
     }
@@ -309,6 +422,7 @@ pub fn write_bench_set(
         let exp = exposure(&sim, i, base)?;
         let clean = sim.clean_expected(base, exp)?.mapv(|v| v.round().clamp(0.0, layout.white as f32) as u16);
         let meta = noisecal_core::FrameMeta { iso: base, exposure_ns: exp, black: None };
+        // The clean image is noiseless: it carries no NoiseProfile.
         dng::write_dng_from_layout(&clean_dir.join(format!("scene{i:03}.dng")), &layout, &meta, make, name, &clean)?;
         tick();
         let jobs: Vec<(u32, u32)> =
@@ -321,9 +435,18 @@ pub fn write_bench_set(
                 sim.capture(*iso, exposure(&sim, i, *iso)?, index).map_err(anyhow::Error::from)
             })
             .collect::<anyhow::Result<Vec<_>>>()?;
+        let profiles = Profiles::new(&sim, spec.noise_profile);
         for ((iso, k), (pixels, meta)) in jobs.iter().zip(caps) {
             let path = cap_dir.join(format!("scene{i:03}_iso{iso}_{k}.dng"));
-            dng::write_dng_from_layout(&path, &layout, &meta, make, name, &pixels)?;
+            dng::write_dng_from_layout_with_profile(
+                &path,
+                &layout,
+                &meta,
+                make,
+                name,
+                &pixels,
+                profiles.at(*iso)?.as_ref(),
+            )?;
             tick();
         }
     }
@@ -360,6 +483,44 @@ mod tests {
         assert!(dense_seen);
     }
 
+    /// Known truth in, measured out: a moving frame minus its own truth is the sensor's noise
+    /// alone (variance as the model predicts it), where the unmoved scene leaves the motion in.
+    #[test]
+    fn a_moving_frames_truth_is_its_own_noiseless_image() {
+        let mut model = Preset::Phone10.model();
+        model.motion = Some(noisecal_sim::random_moving_scene(3).motion);
+        let white = f32::from(model.white);
+        let sim = Simulator::new(model, Chart::natural(128, 128, 11).expect("scene"), 4).expect("sim");
+        let iso = 400;
+        let exp = sim.mid_range_exposure_ns(iso).expect("exposure") * 2;
+        let still = sim.clean_expected(iso, exp).expect("still truth");
+        let (mut own, mut unmoved, mut predicted) = (0.0, 0.0, 0.0);
+        for k in [1u64, 5, 9] {
+            let (frame, _) = sim.capture(iso, exp, k).expect("frame");
+            let truth = sim.clean_expected_frame(iso, exp, k, iso, exp).expect("truth");
+            for ((y, x), &v) in frame.indexed_iter() {
+                let t = truth[(y, x)];
+                if t > 0.9 * white {
+                    continue; // clipping: the mean of clipped noise is not the clean level
+                }
+                own += (f64::from(v) - f64::from(t)).powi(2);
+                unmoved += (f64::from(v) - f64::from(still[(y, x)])).powi(2);
+                predicted +=
+                    sim.predicted_variance(iso, t, noisecal_core::model::layout::position(y, x)).expect("variance");
+            }
+        }
+        let (r_own, r_unmoved) = (own / predicted, unmoved / predicted);
+        eprintln!(
+            "moving frame − its truth: {r_own:.3}; − the unmoved scene: {r_unmoved:.3} (× the predicted noise variance)"
+        );
+        // ~49 000 pixels: the ratio's sampling SE is under 1 %.
+        assert!((r_own - 1.0).abs() < 0.05, "frame − its truth: {r_own:.3} × the predicted noise variance");
+        assert!(
+            r_unmoved > 1.3,
+            "frame − the unmoved scene: {r_unmoved:.3} × the noise variance (the motion should show)"
+        );
+    }
+
     #[test]
     fn bench_sets_are_laid_out_and_the_same_bytes_on_any_thread_count() {
         let spec = BenchSpec {
@@ -371,6 +532,7 @@ mod tests {
             train_scenes: 2,
             train_frames: 2,
             seed: 4,
+            noise_profile: false,
         };
         let model = Preset::Phone10.model();
         let write = |threads: usize| {
@@ -378,7 +540,7 @@ mod tests {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
             let mut n = 0;
             pool.install(|| write_bench_set(&model, "sim", &spec, dir.path(), || n += 1)).expect("bench set");
-            assert_eq!(n, spec.frames());
+            assert_eq!(n, spec.frames(false));
             dir
         };
         let (a, b) = (write(1), write(3));
@@ -409,8 +571,24 @@ mod tests {
         };
         let (m1, m3) = (write_moving(1), write_moving(3));
         let read = |d: &std::path::Path, f: &std::path::Path| std::fs::read(d.join(f)).expect("read");
+        // A moving evaluation scene has no burst (its mean would blur): each target frame has a
+        // folder of its own with its truth, clean.npy.
+        let mut mfiles = Vec::new();
+        for sub in ["train/clean", "train/captures"] {
+            for e in std::fs::read_dir(m1.path().join(sub)).expect("dir") {
+                mfiles.push(std::path::Path::new(sub).join(e.expect("entry").file_name()));
+            }
+        }
+        for i in 0..2 {
+            for iso in [400, 1600] {
+                let d = std::path::Path::new("eval").join(format!("scene{i:03}_iso{iso}"));
+                mfiles.push(d.join(format!("iso{iso}.dng")));
+                mfiles.push(d.join("clean.npy"));
+            }
+        }
+        assert!(!m1.path().join("eval/scene000").exists(), "a moving scene has no burst folder");
         let mut moved = 0;
-        for f in &files {
+        for f in &mfiles {
             assert!(
                 read(m1.path(), f) == read(m3.path(), f),
                 "{} (moving) differs between 1 and 3 threads",
@@ -418,12 +596,28 @@ mod tests {
             );
             if f.starts_with("train/clean") {
                 assert!(read(m1.path(), f) == read(a.path(), f), "the clean image {} moved", f.display());
-            } else if read(m1.path(), f) != read(a.path(), f) {
-                moved += 1;
+            } else if f.starts_with("train/captures") {
+                moved += usize::from(read(m1.path(), f) != read(a.path(), f));
             }
         }
-        assert_eq!(moved, files.len() - 2, "every evaluation frame and capture moves");
-
+        assert_eq!(moved, 8, "every training capture moves");
+        for i in 0..2u32 {
+            for iso in [400u32, 1600] {
+                let d = m1.path().join(format!("eval/scene{i:03}_iso{iso}"));
+                let still = read(a.path(), &std::path::Path::new("eval").join(format!("scene{i:03}/iso{iso}.dng")));
+                assert!(
+                    read(&d, std::path::Path::new(&format!("iso{iso}.dng"))) != still,
+                    "scene {i} ISO {iso} did not move"
+                );
+                let npy = read(&d, std::path::Path::new("clean.npy"));
+                assert_eq!(&npy[..8], b"\x93NUMPY\x01\x00");
+                let hlen = u16::from_le_bytes([npy[8], npy[9]]) as usize;
+                assert_eq!((10 + hlen) % 64, 0, "the header is padded to 64 bytes");
+                let header = std::str::from_utf8(&npy[10..10 + hlen]).expect("ASCII header");
+                assert!(header.contains("'descr': '<f4'") && header.contains("'shape': (32, 32)"), "{header}");
+                assert_eq!(npy.len(), 10 + hlen + 4 * 32 * 32);
+            }
+        }
         let low = BenchSpec { isos: vec![50, 400], ..spec.clone() };
         let err = write_bench_set(&model, "sim", &low, a.path(), || {}).expect_err("base ISO as a target");
         assert!(err.to_string().contains("not above the sensor's base ISO 50"), "{err}");

@@ -426,7 +426,10 @@ impl Pack {
     /// CFA order): captures with another one are carried onto the pack's, re-noised, and carried
     /// back, as `noisecal renoise` does with a DNG's own black level.
     /// Pixels above the pack's white level are refused unless `out_of_range` is "warn" or "allow".
-    #[pyo3(signature = (noisy, from_iso, to_iso, seed=0, *, method="bridge", black_level=None, extrapolate=false, out_of_range="raise"))]
+    /// `estimate` is your own clean estimate of the captures (float, DN on the captures' black
+    /// level, the shape of `noisy`), as `noisecal renoise --estimate`: it picks each pixel's bin
+    /// (bridge, quantile, denoised); without it the built-in filter estimates it.
+    #[pyo3(signature = (noisy, from_iso, to_iso, seed=0, *, method="bridge", black_level=None, extrapolate=false, out_of_range="raise", estimate=None))]
     #[allow(clippy::too_many_arguments)]
     fn renoise<'py>(
         &self,
@@ -439,10 +442,18 @@ impl Pack {
         black_level: Option<Vec<f64>>,
         extrapolate: bool,
         out_of_range: &str,
+        estimate: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyArrayDyn<u16>>> {
         let noisy = checks::array::<u16>(noisy, "noisy", "uint16", |_| {
             "raw DN of captures at from_iso, black included, as read_dng gives them".into()
         })?;
+        let estimate = estimate
+            .map(|e| {
+                checks::array::<f32>(e, "estimate", "float32", |_| {
+                    "the clean estimate of each capture in DN, black included: convert with .astype(np.float32)".into()
+                })
+            })
+            .transpose()?;
         let method = Method::parse(method)
             .ok_or_else(|| input(format!("unknown method {method:?}: use bridge, quantile, denoised or naive")))?;
         if to_iso <= from_iso {
@@ -454,6 +465,20 @@ impl Pack {
         let black = black_levels(&self.inner, black_level)?;
         let view = noisy.as_array();
         let (imgs, batch) = images(&view, "noisy")?;
+        let est_view = estimate.as_ref().map(|e| e.as_array());
+        let ests = match &est_view {
+            Some(v) => {
+                if v.shape() != view.shape() {
+                    return Err(input(format!(
+                        "estimate has shape {:?} but noisy has {:?}: give one clean estimate per capture, of the same size",
+                        v.shape(),
+                        view.shape()
+                    )));
+                }
+                Some(images(v, "estimate")?.0)
+            }
+            None => None,
+        };
         let pack = &*self.inner;
         checks::levels_in_range(py, &imgs, "noisy", pack, policy, "re-noise them as they are")?;
         let align = BlackAlignment::between(black, pack.layout.black);
@@ -469,7 +494,17 @@ impl Pack {
                     let r = Renoiser::new(pack, &source, &target, method).map_err(to_py)?;
                     let white = pack.layout.white;
                     per_image(&imgs, seed, |img, s| {
-                        align.try_around(img, white, (0, 0), |a| r.apply(a, None, s).map(|o| o.image)).map_err(to_py)
+                        // The estimate of image i (its seed is seed + i), carried onto the pack's
+                        // black level as the captures are.
+                        let est = ests.as_ref().map(|e| {
+                            let e = e[s.wrapping_sub(seed) as usize];
+                            Array2::from_shape_fn(e.dim(), |(y, x)| e[(y, x)] + align.shift[position(y, x)] as f32)
+                        });
+                        align
+                            .try_around(img, white, (0, 0), |a| {
+                                r.apply(a, est.as_ref().map(|e| e.view()), s).map(|o| o.image)
+                            })
+                            .map_err(to_py)
                     })
                 })
             })

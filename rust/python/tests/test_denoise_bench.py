@@ -287,6 +287,77 @@ def test_simulated_bench_set_layout(bench_set: Path, pack):
     assert abs((cap - 64).mean() / (cleans[0].astype(np.float64) - 64).mean() - 1.02) < 0.04
 
 
+def _band_variance_ratios(outs, refs, cleans, lay) -> dict:
+    """Per band of the clean level (fraction of the range above black): the variance of
+    ``outs − cleans`` over that of ``refs − cleans``, pooled over the images."""
+    edges = [0.0, 0.02, 0.1, 0.4, 1.01]
+    acc: dict = {}
+    for o, r, c in zip(outs, refs, cleans):
+        frac = B.pack_raw(c.astype(np.float64))
+        b = np.asarray(lay["black"], np.float64).reshape(4, 1, 1)
+        frac = (frac - b) / (lay["white"] - b)
+        eo, er = (B.pack_raw(x.astype(np.float64) - c) for x in (o, r))
+        for i in range(len(edges) - 1):
+            m = (frac >= edges[i]) & (frac < edges[i + 1])
+            a = acc.setdefault(i, [[], []])
+            a[0].append(eo[m])
+            a[1].append(er[m])
+    out = {}
+    for i, (eo, er) in acc.items():
+        eo, er = np.concatenate(eo), np.concatenate(er)
+        if eo.size >= 2000:
+            out[i] = eo.var() / er.var()
+    return out
+
+
+def test_renoise_estimate_gives_the_target_isos_variance_on_textured_scenes(bench_set: Path, pack):
+    """Noise on noise (ISO 100 → 800) on the textured training scenes: with the known clean image
+    as its estimate, the bridge puts ISO 800's variance on every band of levels (against the pack's
+    own ISO-800 synthesis of the same clean images); the built-in filter blurs across edges, so
+    the darkest pixels, beside bright ones, get a brighter level's noise."""
+    names, cleans = B.load_clean(bench_set / "train" / "clean", pack)
+    cleans = cleans[:6]
+    lay = pack.layout
+    src = [pack.synth(c, 100, B.synth_seed(5, j, 0, 100)) for j, c in enumerate(cleans)]
+    ref = [pack.synth(c, 800, B.synth_seed(5, j, 1, 800)) for j, c in enumerate(cleans)]
+    est = B.estimates_for("clean", [[s] for s in src], cleans, None, lay, "cpu")
+    assert all(np.array_equal(e[0], c.astype(np.float32)) for e, c in zip(est, cleans))
+    assert B.estimates_for("filter", [[s] for s in src], cleans, None, lay, "cpu") is None
+    seeds = [B.synth_seed(5, j, 0, 800) for j in range(len(cleans))]
+    with_clean = [pack.renoise(s, 100, 800, k, estimate=e[0]) for s, e, k in zip(src, est, seeds)]
+    with_filter = [pack.renoise(s, 100, 800, k) for s, k in zip(src, seeds)]
+    r_clean = _band_variance_ratios(with_clean, ref, [c.astype(np.float64) for c in cleans], lay)
+    r_filter = _band_variance_ratios(with_filter, ref, [c.astype(np.float64) for c in cleans], lay)
+    print("bridge variance / ISO-800 synthesis by band, clean estimate:", r_clean, "filter:", r_filter)
+    assert len(r_clean) >= 3, r_clean
+    for band, r in r_clean.items():
+        assert 0.9 < r < 1.1, (band, r_clean)
+    # Measured: clean 0.99 / 1.02 / 1.00, filter 1.44 / 1.00 / 0.83 (phone10 dead leaves, 6 scenes).
+    assert r_filter[0] > r_clean[0] + 0.2, (r_filter, r_clean)
+    with pytest.raises(B.BenchError, match="--renoise-estimate \\['magic'\\]: use some of denoiser, filter, clean"):
+        B.parse_estimates("denoiser,magic")
+    assert B.parse_estimates("clean, filter,clean") == ["clean", "filter"]
+
+
+def test_noiseprofile_model_runs_on_a_simulated_session_with_the_sensors_variance(bench_set: Path):
+    """`simulate --noise-profile` sessions carry the sensor's true NoiseProfile, so the bench's
+    `noiseprofile` model trains on them: its noise has the real captures' variance per band of
+    levels (known truth: the simulated sensor's own frames of the same scenes)."""
+    pack = noisecal.Pack.load(_ci_pack(bench_set))
+    names, cleans = B.load_clean(bench_set / "train" / "clean", pack)
+    caps = B.load_captures(bench_set / "train" / "captures", names, pack)
+    pairs = B.make_pairs(B.parse_model("noiseprofile"), 1600, cleans, 2, pack, caps, 1, {})
+    real = [caps[(j, 1600)][k] for j in range(len(cleans)) for k in range(2)]
+    synth = [pairs.noisy[j][k] for j in range(len(cleans)) for k in range(2)]
+    cl = [c.astype(np.float64) for c in cleans for _ in range(2)]
+    # Each variance about its own band mean: the profile carries no gain shift, the real frames do.
+    ratios = _band_variance_ratios(synth, real, cl, pack.layout)
+    print("noiseprofile variance / real ISO-1600 variance by band:", ratios)
+    assert len(ratios) >= 3, ratios
+    for band, r in ratios.items():
+        assert 0.85 < r < 1.15, (band, ratios)
+
+
 def test_synth_seeds_follow_the_package_rule_and_never_repeat():
     # Every (training image, realization, ISO) of a large run gets its own seed, the package's
     # keyed rule (a linear mix such as j·4099 + k·131 + ISO repeats: (0, 1, 400) and (0, 0, 531)).
@@ -396,6 +467,25 @@ def test_training_is_deterministic(bench_set: Path, pack):
 
 
 @pytest.mark.torch
+def test_the_denoiser_estimate_maps_back_to_dn_at_any_even_size(pack):
+    """The clean estimate of noise on noise: a network applied to a raw capture, in DN on the
+    capture's grid. With a zero correction (the UNet's output layer zeroed) it gives the capture
+    back exactly, also at sizes whose packed image the UNet's two scales must pad (not ÷ 4)."""
+    torch = pytest.importorskip("torch")
+    net = B.make_net(8)
+    with torch.no_grad():
+        net.out.weight.zero_()
+        net.out.bias.zero_()
+    net.eval()
+    rng = np.random.default_rng(4)
+    for shape in [(32, 48), (30, 22), (2, 6)]:
+        raw = rng.integers(64, 1024, shape).astype(np.uint16)
+        est = B.denoise(net, raw, pack.layout, "cpu")
+        assert est.dtype == np.float32 and est.shape == shape
+        np.testing.assert_allclose(est, raw.astype(np.float32), atol=1e-3)
+
+
+@pytest.mark.torch
 def test_small_run_controls_in_order(bench_set: Path, tmp_path: Path, capsys):
     """CI's small configuration: oracle, noisecal, HG and the wrong model at ISO 1600, 2 seeds of
     a few hundred steps on 32-pixel crops. Every network must beat the noisy input (the machinery
@@ -435,7 +525,7 @@ def _ci_pack(bench_set: Path) -> Path:
     if not p.exists():
         cal = bench_set.parent / "cal"
         run(_cli(), "simulate", "--dngs", cal, "--isos", "1600", "--frames", "8", "--width", "128", "--height", "96",
-            "--seed", "3")
+            "--seed", "3", "--noise-profile")
         noisecal.calibrate(cal).save(p)
         shutil.rmtree(cal)
     return p

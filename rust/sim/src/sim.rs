@@ -466,6 +466,48 @@ impl Simulator {
         Ok(e)
     }
 
+    /// The noiseless mean of the frame `frame_index` captured at `iso` and `exposure_ns`, in DN
+    /// at the brightness of `at_iso` and `at_exposure_ns` (e.g. the base ISO's, where a still
+    /// scene's clean image is a burst's mean): as [`Self::clean_expected`], but with that frame's
+    /// own pose (jitter and motion, rendered as [`Self::capture`] renders a moving scene) and
+    /// flicker. The truth of a frame of a moving scene, which no burst mean gives.
+    pub fn clean_expected_frame(
+        &self,
+        iso: u32,
+        exposure_ns: u64,
+        frame_index: u64,
+        at_iso: u32,
+        at_exposure_ns: u64,
+    ) -> Result<Array2<f32>, SimError> {
+        self.check(iso, exposure_ns)?;
+        let s = self.check(at_iso, at_exposure_ns)?;
+        let fx = self.frame_effects(iso, exposure_ns, frame_index);
+        let prepared = if self.model.motion.is_some() {
+            self.chart.prepare_moving(fx.jitter, fx.rotation, fx.scale)
+        } else {
+            self.chart.prepare_posed(fx.jitter, fx.rotation, fx.scale)
+        };
+        let t = at_exposure_ns as f64 * 1e-9 * fx.flicker as f64;
+        let (w, h) = (self.width(), self.height());
+        let colors = self.model.cfa.colors().map(color_index);
+        let (dsnu, pattern) = (self.has_dsnu(), self.model.col_pattern_dn > 0.0);
+        let mut out = Array2::<f32>::zeros((h, w));
+        let mut rates = vec![0.0f32; w];
+        for (y, mut row) in out.rows_mut().into_iter().enumerate() {
+            let ry = (y & 1) * 2;
+            prepared.row_rates(y, [colors[ry], colors[ry + 1]], &mut rates);
+            for (x, v) in row.iter_mut().enumerate() {
+                let electrons = rates[x] as f64 * t * self.prnu_gain(y, x) as f64;
+                let mut extra = if dsnu { self.dsnu_at(&s, y, x) } else { 0.0 };
+                if pattern {
+                    extra += self.column_pattern_at(x);
+                }
+                *v = self.mean_level(&s, layout_pos(y, x), electrons, extra) as f32;
+            }
+        }
+        Ok(out)
+    }
+
     /// Mean output of a pixel with mean `electrons` and fixed ADC offset `extra` (DSNU).
     fn mean_level(&self, s: &IsoSettings, pos: usize, electrons: f64, extra: f64) -> f64 {
         let black = self.model.black[pos] as f64;

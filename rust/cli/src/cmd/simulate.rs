@@ -84,6 +84,13 @@ pub struct Args {
     /// uses: the optional dark step that measures the fixed pattern. 0 = none.
     #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=256))]
     pub dark: u32,
+    /// Every DNG (noisy frames; not --bench's clean training images) carries the sensor's true
+    /// NoiseProfile at its ISO (DNG tag 51041, Camera2's SENSOR_NOISE_PROFILE: per colour plane,
+    /// variance/R² = S·x + O on the signal x = (level − black)/R, R = white − black), as a
+    /// camera writes its own: what the `noiseprofile` baseline and `noisecal-bench --models
+    /// noiseprofile` read. Off by default, so earlier sessions keep their bytes.
+    #[arg(long)]
+    pub noise_profile: bool,
     /// Write a denoiser-benchmark set into this folder instead of a calibration session (for
     /// `noisecal-bench`): natural-statistics scenes (dead leaves, not charts), `eval/sceneNNN/`
     /// each a burst of --frames at the base ISO (its mean is the clean image) and one frame per
@@ -187,6 +194,7 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
     };
     s.index_offset += args.index_offset;
     s.dark_frames = args.dark;
+    s.noise_profile = args.noise_profile;
     let pb = progress_bar(s.frames() as u64, quiet, "simulating");
     s.write(args.dngs.as_deref(), args.rec.as_deref(), args.padding, || pb.inc(1))?;
     pb.finish_and_clear();
@@ -264,8 +272,9 @@ fn bench_set(args: &Args, dir: &std::path::Path, quiet: bool) -> anyhow::Result<
         train_scenes: args.train_scenes,
         train_frames: args.train_frames,
         seed: args.seed,
+        noise_profile: args.noise_profile,
     };
-    let total = spec.frames();
+    let total = spec.frames(model.motion.is_some());
     let pb = progress_bar(total as u64, quiet, "simulating");
     crate::simulate::write_bench_set(&model, &name, &spec, dir, || pb.inc(1))?;
     pb.finish_and_clear();

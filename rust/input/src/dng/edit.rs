@@ -248,7 +248,7 @@ pub(super) fn metadata_edits(
 
 /// NoiseProfile pairs `[S₀, O₀, S₁, O₁, …]` per colour plane (CFAPlaneColor order): the mean of the
 /// positions of that colour.
-fn plane_pairs(p: &NoiseProfile, layout: &SensorLayout, planes: &[u64]) -> Vec<f64> {
+pub(super) fn plane_pairs(p: &NoiseProfile, layout: &SensorLayout, planes: &[u64]) -> Vec<f64> {
     let colors = layout.cfa.colors();
     let code = |c: CfaColor| match c {
         CfaColor::Red => 0u64,

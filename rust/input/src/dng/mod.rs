@@ -49,7 +49,7 @@ pub use read::{
 pub use tags::Tag;
 pub use write::{
     DerivedStream, DngSpec, derived_bytes, dng_tiff, write_derived, write_derived_owned, write_dng,
-    write_dng_from_layout,
+    write_dng_from_layout, write_dng_from_layout_with_profile,
 };
 
 /// Colour tags carried from a read DNG to the ones written from it, so other tools still render

@@ -232,6 +232,22 @@ pub fn write_dng_from_layout(
     model: &str,
     pixels: &Array2<u16>,
 ) -> Result<(), DngError> {
+    write_dng_from_layout_with_profile(path, layout, meta, make, model, pixels, None)
+}
+
+/// As [`write_dng_from_layout`], with the DNG `NoiseProfile` (tag 51041) `profile` in IFD0 when
+/// given: one `(S, O)` pair per colour plane (R, G, B, the file's `CFAPlaneColor`), the mean of
+/// that colour's CFA positions, as [`write_derived`] writes it. For the simulator, which knows
+/// its sensor's noise law. `None` writes exactly the bytes of [`write_dng_from_layout`].
+pub fn write_dng_from_layout_with_profile(
+    path: &Path,
+    layout: &SensorLayout,
+    meta: &FrameMeta,
+    make: &str,
+    model: &str,
+    pixels: &Array2<u16>,
+    profile: Option<&NoiseProfile>,
+) -> Result<(), DngError> {
     let spec = DngSpec {
         layout: layout.clone(),
         meta: *meta,
@@ -239,7 +255,15 @@ pub fn write_dng_from_layout(
         model: model.to_string(),
         color: ColorTags::default(),
     };
-    write_spec(path, &spec, pixels)
+    let Some(profile) = profile else { return write_spec(path, &spec, pixels) };
+    if let Some(problem) = profile.problem() {
+        return Err(DngError::invalid(path, format!("the NoiseProfile to write is not usable: {problem}")));
+    }
+    let mut tiff = dng_tiff(&spec, pixels).map_err(|what| DngError::invalid(path, what))?;
+    tiff.chain[0].set(Tag::NoiseProfile, TagValue::Double(edit::plane_pairs(profile, layout, &[0, 1, 2])));
+    let bytes = tiff.to_bytes().map_err(|what| DngError::invalid(path, what))?;
+    create_parent(path)?;
+    noisecal_io::write_bytes_atomic(path, &bytes).map_err(|e| DngError::io(path, e))
 }
 
 /// Builds the TIFF structure of a DNG (IFD0 = raw image, EXIF sub-IFD) without writing it, so

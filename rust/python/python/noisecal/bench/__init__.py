@@ -31,7 +31,8 @@ The metric and data-layout functions here are numpy and import without torch.
 The package, one concern per module: ``layout`` (packed raw), ``scenes`` (generated training
 scenes), ``data`` (the evaluation set and training images from disk), ``metrics`` (PSNR, SSIM,
 bands), ``models`` (each model's training pairs), ``network`` (the UNet), ``training``,
-``scoring`` (networks scored, the summary and the controls), ``report`` (the table), ``run``
+``estimate`` (the clean estimate noise on noise starts from), ``scoring`` (networks scored, the
+summary and the controls), ``report`` (the table), ``run``
 (a whole run) and ``cli``. The names below are its public API.
 """
 
@@ -56,6 +57,7 @@ from .models import (
     synth_seed,
 )
 from .network import make_net
+from .estimate import DEFAULT_ESTIMATE, ESTIMATES, denoise, estimates_for, parse_estimates
 from .training import batch_plan, train_one
 from .scoring import controls, evaluate, score_input, summary
 from .report import gain_table, gains, table
@@ -66,7 +68,9 @@ __all__ = [
     "BANDS",
     "BASE_MODELS",
     "BenchError",
+    "DEFAULT_ESTIMATE",
     "DEFAULT_MODELS",
+    "ESTIMATES",
     "EvalScene",
     "ModelSpec",
     "Pairs",
@@ -75,6 +79,8 @@ __all__ = [
     "batch_plan",
     "controls",
     "dead_leaves",
+    "denoise",
+    "estimates_for",
     "eval_pairs",
     "evaluate",
     "gain_table",
@@ -91,6 +97,7 @@ __all__ = [
     "mosaic",
     "normalise",
     "pack_raw",
+    "parse_estimates",
     "parse_levels",
     "parse_model",
     "parser",

@@ -12,7 +12,8 @@ from pathlib import Path
 import noisecal
 
 from .errors import BenchError
-from .models import BASE_MODELS, DEFAULT_MODELS
+from .estimate import DEFAULT_ESTIMATE
+from .models import BASE_MODELS, DEFAULT_MODELS, RENOISE_METHODS
 from .report import table
 from .run import run
 
@@ -39,6 +40,18 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--isos", help="target ISOs to benchmark (comma-separated) [default: all in --eval]")
     p.add_argument("--renoise-from", type=int, help="noise on noise: train on real ISO-A captures re-noised to --renoise-to")
     p.add_argument("--renoise-to", type=int)
+    p.add_argument(
+        "--renoise-methods",
+        default=",".join(RENOISE_METHODS),
+        help="noise-on-noise methods to train, comma-separated [default: %(default)s]",
+    )
+    p.add_argument(
+        "--renoise-estimate",
+        default=DEFAULT_ESTIMATE,
+        help="the clean estimate that picks each pixel's noise for bridge, quantile and denoised, comma-separated for "
+        "several rows: denoiser (a network trained on the pack's ISO-A noise, as the paper), filter (the core's built-in "
+        "filter), clean (the known clean training images: a perfect denoiser) [default: %(default)s]",
+    )
     p.add_argument("--steps", type=int, default=1500, help="training steps per network [default: %(default)s]")
     p.add_argument("--minutes", type=float, help="time budget for all networks: sets the steps per network (≤ --steps when given)")
     p.add_argument("--seeds", type=int, default=2, help="training seeds per model and ISO [default: %(default)s]")

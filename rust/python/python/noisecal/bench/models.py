@@ -5,7 +5,7 @@ same seeds (common random numbers)."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -26,6 +26,9 @@ class ModelSpec:
     pack_path: str | None = None
     method: str | None = None  # renoise method
     from_iso: int | None = None
+    # Noise on noise: the clean estimate that picks the bins (estimate.ESTIMATES). Out of the repr,
+    # which keys --state files: the run adds it to the key when set, so earlier runs' files stay valid.
+    estimate: str | None = field(default=None, repr=False)
 
 
 def parse_model(text: str, plain_pack: str | None = None) -> ModelSpec:
@@ -76,9 +79,11 @@ def make_pairs(
     captures: dict,
     data_seed: int,
     packs: dict,
+    estimates=None,
 ) -> Pairs:
     """The model's noisy training images for ``cleans`` at ``iso`` (the same seeds for every
-    model: common random numbers)."""
+    model: common random numbers). ``estimates`` (noise on noise): the clean estimate of each
+    source capture, ``estimates[j][k]`` (float32 DN), or ``None`` for the core's built-in one."""
     if spec.kind == "oracle" or spec.kind == "renoise":
         need_iso = iso if spec.kind == "oracle" else spec.from_iso
         out = []
@@ -93,12 +98,14 @@ def make_pairs(
             if spec.kind == "oracle":
                 out.append(list(frames[:realizations]))
             else:
-                out.append(
-                    [
-                        pack.renoise(f, need_iso, iso, synth_seed(data_seed, j, k, iso), method=spec.method)
-                        for k, f in enumerate(frames[:realizations])
-                    ]
-                )
+                row = []
+                for k, f in enumerate(frames[:realizations]):
+                    s = synth_seed(data_seed, j, k, iso)
+                    if estimates is None or spec.method == "naive":
+                        row.append(pack.renoise(f, need_iso, iso, s, method=spec.method))
+                    else:
+                        row.append(pack.renoise(f, need_iso, iso, s, method=spec.method, estimate=estimates[j][k]))
+                out.append(row)
         return Pairs(out)
     p = packs[spec.pack_path] if spec.pack_path else pack
     model = {"plain": "noisecal", "wrong": "hg", "loud": "hg"}.get(spec.kind, spec.kind)

@@ -15,6 +15,7 @@ import noisecal
 
 from .data import eval_pairs, load_captures, load_clean, load_eval
 from .errors import BenchError
+from .estimate import DEFAULT_ESTIMATE, estimates_for, parse_estimates
 from .layout import normalise
 from .models import RENOISE_METHODS, ModelSpec, Pairs, make_pairs, parse_model
 from .network import _torch
@@ -91,8 +92,16 @@ def run(args: argparse.Namespace) -> dict:
                 "noise on noise needs --renoise-to B at an ISO of the evaluation set and --captures holding real ISO-A "
                 "captures of the training scenes"
             )
-        for m in RENOISE_METHODS:
-            jobs.append((ModelSpec(f"{m} {a}→{b}", "renoise", method=m, from_iso=a), b))
+        methods = [m.strip().lower() for m in getattr(args, "renoise_methods", ",".join(RENOISE_METHODS)).split(",") if m.strip()]
+        unknown = [m for m in methods if m not in RENOISE_METHODS]
+        if unknown or not methods:
+            raise BenchError(f"--renoise-methods {unknown or '(none)'}: use some of {', '.join(RENOISE_METHODS)}")
+        kinds = parse_estimates(getattr(args, "renoise_estimate", DEFAULT_ESTIMATE))
+        for m in methods:
+            # The naive method picks its bins by the noisy input itself: no estimate.
+            for e in [None] if m == "naive" else kinds:
+                tag = "" if e in (None, DEFAULT_ESTIMATE) else f"[{e}]"
+                jobs.append((ModelSpec(f"{m}{tag} {a}→{b}", "renoise", method=m, from_iso=a, estimate=e), b))
         if not any(s.kind == "oracle" for s in specs):
             jobs.append((ModelSpec(f"real {b}", "oracle"), b))
     cleans_norm = [normalise(c, layout["black"], layout["white"]) for c in cleans]
@@ -142,6 +151,32 @@ def run(args: argparse.Namespace) -> dict:
             prepared[iso] = eval_pairs(scenes, iso, layout)
         return prepared[iso]
 
+    denoiser: dict = {}
+
+    def train_denoiser():
+        """The source-ISO denoiser of noise on noise (the paper's clean estimate): the pack's
+        synthetic noise at ISO A on the clean training images, the same steps and network as every
+        row, seeded by the data seed (not a training seed: a run split over several processes, one
+        --seed each, gets the same estimate); trained once."""
+        if "net" not in denoiser:
+            a = args.renoise_from
+            say(f"clean estimate for noise on noise: training a denoiser on noisecal's ISO {a} noise")
+            spec = ModelSpec(f"noisecal {a} (estimate)", "noisecal")
+            p = make_pairs(spec, a, cleans, realizations, pack, captures, args.data_seed, packs)
+            seed = args.data_seed
+            plan = batch_plan(seed, steps, args.batch, len(cleans), realizations, cleans[0].shape, args.crop)
+            denoiser["net"] = train_one(p, cleans_norm, layout, plan, args.crop, args.width, seed, device, args.lr, None, args.input_scale)
+        return denoiser["net"]
+
+    estimates: dict = {}
+
+    def estimates_of(kind):
+        if kind not in estimates:
+            a = args.renoise_from
+            frames = [captures.get((j, a), [])[:realizations] for j in range(len(cleans))]
+            estimates[kind] = estimates_for(kind, frames, cleans, train_denoiser, layout, device)
+        return estimates[kind]
+
     results = []
     done = 0
     for spec, iso in jobs:
@@ -151,13 +186,15 @@ def run(args: argparse.Namespace) -> dict:
             tag = f"[{done}/{n_nets}] {spec.label} ISO {iso} seed {seed}"
             fname = None
             if state:
-                fname = state / f"{key}-{hashlib.blake2b(f'{spec}|{iso}|{seed}'.encode(), digest_size=6).hexdigest()}.json"
+                job_id = f"{spec}|{iso}|{seed}" + (f"|estimate={spec.estimate}" if spec.estimate else "")
+                fname = state / f"{key}-{hashlib.blake2b(job_id.encode(), digest_size=6).hexdigest()}.json"
                 if fname.exists():
                     results.append(json.loads(fname.read_text()))
                     say(f"{tag}: resumed from {fname.name}")
                     continue
             if pairs is None:
-                pairs = make_pairs(spec, iso, cleans, realizations, pack, captures, args.data_seed, packs)
+                est = estimates_of(spec.estimate) if spec.kind == "renoise" and spec.estimate else None
+                pairs = make_pairs(spec, iso, cleans, realizations, pack, captures, args.data_seed, packs, est)
             plan = batch_plan(seed, steps, args.batch, len(cleans), realizations, cleans[0].shape, args.crop)
             ts = time.time()
 
