@@ -15,12 +15,15 @@
 //! - [`StructuredTruth`]: the true row, column, frame-offset and DSNU laws at an ISO, with
 //!   samplers ([`Simulator::structured_truth`]; the offsets of one frame:
 //!   [`Simulator::row_offsets`], [`Simulator::frame_offsets`], [`Simulator::column_offsets`]).
+//! - [`SensorModel::dark_14bit`], [`random_dark_sensor`]: sensors whose noise at black is small
+//!   against the noise at the darkest level a chart session measures.
 //! - [`random_sensor`], [`random_session`]: a seeded family of random sensors and sessions
 //!   drawn from wide parameter ranges, for testing on sensors nobody tuned the estimators on.
 //! - [`to_padded_le_bytes`]: a frame as a Camera2 `RAW_SENSOR` plane.
 
 mod bytes;
 mod chart;
+mod dark_end;
 mod error;
 mod family;
 mod model;
@@ -31,6 +34,7 @@ mod truth;
 
 pub use bytes::{to_padded_le_bytes, try_to_padded_le_bytes};
 pub use chart::{Chart, PatchRect, Texture};
+pub use dark_end::random_dark_sensor;
 pub use error::SimError;
 pub use family::{
     FAMILY_MAX_ISO_FACTOR, HeldOutSpec, MovingScene, RandomSensor, SessionScale, SessionSpec, random_moving_scene,

@@ -216,7 +216,8 @@ fn phone_with_structured_noise() {
 }
 
 /// A sensor without DSNU: the dark step measures a pattern indistinguishable from nothing, it is
-/// not added, and synthesis is byte for byte what it is without dark frames.
+/// not added, and synthesis is byte for byte what it is without dark frames wherever a level
+/// draws from a whole bin (near black the measured variance at black may split bins).
 #[test]
 fn no_dsnu_adds_nothing() {
     let s = setup(SensorModel::phone_10bit(), 192, 128, 13, vec![400, 1600], 6, vec![-2, 0, 2]);
@@ -226,9 +227,29 @@ fn no_dsnu_adds_nothing() {
     for iso in [400u32, 1600] {
         let fp = with.structure_of(iso).and_then(|st| st.fpn.as_ref()).expect("pattern measured");
         assert!(!fp.significant, "ISO {iso}: a pattern of sd {} was found on a sensor without one", fp.sd());
-        let a = synthesize(&IsoSampler::new(&with, with.iso(iso).expect("iso")), clean.view(), 3);
+        let sampler = IsoSampler::new(&with, with.iso(iso).expect("iso"));
+        let a = synthesize(&sampler, clean.view(), 3);
         let b = synthesize(&IsoSampler::new(&without, without.iso(iso).expect("iso")), clean.view(), 3);
-        assert_eq!(a, b, "ISO {iso}: dark frames changed synthesis on a sensor without a pattern");
+        // The dark step's variance at black lets the levels near black whose bin is too wide
+        // for the noise there draw at their own level (method.md, *Synthesis*, "Within a bin
+        // near black"): those may change; every level that draws from a whole bin may not.
+        let whole = |y: usize, x: usize| {
+            let pos = noisecal_core::model::layout::position(y, x);
+            let bins = with.iso(iso).expect("iso").positions[pos].bins.len();
+            (sampler.position_tables(pos).0[clean[(y, x)] as usize] as usize) < bins
+        };
+        let mut compared = 0;
+        for ((y, x), v) in a.indexed_iter() {
+            if whole(y, x) {
+                assert_eq!(
+                    *v,
+                    b[(y, x)],
+                    "ISO {iso} ({y}, {x}): dark frames changed synthesis on a sensor without a pattern"
+                );
+                compared += 1;
+            }
+        }
+        assert!(compared > a.len() / 2, "ISO {iso}: {compared} of {} pixels draw from whole bins", a.len());
     }
 }
 

@@ -1,7 +1,8 @@
 //! The variance law every parametric model shares, `σ² = a·(l − black) + b` per ISO and CFA
 //! position (DN²), and its fit on a model's per-bin moments (method.md, "Baselines"). The
 //! baselines synthesize from it ([`crate::derive::baselines`]); interpolation predicts read
-//! noise and finds conversion-gain switches with it ([`crate::derive::gain_switch`]).
+//! noise and finds conversion-gain switches with it ([`crate::derive::gain_switch`]). Its fit near
+//! black ([`dark_law`]) gives the slope a bin's levels follow there ([`crate::derive::fine_levels`]).
 
 use crate::math::fit::nn_poly_fit;
 use crate::model::layout::{Binning, POSITIONS};
@@ -102,6 +103,47 @@ pub fn fit_params(binning: &Binning, model: &IsoModel, pos: usize) -> Option<Noi
     let w: Vec<f64> = used.iter().map(|s| s.samples.max(1) as f64 / s.var.max(1e-3).powi(2)).collect();
     let c = if used.len() >= 2 { nn_poly_fit(&x, &y, &w, 1) } else { vec![y[0], 0.0] };
     Some(NoiseParams { a: c[1], b: c[0] })
+}
+
+/// The variance law near black of one position, `σ² = b + a·x` at `x` DN above black, fitted on
+/// the variances of the first `count` usable bins (`vars[bin]`, `None` for a bin left out), each
+/// read at its centre, with weights `1/σ⁴` (every bin's variance read to the same relative
+/// precision). With `at_black` (a measured variance at black), `b` is that and only `a` is
+/// fitted; else both, non-negative. `None` with fewer than two usable bins (one with
+/// `at_black`).
+pub fn dark_law(vars: &[Option<f64>], bin_width: f64, count: usize, at_black: Option<f64>) -> Option<DarkLaw> {
+    let used: Vec<(f64, f64)> =
+        vars.iter().enumerate().filter_map(|(b, v)| v.map(|v| ((b as f64 + 0.5) * bin_width, v))).take(count).collect();
+    if used.len() < 2 - at_black.is_some() as usize {
+        return None;
+    }
+    let w = |v: f64| 1.0 / (v * v);
+    if let Some(b) = at_black {
+        let num: f64 = used.iter().map(|&(x, v)| w(v) * x * (v - b)).sum();
+        let den: f64 = used.iter().map(|&(x, v)| w(v) * x * x).sum();
+        return Some(DarkLaw { intercept: b, slope: (num / den).max(0.0) });
+    }
+    let x: Vec<f64> = used.iter().map(|u| u.0).collect();
+    let y: Vec<f64> = used.iter().map(|u| u.1).collect();
+    let wt: Vec<f64> = y.iter().map(|&v| w(v)).collect();
+    let c = nn_poly_fit(&x, &y, &wt, 1);
+    Some(DarkLaw { intercept: c[0], slope: c[1] })
+}
+
+/// The variance law near black fitted by [`dark_law`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DarkLaw {
+    /// Variance at black (DN²).
+    pub intercept: f64,
+    /// Variance per DN above black.
+    pub slope: f64,
+}
+
+impl DarkLaw {
+    /// Variance (DN²) at `x` DN above black.
+    pub fn variance(&self, x: f64) -> f64 {
+        self.intercept + self.slope * x.max(0.0)
+    }
 }
 
 /// HG parameters of every position of a model (positions without usable bins get `a = 0` and

@@ -1,8 +1,11 @@
 //! Per-bin inverse-CDF sampling with guide tables, built once per pack load.
 
+use std::borrow::Cow;
+
 use rand::Rng;
 use rayon::prelude::*;
 
+use crate::derive::fine_levels::position_fine_levels;
 use crate::model::codes::Snap;
 use crate::model::layout::{Binning, POSITIONS};
 use crate::model::pack::{BinModel, IsoModel, ModelPack};
@@ -217,10 +220,20 @@ impl IsoSampler {
     ) -> Self {
         let structure = structure.filter(|_| which.structured()).and_then(|st| StructureSampler::new(st, which));
         let binning = pack.binning();
-        let luts = std::array::from_fn(|p| binning.lut(p));
-        let tables = std::array::from_fn(|p| match &structure {
-            Some(st) => st.deconvolved(p, &model.positions[p].bins).par_iter().map(BinTable::new).collect(),
-            None => model.positions[p].bins.par_iter().map(BinTable::new).collect(),
+        let mut luts: [Vec<u16>; POSITIONS] = std::array::from_fn(|p| binning.lut(p));
+        let tables = std::array::from_fn(|p| {
+            let bins = match &structure {
+                Some(st) => Cow::Owned(st.deconvolved(p, &model.positions[p].bins)),
+                None => Cow::Borrowed(&model.positions[p].bins),
+            };
+            // An estimated model's levels near black whose bin is too wide for the noise there
+            // draw from the bin's PMF at the law's variance for their level (tables after the
+            // bins'); plain histograms and parametric models keep one PMF per bin.
+            let extra = position_fine_levels(pack, model, p, &bins).map_or_else(Vec::new, |f| {
+                luts[p] = f.lut;
+                f.extra
+            });
+            bins.par_iter().chain(extra.par_iter()).map(BinTable::new).collect()
         });
         let white = pack.layout.white;
         let snaps = std::array::from_fn(|p| model.lattice[p].as_ref().map(|l| Snap::new(l, white)));
@@ -370,12 +383,13 @@ impl IsoSampler {
         &self.tables[pos][self.luts[pos][l] as usize]
     }
 
-    /// Bin tables of a position.
+    /// Tables of a position: one per bin, then those of the levels near black whose bin is too
+    /// wide for the noise there ([`crate::derive::fine_levels`]).
     pub fn tables(&self, pos: usize) -> &[BinTable] {
         &self.tables[pos]
     }
 
-    /// Level → bin map and bin tables of a position, for row loops.
+    /// Level → table map and tables of a position, for row loops.
     #[inline]
     pub fn position_tables(&self, pos: usize) -> (&[u16], &[BinTable]) {
         (&self.luts[pos], &self.tables[pos])
