@@ -15,6 +15,8 @@ use noisecal_core::{CalibrationSession, CfaPattern, FrameMeta, FrameView, ModelP
 
 const W: usize = 4032;
 const H: usize = 3024;
+/// Frames of the target frames' reference burst (distinct noise each).
+const REFERENCE_BURST: usize = 8;
 
 fn layout() -> SensorLayout {
     SensorLayout { width: W as u32, height: H as u32, cfa: CfaPattern::Rggb, black: [64.0; 4], white: 1023 }
@@ -42,7 +44,7 @@ fn noisy(clean: &Array2<u16>, seed: u64, amp: u32) -> Array2<u16> {
 
 fn benches(c: &mut Criterion) {
     let clean = clean();
-    let refs: Vec<Array2<u16>> = (0..4).map(|k| noisy(&clean, k, 2)).collect();
+    let refs: Vec<Array2<u16>> = (0..REFERENCE_BURST as u64).map(|k| noisy(&clean, k, 2)).collect();
     let targets: Vec<Array2<u16>> = (0..4).map(|k| noisy(&clean, 100 + k, 12)).collect();
     let exposure = 10_000_000u64;
     let ref_meta = FrameMeta::new(50, exposure);
@@ -52,9 +54,15 @@ fn benches(c: &mut Criterion) {
     g.throughput(Throughput::Elements((W * H) as u64));
     g.sample_size(10);
 
+    // Reference frames are measured on a session of their own, so that the target frames' clean
+    // image (and flat mask) is always that of the same burst, however many reference frames the
+    // reference measurement pushed.
+    let mut references = CalibrationSession::new(layout(), SessionConfig::new(50)).expect("session");
+    references.begin_step(exposure).expect("step");
     let mut session = CalibrationSession::new(layout(), SessionConfig::new(50)).expect("session");
     session.begin_step(exposure).expect("step");
-    for f in &refs[..2] {
+    for f in &refs {
+        references.push_frame(&FrameView::from_array(f).expect("view"), &ref_meta).expect("push");
         session.push_frame(&FrameView::from_array(f).expect("view"), &ref_meta).expect("push");
     }
     if let Some(n) = std::env::var("NOISECAL_BENCH_LOOP").ok().and_then(|s| s.parse::<usize>().ok()) {
@@ -74,7 +82,9 @@ fn benches(c: &mut Criterion) {
         };
         let (t0, c0) = (std::time::Instant::now(), cpu_seconds());
         for k in 0..n {
-            session.push_frame(&FrameView::from_array(&refs[k % refs.len()]).expect("view"), &ref_meta).expect("push");
+            references
+                .push_frame(&FrameView::from_array(&refs[k % refs.len()]).expect("view"), &ref_meta)
+                .expect("push");
         }
         per_frame("reference accumulation", t0, c0);
         session.push_frame(&FrameView::from_array(&targets[0]).expect("view"), &tgt_meta).expect("push");
@@ -92,7 +102,7 @@ fn benches(c: &mut Criterion) {
         b.iter(|| {
             let f = &refs[k % refs.len()];
             k += 1;
-            session.push_frame(&FrameView::from_array(f).expect("view"), &ref_meta).expect("push")
+            references.push_frame(&FrameView::from_array(f).expect("view"), &ref_meta).expect("push")
         })
     });
     // The first target closes the reference burst (clean image and flat mask).

@@ -8,12 +8,13 @@ use serde::{Deserialize, Serialize};
 use crate::calibrate::drift::{BrightnessSums, Transform};
 use crate::calibrate::estimate::FOLDS;
 use crate::calibrate::flat::NOT_FLAT;
+use crate::calibrate::flat_levels::FlatLevels;
 use crate::calibrate::frame::FrameView;
 use crate::calibrate::line_base::in_lines;
 use crate::calibrate::motion::{FrameMotion, MotionProbe, NEGLIGIBLE_MOTION_PX};
 use crate::calibrate::reference::CleanImage;
 use crate::calibrate::structure::{CELLS, FrameSums, StructureAccumulator};
-use crate::calibrate::window_counts::{LaneCounts, LevelWindow, WindowCounts};
+use crate::calibrate::window_counts::{LaneCounts, WindowCounts};
 
 use crate::model::histogram::NoiseHistogram;
 use crate::model::layout::{Binning, POSITIONS};
@@ -168,8 +169,9 @@ impl IsoAccumulator {
         // Line sums leave out levels near white, where clipping moves lines from frame to frame.
         let black = tf.black.iter().cloned().fold(f32::INFINITY, f32::min);
         let line_top = (black + 0.9 * (white as f32 - black)).clamp(0.0, white as f32) as u16;
+        let flat = image.flat_levels.get(clean, w);
         let fold_parity = |parity: usize, hists: &mut [Vec<NoiseHistogram>], codes: &mut [Vec<u64>]| {
-            let target = FoldTarget { hists, codes, luts: &luts, white, line_top };
+            let target = FoldTarget { hists, codes, luts: &luts, flat, white, line_top };
             fold_rows(parity, frame, clean, w, h, target, tf, &image.probe, moving)
         };
         let (r0, r1) = rayon::join(|| fold_parity(0, even, codes_even), || fold_parity(1, odd, codes_odd));
@@ -235,6 +237,8 @@ struct FoldTarget<'a> {
     hists: &'a mut [Vec<NoiseHistogram>],
     codes: &'a mut [Vec<u64>],
     luts: &'a [Vec<u16>; POSITIONS],
+    /// The clean image's flat levels.
+    flat: &'a FlatLevels,
     white: u16,
     /// The highest clean level of the line sums.
     line_top: u16,
@@ -262,7 +266,7 @@ fn fold_rows(
     probe: &MotionProbe,
     motion: Option<&FrameMotion>,
 ) -> FoldedRows {
-    let FoldTarget { hists, codes, luts, white, line_top } = target;
+    let FoldTarget { hists, codes, luts, flat, white, line_top } = target;
     let mut samples = 0u64;
     let mut left_out: Vec<(u8, u16)> = Vec::new();
     let (mut keep, mut correction, mut line_noise) = match motion {
@@ -280,12 +284,20 @@ fn fold_rows(
     let (hist0, hist1) = (&mut h0[0], &mut h1[0]);
     let (c0, c1) = codes.split_at_mut(1);
     let (codes_out0, codes_out1) = (&mut c0[0][..], &mut c1[0][..]);
-    let (mut codes0, mut codes1) = (LaneCounts::new(top), LaneCounts::new(top));
-    let (lut0, lut1) = (&luts[parity * 2][..], &luts[parity * 2 + 1][..]);
+    let (p0, p1) = (parity * 2, parity * 2 + 1);
     // Each position has at most a pixel of every other column of every other row.
     let most = w.div_ceil(2) * h.div_ceil(2);
-    let (mut window0, mut window1) = (WindowCounts::new(hist0, most), WindowCounts::new(hist1, most));
-    let (levels0, levels1) = (window0.by_level(lut0), window1.by_level(lut1));
+    // Windows by clean level while they hold at most a sixteenth of the position's flat pixels
+    // (a count each, in every lane): clearing and flushing them then costs less than counting
+    // the output codes apart.
+    let window = |p: usize, hist: &[NoiseHistogram]| {
+        WindowCounts::new(hist, &luts[p], &flat.levels[p], most, flat.pixels[p] as usize / 16)
+    };
+    let (mut window0, mut window1) = (window(p0, hist0), window(p1, hist1));
+    // The output codes come from the windows when those are by clean level and the noise is the
+    // raw value less the clean level; else they are counted apart.
+    let by_level = identity && window0.by_level() && window1.by_level();
+    let mut apart = (!by_level).then(|| (LaneCounts::new(top), LaneCounts::new(top)));
     for y in (parity..h).step_by(2) {
         let row: &[u16] = match frame.row(y) {
             std::borrow::Cow::Borrowed(r) => r,
@@ -295,14 +307,20 @@ fn fold_rows(
             }
         };
         let crow = &clean[y * w..y * w + w];
+        // The noise of every pixel, 0 where not flat (the windows' not-flat level takes 0).
+        let mut flat_pixels = 0u32;
         if identity {
             for ((n, &v), &c) in noise.iter_mut().zip(row).zip(crow) {
-                *n = v as i32 - c as i32;
+                let is_flat = c != NOT_FLAT;
+                *n = (v as i32 - c as i32) & (is_flat as i32).wrapping_neg();
+                flat_pixels += is_flat as u32;
             }
         } else {
             for (x, ((n, &v), &c)) in noise.iter_mut().zip(row).zip(crow).enumerate() {
                 let t = tf.apply(parity * 2 + (x & 1), v).round().clamp(0.0, white as f32) as i32;
-                *n = t - c as i32;
+                let is_flat = c != NOT_FLAT;
+                *n = (t - c as i32) & (is_flat as i32).wrapping_neg();
+                flat_pixels += is_flat as u32;
             }
         }
         let half = (y >> 1) & 1;
@@ -317,77 +335,111 @@ fn fold_rows(
             &noise
         };
         rows.push(line_sums(line_values, crow, line_top, &mut cols[half], &mut masked));
+        if let Some((codes0, codes1)) = apart.as_mut() {
+            count_codes(crow, row, top, codes0, codes1);
+        }
         // Even columns are position `2·parity`, odd ones `2·parity + 1`: one pass over the
-        // row's column pairs feeds both, each pixel's bin window found by its clean level.
-        let mut even =
-            PositionCounts { pos: (parity * 2) as u8, window: &mut window0, levels: &levels0, hist: &mut *hist0 };
-        let mut odd =
-            PositionCounts { pos: (parity * 2 + 1) as u8, window: &mut window1, levels: &levels1, hist: &mut *hist1 };
-        // The output codes of the flat pixels, then their noise into the bin windows: two
-        // loops, each with few enough tables to keep its pointers in registers.
-        count_codes(crow, row, top, &mut codes0, &mut codes1);
+        // row's column pairs feeds both, each pixel's window found by its clean level.
+        let mut even = PositionCounts::new(p0 as u8, &mut window0, &mut *hist0, by_level.then_some(&mut *codes_out0));
+        let mut odd = PositionCounts::new(p1 as u8, &mut window1, &mut *hist1, by_level.then_some(&mut *codes_out1));
         let pairs = crow.chunks_exact(2).zip(noise.chunks_exact(2));
         if motion.is_some() {
-            for (j, (c, n)) in pairs.enumerate() {
+            for (j, ((c, n), v)) in pairs.zip(row.chunks_exact(2)).enumerate() {
                 let x = 2 * j;
-                samples += even.add_kept(c[0], n[0], j, keep[x], &mut left_out);
-                samples += odd.add_kept(c[1], n[1], j, keep[x + 1], &mut left_out);
+                samples += even.add_kept(c[0], n[0], j, keep[x], v[0], &mut left_out);
+                samples += odd.add_kept(c[1], n[1], j, keep[x + 1], v[1], &mut left_out);
             }
             if w % 2 == 1 {
                 let x = w - 1;
-                samples += even.add_kept(crow[x], noise[x], x >> 1, keep[x], &mut left_out);
+                samples += even.add_kept(crow[x], noise[x], x >> 1, keep[x], row[x], &mut left_out);
             }
         } else {
             for (j, (c, n)) in pairs.enumerate() {
-                samples += even.add(c[0], n[0], j);
-                samples += odd.add(c[1], n[1], j);
+                even.add(c[0], n[0], j);
+                odd.add(c[1], n[1], j);
             }
             if w % 2 == 1 {
                 let x = w - 1;
-                samples += even.add(crow[x], noise[x], x >> 1);
+                even.add(crow[x], noise[x], x >> 1);
             }
+            samples += flat_pixels as u64;
         }
+        // Windows that many samples fell outside of (a histogram's first frame, new levels) are
+        // made anew on the ranges their histograms have grown to.
+        let row_samples = w as u64 / 2;
+        window0.renew_if_outside(row_samples, hist0, by_level.then_some(&mut *codes_out0));
+        window1.renew_if_outside(row_samples, hist1, by_level.then_some(&mut *codes_out1));
     }
-    window0.flush(hist0);
-    window1.flush(hist1);
-    codes0.flush(codes_out0);
-    codes1.flush(codes_out1);
+    window0.flush(hist0, by_level.then_some(&mut *codes_out0));
+    window1.flush(hist1, by_level.then_some(&mut *codes_out1));
+    if let Some((codes0, codes1)) = apart {
+        codes0.flush(codes_out0);
+        codes1.flush(codes_out1);
+    }
     FoldedRows { samples, left_out, rows, cols }
 }
 
 /// One position's histogram counts for one frame, as [`fold_rows`] feeds them pixel by pixel.
-struct PositionCounts<'a> {
+struct PositionCounts<'a, 'w> {
     pos: u8,
-    window: &'a mut WindowCounts,
-    /// Per clean level, its bin's window.
-    levels: &'a [LevelWindow],
+    window: &'a mut WindowCounts<'w>,
+    /// The window's level for the pixels that are not flat.
+    not_flat: usize,
     hist: &'a mut Vec<NoiseHistogram>,
+    /// The output codes, where the window gives them: a sample outside its window, or left out,
+    /// is counted here.
+    codes: Option<&'a mut [u64]>,
 }
 
-impl PositionCounts<'_> {
-    /// Counts the noise `n` of a pixel of clean level `c` (or [`NOT_FLAT`]) in lane `lane`;
-    /// returns the samples added (0 or 1).
-    #[inline(always)]
-    fn add(&mut self, c: u16, n: i32, lane: usize) -> u64 {
-        if c == NOT_FLAT {
-            return 0;
-        }
-        self.window.add_level(self.levels[c as usize], n, lane, self.hist);
-        1
+impl<'a, 'w> PositionCounts<'a, 'w> {
+    fn new(
+        pos: u8,
+        window: &'a mut WindowCounts<'w>,
+        hist: &'a mut Vec<NoiseHistogram>,
+        codes: Option<&'a mut [u64]>,
+    ) -> Self {
+        let not_flat = window.not_flat();
+        Self { pos, window, not_flat, hist, codes }
     }
 
-    /// [`PositionCounts::add`] for a frame that moved: a flat pixel not `kept` goes to
-    /// `left_out` instead of the histograms.
+    /// Counts the noise `n` of a pixel of clean level `c` in lane `lane`: a pixel that is not
+    /// flat ([`NOT_FLAT`], noise 0) goes to the window's not-flat level.
     #[inline(always)]
-    fn add_kept(&mut self, c: u16, n: i32, lane: usize, kept: bool, left_out: &mut Vec<(u8, u16)>) -> u64 {
+    fn add(&mut self, c: u16, n: i32, lane: usize) {
+        let level = (c as usize).min(self.not_flat);
+        if !self.window.add(level, n, lane) {
+            self.outside(level, n);
+        }
+    }
+
+    /// A sample outside its level's window: into its histogram, and its output code (the raw
+    /// value `level + n`) into the codes the window would have given.
+    #[cold]
+    #[inline(never)]
+    fn outside(&mut self, level: usize, n: i32) {
+        self.hist[self.window.bin(level)].add(n);
+        self.window.note_outside();
+        if let Some(codes) = self.codes.as_deref_mut() {
+            let code = (level as i64 + n as i64).clamp(0, codes.len() as i64 - 1);
+            codes[code as usize] += 1;
+        }
+    }
+
+    /// [`PositionCounts::add`] for a frame that moved: a flat pixel not `kept` (raw value `v`)
+    /// goes to `left_out` instead of the histograms. Returns the samples added (0 or 1).
+    #[inline(always)]
+    fn add_kept(&mut self, c: u16, n: i32, lane: usize, kept: bool, v: u16, left_out: &mut Vec<(u8, u16)>) -> u64 {
         if c == NOT_FLAT {
             return 0;
         }
         if !kept {
             left_out.push((self.pos, c));
+            if let Some(codes) = self.codes.as_deref_mut() {
+                codes[(v as usize).min(codes.len() - 1)] += 1;
+            }
             return 0;
         }
-        self.window.add_level(self.levels[c as usize], n, lane, self.hist);
+        self.add(c, n, lane);
         1
     }
 }

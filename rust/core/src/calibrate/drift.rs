@@ -103,6 +103,18 @@ pub(crate) fn brightness_sums(
     if let Some(sums) = integer_brightness_sums(frame, base, tf, clip, w, h) {
         return sums;
     }
+    float_brightness_sums(frame, base, tf, clip, w, h)
+}
+
+/// [`brightness_sums`] in floating point, each pixel's terms added in turn.
+fn float_brightness_sums(
+    frame: &FrameView<'_>,
+    base: &[u16],
+    tf: &Transform,
+    clip: f32,
+    w: usize,
+    h: usize,
+) -> BrightnessSums {
     let mut out =
         BrightnessSums { bands: vec![[0.0; 5]; BANDS], frame_pos: [0.0; POSITIONS], base_pos: [0.0; POSITIONS] };
     let mut buf = vec![0u16; w];
@@ -160,17 +172,18 @@ fn integer_brightness_sums(
     let mut bands = vec![[0i64; 5]; BANDS];
     let (mut frame_pos, mut base_pos) = ([0i64; POSITIONS], [0i64; POSITIONS]);
     let mut buf = vec![0u16; w];
-    // `[n, Σb, Σf, Σb², Σbf]` of one compared pixel (base level `c`, frame value `v`) over black `b`.
+    // `[n, Σb, Σf, Σb², Σbf]` of one compared pixel (base level `c`, frame value `v`) over black
+    // `b`; a pixel not compared adds zeros (branch-free: flat and unclipped pixels mix at random).
     #[inline(always)]
     fn add(sums: &mut [i64; 5], c: u16, v: u16, b: i64, top: u16) {
-        if c != NOT_FLAT && c <= top {
-            let (bv, fv) = (c as i64 - b, v as i64 - b);
-            sums[0] += 1;
-            sums[1] += bv;
-            sums[2] += fv;
-            sums[3] += bv * bv;
-            sums[4] += bv * fv;
-        }
+        let compared = c != NOT_FLAT && c <= top;
+        let mask = (compared as i64).wrapping_neg();
+        let (bv, fv) = ((c as i64 - b) & mask, (v as i64 - b) & mask);
+        sums[0] += compared as i64;
+        sums[1] += bv;
+        sums[2] += fv;
+        sums[3] += bv * bv;
+        sums[4] += bv * fv;
     }
     for (y, band) in sampled_rows(h) {
         // The row in place where the frame's memory allows it.
@@ -410,6 +423,38 @@ mod tests {
         // A flat field: no spread of levels, the plain ratio.
         let flat = vec![[100.0, 1000.0, 1100.0, 10000.0, 11000.0]; 4];
         assert!((brightness_from_fit(&flat).unwrap().ratio - 1.1).abs() < 1e-12);
+    }
+
+    /// The integer sums are the floating-point ones to the last bit, on a frame whose flat,
+    /// unclipped pixels mix at random with pixels that are not flat or are above the clip.
+    #[test]
+    fn integer_sums_are_the_floating_point_sums() {
+        let (w, h) = (37, 1030);
+        let mut s = 0x2545_F491_4F6C_DD1Du64;
+        let mut next = move || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            s
+        };
+        let base: Vec<u16> = (0..w * h)
+            .map(|_| match next() % 5 {
+                0 => NOT_FLAT,
+                _ => 40 + (next() % 1000) as u16,
+            })
+            .collect();
+        let frame = ndarray::Array2::from_shape_fn((h, w), |(y, x)| {
+            let c = base[y * w + x];
+            if c == NOT_FLAT { (next() % 1024) as u16 } else { (c as i64 + (next() % 41) as i64 - 20).max(0) as u16 }
+        });
+        let frame = FrameView::from_array(&frame).expect("view");
+        let tf = Transform { delta: [0.0; POSITIONS], black: [64.0, 60.0, 64.0, 48.0], scale: 1.0 };
+        let int = integer_brightness_sums(&frame, &base, &tf, 900.0, w, h).expect("integer sums");
+        let float = float_brightness_sums(&frame, &base, &tf, 900.0, w, h);
+        assert!(int.bands.iter().map(|b| b[0]).sum::<f64>() > 1000.0);
+        assert_eq!(int.bands, float.bands);
+        assert_eq!(int.frame_pos, float.frame_pos);
+        assert_eq!(int.base_pos, float.base_pos);
     }
 
     #[test]

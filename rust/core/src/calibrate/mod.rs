@@ -5,7 +5,8 @@
 //!   progress, checkpoints, and the pack at the end.
 //! - [`reference`](mod@reference): one reference burst, summed into the clean image and its flat mask.
 //! - [`accumulate`]: target frames folded into the per-bin histograms.
-//! - [`line_base`]: the clean image's half of the target frames' line sums.
+//! - [`line_base`]: the clean image's half of the target frames' line sums; [`flat_levels`]: the
+//!   clean levels its flat pixels have.
 //! - [`step`]: which EV step a frame belongs to (the step tolerance).
 //! - [`flat`], [`drift`], [`deselect`]: the flat test, frame brightness, and the clean image's
 //!   own error.
@@ -23,6 +24,7 @@ pub(crate) mod drift;
 pub mod estimate;
 pub mod event;
 pub mod flat;
+mod flat_levels;
 pub mod frame;
 mod line_base;
 pub mod meta;

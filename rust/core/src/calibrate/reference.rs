@@ -15,6 +15,7 @@ use crate::calibrate::drift::{
     DriftPolicy, DriftTracker, DriftVerdict, FrameBrightness, Transform, brightness_sums, clip_level,
 };
 use crate::calibrate::flat::{CleanInputs, FlatReport, GROUPS, Groups, NOT_FLAT, Roi, TemporalStats, clean_and_mask};
+use crate::calibrate::flat_levels::FlatLevelsCache;
 use crate::calibrate::frame::FrameView;
 use crate::calibrate::line_base::LineBaseCache;
 use crate::calibrate::meta::FrameMeta;
@@ -71,6 +72,9 @@ pub struct CleanImage {
     /// The clean-image half of the target frames' line sums, computed on first use.
     #[serde(skip)]
     pub(crate) line_base: LineBaseCache,
+    /// The levels of the flat pixels per position, computed on first use.
+    #[serde(skip)]
+    pub(crate) flat_levels: FlatLevelsCache,
 }
 
 impl CleanImage {
@@ -308,6 +312,7 @@ impl ReferenceBurst {
             level_selection,
             probe,
             line_base: LineBaseCache::default(),
+            flat_levels: FlatLevelsCache::default(),
         })
     }
 }

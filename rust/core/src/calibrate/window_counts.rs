@@ -1,103 +1,227 @@
-//! One frame's histogram counts for one CFA position, in a flat table: every bin's window is
-//! the range its [`NoiseHistogram`] covered when the frame began, its counts 32-bit and laid end
-//! to end, and every clean level has its bin's window beside the bin ([`LevelWindow`]), so that
-//! a sample costs one lookup by its clean level and one increment, with no pointer to follow. A
-//! sample outside its bin's window goes straight to the histogram.
+//! One frame's histogram counts for one CFA position, in a flat table of 32-bit counts. Each
+//! window of counts is the range its bin's [`NoiseHistogram`] covered when the window was made,
+//! and every clean level finds its window in one lookup ([`LevelWindow`]), so that a sample
+//! costs one lookup and one increment, with no pointer to follow. A sample outside its window
+//! goes straight to the histogram.
+//!
+//! Where the table stays small, every clean level the flat pixels have gets a window of its own
+//! (counts by clean level and noise, [`WindowCounts::by_level`]): the output code is the clean
+//! level plus the noise, so the same counts also give the output codes, and the one increment
+//! per sample serves both ([`WindowCounts::flush`]). Otherwise the levels of a bin share its
+//! window, and the output codes are counted apart ([`LaneCounts`]).
 //!
 //! The histograms end as they would have with every sample added to them in turn: a histogram
-//! only grows for a sample outside its range, a range only grows, so the samples inside the
-//! frame's first window never make one grow, and those outside it reach the histogram in their
-//! own order; [`WindowCounts::flush`] then adds the window's counts (integers: in any order).
+//! only grows for a sample outside its range, a range only grows, so the samples inside a window
+//! never make one grow, and those outside it reach the histogram in their own order; the counts
+//! of the windows are integers, added in any order. So the windows can be flushed and made anew
+//! at any point ([`WindowCounts::renew_if_outside`]): when many samples fell outside them (the
+//! first frame of a histogram, whose windows are empty, or a patch of new levels), the windows
+//! are made again on the ranges the histograms have grown to.
 //!
 //! Every count is kept [`LANES`] times, side by side, and a sample goes to the lane its caller
 //! names (the pixel's column): neighbouring pixels of a flat patch hit the same few values, and
 //! one counter incremented by consecutive samples makes each increment wait for the one before.
 //! [`LaneCounts`] does the same for plain counts over `0 ..= top` (the output codes).
+//!
+//! A pixel that is not flat has its own level, [`WindowCounts::not_flat`], whose one-value window
+//! at noise 0 takes it and is never read: the caller passes such pixels with noise 0 and needs
+//! no branch to skip them.
 
 /// Copies of each count; a power of two.
-pub(crate) const LANES: usize = 4;
+pub(crate) const LANES: usize = 2;
 
 use crate::model::histogram::NoiseHistogram;
 
-/// A bin's window: its histogram's range at the frame's start, and where its counts begin.
-#[derive(Debug, Clone, Copy)]
-struct Window {
-    first: i32,
-    len: u32,
-    start: u32,
-}
-
-/// A clean level's bin and that bin's [`Window`], for [`WindowCounts::add_level`].
-#[derive(Debug, Clone, Copy)]
-pub(crate) struct LevelWindow {
+/// A clean level's window: its bin, the bin histogram's range when the window was made
+/// (`first`, `len`), and where its counts begin.
+#[derive(Debug, Clone, Copy, Default)]
+struct LevelWindow {
     first: i32,
     len: u32,
     start: u32,
     bin: u32,
 }
 
-/// The counts of one frame, for the bins of one position.
-pub(crate) struct WindowCounts {
-    windows: Vec<Window>,
+/// The counts of one frame, for the clean levels of one position.
+pub(crate) struct WindowCounts<'a> {
+    /// Per clean level `0 ..= lut.len() − 1`, then the level of the pixels that are not flat.
+    levels: Vec<LevelWindow>,
     counts: Vec<u32>,
+    /// Level → bin.
+    lut: &'a [u16],
+    /// The levels the flat pixels have, ascending.
+    flat: &'a [u16],
+    /// Whether each flat level has a window of its own (else the levels of a bin share one).
+    by_level: bool,
+    /// Windows by level hold at most this many counts (times [`LANES`]).
+    budget: usize,
+    /// Whether every sample goes straight to its histogram (32-bit counts could overflow).
+    direct: bool,
+    /// Samples outside their windows since the windows were made or last checked.
+    outside: u64,
 }
 
-impl WindowCounts {
-    /// Empty counts over the ranges `hists` cover now. Where a frame's counts could pass 32
-    /// bits (`samples`: the most a frame can add), or the windows would not fit one table, the
-    /// windows are empty and every sample goes to its histogram.
-    pub(crate) fn new(hists: &[NoiseHistogram], samples: usize) -> Self {
-        Self::windowed(hists, samples).unwrap_or_else(|| Self {
-            windows: hists.iter().map(|h| Window { first: h.first, len: 0, start: 0 }).collect(),
-            counts: Vec::new(),
-        })
+impl<'a> WindowCounts<'a> {
+    /// Empty counts for the clean levels `0 ..= lut.len() − 1` (`lut`: level → bin of `hists`)
+    /// over the ranges `hists` cover now. `flat`: the levels the flat pixels have; a window of
+    /// their own when their windows hold at most `budget` counts (times [`LANES`]), else their
+    /// bins' windows. Where a frame's counts could pass 32 bits (`samples`: the most a frame can
+    /// add), there are no windows and every sample goes to its histogram.
+    pub(crate) fn new(
+        hists: &[NoiseHistogram],
+        lut: &'a [u16],
+        flat: &'a [u16],
+        samples: usize,
+        budget: usize,
+    ) -> Self {
+        let direct = samples >= u32::MAX as usize;
+        let own = flat
+            .iter()
+            .filter_map(|&l| lut.get(l as usize))
+            .try_fold(0usize, |a, &bin| a.checked_add(hists.get(bin as usize).map_or(0, |h| h.counts.len())));
+        let by_level = !direct && own.is_some_and(|n| n <= budget);
+        let mut w = Self { levels: Vec::new(), counts: Vec::new(), lut, flat, by_level, budget, direct, outside: 0 };
+        w.make(hists);
+        w
     }
 
-    fn windowed(hists: &[NoiseHistogram], samples: usize) -> Option<Self> {
-        if samples >= u32::MAX as usize {
-            return None;
-        }
+    /// Makes the windows on the ranges of `hists`, their counts zero. By level, the flat levels
+    /// in turn while the budget lasts (a level past it has no window: its samples go to the
+    /// histogram).
+    fn make(&mut self, hists: &[NoiseHistogram]) {
+        let range = |bin: u16| hists.get(bin as usize).map_or((0, 0), |h| (h.first, h.counts.len()));
+        let top = self.lut.len();
+        self.levels.clear();
+        self.levels.extend(self.lut.iter().map(|&bin| LevelWindow {
+            first: range(bin).0,
+            len: 0,
+            start: 0,
+            bin: bin as u32,
+        }));
         let mut start = 0u32;
-        let mut windows = Vec::with_capacity(hists.len());
-        for h in hists {
-            let len = u32::try_from(h.counts.len()).ok()?;
-            windows.push(Window { first: h.first, len, start });
-            start = start.checked_add(len)?;
+        if self.direct {
+            // No windows: every sample to its histogram.
+        } else if self.by_level {
+            let mut room = self.budget;
+            for &l in self.flat.iter().filter(|&&l| (l as usize) < top) {
+                let w = &mut self.levels[l as usize];
+                let len = range(self.lut[l as usize]).1;
+                let Some(end) = u32::try_from(len).ok().and_then(|n| start.checked_add(n)) else { break };
+                if len > room || end == u32::MAX {
+                    break;
+                }
+                room -= len;
+                (w.len, w.start) = (len as u32, start);
+                start = end;
+            }
+        } else {
+            let mut bin_start = Vec::with_capacity(hists.len());
+            for h in hists {
+                let Some(end) = u32::try_from(h.counts.len()).ok().and_then(|n| start.checked_add(n)) else { break };
+                if end == u32::MAX {
+                    break;
+                }
+                bin_start.push(start);
+                start = end;
+            }
+            for w in &mut self.levels {
+                if let Some(&s) = bin_start.get(w.bin as usize) {
+                    (w.len, w.start) = (range(w.bin as u16).1 as u32, s);
+                }
+            }
         }
-        Some(Self { windows, counts: vec![0; start as usize * LANES] })
+        self.levels.push(LevelWindow { first: 0, len: 1, start, bin: 0 });
+        self.counts.clear();
+        self.counts.resize((start as usize + 1) * LANES, 0);
     }
 
-    /// Per clean level `0 .. lut.len()`, the window of its bin (`lut`: level → bin), so that a
-    /// sample costs one lookup by its clean level ([`WindowCounts::add_level`]).
-    pub(crate) fn by_level(&self, lut: &[u16]) -> Vec<LevelWindow> {
-        lut.iter()
-            .map(|&bin| {
-                let w = self.windows.get(bin as usize).copied().unwrap_or(Window { first: 0, len: 0, start: 0 });
-                LevelWindow { first: w.first, len: w.len, start: w.start, bin: bin as u32 }
-            })
-            .collect()
+    /// Whether each flat level has a window of its own, so that [`WindowCounts::flush`] gives
+    /// the output codes.
+    pub(crate) fn by_level(&self) -> bool {
+        self.by_level
     }
 
-    /// Adds sample `n` in lane `lane` (any number: taken modulo [`LANES`]) to the bin whose
-    /// window `lw` is (from [`WindowCounts::by_level`]); its histogram in `hists` takes a sample
-    /// outside the window.
+    /// The level that stands for the pixels that are not flat (one past the highest level).
+    pub(crate) fn not_flat(&self) -> usize {
+        self.levels.len() - 1
+    }
+
+    /// Adds sample `n` of clean level `level` (at most [`WindowCounts::not_flat`]) in lane
+    /// `lane` (any number: taken modulo [`LANES`]). Returns `false` when the sample is outside
+    /// the level's window: the caller adds it to its histogram (bin [`WindowCounts::bin`]) and
+    /// says so ([`WindowCounts::note_outside`]).
     #[inline(always)]
-    pub(crate) fn add_level(&mut self, lw: LevelWindow, n: i32, lane: usize, hists: &mut [NoiseHistogram]) {
+    pub(crate) fn add(&mut self, level: usize, n: i32, lane: usize) -> bool {
+        let lw = self.levels[level];
         let i = n.wrapping_sub(lw.first) as u32;
         if i < lw.len {
             self.counts[(lw.start + i) as usize * LANES + (lane & (LANES - 1))] += 1;
+            true
         } else {
-            hists[lw.bin as usize].add(n);
+            false
         }
     }
 
-    /// Adds the window's counts into the histograms (which may have grown since).
-    pub(crate) fn flush(self, hists: &mut [NoiseHistogram]) {
-        for (w, h) in self.windows.iter().zip(hists).filter(|(w, _)| w.len > 0) {
-            let counts = &self.counts[w.start as usize * LANES..(w.start + w.len) as usize * LANES];
-            let offset = (w.first - h.first) as usize;
-            for (o, c) in h.counts[offset..offset + w.len as usize].iter_mut().zip(counts.chunks_exact(LANES)) {
-                *o += c.iter().map(|&c| c as u64).sum::<u64>();
+    /// The bin of a clean level.
+    pub(crate) fn bin(&self, level: usize) -> usize {
+        self.levels[level].bin as usize
+    }
+
+    /// Counts a sample that fell outside its window.
+    pub(crate) fn note_outside(&mut self) {
+        self.outside += 1;
+    }
+
+    /// After `samples` more samples: when more than an eighth of them (and more than a few)
+    /// fell outside their windows, flushes the counts into `hists` (and `codes`, as
+    /// [`WindowCounts::flush`]) and makes the windows anew on the histograms' ranges now.
+    pub(crate) fn renew_if_outside(&mut self, samples: u64, hists: &mut [NoiseHistogram], codes: Option<&mut [u64]>) {
+        let outside = std::mem::take(&mut self.outside);
+        if outside > 64 && outside * 8 > samples && !self.direct {
+            self.add_counts(hists, codes);
+            self.make(hists);
+        }
+    }
+
+    /// Adds the window's counts into the histograms (which may have grown since), and with
+    /// windows by level, the output codes (`level + n`, at most `codes.len() − 1`) into `codes`.
+    pub(crate) fn flush(self, hists: &mut [NoiseHistogram], codes: Option<&mut [u64]>) {
+        self.add_counts(hists, codes);
+    }
+
+    fn add_counts(&self, hists: &mut [NoiseHistogram], codes: Option<&mut [u64]>) {
+        let top = self.not_flat();
+        let sum = |start: u32, len: u32| {
+            self.counts[start as usize * LANES..(start + len) as usize * LANES]
+                .chunks_exact(LANES)
+                .map(|c| c.iter().map(|&c| c as u64).sum::<u64>())
+        };
+        if self.by_level {
+            let mut codes = codes;
+            for (level, w) in self.levels[..top].iter().enumerate().filter(|(_, w)| w.len > 0) {
+                let h = &mut hists[w.bin as usize];
+                let offset = (w.first - h.first) as usize;
+                let window = h.counts[offset..offset + w.len as usize].iter_mut().zip(sum(w.start, w.len));
+                for (i, (o, c)) in window.enumerate().filter(|(_, (_, c))| *c > 0) {
+                    *o += c;
+                    if let Some(codes) = codes.as_deref_mut() {
+                        let code = (level as i64 + w.first as i64 + i as i64).clamp(0, codes.len() as i64 - 1);
+                        codes[code as usize] += c;
+                    }
+                }
+            }
+        } else {
+            // Every level of a bin has the bin's window: one flush per bin.
+            let mut done = vec![false; hists.len()];
+            for w in self.levels[..top].iter().filter(|w| w.len > 0) {
+                if std::mem::replace(&mut done[w.bin as usize], true) {
+                    continue;
+                }
+                let h = &mut hists[w.bin as usize];
+                let offset = (w.first - h.first) as usize;
+                for (o, c) in h.counts[offset..offset + w.len as usize].iter_mut().zip(sum(w.start, w.len)) {
+                    *o += c;
+                }
             }
         }
     }
@@ -133,9 +257,16 @@ mod tests {
     use super::*;
 
     /// Window counts leave the histograms exactly as adding every sample in turn does, growth
-    /// included (samples far outside, below and above, in between samples inside).
+    /// included (samples far outside, below and above, in between samples inside), with windows
+    /// by clean level and by bin, made anew within a frame; by clean level they also give the
+    /// output codes exactly, and the pixels that are not flat reach neither.
     #[test]
-    fn same_histograms_as_adding_in_turn() {
+    fn same_histograms_and_codes_as_adding_in_turn() {
+        // Levels 0 ..= 39 in bins of four; the flat pixels have some of them.
+        let lut: Vec<u16> = (0..40).map(|l| l / 4).collect();
+        let flat: Vec<u16> = vec![3, 4, 5, 9, 10, 20, 21, 22, 23, 37];
+        let top = 60usize;
+        let code = |level: usize, n: i32| (level as i64 + n as i64).clamp(0, top as i64) as usize;
         let mut s = 0x9E37_79B9_7F4A_7C15u64;
         let mut samples = Vec::new();
         for k in 0..20_000 {
@@ -143,31 +274,55 @@ mod tests {
             s ^= s >> 7;
             s ^= s << 17;
             let spread = if k % 97 == 0 { 400 } else { 20 };
-            samples.push(((s >> 3) as usize % 3, (s % (2 * spread + 1)) as i32 - spread as i32));
+            let level = flat[(s >> 40) as usize % flat.len()] as usize;
+            samples.push((level, (s % (2 * spread + 1)) as i32 - spread as i32));
         }
-        let mut direct = vec![NoiseHistogram::default(); 3];
-        direct[1].add(5);
-        let mut windowed = direct.clone();
-        for frame in samples.chunks(5000) {
-            for &(bin, n) in frame {
-                direct[bin].add(n);
+        for (budget, by_level) in [(usize::MAX, true), (0, false)] {
+            let mut direct = vec![NoiseHistogram::default(); 10];
+            direct[1].add(5);
+            let mut windowed = direct.clone();
+            let (mut codes_direct, mut codes) = (vec![0u64; top + 1], vec![0u64; top + 1]);
+            let mut renewed = 0;
+            for frame in samples.chunks(5000) {
+                for &(level, n) in frame {
+                    direct[lut[level] as usize].add(n);
+                    codes_direct[code(level, n)] += 1;
+                }
+                let mut w = WindowCounts::new(&windowed, &lut, &flat, frame.len(), budget);
+                assert_eq!(w.by_level(), by_level);
+                for (k, &(level, n)) in frame.iter().enumerate() {
+                    assert!(w.add(w.not_flat(), 0, k), "a pixel that is not flat has its window");
+                    if !w.add(level, n, k) {
+                        windowed[w.bin(level)].add(n);
+                        w.note_outside();
+                        if by_level {
+                            codes[code(level, n)] += 1;
+                        }
+                    }
+                    if !by_level {
+                        codes[code(level, n)] += 1;
+                    }
+                    if k % 100 == 99 {
+                        renewed += (w.outside > 64 && w.outside * 8 > 100) as u32;
+                        w.renew_if_outside(100, &mut windowed, by_level.then_some(&mut codes[..]));
+                    }
+                }
+                w.flush(&mut windowed, by_level.then_some(&mut codes[..]));
+                assert_eq!(direct, windowed);
+                assert_eq!(codes_direct, codes);
             }
-            let mut w = WindowCounts::new(&windowed, frame.len());
-            // Levels 0..6 in bins of two.
-            let levels = w.by_level(&[0, 0, 1, 1, 2, 2]);
-            for (lane, &(bin, n)) in frame.iter().enumerate() {
-                let level = 2 * bin + lane % 2;
-                w.add_level(levels[level], n, lane, &mut windowed);
-            }
-            w.flush(&mut windowed);
-            assert_eq!(direct, windowed);
+            assert!(windowed.iter().any(|h| h.counts.len() > 400), "samples outside made a histogram grow");
+            assert!(renewed > 0, "the windows were made anew in the first frame");
         }
-        // Too many samples for 32-bit counts: every sample straight to its histogram.
-        let mut w = WindowCounts::new(&windowed, u32::MAX as usize);
-        let levels = w.by_level(&[0, 0, 1, 1, 2, 2]);
-        w.add_level(levels[1], 3, 1, &mut windowed);
-        direct[0].add(3);
-        w.flush(&mut windowed);
-        assert_eq!(direct, windowed);
+        // A budget smaller than the flat levels' windows: windows by bin.
+        let hists = vec![NoiseHistogram { first: -10, counts: vec![0; 21] }; 10];
+        let windows = 21 * flat.len();
+        assert!(WindowCounts::new(&hists, &lut, &flat, 100, windows).by_level());
+        assert!(!WindowCounts::new(&hists, &lut, &flat, 100, windows - 1).by_level());
+        // Too many samples for 32-bit counts: every flat sample straight to its histogram.
+        let mut w = WindowCounts::new(&hists, &lut, &flat, u32::MAX as usize, usize::MAX);
+        assert!(!w.by_level());
+        assert!(!w.add(5, 3, 1));
+        assert!(w.add(w.not_flat(), 0, 1));
     }
 }
