@@ -4,7 +4,8 @@
 
 use crate::calibrate::estimate::pool::FILL_MIN_SAMPLES;
 use crate::calibrate::estimate::pool::{Acc, Data, laplace_mass, laplace_pmf, pool_bin};
-use crate::calibrate::estimate::shrink::{SHRINK_CANDIDATES, gauss_on};
+use crate::calibrate::estimate::marginal::MarginalFold;
+use crate::calibrate::estimate::shrink::{gauss_on, gauss_pmf};
 use crate::model::bin_levels::BinLevels;
 use crate::model::histogram::NoiseHistogram;
 use crate::model::pmf::Pmf;
@@ -44,15 +45,18 @@ fn loglik(held: &NoiseHistogram, prior: &[f64], acc: &Acc, cum: u64) -> f64 {
     ll
 }
 
-/// The candidates' count: every pooling with every shrinkage, index `c · S + a` for pooling
-/// `c` and shrinkage `a` (`S` = [`SHRINK_CANDIDATES`]`.len()`).
-pub(super) const CANDIDATES: usize = POOLING_CANDIDATES.len() * SHRINK_CANDIDATES.len();
-
 /// Adds to `out[a]` the log-likelihood of held-out counts under `(1 − ε)·((1 − α)·pool + α·G)
-/// + ε·Laplace(law)` for every `α = SHRINK_CANDIDATES[a]`, `ε = 1/(N + 1)`; `prior` from
+/// + ε·Laplace(law)` for every `α = shrinks[a]`, `ε = 1/(N + 1)`; `prior` from
 /// [`prior_on`], `target` (`G`, the law's Gaussian) from [`gauss_on`]. The pool is read once per
 /// held-out value; each weight costs one logarithm per value.
-fn loglik_shrunk(held: &NoiseHistogram, prior: &[f64], target: &[f64], acc: &Acc, cum: u64, out: &mut [f64]) {
+fn loglik_shrunk(
+    held: &NoiseHistogram,
+    prior: &[f64],
+    target: &[f64],
+    (acc, cum): (&Acc, u64),
+    shrinks: &[f64],
+    out: &mut [f64],
+) {
     let eps = 1.0 / (cum as f64 + 1.0);
     // As [`loglik`] computes it, so that `α = 0` scores exactly as the pool alone.
     let scale = if acc.total > 0.0 { (1.0 - eps) / acc.total } else { 0.0 };
@@ -62,7 +66,7 @@ fn loglik_shrunk(held: &NoiseHistogram, prior: &[f64], target: &[f64], acc: &Acc
         }
         let pool = scale * acc.at(held.first + i as i32);
         let (g, floor) = ((1.0 - eps) * target[i], eps * prior[i]);
-        for (o, &alpha) in out.iter_mut().zip(&SHRINK_CANDIDATES) {
+        for (o, &alpha) in out.iter_mut().zip(shrinks) {
             let p = ((1.0 - alpha) * pool + alpha * g) + floor;
             *o += c as f64 * p.max(1e-300).ln();
         }
@@ -133,8 +137,10 @@ fn loglik_clamped(held: &NoiseHistogram, acc: &Acc, cum: u64, prior: &Pmf, lo: i
 
 pub(super) struct CvResult {
     /// Held-out log-likelihood per candidate (unclipped bins): pooling `c` with shrinkage `a` at
-    /// `c · S + a` ([`CANDIDATES`]).
+    /// `c · S + a`, `S` shrinkage weights.
     pub(super) ll: Vec<f64>,
+    /// The same scored over all unclipped bins at once ([`MarginalFold`]).
+    pub(super) marginal_ll: Vec<f64>,
     /// The same per bin, and each bin's held-out samples.
     pub(super) bin_ll: Vec<Vec<f64>>,
     pub(super) bin_heldout: Vec<u64>,
@@ -154,10 +160,12 @@ pub(super) fn cross_validate(
     clipped: &[bool],
     levels: &BinLevels,
     live: &[usize],
+    shrinks: &[f64],
 ) -> CvResult {
     let nbins = levels.len();
-    let mut bin_ll = vec![vec![0.0; CANDIDATES]; nbins];
-    let shrinks = SHRINK_CANDIDATES.len();
+    let (s, candidates) = (shrinks.len(), POOLING_CANDIDATES.len() * shrinks.len());
+    let mut bin_ll = vec![vec![0.0; candidates]; nbins];
+    let mut marginal_ll = vec![0.0; candidates];
     let mut bin_heldout = vec![0u64; nbins];
     let mut heldout = 0u64;
     // Clipped bins: scored per candidate in both modes, then read at the chosen pooling.
@@ -170,6 +178,7 @@ pub(super) fn cross_validate(
     for &k in live {
         let train: Vec<NoiseHistogram> = total.iter().zip(folds[k].iter()).map(|(t, f)| subtract(t, f)).collect();
         let data = Data::new(&train, clipped, levels);
+        let mut marginal = MarginalFold::new(POOLING_CANDIDATES.len());
         for b in 0..nbins {
             let held = &folds[k][b];
             let nh = held.total();
@@ -211,18 +220,23 @@ pub(super) fn cross_validate(
             heldout += nh;
             bin_heldout[b] += nh;
             let prior = prior_on(held, mu, var);
-            let target = gauss_on(held, mu, var, levels.reach());
+            let (gauss, laplace) = (gauss_pmf(mu, var, levels.reach()), laplace_pmf(mu, var, levels.reach()));
+            let target = gauss_on(held, &gauss);
+            marginal.add_held(held);
             let bl = &mut bin_ll[b];
             pool_bin(&data, b, false, &POOLING_CANDIDATES, FILL_MIN_SAMPLES, |c, acc, cum| {
-                loglik_shrunk(held, &prior, &target, acc, cum, &mut bl[c * shrinks..(c + 1) * shrinks]);
+                loglik_shrunk(held, &prior, &target, (acc, cum), shrinks, &mut bl[c * s..(c + 1) * s]);
+                marginal.add_bin(c, (acc, cum), &gauss, &laplace, nh);
             });
         }
+        marginal.score(shrinks, &mut marginal_ll);
     }
-    let ll: Vec<f64> = (0..CANDIDATES).map(|c| bin_ll.iter().map(|b| b[c]).sum()).collect();
+    let ll: Vec<f64> = (0..candidates).map(|c| bin_ll.iter().map(|b| b[c]).sum()).collect();
     // The clipped bins' law mode is read at the chosen pooling.
-    let best = argmax(&ll) / shrinks;
+    let best = argmax(&ll) / s;
     CvResult {
         ll,
+        marginal_ll,
         bin_ll,
         bin_heldout,
         heldout,

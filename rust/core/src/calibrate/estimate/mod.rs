@@ -46,6 +46,7 @@ mod clip;
 mod cv;
 mod flags;
 mod law;
+mod marginal;
 mod pool;
 mod shrink;
 mod stat;
@@ -63,7 +64,7 @@ pub use shrink::SHRINK_CANDIDATES;
 use crate::model::histogram::NoiseHistogram;
 use crate::model::pack::{BinModel, BinSource};
 use crate::model::pmf::Pmf;
-use cv::{CANDIDATES, argmax, cross_validate};
+use cv::{argmax, cross_validate};
 use flags::clip_flags;
 use pool::{Acc, Data, laplace_pmf, pool_bin};
 use shrink::gauss_pmf;
@@ -108,6 +109,35 @@ pub fn estimate_position(
     levels: &BinLevels,
     pooling: Pooling,
 ) -> PositionEstimate {
+    // TEMPDEBUG
+    if std::env::var("NOISECAL_SHRINK_OFF").is_ok() {
+        return estimate_position_among(folds, shifts, levels, pooling, &[0.0]);
+    }
+    let e = estimate_position_among(folds, shifts, levels, pooling, &SHRINK_CANDIDATES);
+    if std::env::var("NOISECAL_SHRINK_DEBUG").is_ok() {
+        let c = &e.report.candidates;
+        eprintln!(
+            "TEMPDEBUG shrink {} pooling {} heldout {} ce0 {:?} bins {} clipped {}",
+            e.shrink,
+            e.report.pooling,
+            e.report.heldout_samples,
+            c.iter().map(|x| (x.pooling, x.cross_entropy)).collect::<Vec<_>>(),
+            e.bins.len(),
+            e.report.clipped.len()
+        );
+    }
+    e
+}
+
+/// [`estimate_position`] with the Gaussian's weights taken among `shrinks` (ascending, `0`
+/// first): `&[0.0]` is the estimator without shrinkage, for comparisons.
+pub(crate) fn estimate_position_among(
+    folds: &[&[NoiseHistogram]],
+    shifts: &[&[[f64; 3]]],
+    levels: &BinLevels,
+    pooling: Pooling,
+    shrinks: &[f64],
+) -> PositionEstimate {
     let nbins = levels.len();
     let mut total: Vec<NoiseHistogram> = vec![NoiseHistogram::default(); nbins];
     for f in folds {
@@ -151,8 +181,8 @@ pub fn estimate_position(
     // bins keep their own samples.
     let unclipped: u64 = (0..nbins).filter(|&b| !clipped[b]).map(|b| total[b].total()).sum();
     let law_supported = unclipped as f64 >= law::LAW_MIN_SAMPLES;
-    let shrinks = SHRINK_CANDIDATES.len();
-    let candidate = |i: usize| (POOLING_CANDIDATES[i / shrinks], SHRINK_CANDIDATES[i % shrinks]);
+    let s = shrinks.len();
+    let candidate = |i: usize| (POOLING_CANDIDATES[i / s], shrinks[i % s]);
     let (m, shrink, choice, candidates, clip_scores, heldout) = match pooling {
         Pooling::Fixed(m) => {
             per_bin = vec![(m, 0.0); nbins];
@@ -165,16 +195,23 @@ pub fn estimate_position(
             (DEFAULT_POOLING, 0.0, Choice::Default, Vec::new(), None, 0)
         }
         Pooling::Auto | Pooling::Plain => {
-            let cv = cross_validate(folds, &total, &clipped, levels, &live_folds);
+            let cv = cross_validate(folds, &total, &clipped, levels, &live_folds, shrinks);
             let n = cv.heldout.max(1) as f64;
-            debug_assert_eq!(cv.ll.len(), CANDIDATES);
-            let best = argmax(&cv.ll);
+            // A shrinkage is a candidate only where the held-out samples over all levels at once
+            // do not score it below the same pooling unshrunk (`marginal.rs`).
+            let allowed: Vec<bool> = (0..cv.ll.len()).map(|i| cv.marginal_ll[i] >= cv.marginal_ll[i - i % s]).collect();
+            let best_among = |ll: &[f64]| {
+                let masked: Vec<f64> =
+                    ll.iter().zip(&allowed).map(|(&v, &ok)| if ok { v } else { f64::NEG_INFINITY }).collect();
+                argmax(&masked)
+            };
+            let best = best_among(&cv.ll);
             per_bin = cv
                 .bin_ll
                 .iter()
                 .zip(&cv.bin_heldout)
                 .map(|(ll, &n)| {
-                    let b = argmax(ll);
+                    let b = best_among(ll);
                     if n >= OVERRIDE_MIN_HELDOUT && ll[b] - ll[best] > OVERRIDE_NATS {
                         candidate(b)
                     } else {
@@ -187,9 +224,9 @@ pub fn estimate_position(
             let candidates = POOLING_CANDIDATES
                 .iter()
                 .enumerate()
-                .map(|(c, &pooling)| CandidateScore { pooling, cross_entropy: -cv.ll[c * shrinks] / n })
+                .map(|(c, &pooling)| CandidateScore { pooling, cross_entropy: -cv.ll[c * s] / n })
                 .collect();
-            let best_pool = best / shrinks;
+            let best_pool = best / s;
             own_votes = (0..nbins)
                 .map(|b| {
                     clipped[b]
@@ -207,7 +244,7 @@ pub fn estimate_position(
             };
             (
                 POOLING_CANDIDATES[best_pool],
-                SHRINK_CANDIDATES[best % shrinks],
+                shrinks[best % s],
                 Choice::CrossValidated { folds: live_folds.len() as u8 },
                 candidates,
                 scores,
@@ -359,3 +396,5 @@ pub fn plain_empirical(hists: &[NoiseHistogram]) -> Vec<BinModel> {
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_shrink;

@@ -38,10 +38,9 @@ pub(super) fn gauss_pmf(mu: f64, var: f64, reach: i32) -> Pmf {
         .unwrap_or(Pmf { first: mu.round() as i32, p: vec![1.0] })
 }
 
-/// The law's Gaussian's mass at each value of a held-out histogram's support (0 where it holds
-/// no samples), normalised like [`gauss_pmf`] over the same cut.
-pub(super) fn gauss_on(held: &NoiseHistogram, mu: f64, var: f64, reach: i32) -> Vec<f64> {
-    let p = gauss_pmf(mu, var, reach);
+/// The mass of `p` (the law's Gaussian, [`gauss_pmf`]) at each value of a held-out histogram's
+/// support (0 where it holds no samples).
+pub(super) fn gauss_on(held: &NoiseHistogram, p: &Pmf) -> Vec<f64> {
     (0..held.counts.len())
         .map(|i| {
             let n = held.first + i as i32;
