@@ -222,11 +222,11 @@ pub(super) fn cross_validate(
             let prior = prior_on(held, mu, var);
             let (gauss, laplace) = (gauss_pmf(mu, var, levels.reach()), laplace_pmf(mu, var, levels.reach()));
             let target = gauss_on(held, &gauss);
-            marginal.add_held(held);
+            marginal.add_held(held, &gauss, &laplace, 1.0 / (data.stats[b].n as f64 + 1.0));
             let bl = &mut bin_ll[b];
             pool_bin(&data, b, false, &POOLING_CANDIDATES, FILL_MIN_SAMPLES, |c, acc, cum| {
                 loglik_shrunk(held, &prior, &target, (acc, cum), shrinks, &mut bl[c * s..(c + 1) * s]);
-                marginal.add_bin(c, (acc, cum), &gauss, &laplace, nh);
+                marginal.add_pool(c, (acc, cum), nh);
             });
         }
         marginal.score(shrinks, &mut marginal_ll);

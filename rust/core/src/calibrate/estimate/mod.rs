@@ -109,24 +109,7 @@ pub fn estimate_position(
     levels: &BinLevels,
     pooling: Pooling,
 ) -> PositionEstimate {
-    // TEMPDEBUG
-    if std::env::var("NOISECAL_SHRINK_OFF").is_ok() {
-        return estimate_position_among(folds, shifts, levels, pooling, &[0.0]);
-    }
-    let e = estimate_position_among(folds, shifts, levels, pooling, &SHRINK_CANDIDATES);
-    if std::env::var("NOISECAL_SHRINK_DEBUG").is_ok() {
-        let c = &e.report.candidates;
-        eprintln!(
-            "TEMPDEBUG shrink {} pooling {} heldout {} ce0 {:?} bins {} clipped {}",
-            e.shrink,
-            e.report.pooling,
-            e.report.heldout_samples,
-            c.iter().map(|x| (x.pooling, x.cross_entropy)).collect::<Vec<_>>(),
-            e.bins.len(),
-            e.report.clipped.len()
-        );
-    }
-    e
+    estimate_position_among(folds, shifts, levels, pooling, &SHRINK_CANDIDATES)
 }
 
 /// [`estimate_position`] with the Gaussian's weights taken among `shrinks` (ascending, `0`

@@ -9,7 +9,7 @@
 //! Gaussian where held-out frames say it helps (heavy tails or a second gain keep `α ≈ 0`).
 
 use crate::calibrate::estimate::stat::MIN_VAR;
-use crate::math::special::normal_mass;
+use crate::math::special::erfc;
 use crate::model::histogram::NoiseHistogram;
 use crate::model::pmf::Pmf;
 
@@ -23,19 +23,31 @@ fn latent_sd(var: f64) -> f64 {
     (var.max(MIN_VAR) - 1.0 / 12.0).max(0.01).sqrt()
 }
 
-/// The law's Gaussian, rounded to integers: `P(n)` for mean `mu` and variance `var`.
-fn gauss_mass(n: i32, mu: f64, sd: f64) -> f64 {
-    normal_mass((n as f64 - 0.5 - mu) / sd, (n as f64 + 0.5 - mu) / sd)
-}
-
-/// The law's Gaussian at a bin as a PMF over ±10 standard deviations (the mass beyond is below
-/// 10⁻²²), cut at `±reach` ([`crate::model::bin_levels::BinLevels::reach`]).
+/// The law's Gaussian at a bin as a PMF over ±9 standard deviations (the mass beyond is below
+/// 10⁻¹⁸), cut at `±reach` ([`crate::model::bin_levels::BinLevels::reach`]). Each cell edge's
+/// tail mass is computed once (what `math::special::normal_mass` gives cell by cell, with half the `erfc`s),
+/// from the nearer tail so that far cells keep their precision.
 pub(super) fn gauss_pmf(mu: f64, var: f64, reach: i32) -> Pmf {
     let sd = latent_sd(var);
-    let lo = ((mu - 10.0 * sd).floor() as i32 - 1).max(-reach);
-    let hi = ((mu + 10.0 * sd).ceil() as i32 + 1).min(reach);
-    Pmf::from_weights(lo, (lo..=hi).map(|n| gauss_mass(n, mu, sd)))
-        .unwrap_or(Pmf { first: mu.round() as i32, p: vec![1.0] })
+    let lo = ((mu - 9.0 * sd).floor() as i32 - 1).max(-reach);
+    let hi = ((mu + 9.0 * sd).ceil() as i32 + 1).min(reach);
+    // Mass beyond an edge on its own side of the mean.
+    let tail = |n: f64| {
+        let z = (n - mu) / sd;
+        (z, 0.5 * erfc(z.abs() / std::f64::consts::SQRT_2))
+    };
+    let mut below = tail(lo as f64 - 0.5);
+    let masses = (lo..=hi).map(|n| {
+        let above = tail(n as f64 + 0.5);
+        let m = match (below.0 >= 0.0, above.0 >= 0.0) {
+            (true, true) => below.1 - above.1,
+            (false, false) => above.1 - below.1,
+            _ => 1.0 - below.1 - above.1,
+        };
+        below = above;
+        m.max(0.0)
+    });
+    Pmf::from_weights(lo, masses).unwrap_or(Pmf { first: mu.round() as i32, p: vec![1.0] })
 }
 
 /// The mass of `p` (the law's Gaussian, [`gauss_pmf`]) at each value of a held-out histogram's

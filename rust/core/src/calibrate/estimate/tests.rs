@@ -140,7 +140,7 @@ fn sparse_bins_beat_the_plain_histogram_by_far() {
     let (je, jp) = (mean_jsd(&est.bins, &truth, 0..150), mean_jsd(&plain, &truth, 0..150));
     assert!(je < 0.25 * jp, "estimate {je:.4} vs plain {jp:.4}");
     assert!(je < 0.02, "estimate {je:.4}");
-    assert!(est.report.pooling >= 256, "sparse data must pool: chose {}", est.report.pooling);
+    assert!(est.report.pooling >= 256, "sparse data must pool: chose {} (shrink {})", est.report.pooling, est.shrink);
     let (plain_ce, chosen_ce) = est.report.gain_over_plain().expect("cross-validated");
     assert!(chosen_ce < plain_ce);
     // The pooled PMFs keep the truth's heavy tails (kurtosis ≈ 8, a Gaussian's is 3).
