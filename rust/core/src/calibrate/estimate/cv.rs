@@ -2,9 +2,9 @@
 //! likelihood (method.md, "Estimation" 4–6): for every fold, PMFs from the other folds scored on
 //! the held-out fold's samples.
 
+use crate::calibrate::estimate::marginal::MarginalFold;
 use crate::calibrate::estimate::pool::FILL_MIN_SAMPLES;
 use crate::calibrate::estimate::pool::{Acc, Data, laplace_mass, laplace_pmf, pool_bin};
-use crate::calibrate::estimate::marginal::MarginalFold;
 use crate::calibrate::estimate::shrink::{gauss_on, gauss_pmf};
 use crate::model::bin_levels::BinLevels;
 use crate::model::histogram::NoiseHistogram;
@@ -45,8 +45,8 @@ fn loglik(held: &NoiseHistogram, prior: &[f64], acc: &Acc, cum: u64) -> f64 {
     ll
 }
 
-/// Adds to `out[a]` the log-likelihood of held-out counts under `(1 − ε)·((1 − α)·pool + α·G)
-/// + ε·Laplace(law)` for every `α = shrinks[a]`, `ε = 1/(N + 1)`; `prior` from
+/// Adds to `out[a]` the log-likelihood of held-out counts under
+/// `(1 − ε)·((1 − α)·pool + α·G) + ε·Laplace(law)` for every `α = shrinks[a]`, `ε = 1/(N + 1)`; `prior` from
 /// [`prior_on`], `target` (`G`, the law's Gaussian) from [`gauss_on`]. The pool is read once per
 /// held-out value; each weight costs one logarithm per value.
 fn loglik_shrunk(

@@ -290,9 +290,7 @@ pub(crate) fn estimate_position_among(
             // (own or law mode) and a bin taking its nearest neighbour's histogram keep their pool.
             let alpha = if nearest.is_none() && !clipped[b] { alpha } else { 0.0 };
             let mut out: Option<(Acc, u64)> = None;
-            pool_bin(&data, src, own_only, &[m], FILL_MIN_SAMPLES, |_, acc, cum| {
-                out = Some((acc.clone(), cum))
-            });
+            pool_bin(&data, src, own_only, &[m], FILL_MIN_SAMPLES, |_, acc, cum| out = Some((acc.clone(), cum)));
             let (acc, cum) = out.unwrap_or_default();
             let (mu, var) = match nearest {
                 Some(j) => (data.stats[j].mean, data.stats[j].var.max(MIN_VAR)),
