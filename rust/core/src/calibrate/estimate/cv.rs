@@ -220,13 +220,21 @@ pub(super) fn cross_validate(
             heldout += nh;
             bin_heldout[b] += nh;
             let prior = prior_on(held, mu, var);
-            let (gauss, laplace) = (gauss_pmf(mu, var, levels.reach()), laplace_pmf(mu, var, levels.reach()));
-            let target = gauss_on(held, &gauss);
-            marginal.add_held(held, &gauss, &laplace, 1.0 / (data.stats[b].n as f64 + 1.0));
+            // Without a shrinkage to choose, neither the Gaussian nor the all-levels score is needed.
+            let shrinking = s > 1;
+            let target = if shrinking {
+                let (gauss, laplace) = (gauss_pmf(mu, var, levels.reach()), laplace_pmf(mu, var, levels.reach()));
+                marginal.add_held(held, &gauss, &laplace, 1.0 / (data.stats[b].n as f64 + 1.0));
+                gauss_on(held, &gauss)
+            } else {
+                vec![0.0; held.counts.len()]
+            };
             let bl = &mut bin_ll[b];
             pool_bin(&data, b, false, &POOLING_CANDIDATES, FILL_MIN_SAMPLES, |c, acc, cum| {
                 loglik_shrunk(held, &prior, &target, (acc, cum), shrinks, &mut bl[c * s..(c + 1) * s]);
-                marginal.add_pool(c, (acc, cum), nh);
+                if shrinking {
+                    marginal.add_pool(c, (acc, cum), nh);
+                }
             });
         }
         marginal.score(shrinks, &mut marginal_ll);

@@ -96,7 +96,7 @@ struct Outcome {
 fn run(truth: impl Fn(f64) -> Pmf, seed: u64) -> Outcome {
     let lv = levels(MEASURED.end, 1023);
     let folds = sample_folds_of(&lv, &truth, |b| if MEASURED.contains(&b) { 4000 + 250 * (b % 5) } else { 0 }, seed);
-    let shrunk = estimate_position(&refs(&folds), &[], &lv, Pooling::Auto);
+    let shrunk = estimate_position_among(&refs(&folds), &[], &lv, Pooling::Auto, &SHRINK_CANDIDATES);
     let plain = estimate_position_among(&refs(&folds), &[], &lv, Pooling::Auto, &[0.0]);
     let truths: Vec<Pmf> = (0..lv.len()).map(|b| truth_bin(&lv, b, &truth)).collect();
     let hg: Vec<BinModel> = shrunk
