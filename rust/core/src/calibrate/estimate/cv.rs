@@ -1,8 +1,11 @@
-//! Choosing the pooling and the clip mode by held-out likelihood (method.md, "Estimation" 5–6):
-//! for every fold, PMFs from the other folds scored on the held-out fold's samples.
+//! Choosing the pooling, the shrinkage toward the law's Gaussian and the clip mode by held-out
+//! likelihood (method.md, "Estimation" 4–6): for every fold, PMFs from the other folds scored on
+//! the held-out fold's samples.
 
+use crate::calibrate::estimate::marginal::MarginalFold;
 use crate::calibrate::estimate::pool::FILL_MIN_SAMPLES;
 use crate::calibrate::estimate::pool::{Acc, Data, laplace_mass, laplace_pmf, pool_bin};
+use crate::calibrate::estimate::shrink::{gauss_on, gauss_pmf};
 use crate::model::bin_levels::BinLevels;
 use crate::model::histogram::NoiseHistogram;
 use crate::model::pmf::Pmf;
@@ -40,6 +43,34 @@ fn loglik(held: &NoiseHistogram, prior: &[f64], acc: &Acc, cum: u64) -> f64 {
         ll += c as f64 * p.max(1e-300).ln();
     }
     ll
+}
+
+/// Adds to `out[a]` the log-likelihood of held-out counts under
+/// `(1 − ε)·((1 − α)·pool + α·G) + ε·Laplace(law)` for every `α = shrinks[a]`, `ε = 1/(N + 1)`; `prior` from
+/// [`prior_on`], `target` (`G`, the law's Gaussian) from [`gauss_on`]. The pool is read once per
+/// held-out value; each weight costs one logarithm per value.
+fn loglik_shrunk(
+    held: &NoiseHistogram,
+    prior: &[f64],
+    target: &[f64],
+    (acc, cum): (&Acc, u64),
+    shrinks: &[f64],
+    out: &mut [f64],
+) {
+    let eps = 1.0 / (cum as f64 + 1.0);
+    // As [`loglik`] computes it, so that `α = 0` scores exactly as the pool alone.
+    let scale = if acc.total > 0.0 { (1.0 - eps) / acc.total } else { 0.0 };
+    for (i, &c) in held.counts.iter().enumerate() {
+        if c == 0 {
+            continue;
+        }
+        let pool = scale * acc.at(held.first + i as i32);
+        let (g, floor) = ((1.0 - eps) * target[i], eps * prior[i]);
+        for (o, &alpha) in out.iter_mut().zip(shrinks) {
+            let p = ((1.0 - alpha) * pool + alpha * g) + floor;
+            *o += c as f64 * p.max(1e-300).ln();
+        }
+    }
 }
 
 /// Log-likelihood of held-out counts of a clipped bin when the pool is unclipped noise and each
@@ -105,8 +136,11 @@ fn loglik_clamped(held: &NoiseHistogram, acc: &Acc, cum: u64, prior: &Pmf, lo: i
 }
 
 pub(super) struct CvResult {
-    /// Held-out log-likelihood per pooling candidate (unclipped bins).
+    /// Held-out log-likelihood per candidate (unclipped bins): pooling `c` with shrinkage `a` at
+    /// `c · S + a`, `S` shrinkage weights.
     pub(super) ll: Vec<f64>,
+    /// The same scored over all unclipped bins at once ([`MarginalFold`]).
+    pub(super) marginal_ll: Vec<f64>,
     /// The same per bin, and each bin's held-out samples.
     pub(super) bin_ll: Vec<Vec<f64>>,
     pub(super) bin_heldout: Vec<u64>,
@@ -114,7 +148,8 @@ pub(super) struct CvResult {
     /// Held-out log-likelihood of clipped bins, own mode and law mode.
     pub(super) clip_ll: Option<[f64; 2]>,
     pub(super) clip_samples: u64,
-    /// The same per clipped bin (own mode; law mode per pooling candidate), zero elsewhere.
+    /// The same per clipped bin (own mode; law mode per pooling candidate, unshrunk), zero
+    /// elsewhere.
     pub(super) clip_bin_own: Vec<f64>,
     pub(super) clip_bin_law: Vec<Vec<f64>>,
 }
@@ -125,9 +160,12 @@ pub(super) fn cross_validate(
     clipped: &[bool],
     levels: &BinLevels,
     live: &[usize],
+    shrinks: &[f64],
 ) -> CvResult {
     let nbins = levels.len();
-    let mut bin_ll = vec![vec![0.0; POOLING_CANDIDATES.len()]; nbins];
+    let (s, candidates) = (shrinks.len(), POOLING_CANDIDATES.len() * shrinks.len());
+    let mut bin_ll = vec![vec![0.0; candidates]; nbins];
+    let mut marginal_ll = vec![0.0; candidates];
     let mut bin_heldout = vec![0u64; nbins];
     let mut heldout = 0u64;
     // Clipped bins: scored per candidate in both modes, then read at the chosen pooling.
@@ -140,6 +178,7 @@ pub(super) fn cross_validate(
     for &k in live {
         let train: Vec<NoiseHistogram> = total.iter().zip(folds[k].iter()).map(|(t, f)| subtract(t, f)).collect();
         let data = Data::new(&train, clipped, levels);
+        let mut marginal = MarginalFold::new(POOLING_CANDIDATES.len());
         for b in 0..nbins {
             let held = &folds[k][b];
             let nh = held.total();
@@ -181,16 +220,31 @@ pub(super) fn cross_validate(
             heldout += nh;
             bin_heldout[b] += nh;
             let prior = prior_on(held, mu, var);
+            // Without a shrinkage to choose, neither the Gaussian nor the all-levels score is needed.
+            let shrinking = s > 1;
+            let target = if shrinking {
+                let (gauss, laplace) = (gauss_pmf(mu, var, levels.reach()), laplace_pmf(mu, var, levels.reach()));
+                marginal.add_held(held, &gauss, &laplace, 1.0 / (data.stats[b].n as f64 + 1.0));
+                gauss_on(held, &gauss)
+            } else {
+                vec![0.0; held.counts.len()]
+            };
             let bl = &mut bin_ll[b];
             pool_bin(&data, b, false, &POOLING_CANDIDATES, FILL_MIN_SAMPLES, |c, acc, cum| {
-                bl[c] += loglik(held, &prior, acc, cum);
+                loglik_shrunk(held, &prior, &target, (acc, cum), shrinks, &mut bl[c * s..(c + 1) * s]);
+                if shrinking {
+                    marginal.add_pool(c, (acc, cum), nh);
+                }
             });
         }
+        marginal.score(shrinks, &mut marginal_ll);
     }
-    let ll: Vec<f64> = (0..POOLING_CANDIDATES.len()).map(|c| bin_ll.iter().map(|b| b[c]).sum()).collect();
-    let best = argmax(&ll);
+    let ll: Vec<f64> = (0..candidates).map(|c| bin_ll.iter().map(|b| b[c]).sum()).collect();
+    // The clipped bins' law mode is read at the chosen pooling.
+    let best = argmax(&ll) / s;
     CvResult {
         ll,
+        marginal_ll,
         bin_ll,
         bin_heldout,
         heldout,

@@ -46,7 +46,9 @@ mod clip;
 mod cv;
 mod flags;
 mod law;
+mod marginal;
 mod pool;
+mod shrink;
 mod stat;
 
 use serde::{Deserialize, Serialize};
@@ -57,6 +59,7 @@ pub use clip::{CLIP_FRACTION, CLIP_SIGMAS, clip_fraction_in, clip_fraction_of};
 pub use cv::{OVERRIDE_MIN_HELDOUT, OVERRIDE_NATS, POOLING_CANDIDATES};
 pub use law::Law;
 pub use pool::{FILL_MIN_SAMPLES, MAX_RADIUS, MEAN_LIMIT_SD, MEAN_LIMIT_SE};
+pub use shrink::SHRINK_CANDIDATES;
 
 use crate::model::histogram::NoiseHistogram;
 use crate::model::pack::{BinModel, BinSource};
@@ -64,6 +67,7 @@ use crate::model::pmf::Pmf;
 use cv::{argmax, cross_validate};
 use flags::clip_flags;
 use pool::{Acc, Data, laplace_pmf, pool_bin};
+use shrink::gauss_pmf;
 use stat::{MIN_VAR, Stat};
 
 /// Folds of the cross-validation: target frames of an ISO take turns.
@@ -89,6 +93,10 @@ pub enum Pooling {
 pub struct PositionEstimate {
     pub bins: Vec<BinModel>,
     pub report: EstimateReport,
+    /// The weight of the law's Gaussian chosen for the position's unclipped bins
+    /// ([`SHRINK_CANDIDATES`]; 0 unless cross-validated). Bins whose own held-out samples
+    /// decided otherwise keep their own.
+    pub shrink: f64,
 }
 
 /// Estimates the bins of one (ISO, position) from its fold histograms (`folds[k][bin]`) and the
@@ -100,6 +108,21 @@ pub fn estimate_position(
     shifts: &[&[[f64; 3]]],
     levels: &BinLevels,
     pooling: Pooling,
+) -> PositionEstimate {
+    // Shrinkage stays off by default: on the random sensor family it made pack / plain worse
+    // (median 0.917 → 0.925, worst 1.003 → 1.011) while tying the heteroscedastic Gaussian on the
+    // EMVA burst (method.md, "Estimation" 4).
+    estimate_position_among(folds, shifts, levels, pooling, &[0.0])
+}
+
+/// [`estimate_position`] with the Gaussian's weights taken among `shrinks` (ascending, `0`
+/// first): `&[0.0]` is the estimator without shrinkage, for comparisons.
+pub(crate) fn estimate_position_among(
+    folds: &[&[NoiseHistogram]],
+    shifts: &[&[[f64; 3]]],
+    levels: &BinLevels,
+    pooling: Pooling,
+    shrinks: &[f64],
 ) -> PositionEstimate {
     let nbins = levels.len();
     let mut total: Vec<NoiseHistogram> = vec![NoiseHistogram::default(); nbins];
@@ -126,13 +149,14 @@ pub fn estimate_position(
             clipped: clipped.iter().enumerate().filter(|(_, c)| **c).map(|(b, _)| b as u32).collect(),
             heldout_samples: 0,
         };
-        return PositionEstimate { bins, report };
+        return PositionEstimate { bins, report, shrink: 0.0 };
     }
     let live_folds: Vec<usize> = (0..folds.len()).filter(|&k| folds[k].iter().any(|h| h.total() > 0)).collect();
 
-    // Per bin, the pooling it uses: the position's choice, or a smaller one where the bin's own
-    // held-out samples decide for it by more than `OVERRIDE_NATS`.
-    let per_bin: Vec<u64>;
+    // Per bin, the pooling and the weight of the law's Gaussian it uses: the position's choice,
+    // or another where the bin's own held-out samples decide for it by more than
+    // `OVERRIDE_NATS`.
+    let per_bin: Vec<(u64, f64)>;
     // Per bin, whether its held-out samples clearly favour its own histogram over law mode
     // (clipped bins, cross-validated only; see the clip mode below).
     let own_votes: Vec<bool>;
@@ -143,44 +167,57 @@ pub fn estimate_position(
     // bins keep their own samples.
     let unclipped: u64 = (0..nbins).filter(|&b| !clipped[b]).map(|b| total[b].total()).sum();
     let law_supported = unclipped as f64 >= law::LAW_MIN_SAMPLES;
-    let (m, choice, candidates, clip_scores, heldout) = match pooling {
+    let s = shrinks.len();
+    let candidate = |i: usize| (POOLING_CANDIDATES[i / s], shrinks[i % s]);
+    let (m, shrink, choice, candidates, clip_scores, heldout) = match pooling {
         Pooling::Fixed(m) => {
-            per_bin = vec![m; nbins];
+            per_bin = vec![(m, 0.0); nbins];
             own_votes = vec![false; nbins];
-            (m, Choice::Fixed, Vec::new(), None, 0)
+            (m, 0.0, Choice::Fixed, Vec::new(), None, 0)
         }
         Pooling::Auto | Pooling::Plain if live_folds.len() < 2 => {
-            per_bin = vec![DEFAULT_POOLING; nbins];
+            per_bin = vec![(DEFAULT_POOLING, 0.0); nbins];
             own_votes = vec![false; nbins];
-            (DEFAULT_POOLING, Choice::Default, Vec::new(), None, 0)
+            (DEFAULT_POOLING, 0.0, Choice::Default, Vec::new(), None, 0)
         }
         Pooling::Auto | Pooling::Plain => {
-            let cv = cross_validate(folds, &total, &clipped, levels, &live_folds);
+            let cv = cross_validate(folds, &total, &clipped, levels, &live_folds, shrinks);
             let n = cv.heldout.max(1) as f64;
-            let best = argmax(&cv.ll);
+            // A shrinkage is a candidate only where the held-out samples over all levels at once
+            // do not score it below the same pooling unshrunk (`marginal.rs`).
+            let allowed: Vec<bool> = (0..cv.ll.len()).map(|i| cv.marginal_ll[i] >= cv.marginal_ll[i - i % s]).collect();
+            let best_among = |ll: &[f64]| {
+                let masked: Vec<f64> =
+                    ll.iter().zip(&allowed).map(|(&v, &ok)| if ok { v } else { f64::NEG_INFINITY }).collect();
+                argmax(&masked)
+            };
+            let best = best_among(&cv.ll);
             per_bin = cv
                 .bin_ll
                 .iter()
                 .zip(&cv.bin_heldout)
                 .map(|(ll, &n)| {
-                    let b = argmax(ll);
+                    let b = best_among(ll);
                     if n >= OVERRIDE_MIN_HELDOUT && ll[b] - ll[best] > OVERRIDE_NATS {
-                        POOLING_CANDIDATES[b]
+                        candidate(b)
                     } else {
-                        POOLING_CANDIDATES[best]
+                        candidate(best)
                     }
                 })
                 .collect();
+            // The pack's report lists the poolings alone (no shrinkage): its `m = 0` entry is the
+            // plain per-bin histogram that `inspect` compares with.
             let candidates = POOLING_CANDIDATES
                 .iter()
-                .zip(&cv.ll)
-                .map(|(&pooling, &ll)| CandidateScore { pooling, cross_entropy: -ll / n })
+                .enumerate()
+                .map(|(c, &pooling)| CandidateScore { pooling, cross_entropy: -cv.ll[c * s] / n })
                 .collect();
+            let best_pool = best / s;
             own_votes = (0..nbins)
                 .map(|b| {
                     clipped[b]
                         && cv.bin_heldout[b] >= OVERRIDE_MIN_HELDOUT
-                        && cv.clip_bin_own[b] - cv.clip_bin_law[b][best] > OVERRIDE_NATS
+                        && cv.clip_bin_own[b] - cv.clip_bin_law[b][best_pool] > OVERRIDE_NATS
                 })
                 .collect();
             // The clipped bins' scores in both modes, all together (for the report).
@@ -192,7 +229,8 @@ pub fn estimate_position(
                 _ => None,
             };
             (
-                POOLING_CANDIDATES[best],
+                POOLING_CANDIDATES[best_pool],
+                shrinks[best % s],
                 Choice::CrossValidated { folds: live_folds.len() as u8 },
                 candidates,
                 scores,
@@ -250,10 +288,12 @@ pub fn estimate_position(
                 Some(j) => (j, true),
                 None => (b, own_mode[b] && data.stats[b].n > 0),
             };
+            let (m, alpha) = per_bin[b];
+            // Shrinkage toward the law's Gaussian for bins that stand on the law; a clipped bin
+            // (own or law mode) and a bin taking its nearest neighbour's histogram keep their pool.
+            let alpha = if nearest.is_none() && !clipped[b] { alpha } else { 0.0 };
             let mut out: Option<(Acc, u64)> = None;
-            pool_bin(&data, src, own_only, &[per_bin[b]], FILL_MIN_SAMPLES, |_, acc, cum| {
-                out = Some((acc.clone(), cum))
-            });
+            pool_bin(&data, src, own_only, &[m], FILL_MIN_SAMPLES, |_, acc, cum| out = Some((acc.clone(), cum)));
             let (acc, cum) = out.unwrap_or_default();
             let (mu, var) = match nearest {
                 Some(j) => (data.stats[j].mean, data.stats[j].var.max(MIN_VAR)),
@@ -262,7 +302,11 @@ pub fn estimate_position(
             let eps = 1.0 / (cum as f64 + 1.0);
             let mut mix = Acc::default();
             if acc.total > 0.0 {
-                mix.add(&Pmf { first: acc.first, p: acc.w.iter().map(|w| w / acc.total).collect() }, 1.0 - eps);
+                let pool = Pmf { first: acc.first, p: acc.w.iter().map(|w| w / acc.total).collect() };
+                mix.add(&pool, (1.0 - eps) * (1.0 - alpha));
+                if alpha > 0.0 {
+                    mix.add(&gauss_pmf(mu, var, levels.reach()), (1.0 - eps) * alpha);
+                }
             }
             mix.add(&laplace_pmf(mu, var, levels.reach()), eps);
             let own = data.stats[b];
@@ -290,7 +334,7 @@ pub fn estimate_position(
         clipped: clipped.iter().enumerate().filter(|(_, c)| **c).map(|(b, _)| b as u32).collect(),
         heldout_samples: heldout,
     };
-    PositionEstimate { bins, report }
+    PositionEstimate { bins, report, shrink }
 }
 
 /// The bin nearest to `b` (itself first, then both sides at each distance, the lower first) of
@@ -336,3 +380,5 @@ pub fn plain_empirical(hists: &[NoiseHistogram]) -> Vec<BinModel> {
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_shrink;

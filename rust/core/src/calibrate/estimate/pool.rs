@@ -23,26 +23,31 @@ pub(super) struct Acc {
 
 impl Acc {
     pub(super) fn add(&mut self, p: &Pmf, weight: f64) {
-        if p.p.is_empty() || weight <= 0.0 {
+        self.add_cells(p.first, &p.p, weight);
+    }
+
+    /// Adds `weight ×` the cells `cells` starting at value `first`.
+    pub(super) fn add_cells(&mut self, first: i32, cells: &[f64], weight: f64) {
+        if cells.is_empty() || weight <= 0.0 {
             return;
         }
         if self.w.is_empty() {
-            self.first = p.first;
-            self.w = vec![0.0; p.p.len()];
+            self.first = first;
+            self.w = vec![0.0; cells.len()];
         }
-        if p.first < self.first {
-            let shift = (self.first - p.first) as usize;
+        if first < self.first {
+            let shift = (self.first - first) as usize;
             let mut v = vec![0.0; shift];
             v.extend_from_slice(&self.w);
             self.w = v;
-            self.first = p.first;
+            self.first = first;
         }
-        let need = (p.last() - self.first + 1) as usize;
+        let need = (first + cells.len() as i32 - self.first) as usize;
         if self.w.len() < need {
             self.w.resize(need, 0.0);
         }
-        let off = (p.first - self.first) as usize;
-        for (i, &x) in p.p.iter().enumerate() {
+        let off = (first - self.first) as usize;
+        for (i, &x) in cells.iter().enumerate() {
             self.w[off + i] += weight * x;
         }
         self.total += weight;

@@ -10,7 +10,7 @@ use crate::math::special::normal_mass;
 use crate::metrics::jsd_pmf;
 use crate::model::layout::Binning;
 
-const BLACK: f64 = 64.0;
+pub(super) const BLACK: f64 = 64.0;
 const BW: f64 = 4.0;
 
 /// Noise at clean level `l`: 85 % N(0, s²) + 15 % N(0, (3s)²) (kurtosis ≈ 8), scaled so the
@@ -56,7 +56,7 @@ fn draw(p: &Pmf, rng: &mut ChaCha8Rng) -> i32 {
     p.last()
 }
 
-fn levels(nbins: usize, white: i32) -> BinLevels {
+pub(super) fn levels(nbins: usize, white: i32) -> BinLevels {
     let layout = crate::model::layout::SensorLayout {
         width: 8,
         height: 8,
@@ -77,6 +77,16 @@ fn sample_folds(
     count: impl Fn(usize) -> usize,
     seed: u64,
 ) -> Vec<Vec<NoiseHistogram>> {
+    sample_folds_of(levels, |l| truth_at(l, var), count, seed)
+}
+
+/// [`sample_folds`] for any law: `truth(level)` is the noise PMF at an integer level.
+pub(super) fn sample_folds_of(
+    levels: &BinLevels,
+    truth: impl Fn(f64) -> Pmf,
+    count: impl Fn(usize) -> usize,
+    seed: u64,
+) -> Vec<Vec<NoiseHistogram>> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut folds = vec![vec![NoiseHistogram::default(); levels.len()]; FOLDS];
     for b in 0..levels.len() {
@@ -84,7 +94,7 @@ fn sample_folds(
         if n == 0 {
             continue;
         }
-        let per_level: Vec<Pmf> = (levels.lo[b]..=levels.hi[b]).map(|l| truth_at(l as f64, var)).collect();
+        let per_level: Vec<Pmf> = (levels.lo[b]..=levels.hi[b]).map(|l| truth(l as f64)).collect();
         for i in 0..n {
             let k = rng.random_range(0..per_level.len());
             let l = levels.lo[b] + k as i32;
@@ -95,7 +105,7 @@ fn sample_folds(
     folds
 }
 
-fn refs(folds: &[Vec<NoiseHistogram>]) -> Vec<&[NoiseHistogram]> {
+pub(super) fn refs(folds: &[Vec<NoiseHistogram>]) -> Vec<&[NoiseHistogram]> {
     folds.iter().map(|f| f.as_slice()).collect()
 }
 
@@ -110,12 +120,12 @@ fn total(folds: &[Vec<NoiseHistogram>]) -> Vec<NoiseHistogram> {
 }
 
 /// Mean JSD to the truth over bins `bins` for an estimate's bin models.
-fn mean_jsd(models: &[BinModel], truth: &[Pmf], bins: impl Iterator<Item = usize>) -> f64 {
+pub(super) fn mean_jsd(models: &[BinModel], truth: &[Pmf], bins: impl Iterator<Item = usize>) -> f64 {
     let v: Vec<f64> = bins.map(|b| jsd_pmf(&models[b].pmf(), &truth[b])).collect();
     v.iter().sum::<f64>() / v.len() as f64
 }
 
-fn var_law(l: f64) -> f64 {
+pub(super) fn var_law(l: f64) -> f64 {
     (3.0 + 0.6 * (l - BLACK)).max(3.0)
 }
 
@@ -130,7 +140,7 @@ fn sparse_bins_beat_the_plain_histogram_by_far() {
     let (je, jp) = (mean_jsd(&est.bins, &truth, 0..150), mean_jsd(&plain, &truth, 0..150));
     assert!(je < 0.25 * jp, "estimate {je:.4} vs plain {jp:.4}");
     assert!(je < 0.02, "estimate {je:.4}");
-    assert!(est.report.pooling >= 256, "sparse data must pool: chose {}", est.report.pooling);
+    assert!(est.report.pooling >= 256, "sparse data must pool: chose {} (shrink {})", est.report.pooling, est.shrink);
     let (plain_ce, chosen_ce) = est.report.gain_over_plain().expect("cross-validated");
     assert!(chosen_ce < plain_ce);
     // The pooled PMFs keep the truth's heavy tails (kurtosis ≈ 8, a Gaussian's is 3).
