@@ -28,7 +28,6 @@ mod line_base;
 pub mod meta;
 pub mod motion;
 pub mod reference;
-mod saturation;
 pub mod session;
 pub mod step;
 pub(crate) mod structure;

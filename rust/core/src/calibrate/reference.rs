@@ -19,7 +19,6 @@ use crate::calibrate::frame::FrameView;
 use crate::calibrate::line_base::LineBaseCache;
 use crate::calibrate::meta::FrameMeta;
 use crate::calibrate::motion::MotionProbe;
-use crate::calibrate::saturation;
 use crate::error::SessionError;
 use crate::math::round::round_half_away;
 use crate::model::layout::{Binning, POSITIONS, SensorLayout};
@@ -275,7 +274,7 @@ impl ReferenceBurst {
         if self.frames == 0 {
             return Err(SessionError::NoReference { iso: 0, exposure_ns: self.exposure_ns, reference: 0 });
         }
-        let (mut levels, mut flat) = clean_and_mask(&CleanInputs {
+        let (levels, flat) = clean_and_mask(&CleanInputs {
             sum: &self.sum,
             first: &self.first,
             squares: &self.squares,
@@ -288,12 +287,11 @@ impl ReferenceBurst {
             roi,
             k: flat_k,
         });
-        let groups = Groups { black: self.layout.black, white: self.layout.white };
-        saturation::leave_out(&mut levels, w, &saturation::ceilings(&self.temporal, &groups), &mut flat);
         if flat.total_flat() == 0 {
             return Err(SessionError::NoFlatPixels);
         }
         let luts: [Vec<u16>; POSITIONS] = std::array::from_fn(|p| binning.lut(p));
+        let groups = Groups { black: self.layout.black, white: self.layout.white };
         let (selection, level_selection) =
             deselect::bin_sums(&levels, w, NOT_FLAT, |pos, c| flat.mean_noise_at(&groups, pos, c), &luts);
         let m = self.frames as f64;
