@@ -34,6 +34,9 @@ pub struct Moments {
     /// real and synthetic ([`line_pixel_part`]).
     pub row_pixel: (f64, f64),
     pub col_pixel: (f64, f64),
+    /// Degrees of freedom of `row_var` and `col_var` on each side ([`line_dof`]).
+    pub row_dof: usize,
+    pub col_dof: usize,
 }
 
 impl Moments {
@@ -72,6 +75,14 @@ impl Moments {
     /// [`Self::line_ratios`]).
     pub fn raw_line_ratios(&self) -> (f64, f64) {
         (self.row_var.1 / self.row_var.0, self.col_var.1 / self.col_var.0)
+    }
+
+    /// Standard deviation of the logarithm of the row and column [`Self::line_ratios`] from
+    /// sampling: two independent variances of `dof` degrees of freedom each (line means are
+    /// means of dozens of pixels, close to Gaussian: relative variance `2/dof` each).
+    pub fn line_log_sd(&self) -> (f64, f64) {
+        let sd = |dof: usize| (4.0 / dof.max(1) as f64).sqrt();
+        (sd(self.row_dof), sd(self.col_dof))
     }
 
     /// Relative standard error of the variance ratio (both variances' sampling errors, from
@@ -134,7 +145,10 @@ pub fn heldout_moments(
             let col_var = (line_mean_var(fr, mask, w, h, false), line_mean_var(fs, mask, w, h, false));
             let row_pixel = (line_pixel_part(fr, mask, w, h, true), line_pixel_part(fs, mask, w, h, true));
             let col_pixel = (line_pixel_part(fr, mask, w, h, false), line_pixel_part(fs, mask, w, h, false));
+            let k = fr.len();
             Moments {
+                row_dof: line_dof(mask, w, h, true, k),
+                col_dof: line_dof(mask, w, h, false, k),
                 iso,
                 step,
                 samples: real.len(),
@@ -256,4 +270,14 @@ pub fn line_pixel_part(frames: &[Vec<i32>], flat: &[bool], w: usize, h: usize, r
         parities += 1;
     }
     if parities == 0 { f64::NAN } else { total / parities as f64 }
+}
+
+/// Degrees of freedom of [`line_mean_var`] over `k` frames: per parity with at least two lines,
+/// `(lines − 1)·(k − 1)`, summed.
+pub fn line_dof(flat: &[bool], w: usize, h: usize, rows: bool, k: usize) -> usize {
+    (0..2)
+        .map(|parity| line_pixels(flat, w, h, rows, parity).len())
+        .filter(|&r| r >= 2)
+        .map(|r| (r - 1) * k.saturating_sub(1))
+        .sum()
 }
