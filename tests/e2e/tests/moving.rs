@@ -82,7 +82,7 @@ fn run(seed: u64) -> Outcome {
 const LINE_FRAMES: u32 = 24;
 
 /// Sampling slack on the line ratios, in standard deviations of their logarithm (each pair's
-/// own, from its degrees of freedom: `Moments::line_log_sd`; 0.05–0.10 here).
+/// own, from its degrees of freedom: `Moments::line_log_sd`).
 const LINE_SLACK_SD: f64 = 3.0;
 
 /// Pairs with fewer real samples are printed, not judged (their variance ratios' sampling SD
