@@ -52,9 +52,9 @@ const SIGNIFICANCE: f64 = 3.0;
 /// the pixel variance changes nothing anyone measures.
 const LINE_RELEVANCE: f64 = 1e-3;
 const FRAME_RELEVANCE: f64 = 1e-2;
-/// A line component must also exceed this fraction of the line means' sampling variance in the
-/// quietest burst ([`quietest_sampling_var`]): the halves' covariance is unbiased, but what the
-/// per-frame fit leaves of brightness changes that are not linear in the level is not.
+/// A line component must also exceed this fraction of the line means' sampling variance: the
+/// halves' covariance is unbiased, but what the per-frame fit leaves of brightness changes that
+/// are not linear in the level is not.
 const MODEL_MARGIN: f64 = 0.1;
 
 /// `[Σn, Σclean, m]` over one cell of a line: its flat pixels of one parity in one half.
@@ -204,7 +204,7 @@ impl OffsetHistogram {
         let own = own.min(measured_var);
         let sampling_var = measured_var - own;
         let significant = own > SIGNIFICANCE * se
-            && own > MODEL_MARGIN * quietest_sampling_var(&used)
+            && own > MODEL_MARGIN * sampling_var
             && own > 0.0
             && own >= LINE_RELEVANCE * pixel_var;
         let shrink = if measured_var > 0.0 { (own / measured_var).sqrt() } else { 0.0 };
@@ -226,27 +226,6 @@ impl OffsetHistogram {
         }
         Some(OffsetDistribution { quantiles, count: n as u64, measured_var, sampling_var, significant })
     }
-}
-
-/// The line means' sampling variance in the quietest of `bursts`: per burst, the variance of
-/// its line residuals less the covariance of their halves (what the halves do not share), the
-/// least over the bursts.
-///
-/// A component is judged against the bursts where it shows most, the darkest: the line means'
-/// sampling variance grows with the level (a sweep from EV −4 to +4 spans two decades), and
-/// against the variance of all bursts together, which the brightest dominate, a row component of
-/// 0.011 DN² (the truth 0.0111) on sensor 6 of the moving study was refused for 0.1 × 0.58 DN²
-/// while it made 40 % of the real row-mean variance at EV −4 (0.0265 DN²).
-fn quietest_sampling_var(bursts: &[&BurstOffsets]) -> f64 {
-    bursts
-        .iter()
-        .filter(|b| b.n >= 2)
-        .map(|b| {
-            let n = b.n as f64;
-            let mean = b.sums[0] / n;
-            (b.sums[1] / n - mean * mean - b.covariance().0).max(0.0)
-        })
-        .fold(f64::INFINITY, f64::min)
 }
 
 /// The structured-noise sums of one ISO.
