@@ -77,16 +77,13 @@ fn run(seed: u64) -> Outcome {
 
 /// Held-out frames per burst for the row- and column-mean variances. The fidelity held-out set
 /// (2–8 frames of 72–128 rows) gives the ratio of two such variances a sampling SD of about 0.17
-/// in log, so ×1.2 (0.18) cannot be judged there: 57 of 242 still and 64 of 242 moving ratios
-/// were beyond it, median |ln| 0.083 / 0.095. With 24 frames (≥ 35 × 23 degrees of freedom per
-/// row parity) the SD is about 0.05: 28 and 34 beyond, median 0.060 / 0.064, and the moving
-/// session's ratio is its still twin's within 0.12 in log at every pair — what remains beyond
-/// ×1.2 is shared by the still session (clipping near white, up to 3.4× on seed 0 at EV +3;
-/// line variances under 0.5 DN², where quantisation rules, on seeds 3 and 6), not motion.
+/// in log, so ×1.2 (0.18) cannot be judged there. With 24 frames (≥ 35 × 23 degrees of freedom
+/// per row parity on most pairs) the SD is about 0.05.
 const LINE_FRAMES: u32 = 24;
 
-/// Sampling slack on the line ratios with [`LINE_FRAMES`] (3 SD in log).
-const LINE_SLACK: f64 = 0.15;
+/// Sampling slack on the line ratios, in standard deviations of their logarithm (each pair's
+/// own, from its degrees of freedom: `Moments::line_log_sd`).
+const LINE_SLACK_SD: f64 = 3.0;
 
 /// Pairs with fewer real samples are printed, not judged (their variance ratios' sampling SD
 /// exceeds 1 %).
@@ -198,16 +195,23 @@ fn motion_between_frames_is_not_measured_as_noise() {
         for (s, m) in o.still_lines.iter().zip(&o.moving_lines) {
             let (sr, sc) = s.line_ratios();
             let (mr, mc) = m.line_ratios();
+            let (rsr, rsc) = s.raw_line_ratios();
+            let (rmr, rmc) = m.raw_line_ratios();
             println!(
-                "     {:>5} {:>4} | {sr:.3} {sc:.3} | {mr:.3} {mc:.3}  (real row var {:.4}, col var {:.4})",
-                s.iso, s.step, s.row_var.0, s.col_var.0
+                "     {:>5} {:>4} | {sr:.3} {sc:.3} | {mr:.3} {mc:.3}  (as measured {rsr:.3} {rsc:.3} | {rmr:.3} {rmc:.3}; real row var {:.4} of which pixels {:.4}, col var {:.4} of which pixels {:.4})",
+                s.iso, s.step, s.row_var.0, s.row_pixel.0, s.col_var.0, s.col_pixel.0
             );
-            // Where the still session holds ×1.2, motion must not break it.
-            for (what, st, mv) in [("row", sr, mr), ("column", sc, mc)] {
+            // Where the still session holds ×1.2 (plus sampling), motion must not break it. Not
+            // yet at every pair: sensor 6's row noise (0.011 DN², the pack measures 0.0107) is
+            // refused by the significance rule, so its rows read 0.59–0.72 at EV −4 / −3 in both
+            // sessions; judging the rule against the quietest burst adds it, but also adds
+            // spurious rows on random-family sensors 10 and 13 (pack / plain 1.19, 1.29).
+            let (mrs, mcs) = m.line_log_sd();
+            for (what, st, mv, sd) in [("row", sr, mr, mrs), ("column", sc, mc, mcs)] {
                 if st.is_finite()
                     && mv.is_finite()
                     && st.ln().abs() <= 1.2f64.ln()
-                    && mv.ln().abs() > 1.2f64.ln() + LINE_SLACK
+                    && mv.ln().abs() > 1.2f64.ln() + LINE_SLACK_SD * sd
                 {
                     failures.push(format!(
                         "seed {} ISO {} EV step {}: moving {what}-mean variance ratio {mv:.3} (still {st:.3}) beyond 1.2",
@@ -239,7 +243,9 @@ fn motion_between_frames_is_not_measured_as_noise() {
         );
     }
     println!("{judged} (ISO, EV step) pairs judged, {} failures", failures.len());
-    assert!(judged >= 60, "too few pairs judged: {judged}");
+    if std::env::var("NOISECAL_SEEDS").is_err() {
+        assert!(judged >= 60, "too few pairs judged: {judged}");
+    }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
 
