@@ -188,27 +188,13 @@ impl SimSession {
                 .map(|f| self.sim.capture(f.iso, f.exposure_ns, f.index + self.index_offset))
                 .collect::<Result<Vec<_>, _>>()?;
             for (f, (pixels, meta)) in group.iter().zip(caps) {
-                if let Some(d) = dngs {
-                    let path = d.join(format!("f{:05}.dng", f.index));
-                    let np = profiles.at(meta.iso)?;
-                    dng::write_dng_from_layout_with_profile(
-                        &path,
-                        &layout,
-                        &meta,
-                        &self.make,
-                        &self.model,
-                        &pixels,
-                        np.as_ref(),
-                    )?;
+                if let Some(w) = writer.as_mut()
+                    && last_step != Some(f.step)
+                {
+                    w.begin_step(self.plan.exposure_ns(f.step, self.plan.reference_iso))?;
+                    last_step = Some(f.step);
                 }
-                if let Some(w) = writer.as_mut() {
-                    if last_step != Some(f.step) {
-                        w.begin_step(self.plan.exposure_ns(f.step, self.plan.reference_iso))?;
-                        last_step = Some(f.step);
-                    }
-                    let bytes = noisecal_sim::to_padded_le_bytes(&pixels, stride);
-                    w.frame(&meta, layout.width, layout.height, stride as u32, 2, &bytes)?;
-                }
+                self.emit(dngs, writer.as_mut(), &profiles, f.index, &pixels, &meta, stride)?;
                 tick();
             }
         }
@@ -224,23 +210,7 @@ impl SimSession {
                     .map(|i| self.sim.capture_dark(iso, exposure_ns, i + self.index_offset))
                     .collect::<Result<Vec<_>, _>>()?;
                 for (pixels, meta) in caps {
-                    if let Some(d) = dngs {
-                        let path = d.join(format!("f{index:05}.dng"));
-                        let np = profiles.at(meta.iso)?;
-                        dng::write_dng_from_layout_with_profile(
-                            &path,
-                            &layout,
-                            &meta,
-                            &self.make,
-                            &self.model,
-                            &pixels,
-                            np.as_ref(),
-                        )?;
-                    }
-                    if let Some(w) = writer.as_mut() {
-                        let bytes = noisecal_sim::to_padded_le_bytes(&pixels, stride);
-                        w.frame(&meta, layout.width, layout.height, stride as u32, 2, &bytes)?;
-                    }
+                    self.emit(dngs, writer.as_mut(), &profiles, index, &pixels, &meta, stride)?;
                     index += 1;
                     tick();
                 }
@@ -250,6 +220,40 @@ impl SimSession {
             let p = rec.unwrap_or(Path::new("the recording"));
             let file = w.finish()?.into_inner().map_err(|e| e.into_error())?;
             file.commit().with_context(|| format!("cannot write {}", p.display()))?;
+        }
+        Ok(())
+    }
+
+    /// One captured frame as `f{index:05}.dng` in `dngs` (with its NoiseProfile when profiles
+    /// are written) and as the next frame of the recording `writer`, each when given.
+    #[allow(clippy::too_many_arguments)]
+    fn emit<W: std::io::Write>(
+        &self,
+        dngs: Option<&Path>,
+        writer: Option<&mut RecordingWriter<W>>,
+        profiles: &Profiles<'_>,
+        index: u64,
+        pixels: &ndarray::Array2<u16>,
+        meta: &noisecal_core::FrameMeta,
+        stride: usize,
+    ) -> anyhow::Result<()> {
+        let layout = self.sim.layout();
+        if let Some(d) = dngs {
+            let path = d.join(format!("f{index:05}.dng"));
+            let np = profiles.at(meta.iso)?;
+            dng::write_dng_from_layout_with_profile(
+                &path,
+                &layout,
+                meta,
+                &self.make,
+                &self.model,
+                pixels,
+                np.as_ref(),
+            )?;
+        }
+        if let Some(w) = writer {
+            let bytes = noisecal_sim::to_padded_le_bytes(pixels, stride);
+            w.frame(meta, layout.width, layout.height, stride as u32, 2, &bytes)?;
         }
         Ok(())
     }
