@@ -11,7 +11,7 @@
 //! bins hold nearly the same PMF; or the previous code; or the previous code plus the slope before
 //! it), all as zigzagged LEB128 varints. The weights are the model's stored form
 //! ([`crate::model::precision`]): each weight (or cell mass) holds the significant bits its bin's
-//! [`Precision`] gives its bit length, and its code is its index among the values that precision
+//! [`Precision`](crate::model::precision::Precision) gives its bit length, and its code is its index among the values that precision
 //! holds ([`WeightCode`]), so a code's step is one stored step whatever the bin's precision. The
 //! precision is not stored: it follows from fields the file holds (the model calibrated or not,
 //! the position estimated or plain, the bin's samples). The envelope (lengths, deflate) is
@@ -26,9 +26,9 @@
 
 use crate::error::CodecError;
 use crate::format::codec::{self, get_varint, put_varint, unzigzag, zigzag};
+use crate::format::weight_code::{WeightCode, precision_for, precision_of};
 use crate::model::coarse_grid::{GRID_STEPS, cell_masses, expand, stored_step};
-use crate::model::pack::{IsoModel, ModelPack, PositionModel};
-use crate::model::precision::{DERIVED_BITS, Precision, bin_precision};
+use crate::model::pack::ModelPack;
 
 const WHAT: &str = "model pack";
 
@@ -40,60 +40,6 @@ pub const MAX_CELLS: u64 = 1 << 28;
 /// The steps a bin may be kept at, by their code (`log2 k`).
 fn step_of(code: u64) -> Option<usize> {
     std::iter::once(1).chain(GRID_STEPS).find(|k| k.trailing_zeros() as u64 == code)
-}
-
-/// The precision a bin of this model and position is stored with.
-fn precision_of(m: &IsoModel, p: &PositionModel, samples: u64) -> Precision {
-    if m.is_calibrated() { bin_precision(p.is_estimated(), samples) } else { Precision::fixed(DERIVED_BITS) }
-}
-
-/// The codes of one precision: the values it holds, numbered in increasing order (0 is 0).
-/// `start[L]` is the code of the smallest held value of bit length `L` (`2^(L−1)`), and
-/// `start[65]` the number of codes.
-struct WeightCode {
-    precision: Precision,
-    start: [u64; 66],
-}
-
-impl WeightCode {
-    fn new(precision: Precision) -> Self {
-        let mut start = [0u64; 66];
-        start[1] = 1;
-        for len in 1..=64u32 {
-            let kept = precision.bits(len).min(len);
-            start[len as usize + 1] = start[len as usize] + (1u64 << (kept - 1));
-        }
-        Self { precision, start }
-    }
-
-    /// The code of `w`, or `None` when the precision does not hold it.
-    fn code(&self, w: u64) -> Option<u64> {
-        if w == 0 {
-            return Some(0);
-        }
-        let len = 64 - w.leading_zeros();
-        let drop = len - self.precision.bits(len).min(len);
-        (w & ((1u64 << drop) - 1) == 0).then(|| self.start[len as usize] + (w >> drop) - (1u64 << (len - 1 - drop)))
-    }
-
-    /// The weight a code names, or `None` beyond the last.
-    fn weight(&self, c: u64) -> Option<u64> {
-        if c == 0 {
-            return Some(0);
-        }
-        let len = self.start.partition_point(|&s| s <= c) - 1;
-        if len > 64 {
-            return None;
-        }
-        let len = len as u32;
-        let drop = len - self.precision.bits(len).min(len);
-        Some(((c - self.start[len as usize]) + (1u64 << (len - 1 - drop))) << drop)
-    }
-
-    /// The code of the value this precision stores `w` as (0 stays 0).
-    fn code_near(&self, w: u64) -> u64 {
-        if w == 0 { 0 } else { self.code(self.precision.round(w)).unwrap_or(0) }
-    }
 }
 
 /// The slopes of the previous bin's weights summed over this bin's cells (`first`, `k` DN each),
@@ -233,8 +179,7 @@ pub fn decode(payload: &[u8]) -> Result<ModelPack, CodecError> {
             let mut prev: Option<(i32, Vec<u64>)> = None;
             for (b, bin) in p.bins.iter_mut().enumerate() {
                 let here = || format!("model {i} position {pos} bin {b}");
-                let precision =
-                    if calibrated { bin_precision(estimated, bin.samples) } else { Precision::fixed(DERIVED_BITS) };
+                let precision = precision_for(calibrated, estimated, bin.samples);
                 let code = WeightCode::new(precision);
                 let n =
                     get_varint(weights, &mut at).ok_or_else(|| damaged(&format!("{} has no cell count", here())))?;
@@ -290,33 +235,5 @@ mod tests {
             assert_eq!(step_of(code as u64), Some(*k));
         }
         assert_eq!(step_of(u64::MAX / 4), None);
-    }
-
-    /// Every held value's code names it back, codes of held values are consecutive in increasing
-    /// order, and a value not held has no code; for fixed and sample-driven precisions.
-    #[test]
-    fn codes_number_the_held_values_in_order() {
-        for precision in
-            [Precision::fixed(7), Precision::fixed(9), Precision::for_samples(0), Precision::for_samples(1 << 20)]
-        {
-            let code = WeightCode::new(precision);
-            let mut expect = 0u64;
-            for w in 0..200_000u64 {
-                match code.code(w) {
-                    Some(c) => {
-                        assert!(precision.holds(w), "{w} coded but not held");
-                        assert_eq!(c, expect, "{precision:?}: {w}");
-                        assert_eq!(code.weight(c), Some(w));
-                        expect += 1;
-                    }
-                    None => assert!(!precision.holds(w), "{precision:?}: {w} held but has no code"),
-                }
-            }
-            for w in [u64::MAX, 1 << 63, (1 << 40) + (1 << 35), 987_654_321] {
-                let q = precision.round(w);
-                assert_eq!(code.weight(code.code(q).expect("held")), Some(q));
-            }
-            assert_eq!(code.weight(code.start[65]), None, "past the last code");
-        }
     }
 }

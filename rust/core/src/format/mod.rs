@@ -3,7 +3,7 @@
 //! records ([`recording`]) and their replay into a session ([`replay`]); the pack file and its
 //! version dispatch ([`pack_file`]), where its bytes go ([`pack_sizes`]), the compact payload of
 //! the current version ([`compact`]) and packs of older versions ([`pack_v1`], [`pack_v2`],
-//! [`pack_v3`], [`pack_v5`], [`pack_v6`], [`pack_v7`]; version 4 is the current structs uncompressed).
+//! [`pack_v3`], [`pack_v5`], [`pack_v6`], [`pack_v7`]; version 4 is the current structs uncompressed), with the weight codes versions 7 and 8 share ([`weight_code`]).
 
 pub mod checkpoint;
 pub(crate) mod codec;
@@ -19,3 +19,4 @@ pub mod pack_v7;
 pub(crate) mod pack_version;
 pub mod recording;
 pub mod replay;
+pub(crate) mod weight_code;

@@ -8,7 +8,7 @@
 //! code less its guess (the previous code plus the slope the previous bin's weights have at the
 //! same noise value, [`Slopes`]: neighbouring bins hold nearly the same PMF; or the previous code;
 //! or the previous code plus the slope before it), all as zigzagged LEB128 varints. The weights are the model's stored form
-//! ([`crate::model::precision`]): each holds the significant bits its bin's [`Precision`] gives
+//! ([`crate::model::precision`]): each holds the significant bits its bin's [`Precision`](crate::model::precision::Precision) gives
 //! its bit length, and its code is its index among the values that precision holds
 //! ([`WeightCode`]), so a code's step is one stored step whatever the bin's precision: a smooth
 //! PMF's codes change by small steps and a tail kept to a bit or two is a run of near-equal
@@ -27,64 +27,11 @@
 
 use crate::error::CodecError;
 use crate::format::codec::{self, get_varint, put_varint, unzigzag, zigzag};
-use crate::model::pack::{IsoModel, ModelPack, PositionModel};
-use crate::model::precision::{DERIVED_BITS, Precision, bin_precision, quantize_derived, store_bin};
+use crate::format::weight_code::{WeightCode, precision_for, precision_of};
+use crate::model::pack::ModelPack;
+use crate::model::precision::{bin_precision, quantize_derived, store_bin};
 
 const WHAT: &str = "model pack";
-
-/// The precision a bin of this model and position is stored with.
-fn precision_of(m: &IsoModel, p: &PositionModel, samples: u64) -> Precision {
-    if m.is_calibrated() { bin_precision(p.is_estimated(), samples) } else { Precision::fixed(DERIVED_BITS) }
-}
-
-/// The codes of one precision: the values it holds, numbered in increasing order (0 is 0).
-/// `start[L]` is the code of the smallest held value of bit length `L` (`2^(L−1)`), and
-/// `start[65]` the number of codes.
-struct WeightCode {
-    precision: Precision,
-    start: [u64; 66],
-}
-
-impl WeightCode {
-    fn new(precision: Precision) -> Self {
-        let mut start = [0u64; 66];
-        start[1] = 1;
-        for len in 1..=64u32 {
-            let kept = precision.bits(len).min(len);
-            start[len as usize + 1] = start[len as usize] + (1u64 << (kept - 1));
-        }
-        Self { precision, start }
-    }
-
-    /// The code of `w`, or `None` when the precision does not hold it.
-    fn code(&self, w: u64) -> Option<u64> {
-        if w == 0 {
-            return Some(0);
-        }
-        let len = 64 - w.leading_zeros();
-        let drop = len - self.precision.bits(len).min(len);
-        (w & ((1u64 << drop) - 1) == 0).then(|| self.start[len as usize] + (w >> drop) - (1u64 << (len - 1 - drop)))
-    }
-
-    /// The weight a code names, or `None` beyond the last.
-    fn weight(&self, c: u64) -> Option<u64> {
-        if c == 0 {
-            return Some(0);
-        }
-        let len = self.start.partition_point(|&s| s <= c) - 1;
-        if len > 64 {
-            return None;
-        }
-        let len = len as u32;
-        let drop = len - self.precision.bits(len).min(len);
-        Some(((c - self.start[len as usize]) + (1u64 << (len - 1 - drop))) << drop)
-    }
-
-    /// The code of the value this precision stores `w` as (0 stays 0).
-    fn code_near(&self, w: u64) -> u64 {
-        if w == 0 { 0 } else { self.code(self.precision.round(w)).unwrap_or(0) }
-    }
-}
 
 /// The slopes of the previous bin's weights, coded at this bin's precision
 /// (`code[n] − code[n−1]` at noise value `n`): the prediction of this bin's code differences.
@@ -236,8 +183,7 @@ pub fn decode(payload: &[u8]) -> Result<ModelPack, CodecError> {
             let mut prev: Option<(i32, Vec<u64>)> = None;
             for (b, bin) in p.bins.iter_mut().enumerate() {
                 let here = || format!("model {i} position {pos} bin {b}");
-                let precision =
-                    if calibrated { bin_precision(estimated, bin.samples) } else { Precision::fixed(DERIVED_BITS) };
+                let precision = precision_for(calibrated, estimated, bin.samples);
                 let code = WeightCode::new(precision);
                 let above = prev.as_ref().map_or_else(Slopes::default, |(f, w)| Slopes::of(*f, w, &code));
                 let n =
@@ -270,37 +216,4 @@ pub fn decode(payload: &[u8]) -> Result<ModelPack, CodecError> {
         return Err(damaged(&format!("{} bytes follow the last weight", weights.len() - at)));
     }
     Ok(pack)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Every held value's code names it back, codes of held values are consecutive in increasing
-    /// order, and a value not held has no code; for fixed and sample-driven precisions.
-    #[test]
-    fn codes_number_the_held_values_in_order() {
-        for precision in
-            [Precision::fixed(7), Precision::fixed(9), Precision::for_samples(0), Precision::for_samples(1 << 20)]
-        {
-            let code = WeightCode::new(precision);
-            let mut expect = 0u64;
-            for w in 0..200_000u64 {
-                match code.code(w) {
-                    Some(c) => {
-                        assert!(precision.holds(w), "{w} coded but not held");
-                        assert_eq!(c, expect, "{precision:?}: {w}");
-                        assert_eq!(code.weight(c), Some(w));
-                        expect += 1;
-                    }
-                    None => assert!(!precision.holds(w), "{precision:?}: {w} held but has no code"),
-                }
-            }
-            for w in [u64::MAX, 1 << 63, (1 << 40) + (1 << 35), 987_654_321] {
-                let q = precision.round(w);
-                assert_eq!(code.weight(code.code(q).expect("held")), Some(q));
-            }
-            assert_eq!(code.weight(code.start[65]), None, "past the last code");
-        }
-    }
 }
