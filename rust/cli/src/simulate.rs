@@ -129,16 +129,7 @@ impl SimSession {
         let chart = Chart::color_checker(width, height)?;
         let sim = Simulator::new(model, chart, seed)?;
         let plan = SessionPlan::for_simulator(&sim, target_isos, frames_per_burst)?.with_ev_steps(ev_steps);
-        plan.validate()?;
-        Ok(Self {
-            sim,
-            plan,
-            make: "noisecal".into(),
-            model: name.into(),
-            index_offset: 0,
-            dark_frames: 0,
-            noise_profile: false,
-        })
+        Self::from_parts(sim, plan, name)
     }
 
     /// Frames the session writes, dark frames included.
