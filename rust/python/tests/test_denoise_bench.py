@@ -247,7 +247,8 @@ def test_loud_model_has_twice_the_hg_variance(pack):
         assert abs(lo.mean() - h.mean()) < 0.3
     pairs = B.make_pairs(B.parse_model("loud"), 800, [clean], 1, pack, {}, 1, {})
     hgp = B.make_pairs(B.parse_model("hg"), 800, [clean], 1, pack, {}, 1, {})
-    assert np.array_equal(pairs.noisy[0][0], B.scale_variance(hgp.noisy[0][0], clean, pack, 800, 2.0))
+    at = B.at_target_brightness(clean, pack, 800)
+    assert np.array_equal(pairs.noisy[0][0], B.scale_variance(hgp.noisy[0][0], clean, pack, 800, 2.0, centre=at))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -358,6 +359,61 @@ def test_noiseprofile_model_runs_on_a_simulated_session_with_the_sensors_varianc
         assert 0.85 < r < 1.15, (band, ratios)
 
 
+def test_parametric_baselines_come_out_at_the_target_brightness_as_real_captures_do(bench_set: Path):
+    """Known truth: the simulated sensor's own ISO-1600 captures of the training scenes, which are
+    brighter than the (reference-ISO) clean images by the gain ratio. Every model's noisy images
+    must carry that shift, the parametric baselines' too (they are zero-mean about the level they
+    are handed, so they get the clean image at the target brightness): a baseline left at the
+    reference brightness is off by the whole shift in the bright band, a network trained on it
+    learns a brightness error besides the noise."""
+    pack = noisecal.Pack.load(_ci_pack(bench_set))
+    names, cleans = B.load_clean(bench_set / "train" / "clean", pack)
+    caps = B.load_captures(bench_set / "train" / "captures", names, pack)
+    lay = pack.layout
+    black = B.per_position(lay["black"], cleans[0].shape)
+    bright = [(c.astype(np.float64) - black) > 0.2 * (lay["white"] - black) for c in cleans]
+
+    def bias(rows):
+        d = [(rows[j][k].astype(np.float64) - cleans[j])[bright[j]] for j in range(len(cleans)) for k in range(2)]
+        d = np.concatenate(d)
+        return d.mean(), d.std() / math.sqrt(d.size)
+
+    real, real_se = bias([caps[(j, 1600)] for j in range(len(cleans))])
+    g = np.asarray(pack.gain_ratios(1600))
+    pos = (np.arange(cleans[0].shape[0])[:, None] % 2) * 2 + np.arange(cleans[0].shape[1])[None, :] % 2
+    shift = np.mean(np.concatenate([((g[pos] - 1) * (c - black))[m] for c, m in zip(cleans, bright)]))
+    print(f"real ISO-1600 mean − clean in the bright band {real:.2f} ± {real_se:.2f} DN, gain shift {shift:.2f} DN")
+    assert abs(real - shift) < 0.1 * abs(shift) + 4 * real_se  # the truth carries the pack's gain shift
+    # And it is large against what the test resolves (measured: 5.5 DN, SE 0.56 on phone10), so a
+    # baseline without it (mean − clean ≈ 0) fails the bound below by several standard errors.
+    assert abs(shift) > 8 * real_se
+    for model in ("noisecal", "hg", "pg", "noiseprofile", "wrong", "loud"):
+        pairs = B.make_pairs(B.parse_model(model), 1600, cleans, 2, pack, caps, 1, {})
+        m, se = bias(pairs.noisy)
+        print(f"{model}: mean − clean {m:.2f} ± {se:.2f} DN")
+        # Within a tenth of the shift (+ sampling): a baseline without the shift is off by all of it.
+        assert abs(m - real) < 0.1 * abs(shift) + 4 * math.hypot(se, real_se), (model, m, real, shift)
+
+
+def test_minutes_budget_counts_every_network_the_run_trains():
+    """``--minutes``: the steps that fit all the networks, the noise-on-noise denoiser included
+    (before, it was left out, so a run with it overran its budget by one network's time)."""
+    spec = B.ModelSpec
+    rows = [(spec("hg", "hg"), 1600), (spec("oracle", "oracle"), 1600)]
+    bridge = [(spec("bridge 400→1600", "renoise", method="bridge", from_iso=400, estimate="denoiser"), 1600)]
+    naive = [(spec("naive 400→1600", "renoise", method="naive", from_iso=400), 1600)]
+    filt = [(spec("bridge[filter] 400→1600", "renoise", method="bridge", from_iso=400, estimate="filter"), 1600)]
+    assert B.networks_trained(rows, 2) == 4
+    assert B.networks_trained(rows + naive + filt, 2) == 8  # no denoiser to train
+    assert B.networks_trained(rows + bridge + naive, 2) == 9  # 4 rows × 2 seeds + the denoiser
+    # 10 min at 0.1 s a step: 85 % of 600 s over 9 networks = 566 steps; capped by --steps; ≥ 20.
+    assert B.steps_for_minutes(10, 0.1, 9) == 566
+    assert B.steps_for_minutes(10, 0.1, 8) == 637  # the denoiser left out: one network's time over
+    assert B.steps_for_minutes(10, 0.1, 9, at_most=500) == 500
+    assert B.steps_for_minutes(10, 0.1, 9, at_most=1000) == 566
+    assert B.steps_for_minutes(0.01, 0.1, 9) == 20
+
+
 def test_synth_seeds_follow_the_package_rule_and_never_repeat():
     # Every (training image, realization, ISO) of a large run gets its own seed, the package's
     # keyed rule (a linear mix such as j·4099 + k·131 + ISO repeats: (0, 1, 400) and (0, 0, 531)).
@@ -441,12 +497,45 @@ def test_input_scale_scales_what_the_layers_see_and_nothing_else():
     scaled = B.make_net(8, 8.0)
     sp, ss = plain.state_dict(), scaled.state_dict()
     assert all(torch.equal(sp[k], ss[k]) for k in sp)
+    # Both start as the identity (a zero output layer) with zero biases, where the layers are
+    # positively homogeneous and the scale cancels: as after training, give both the same
+    # non-zero output layer and biases.
+    gen = torch.Generator().manual_seed(2)
+    with torch.no_grad():
+        for name, t in sp.items():
+            if name.endswith("bias") or name.startswith("out."):
+                v = torch.randn(t.shape, generator=gen) * 0.1
+                plain.state_dict()[name].copy_(v)
+                scaled.state_dict()[name].copy_(v)
     x = torch.rand(2, 4, 16, 16, generator=torch.Generator().manual_seed(1)) * 0.05
     with torch.no_grad():
         want = x + (plain(8.0 * x) - 8.0 * x) / 8.0
         got = scaled(x)
         assert torch.allclose(got, want, atol=1e-6)
         assert not torch.allclose(got, plain(x), atol=1e-4)  # it does change what the layers see
+
+
+@pytest.mark.torch
+def test_the_network_starts_as_the_identity_with_layers_that_keep_their_signal():
+    """He initialisation for LeakyReLU(0.2) and a zero output layer: an untrained network returns
+    its input exactly, and a unit-variance input keeps a mean square of about 1 through the first
+    block (torch's default initialisation shrank it about 6× per layer: 0.17 after one layer, 0.03
+    after two, which left the networks of a short budget barely denoising)."""
+    torch = pytest.importorskip("torch")
+    torch.manual_seed(0)
+    net = B.make_net(16)
+    x = torch.rand(2, 4, 32, 32, generator=torch.Generator().manual_seed(1))
+    with torch.no_grad():
+        assert torch.equal(net(x), x)
+        z = torch.randn(8, 4, 32, 32, generator=torch.Generator().manual_seed(2))
+        conv = net.e1[0]
+        a = torch.nn.functional.leaky_relu(conv(z), 0.2)
+        b = torch.nn.functional.leaky_relu(net.e1[2](a), 0.2)
+        # He: var(w) = 2 / ((1 + 0.2²)·fan-in), so var(y) = 1.92·E[x²] and E[leaky(y)²] = 0.52·var(y) ≈ 1
+        # after every layer (torch's default, var(w) = 1 / (3·fan-in): 0.17, then 0.03).
+        for h in (a, b):
+            ms = float((h**2).mean())
+            assert 0.6 < ms < 1.6, ms
 
 
 @pytest.mark.torch
@@ -487,15 +576,17 @@ def test_the_denoiser_estimate_maps_back_to_dn_at_any_even_size(pack):
 
 @pytest.mark.torch
 def test_small_run_controls_in_order(bench_set: Path, tmp_path: Path, capsys):
-    """CI's small configuration: oracle, noisecal, HG and the wrong model at ISO 1600, 2 seeds of
-    a few hundred steps on 32-pixel crops. Every network must beat the noisy input (the machinery
-    trains), the wrong model must be worst by a clear margin (beyond 2 seed spreads) and the
-    oracle best within the seed spread; the resumed run must reproduce the table."""
+    """CI's small configuration: oracle, noisecal, HG, the wrong model and the loud one at ISO
+    1600, 2 seeds of a few hundred steps on 32-pixel crops. Every network must beat the noisy input
+    (the machinery trains), the wrong model must be worst by a clear margin (beyond 2 seed spreads),
+    the loud model (HG at twice its variance) below HG at every seed (too much noise must lose:
+    the networks denoise enough that over-smoothing costs) and the oracle best within the seed
+    spread; the resumed run must reproduce the table."""
     pytest.importorskip("torch")
     t0 = time.time()
     steps = os.environ.get("NOISECAL_BENCH_CI_STEPS", "500")
     out = tmp_path / "r.json"
-    args = ["--pack", str(_ci_pack(bench_set)), "--set", str(bench_set), "--models", "oracle,noisecal,hg,wrong",
+    args = ["--pack", str(_ci_pack(bench_set)), "--set", str(bench_set), "--models", "oracle,noisecal,hg,wrong,loud",
             "--steps", steps, "--seeds", "2", "--crop", "32", "--width", "16", "--batch", "16", "--lr", "0.003",
             "--state", str(tmp_path / "state"), "--json", str(out)]
     assert B.main(args) == 0, capsys.readouterr().err
@@ -503,17 +594,18 @@ def test_small_run_controls_in_order(bench_set: Path, tmp_path: Path, capsys):
     with capsys.disabled():
         print("\n" + table)
     r = json.loads(out.read_text())
-    assert len(r["networks"]) == 8
+    assert len(r["networks"]) == 10
     inp = r["input"]["1600"]["psnr"]
     for n in r["networks"]:
         assert n["psnr"] > inp + 0.5, (n["model"], n["seed"], n["psnr"], inp)
     c = r["controls"]["1600"]
     assert c["wrong_clear"], c
+    assert c["loud_below_hg"], c
     assert c["oracle_within_spread"], c
     # Resumed: every network read back from --state, the same scores.
     assert B.main(args) == 0
     err = capsys.readouterr().err
-    assert err.count("resumed from") == 8
+    assert err.count("resumed from") == 10
     assert json.loads(out.read_text())["summary"] == r["summary"]
     with capsys.disabled():
         print(f"small run: {time.time() - t0:.0f} s")

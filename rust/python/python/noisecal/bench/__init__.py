@@ -46,9 +46,11 @@ from .metrics import BANDS, band_masks, psnr, score, ssim, ssim_map, summarise
 from .models import (
     BASE_MODELS,
     DEFAULT_MODELS,
+    PARAMETRIC,
     RENOISE_METHODS,
     ModelSpec,
     Pairs,
+    at_target_brightness,
     half_variance,
     hg_mean_offset,
     make_pairs,
@@ -61,7 +63,7 @@ from .estimate import DEFAULT_ESTIMATE, ESTIMATES, denoise, estimates_for, parse
 from .training import batch_plan, train_one
 from .scoring import controls, evaluate, score_input, summary
 from .report import gain_table, gains, table
-from .run import run
+from .run import networks_trained, run, steps_for_minutes
 from .cli import main, parser
 
 __all__ = [
@@ -73,8 +75,10 @@ __all__ = [
     "ESTIMATES",
     "EvalScene",
     "ModelSpec",
+    "PARAMETRIC",
     "Pairs",
     "RENOISE_METHODS",
+    "at_target_brightness",
     "band_masks",
     "batch_plan",
     "controls",
@@ -94,6 +98,7 @@ __all__ = [
     "main",
     "make_net",
     "make_pairs",
+    "networks_trained",
     "mosaic",
     "normalise",
     "pack_raw",
@@ -109,6 +114,7 @@ __all__ = [
     "score_input",
     "ssim",
     "ssim_map",
+    "steps_for_minutes",
     "summarise",
     "summary",
     "synth_seed",

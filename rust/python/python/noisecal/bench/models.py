@@ -109,23 +109,57 @@ def make_pairs(
         return Pairs(out)
     p = packs[spec.pack_path] if spec.pack_path else pack
     model = {"plain": "noisecal", "wrong": "hg", "loud": "hg"}.get(spec.kind, spec.kind)
+    parametric = model in PARAMETRIC
     offset = hg_mean_offset(p, iso) if spec.kind in ("wrong", "loud") else None
     out = []
     for j, c in enumerate(cleans):
         row = []
+        # A parametric baseline is zero-mean about the level it is given: it is handed the clean
+        # image at the target ISO's brightness (clean_at="target": its noise drawn at the
+        # reference level), so its noisy images are as bright as the pack's and the real ones.
+        at = at_target_brightness(c, p, iso) if parametric else c
         for k in range(realizations):
             s = synth_seed(data_seed, j, k, iso)
             try:
-                n = p.synth(c, iso, s, model=model, components=spec.components)
+                if parametric:
+                    n = p.synth(at, iso, s, model=model, components=spec.components, clean_at="target")
+                else:
+                    n = p.synth(c, iso, s, model=model, components=spec.components)
             except noisecal.NoisecalError as e:
                 raise BenchError(f"model {spec.label} at ISO {iso}: {e}") from e
             if spec.kind == "wrong":
-                n = half_variance(n, c, p, iso, offset)
+                n = half_variance(n, c, p, iso, offset, centre=at)
             elif spec.kind == "loud":
-                n = scale_variance(n, c, p, iso, 2.0, offset)
+                n = scale_variance(n, c, p, iso, 2.0, offset, centre=at)
             row.append(n)
         out.append(row)
     return Pairs(out)
+
+
+# The parametric baselines: zero-mean noise about the level they are given.
+PARAMETRIC = ("hg", "pg", "noiseprofile")
+
+
+def at_target_brightness(clean: np.ndarray, pack, iso: int) -> np.ndarray:
+    """``clean`` (uint16 DN at the reference ISO's brightness, as the training images are) carried
+    to the target ISO's brightness: ``black + g·(clean − black)`` with the pack's gain ratios ``g``
+    per CFA position (``Pack.gain_ratios``), rounded and clamped to ``[0, white]``.
+
+    Why: under the clean-at convention's default (``reference``, docs/method.md) a clean image at
+    the reference brightness comes out at the target ISO's, the pack's PMFs carrying the gain
+    shift ``(g − 1)·(l − black)`` as their mean, and so do real captures. The parametric baselines
+    are zero-mean, so without this their networks would also be taught a brightness error (about
+    3 % at ISO 1600 on phone12) that has nothing to do with their noise. Given the clean image at
+    the target brightness with ``clean_at="target"``, a baseline draws its noise at the reference
+    level and adds it to the target-brightness level: the same gain shift, the baseline's own
+    noise."""
+    g = np.asarray(pack.gain_ratios(iso), dtype=np.float64)
+    lay = pack.layout
+    black = np.asarray(lay["black"], dtype=np.float64)
+    pos = (np.arange(clean.shape[0])[:, None] % 2) * 2 + np.arange(clean.shape[1])[None, :] % 2
+    b = black[pos]
+    out = b + g[pos] * (clean.astype(np.float64) - b)
+    return np.rint(np.clip(out, 0, int(lay["white"]))).astype(np.uint16)
 
 
 def hg_mean_offset(pack, iso: int) -> np.ndarray:
@@ -138,23 +172,38 @@ def hg_mean_offset(pack, iso: int) -> np.ndarray:
     return np.take_along_axis(per_bin, t["lut"], axis=1)
 
 
-def half_variance(noisy: np.ndarray, clean: np.ndarray, pack, iso: int, offset: np.ndarray | None = None) -> np.ndarray:
+def half_variance(
+    noisy: np.ndarray,
+    clean: np.ndarray,
+    pack,
+    iso: int,
+    offset: np.ndarray | None = None,
+    centre: np.ndarray | None = None,
+) -> np.ndarray:
     """The deliberately wrong control: HG noise with half its variance, ``m + (x − m)/√2`` about
-    HG's own mean ``m`` (the clean level plus :func:`hg_mean_offset`)."""
-    return scale_variance(noisy, clean, pack, iso, 0.5, offset)
+    HG's own mean ``m`` (see :func:`scale_variance`)."""
+    return scale_variance(noisy, clean, pack, iso, 0.5, offset, centre)
 
 
 def scale_variance(
-    noisy: np.ndarray, clean: np.ndarray, pack, iso: int, factor: float, offset: np.ndarray | None = None
+    noisy: np.ndarray,
+    clean: np.ndarray,
+    pack,
+    iso: int,
+    factor: float,
+    offset: np.ndarray | None = None,
+    centre: np.ndarray | None = None,
 ) -> np.ndarray:
     """HG noise with ``factor`` times its variance, ``m + (x − m)/√(1/factor)`` about HG's own mean
-    ``m`` (the clean level plus :func:`hg_mean_offset`): ½ is the ``wrong`` control, 2 the ``loud``
-    one (too much noise: a network trained on it smooths too much, which only an evaluation set
-    with texture penalises)."""
+    ``m``: the level the noise was added to (``centre``; default the clean image itself, else its
+    target-brightness image, :func:`at_target_brightness`) plus :func:`hg_mean_offset` at the
+    clean level. ½ is the ``wrong`` control, 2 the ``loud`` one (too much noise: a network trained
+    on it smooths too much, which only an evaluation set with texture penalises)."""
     offset = hg_mean_offset(pack, iso) if offset is None else offset
     white = int(pack.layout["white"])
     level = np.minimum(clean.astype(np.int64), white)
     pos = (np.arange(clean.shape[0])[:, None] % 2) * 2 + np.arange(clean.shape[1])[None, :] % 2
-    m = level + offset[pos, level]
+    base = level if centre is None else centre.astype(np.int64)
+    m = base + offset[pos, level]
     out = m + (noisy.astype(np.float64) - m) / math.sqrt(1 / factor)  # ½: exactly the earlier (x − m)/√2
     return np.rint(np.clip(out, 0, white)).astype(np.uint16)

@@ -28,6 +28,21 @@ def _config_key(cfg: dict) -> str:
     return hashlib.blake2b(json.dumps(cfg, sort_keys=True).encode(), digest_size=8).hexdigest()
 
 
+def networks_trained(jobs: list, seeds: int) -> int:
+    """The networks a run trains: one per (model, ISO) job and seed, and the denoiser that
+    estimates the clean image for noise on noise (a row with the ``denoiser`` estimate): one more
+    network of the same steps, trained once (unless every row is resumed from ``--state``)."""
+    return len(jobs) * seeds + int(any(s.kind == "renoise" and s.estimate == "denoiser" for s, _ in jobs))
+
+
+def steps_for_minutes(minutes: float, per_step: float, networks: int, at_most: int | None = None) -> int:
+    """The steps per network that fit ``networks`` networks (every one the run trains, the clean
+    estimate's denoiser included) into 85 % of ``minutes`` at ``per_step`` seconds a step; at
+    least 20, and at most ``at_most`` (``--steps`` when given)."""
+    fit = int(minutes * 60 * 0.85 / (networks * per_step))
+    return max(20, fit if at_most is None else min(at_most, fit))
+
+
 def run(args: argparse.Namespace) -> dict:
     t0 = time.time()
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr, flush=True))
@@ -112,6 +127,7 @@ def run(args: argparse.Namespace) -> dict:
         torch.set_num_threads(args.threads)
     steps = args.steps
     n_nets = len(jobs) * len(seeds)
+    extra = networks_trained(jobs, len(seeds)) - n_nets
     if args.minutes:
         probe = batch_plan(0, 6, args.batch, len(cleans), realizations, cleans[0].shape, args.crop)
         dummy = Pairs([[c] * realizations for c in cleans])
@@ -119,9 +135,11 @@ def run(args: argparse.Namespace) -> dict:
         t = time.time()
         train_one(dummy, cleans_norm, layout, probe, args.crop, args.width, 0, device, args.lr)
         per_step = (time.time() - t) / len(probe)
-        fit = int(args.minutes * 60 * 0.85 / (n_nets * per_step))
-        steps = max(20, min(steps, fit)) if args.steps_given else max(20, fit)
-        say(f"--minutes {args.minutes}: {per_step * 1000:.1f} ms per step → {steps} steps per network ({n_nets} networks)")
+        steps = steps_for_minutes(args.minutes, per_step, n_nets + extra, steps if args.steps_given else None)
+        say(
+            f"--minutes {args.minutes}: {per_step * 1000:.1f} ms per step → {steps} steps per network ({n_nets} networks"
+            + (" and the clean estimate's denoiser)" if extra else ")")
+        )
     cfg = {
         # Every pack a model reads, by its file's bytes: a pack changed on disk is not resumed.
         "packs": {p: hashlib.blake2b(Path(p).read_bytes(), digest_size=8).hexdigest() for p in sorted(packs)},
@@ -140,6 +158,10 @@ def run(args: argparse.Namespace) -> dict:
     }
     if args.input_scale != 1.0:  # absent at 1, so the keys (and --state files) of earlier runs stay valid
         cfg["input_scale"] = args.input_scale
+    # The parametric baselines' pairs carry the gain shift (models.at_target_brightness): rows
+    # stored before it are not resumed.
+    cfg["baselines_at_target_brightness"] = True
+    cfg["init"] = "he-identity"  # network.make_net's initialisation: earlier networks are not resumed
     key = _config_key(cfg)
     state = Path(args.state) if args.state else None
     if state:
