@@ -50,8 +50,9 @@ pub struct Args {
     /// moving scene (`random_moving_scene`, drawn from the family seed of random:SEED, else from
     /// --seed: a walk of sub-pixel shifts with jumps, rotation, focus breathing, and in 1 draw
     /// of 3 a flickering lamp unless --flicker is given; with random:SEED the chart's edges are
-    /// blurred too). Printed unless --quiet. With --bench the evaluation frames and training
-    /// captures move (the clean training images do not); --heldout stays still.
+    /// blurred too). Printed unless --quiet. With --bench the evaluation frames move (each with
+    /// its own truth); the training scenes, clean images and captures, stay still; --heldout
+    /// stays still.
     #[arg(long)]
     pub moving: bool,
     /// With --sensor random:SEED: write the session's held-out set (same sensor and exposures,
