@@ -27,6 +27,10 @@ use crate::pool;
 /// A sampler cache key: ISO, model, extrapolate, components, brightness of the clean image.
 type SamplerKey = (u32, ModelKind, bool, Components, CleanAt);
 
+/// A renoiser cache key: source ISO, target ISO, method, extrapolate (the bridge options are the
+/// defaults, the only ones the binding offers).
+type RenoiserKey = (u32, u32, Method, bool);
+
 /// A calibrated noise model of one camera (a `.pack` file).
 #[derive(Debug)]
 #[pyclass(frozen, module = "noisecal")]
@@ -38,6 +42,11 @@ pub struct Pack {
     samplers: Mutex<HashMap<SamplerKey, Arc<IsoSampler>>>,
     /// The most bytes each sampler keeps of a fixed pattern between calls (`pattern_cache_mb`).
     pattern_cache_bytes: AtomicUsize,
+    /// Renoisers already built, by (source ISO, target ISO, method, extrapolate): a bridge is a
+    /// deconvolution per bin, and a training set re-noises many captures with the same pair.
+    /// Locked only while the GIL is held (never inside `py.detach`), so no other thread can hold
+    /// it when a thread forks the process: a forked child never finds it locked.
+    renoisers: Mutex<HashMap<RenoiserKey, Arc<Renoiser>>>,
 }
 
 impl Pack {
@@ -47,7 +56,45 @@ impl Pack {
 
     /// A pack of these models with no sampler built yet.
     fn sharing(inner: Arc<ModelPack>, pattern_cache_bytes: usize) -> Self {
-        Self { inner, samplers: Mutex::new(HashMap::new()), pattern_cache_bytes: AtomicUsize::new(pattern_cache_bytes) }
+        Self {
+            inner,
+            samplers: Mutex::new(HashMap::new()),
+            pattern_cache_bytes: AtomicUsize::new(pattern_cache_bytes),
+            renoisers: Mutex::new(HashMap::new()),
+        }
+    }
+
+    /// The renoiser of `from_iso → to_iso` with `method`, built once per pack (the build runs
+    /// without the GIL; the cache is looked up and filled with it, see `renoisers`). Two threads
+    /// asking at once may both build it; the first one stored is kept, and both are the same.
+    fn renoiser(
+        &self,
+        py: Python<'_>,
+        from_iso: u32,
+        to_iso: u32,
+        method: Method,
+        extrapolate: bool,
+    ) -> PyResult<Arc<Renoiser>> {
+        let key = (from_iso, to_iso, method, extrapolate);
+        let poisoned = || err("the renoiser cache was poisoned");
+        if let Some(r) = self.renoisers.lock().map_err(|_| poisoned())?.get(&key) {
+            return Ok(r.clone());
+        }
+        let pack = &*self.inner;
+        let built = py.detach(|| {
+            guarded("Pack.renoise", || {
+                pool::run(|| {
+                    let model = |iso: u32, which: &str| {
+                        resolve_model(pack, iso, ModelKind::Noisecal, extrapolate).map(|r| r.model).map_err(|e| {
+                            to_py(anyhow::Error::from(e).context(format!("no model for the {which} ISO {iso}")))
+                        })
+                    };
+                    let (source, target) = (model(from_iso, "source")?, model(to_iso, "target")?);
+                    Renoiser::new(pack, &source, &target, method).map_err(to_py)
+                })
+            })
+        })?;
+        Ok(self.renoisers.lock().map_err(|_| poisoned())?.entry(key).or_insert_with(|| Arc::new(built)).clone())
     }
 
     /// The sampler of `iso` for a model kind and noise components, built once per pack. The
@@ -428,7 +475,9 @@ impl Pack {
     /// Pixels above the pack's white level are refused unless `out_of_range` is "warn" or "allow".
     /// `estimate` is your own clean estimate of the captures (float, DN on the captures' black
     /// level, the shape of `noisy`), as `noisecal renoise --estimate`: it picks each pixel's bin
-    /// (bridge, quantile, denoised); without it the built-in filter estimates it.
+    /// (bridge, quantile, denoised); without it the built-in filter estimates it. The renoiser of
+    /// an ISO pair and method (the bridge's deconvolution, the tables) is built on the first call
+    /// and kept by this Pack (not by its copies), so later calls only draw.
     #[pyo3(signature = (noisy, from_iso, to_iso, seed=0, *, method="bridge", black_level=None, extrapolate=false, out_of_range="raise", estimate=None))]
     #[allow(clippy::too_many_arguments)]
     fn renoise<'py>(
@@ -482,16 +531,10 @@ impl Pack {
         let pack = &*self.inner;
         checks::levels_in_range(py, &imgs, "noisy", pack, policy, "re-noise them as they are")?;
         let align = BlackAlignment::between(black, pack.layout.black);
+        let r = self.renoiser(py, from_iso, to_iso, method, extrapolate)?;
         let outs = py.detach(|| {
             guarded("Pack.renoise", || {
                 pool::run(|| {
-                    let model = |iso: u32, which: &str| {
-                        resolve_model(pack, iso, ModelKind::Noisecal, extrapolate).map(|r| r.model).map_err(|e| {
-                            to_py(anyhow::Error::from(e).context(format!("no model for the {which} ISO {iso}")))
-                        })
-                    };
-                    let (source, target) = (model(from_iso, "source")?, model(to_iso, "target")?);
-                    let r = Renoiser::new(pack, &source, &target, method).map_err(to_py)?;
                     let white = pack.layout.white;
                     per_image(&imgs, seed, |img, s| {
                         // The estimate of image i (its seed is seed + i), carried onto the pack's
