@@ -53,9 +53,10 @@ echo "== Python: mypy.stubtest noisecal (the .pyi against the extension)" >&2
 (cd rust/python && "../../$venv/bin/python" -m mypy.stubtest noisecal --allowlist stubtest-allowlist.txt --mypy-config-file stubtest.ini)
 
 # The denoiser benchmark with torch: tests/test_denoise_bench.py again, now with its torch
-# tests — determinism and CI's small run (oracle, noisecal, HG and the wrong model, 2 seeds × 500
-# steps on 32-px crops of a simulated set, ~2 min on 2 cores), which asserts every network beats the
-# noisy input, the wrong model is clearly worst and the oracle best within the seed spread. Torch
+# tests — determinism and CI's small run (oracle, noisecal, HG, the wrong and the loud model, 2 seeds
+# × 500 steps on 32-px crops of a simulated set, ~2–2.5 min on 2 cores), which asserts every network
+# beats the noisy input, the wrong model is clearly worst, the loud one below HG and the oracle best
+# within the seed spread. Torch
 # (5.6 GB with its CUDA libraries, ~3 min from PyPI) goes into its own venv cached under target/,
 # reused when present; when it cannot be installed the stage is skipped with one line.
 # NOISECAL_NO_TORCH=1 skips it.
