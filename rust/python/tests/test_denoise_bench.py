@@ -351,7 +351,7 @@ def test_noiseprofile_model_runs_on_a_simulated_session_with_the_sensors_varianc
     real = [caps[(j, 1600)][k] for j in range(len(cleans)) for k in range(2)]
     synth = [pairs.noisy[j][k] for j in range(len(cleans)) for k in range(2)]
     cl = [c.astype(np.float64) for c in cleans for _ in range(2)]
-    # Each variance about its own band mean: the profile carries no gain shift, the real frames do.
+    # Each variance about its own band mean (the means: the test of the target brightness below).
     ratios = _band_variance_ratios(synth, real, cl, pack.layout)
     print("noiseprofile variance / real ISO-1600 variance by band:", ratios)
     assert len(ratios) >= 3, ratios
