@@ -196,8 +196,14 @@ impl Guide {
     pub fn for_tables(budget: usize, lens: impl IntoIterator<Item = usize>) -> Self {
         let (sparse, dense) = lens
             .into_iter()
-            .fold((0, 0), |(s, d), n| (s + table_bytes(n, Guide::Sparse), d + table_bytes(n, Guide::Dense)));
+            .fold((0, 0), |(s, d), n| (s + Guide::Sparse.table_bytes(n), d + Guide::Dense.table_bytes(n)));
         if sparse <= budget && dense > budget { Guide::Sparse } else { Guide::Dense }
+    }
+
+    /// [`BinTable::heap_bytes`] of a table of `len` entries (at least one) with this guide.
+    pub fn table_bytes(self, len: usize) -> usize {
+        let len = len.max(1);
+        4 * (len + PAD) + 2 * (1usize << self.bits(len))
     }
 
     /// Guide bits (`log₂` of the cells) of a table of `len` entries.
@@ -208,12 +214,6 @@ impl Guide {
         };
         (len.next_power_of_two().trailing_zeros() as i32 + extra).clamp(3, 12) as u32
     }
-}
-
-/// [`BinTable::heap_bytes`] of a table of `len` entries (at least one) with the guide `guide`.
-fn table_bytes(len: usize, guide: Guide) -> usize {
-    let len = len.max(1);
-    4 * (len + PAD) + 2 * (1usize << guide.bits(len))
 }
 
 /// Samplers of every (position, bin) of one ISO, and the level → bin maps.
@@ -592,7 +592,7 @@ mod tests {
     }
 
     /// The dense guide draws what the sparse one draws, for every boundary draw and random
-    /// ones; [`table_bytes`] is what a table takes; the budget picks the sparse guide exactly
+    /// ones; [`Guide::table_bytes`] is what a table takes; the budget picks the sparse guide exactly
     /// where the tables fit within it with the sparse guide and not with the dense one.
     #[test]
     fn guides_draw_alike_and_the_budget_picks_one() {
@@ -610,8 +610,8 @@ mod tests {
             let bin =
                 BinModel { first: -7, counts: counts.clone(), samples: 10, source, measured: None, clipped: false };
             let (sparse, dense) = (BinTable::with_guide(&bin, Guide::Sparse), BinTable::with_guide(&bin, Guide::Dense));
-            assert_eq!(sparse.heap_bytes(), table_bytes(len, Guide::Sparse), "{len} entries");
-            assert_eq!(dense.heap_bytes(), table_bytes(len, Guide::Dense), "{len} entries");
+            assert_eq!(sparse.heap_bytes(), Guide::Sparse.table_bytes(len), "{len} entries");
+            assert_eq!(dense.heap_bytes(), Guide::Dense.table_bytes(len), "{len} entries");
             assert_eq!(sparse, BinTable::from_weights(-7, &counts));
             let mut draws: Vec<u32> = vec![0, 1, u32::MAX];
             for c in sparse.cdf() {
