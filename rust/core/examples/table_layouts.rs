@@ -12,7 +12,7 @@ use std::collections::HashSet;
 
 use noisecal_core::ModelPack;
 use noisecal_core::derive::interp::model_for;
-use noisecal_core::synth::sampler::IsoSampler;
+use noisecal_core::synth::sampler::{Guide, IsoSampler};
 
 const ONE: f64 = 4294967296.0;
 
@@ -82,10 +82,13 @@ fn main() {
         let cdfs: Vec<Vec<u64>> = tables.iter().map(|t| t.cdf()).collect();
         let body: usize = cdfs.iter().flatten().filter(|&&c| c > 1 << 20 && c < (1u64 << 32) - (1 << 20)).count();
         let distinct: HashSet<(i32, &Vec<u64>)> = tables.iter().zip(&cdfs).map(|(t, c)| (t.first(), c)).collect();
+        let with = |g: Guide| tables.iter().map(|t| g.table_bytes(t.len())).sum::<usize>() as f64 / 1e6;
         println!(
-            "ISO {iso}: {} tables, {entries} entries, {:.2} MB exact; {:.0} % of entries in the body; {} distinct tables",
+            "ISO {iso}: {} tables, {entries} entries, {:.2} MB exact (guide of a cell per four entries {:.2} MB, per two {:.2} MB); {:.0} % of entries in the body; {} distinct tables",
             tables.len(),
             bytes as f64 / 1e6,
+            with(Guide::Sparse),
+            with(Guide::Dense),
             100.0 * body as f64 / entries as f64,
             distinct.len()
         );

@@ -164,7 +164,6 @@ fn structured_filler<'a, const TARGET: bool>(
     {
         Box::new(move |band: usize, chunk: &mut [u16]| {
             let mut rng = band_rng(seed, band);
-            let mut pattern_row: Vec<i64> = Vec::new();
             let mut offsets_row: Vec<i32> = Vec::with_capacity(w);
             for (r, row) in chunk.chunks_mut(w).enumerate() {
                 let y = band * BAND_ROWS + r;
@@ -186,50 +185,37 @@ fn structured_filler<'a, const TARGET: bool>(
                 let finish = sampler.needs_finish(even) || sampler.needs_finish(odd);
                 let white = sampler.white as i32;
                 let ry = fixed(offsets.rows[y]);
-                let cols: &[i64] = match (&kept, &pattern, &pattern_columns) {
-                    (Some(k), _, _) => {
-                        pattern_row.clear();
-                        pattern_row.extend(columns[y & 1].iter().zip(k.row(y)).map(|(c, p)| c + p));
-                        &pattern_row
-                    }
-                    (None, Some(p), Some(pc)) => {
-                        pattern_row.clear();
-                        pattern_row.extend_from_slice(&columns[y & 1]);
-                        p.add_pattern_row_at(pc, origin.0 + y, &mut pattern_row);
-                        &pattern_row
-                    }
-                    _ => &columns[y & 1],
-                };
+                let cols = &columns[y & 1];
                 // Dither draws from a xorshift64* stream seeded by the band's stream per row (a
                 // 32-bit threshold needs no cryptographic quality).
-                let mut state = rng.next_u64() | 1;
-                let mut dither = || {
-                    state ^= state >> 12;
-                    state ^= state << 25;
-                    state ^= state >> 27;
-                    state.wrapping_mul(0x2545_F491_4F6C_DD1D)
-                };
+                let state = rng.next_u64() | 1;
                 // The row in passes, each stream drawn in its own order (a pair's pixel draw `u`
                 // from the band's stream, its dither `v` from the row's xorshift): first every
                 // pixel's integer offset `⌊o⌋ + [v < o − ⌊o⌋]` for its offset `o` and a uniform
-                // 32-bit `v`, as `⌊(o·2³² + v) / 2³²⌋`; then the pixel draws, a loop as short as
-                // the pixel-only one, so the table lookups of several pixels overlap.
+                // 32-bit `v`, as `⌊(o·2³² + v) / 2³²⌋`, the fixed pattern added where it is
+                // reached (kept, or computed from the pixel's position); then the pixel draws, a
+                // loop as short as the pixel-only one, so the table lookups of several pixels
+                // overlap.
                 let level = |lut: &[u16], c: u16| (c as usize).min(lut.len() - 1);
+                let shift = |i: usize, c: u16| -> i64 {
+                    match TARGET {
+                        true if i & 1 == 0 => sh0[level(lut0, c)],
+                        true => sh1[level(lut1, c)],
+                        false => 0,
+                    }
+                };
+                let row_offsets = RowOffsets { src: &src, cols, ry, state, shift: &shift };
                 offsets_row.clear();
-                for (c, k) in src.chunks_exact(2).zip(cols.chunks_exact(2)) {
-                    let v = dither();
-                    let (k0, k1) = if TARGET {
-                        (k[0] + sh0[level(lut0, c[0])], k[1] + sh1[level(lut1, c[1])])
-                    } else {
-                        (k[0], k[1])
-                    };
-                    offsets_row.push(((k0 + ry + (v as u32) as i64) >> 32) as i32);
-                    offsets_row.push(((k1 + ry + (v >> 32) as i64) >> 32) as i32);
-                }
-                if w % 2 == 1 {
-                    let v = dither();
-                    let k = if TARGET { cols[w - 1] + sh0[level(lut0, src[w - 1])] } else { cols[w - 1] };
-                    offsets_row.push(((k + ry + (v as u32) as i64) >> 32) as i32);
+                match (&kept, &pattern, &pattern_columns) {
+                    (Some(k), _, _) => {
+                        let k = k.row(y);
+                        row_offsets.fill(&mut offsets_row, |i| (k[i], k[i + 1]), |i| k[i]);
+                    }
+                    (None, Some(p), Some(pc)) => {
+                        let rp = p.row_pattern(pc, origin.0 + y).expect("a fixed pattern");
+                        row_offsets.fill(&mut offsets_row, |i| rp.pair(i), |i| rp.at(i));
+                    }
+                    _ => row_offsets.fill(&mut offsets_row, |_| (0, 0), |_| 0),
                 }
                 let pairs = row.chunks_exact_mut(2).zip(src.chunks_exact(2)).zip(offsets_row.chunks_exact(2));
                 if finish {
@@ -258,6 +244,49 @@ fn structured_filler<'a, const TARGET: bool>(
                 }
             }
         })
+    }
+}
+
+/// What one row's integer offsets are made of ([`structured_filler`]): the clean row, the
+/// columns' offsets (with the frame's, 2⁻³² DN), the row's offset, the state of the row's
+/// dither stream, and per pixel the target brightness's shift (0 otherwise).
+struct RowOffsets<'a, S: Fn(usize, u16) -> i64> {
+    src: &'a [u16],
+    cols: &'a [i64],
+    ry: i64,
+    state: u64,
+    shift: &'a S,
+}
+
+impl<S: Fn(usize, u16) -> i64> RowOffsets<'_, S> {
+    /// Pushes every pixel's integer offset onto `out`, pixel `i`'s fixed pattern from
+    /// `pair(i)` (for `i` and `i + 1`, `i` even) or `one(i)` (the last pixel of an odd width).
+    /// One dither draw per pair, its low half for the even pixel.
+    #[inline(always)]
+    fn fill(&self, out: &mut Vec<i32>, pair: impl Fn(usize) -> (i64, i64), one: impl Fn(usize) -> i64) {
+        let mut state = self.state;
+        let mut dither = || {
+            state ^= state >> 12;
+            state ^= state << 25;
+            state ^= state >> 27;
+            state.wrapping_mul(0x2545_F491_4F6C_DD1D)
+        };
+        let (src, cols, ry) = (self.src, self.cols, self.ry);
+        for (j, (c, k)) in src.chunks_exact(2).zip(cols.chunks_exact(2)).enumerate() {
+            let i = 2 * j;
+            let v = dither();
+            let (p0, p1) = pair(i);
+            let k0 = k[0] + p0 + (self.shift)(i, c[0]);
+            let k1 = k[1] + p1 + (self.shift)(i + 1, c[1]);
+            out.push(((k0 + ry + (v as u32) as i64) >> 32) as i32);
+            out.push(((k1 + ry + (v >> 32) as i64) >> 32) as i32);
+        }
+        let w = src.len();
+        if w % 2 == 1 {
+            let v = dither();
+            let k = cols[w - 1] + one(w - 1) + (self.shift)(w - 1, src[w - 1]);
+            out.push(((k + ry + (v as u32) as i64) >> 32) as i32);
+        }
     }
 }
 

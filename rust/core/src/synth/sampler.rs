@@ -14,8 +14,9 @@ use crate::synth::CleanAt;
 use crate::synth::structure::StructureSampler;
 
 const ONE: u64 = 1 << 32;
-/// Guide cells per CDF entry, as a power of two (negative: entries per cell).
-const GUIDE_EXTRA_BITS: i32 = -2;
+/// The bytes an ISO's tables are kept within where they fit with the sparse guide: the denser
+/// guide ([`Guide::Dense`]) is not allowed to take them past it ([`Guide::for_tables`]).
+pub const TABLE_BUDGET: usize = 4_000_000;
 /// Entries past the last of a table (copies of it), so that the walk can read four at a time.
 const PAD: usize = 3;
 
@@ -41,26 +42,24 @@ pub struct BinTable {
 
 impl BinTable {
     pub fn new(bin: &BinModel) -> Self {
-        Self::from_weights(bin.first, &bin.counts)
+        Self::with_guide(bin, Guide::Sparse)
+    }
+
+    /// The table of `bin` with the guide `guide`.
+    pub fn with_guide(bin: &BinModel, guide: Guide) -> Self {
+        Self::from_cdf(bin.first, &cdf_of(&bin.counts), guide)
     }
 
     pub fn from_weights(first: i32, w: &[u64]) -> Self {
-        Self::from_cdf(first, &cdf_of(w))
+        Self::from_cdf(first, &cdf_of(w), Guide::Sparse)
     }
 
     /// The table of cumulative weights `cdf` (units of 2⁻³², non-decreasing, the last 2³²).
-    fn from_cdf(first: i32, cdf: &[u64]) -> Self {
+    fn from_cdf(first: i32, cdf: &[u64], guide: Guide) -> Self {
         let lead = cdf.iter().take_while(|&&c| c == 0).count();
         let cdf1: Box<[u32]> =
             cdf.iter().map(|&c| c.wrapping_sub(1) as u32).chain(std::iter::repeat_n(u32::MAX, PAD)).collect();
-        // A guide cell per four entries (8 … 4096 cells): an inverse CDF maps a draw to the same
-        // value whatever the guide size, so the guide is sized for speed and memory. The search
-        // walks about two 32-bit entries from the cell's start, within a cache line, read four at
-        // a time. Measured on 12 MP frames: with the tables of 240 bins out of cache (demo ISO
-        // 3200), a quarter cell per entry drew as fast as one or two cells per entry; within
-        // cache (one bin of phone14 ISO 1600) a cell per two entries drew about 15 % faster, at
-        // half a byte more per entry (the demo's ISO 3200 would then pass 4 MB).
-        let bits = (cdf.len().next_power_of_two().trailing_zeros() as i32 + GUIDE_EXTRA_BITS).clamp(3, 12) as u32;
+        let bits = guide.bits(cdf.len());
         let g = 1usize << bits;
         let guide_shift = (usize::BITS - (cdf.len() - 1).leading_zeros()).saturating_sub(16);
         let mut guide = vec![0u16; g];
@@ -174,6 +173,49 @@ fn cdf_of(w: &[u64]) -> Vec<u64> {
     cdf
 }
 
+/// How many guide cells a table has (8 … 4096 cells, 16 bits each): an inverse CDF maps a draw
+/// to the same value whatever the guide size, so the guide is sized for speed and memory. The
+/// search walks from the cell's start, within a cache line, four 32-bit entries at a time.
+/// Measured on 12 MP frames: with the tables of 240 bins out of cache (demo ISO 3200), a quarter
+/// cell per entry drew as fast as one or two cells per entry; within cache (one bin of phone14
+/// ISO 1600) a cell per two entries drew about 15 % faster, at half a byte more per entry.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Guide {
+    /// A cell per four entries (4.5 to 5 bytes per entry with the entries).
+    Sparse,
+    /// A cell per two entries (5 to 6 bytes per entry).
+    Dense,
+}
+
+impl Guide {
+    /// The guide of an ISO's tables of `lens` entries (one per table): the dense one unless it
+    /// is what would take them past `budget` bytes ([`BinTable::heap_bytes`]), that is the
+    /// sparse one only where the tables fit within it with the sparse guide and not with the
+    /// dense one. Tables past it either way (a 14-bit sensor's high ISOs) take the dense guide:
+    /// half a byte more per entry, the draws within cache about 15 % faster.
+    pub fn for_tables(budget: usize, lens: impl IntoIterator<Item = usize>) -> Self {
+        let (sparse, dense) = lens
+            .into_iter()
+            .fold((0, 0), |(s, d), n| (s + Guide::Sparse.table_bytes(n), d + Guide::Dense.table_bytes(n)));
+        if sparse <= budget && dense > budget { Guide::Sparse } else { Guide::Dense }
+    }
+
+    /// [`BinTable::heap_bytes`] of a table of `len` entries (at least one) with this guide.
+    pub fn table_bytes(self, len: usize) -> usize {
+        let len = len.max(1);
+        4 * (len + PAD) + 2 * (1usize << self.bits(len))
+    }
+
+    /// Guide bits (`log₂` of the cells) of a table of `len` entries.
+    fn bits(self, len: usize) -> u32 {
+        let extra = match self {
+            Guide::Sparse => -2,
+            Guide::Dense => -1,
+        };
+        (len.next_power_of_two().trailing_zeros() as i32 + extra).clamp(3, 12) as u32
+    }
+}
+
 /// Samplers of every (position, bin) of one ISO, and the level → bin maps.
 #[derive(Debug, Clone)]
 pub struct IsoSampler {
@@ -221,10 +263,10 @@ impl IsoSampler {
         let structure = structure.filter(|_| which.structured()).and_then(|st| StructureSampler::new(st, which));
         let binning = pack.binning();
         let mut luts: [Vec<u16>; POSITIONS] = std::array::from_fn(|p| binning.lut(p));
-        let tables = std::array::from_fn(|p| {
+        let sources: [(Cow<'_, [BinModel]>, Vec<BinModel>); POSITIONS] = std::array::from_fn(|p| {
             let bins = match &structure {
                 Some(st) => Cow::Owned(st.deconvolved(p, &model.positions[p].bins)),
-                None => Cow::Borrowed(&model.positions[p].bins),
+                None => Cow::Borrowed(&model.positions[p].bins[..]),
             };
             // An estimated model's levels near black whose bin is too wide for the noise there
             // draw from the bin's PMF at the law's variance for their level (tables after the
@@ -233,7 +275,14 @@ impl IsoSampler {
                 luts[p] = f.lut;
                 f.extra
             });
-            bins.par_iter().chain(extra.par_iter()).map(BinTable::new).collect()
+            (bins, extra)
+        });
+        // The denser guide unless it takes the ISO's tables past the budget.
+        let lens = sources.iter().flat_map(|(bins, extra)| bins.iter().chain(extra)).map(|b| b.counts.len());
+        let guide = Guide::for_tables(TABLE_BUDGET, lens);
+        let tables = std::array::from_fn(|p| {
+            let (bins, extra) = &sources[p];
+            bins.par_iter().chain(extra.par_iter()).map(|b| BinTable::with_guide(b, guide)).collect()
         });
         let white = pack.layout.white;
         let snaps = std::array::from_fn(|p| model.lattice[p].as_ref().map(|l| Snap::new(l, white)));
@@ -540,6 +589,47 @@ mod tests {
             let budget = 5 * len + 16 + 4 * PAD;
             assert!(t.heap_bytes() <= budget, "{len} entries: {} bytes > {budget}", t.heap_bytes());
         }
+    }
+
+    /// The dense guide draws what the sparse one draws, for every boundary draw and random
+    /// ones; [`Guide::table_bytes`] is what a table takes; the budget picks the sparse guide exactly
+    /// where the tables fit within it with the sparse guide and not with the dense one.
+    #[test]
+    fn guides_draw_alike_and_the_budget_picks_one() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let mut total = [0usize; 2];
+        for len in [1usize, 2, 5, 33, 1000, 1514, 4096, 9000, 16000, 70_000] {
+            let sd = len as f64 / 8.0;
+            let counts: Vec<u64> = (0..len)
+                .map(|i| {
+                    let x = (i as f64 - len as f64 / 2.0) / sd;
+                    (1e7 * (-0.5 * x * x).exp()) as u64 + u64::from(i % 5 == 0)
+                })
+                .collect();
+            let source = crate::model::pack::BinSource::Measured;
+            let bin =
+                BinModel { first: -7, counts: counts.clone(), samples: 10, source, measured: None, clipped: false };
+            let (sparse, dense) = (BinTable::with_guide(&bin, Guide::Sparse), BinTable::with_guide(&bin, Guide::Dense));
+            assert_eq!(sparse.heap_bytes(), Guide::Sparse.table_bytes(len), "{len} entries");
+            assert_eq!(dense.heap_bytes(), Guide::Dense.table_bytes(len), "{len} entries");
+            assert_eq!(sparse, BinTable::from_weights(-7, &counts));
+            let mut draws: Vec<u32> = vec![0, 1, u32::MAX];
+            for c in sparse.cdf() {
+                draws.extend([c.wrapping_sub(1), c].iter().filter(|&&d| d <= u32::MAX as u64).map(|&d| d as u32));
+            }
+            draws.extend((0..20_000).map(|_| rng.next_u32()));
+            for u in draws {
+                assert_eq!(dense.sample_u32(u), sparse.sample_u32(u), "draw {u}, {len} entries");
+            }
+            total[0] += sparse.heap_bytes();
+            total[1] += dense.heap_bytes();
+        }
+        assert!(total[1] > total[0], "the dense guide takes more bytes");
+        let lens = [1usize, 2, 5, 33, 1000, 1514, 4096, 9000, 16000, 70_000];
+        assert_eq!(Guide::for_tables(total[1], lens), Guide::Dense);
+        assert_eq!(Guide::for_tables(total[1] - 1, lens), Guide::Sparse);
+        assert_eq!(Guide::for_tables(total[0], lens), Guide::Sparse);
+        assert_eq!(Guide::for_tables(total[0] - 1, lens), Guide::Dense, "past the budget either way");
     }
 
     #[test]

@@ -122,19 +122,42 @@ impl StructureSampler {
     /// What the fixed pattern of an image's rows needs of its columns, `x0 .. x0 + w`, computed
     /// once per image instead of once per pixel: each column's shading cells.
     pub(crate) fn pattern_columns(&self, x0: usize, w: usize) -> PatternColumns {
-        let cells = match &self.fpn {
+        let (cells, line_len) = match &self.fpn {
             Some(fp) => {
                 let gw = fp.grid[1] as usize;
-                (x0..x0 + w).map(|x| grid_coord(x, fp.size[1], gw)).collect()
+                let cells = (x0..x0 + w)
+                    .map(|x| {
+                        let (c0, c1, f) = grid_coord(x, fp.size[1], gw);
+                        (c0 as u32, c1 as u32, f)
+                    })
+                    .collect();
+                (cells, gw.max(1))
             }
-            None => Vec::new(),
+            None => (Vec::new(), 1),
         };
-        PatternColumns { x0, cells }
+        PatternColumns { x0, cells, line_len }
+    }
+
+    /// The fixed pattern of sensor row `y` over an image's columns ([`Self::pattern_columns`]),
+    /// pixel by pixel as the synthesis pass reaches it ([`RowPattern::pair`]): the values of
+    /// [`Self::add_pattern_row_at`], bit for bit (tested), without a row of them written first
+    /// and read back. `None` without a fixed pattern.
+    pub(crate) fn row_pattern<'a>(&'a self, columns: &'a PatternColumns, y: usize) -> Option<RowPattern<'a>> {
+        let fp = self.fpn.as_ref()?;
+        let parity = std::array::from_fn(|px| {
+            let pos = position(y, columns.x0 + px);
+            // A position without shading adds `0.0 + quantile`: a line of zeros gives the same
+            // sum (`0·(1 − f) + 0·f` is +0 for the cells' `f` in [0, 1]).
+            let line = fp.shading_line(pos, y).unwrap_or_else(|| vec![0.0; columns.line_len]);
+            ParityPattern { line, q: fp.pixels[pos].quantiles.as_slice() }
+        });
+        Some(RowPattern { y, columns, parity })
     }
 
     /// [`Self::add_pattern_row`] with the columns' shading cells computed beforehand
     /// ([`Self::pattern_columns`], for the same `x0` and width): the same values, bit for bit
     /// (the same expressions, only hoisted out of the rows).
+    #[cfg(test)]
     pub(crate) fn add_pattern_row_at(&self, columns: &PatternColumns, y: usize, row: &mut [i64]) {
         let Some(fp) = &self.fpn else { return };
         let x0 = columns.x0;
@@ -156,7 +179,7 @@ impl StructureSampler {
                 Some(l) => {
                     for (k, (v, &(c0, c1, f))) in values.zip(cells).enumerate() {
                         let x = x_first + 2 * k;
-                        let shade = l[c0] * (1.0 - f) + l[c1] * f;
+                        let shade = l[c0 as usize] * (1.0 - f) + l[c1 as usize] * f;
                         *v += round_half_away((shade + quantile_at(q, pattern_unit(y, x))) * 4294967296.0);
                     }
                 }
@@ -181,7 +204,11 @@ impl StructureSampler {
         self.fpn.as_ref()?;
         self.pattern_cache.get(Region { origin, height, width }, || {
             let columns = self.pattern_columns(origin.1, width);
-            move |y: usize, row: &mut [i64]| self.add_pattern_row_at(&columns, y, row)
+            move |y: usize, row: &mut [i64]| {
+                if let Some(p) = self.row_pattern(&columns, y) {
+                    row.iter_mut().enumerate().for_each(|(i, v)| *v += p.at(i));
+                }
+            }
         })
     }
 
@@ -469,7 +496,60 @@ fn convolve(a: &(i64, Vec<f64>), b: &(i64, Vec<f64>)) -> (i64, Vec<f64>) {
 pub(crate) struct PatternColumns {
     x0: usize,
     /// Per column, its shading cells and the fraction between them ([`grid_coord`]).
-    cells: Vec<(usize, usize, f64)>,
+    cells: Vec<(u32, u32, f64)>,
+    /// Cells of a shading line (the length of the zero line of a position without shading).
+    line_len: usize,
+}
+
+/// The fixed pattern of one sensor row ([`StructureSampler::row_pattern`]), computed where the
+/// synthesis pass adds it. Per column parity (of the image's index): the shading interpolated to
+/// the row and the residual's quantile function.
+pub(crate) struct RowPattern<'a> {
+    y: usize,
+    columns: &'a PatternColumns,
+    parity: [ParityPattern<'a>; 2],
+}
+
+struct ParityPattern<'a> {
+    line: Vec<f64>,
+    q: &'a [f32],
+}
+
+impl RowPattern<'_> {
+    /// The pattern (2⁻³² DN) of the image's columns `i` and `i + 1`, `i` even and `i + 1` within
+    /// the row.
+    #[inline(always)]
+    pub(crate) fn pair(&self, i: usize) -> (i64, i64) {
+        (self.value(&self.parity[0], i), self.value(&self.parity[1], i + 1))
+    }
+
+    /// The pattern (2⁻³² DN) of the image's column `i`.
+    #[inline]
+    pub(crate) fn at(&self, i: usize) -> i64 {
+        self.value(&self.parity[i & 1], i)
+    }
+
+    /// [`StructureSampler::add_pattern_row_at`]'s expression for one pixel, with the same
+    /// floating-point operations in the same order. [`quantile_at`] is inlined for the uniform
+    /// draw's range `[0, 1)`, where its clamp changes nothing, with its index converted through
+    /// `u32` (the same integer for the indices of any stored quantile function).
+    #[inline(always)]
+    fn value(&self, p: &ParityPattern<'_>, i: usize) -> i64 {
+        let (c0, c1, f) = self.columns.cells[i];
+        let shade = p.line[c0 as usize] * (1.0 - f) + p.line[c1 as usize] * f;
+        let u = pattern_unit(self.y, self.columns.x0 + i);
+        let q = p.q;
+        let residual = match q.len() {
+            0 | 1 => quantile_at(q, u),
+            n => {
+                let x = u * (n - 1) as f64;
+                let k = (x as u32 as usize).min(n - 2);
+                let f = x - k as u32 as f64;
+                q[k] as f64 * (1.0 - f) + q[k + 1] as f64 * f
+            }
+        };
+        round_half_away((shade + residual) * 4294967296.0)
+    }
 }
 
 /// A sensor pixel's uniform draw of the fixed pattern (splitmix64 of its position).
@@ -485,7 +565,8 @@ fn pattern_unit(y: usize, x: usize) -> f64 {
 /// A uniform draw in `[0, 1)` from 53 bits.
 #[inline]
 fn unit(u: u64) -> f64 {
-    (u >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+    // Through i64: the same value (it is below 2⁵³), a single conversion instruction.
+    ((u >> 11) as i64) as f64 * (1.0 / (1u64 << 53) as f64)
 }
 
 /// A standard normal draw (Box–Muller).
@@ -598,6 +679,48 @@ mod tests {
         let m = vals.iter().sum::<f64>() / vals.len() as f64;
         let sd = (vals.iter().map(|v| (v - m).powi(2)).sum::<f64>() / vals.len() as f64).sqrt();
         assert!(sd > 1.5 && sd < 2.6, "pattern sd {sd}");
+    }
+
+    /// The pattern computed where the synthesis pass adds it ([`RowPattern`]) is the row path's
+    /// ([`StructureSampler::add_pattern_row_at`]) bit for bit: with and without shading (a
+    /// position whose grid does not match its size has none), with a residual of one quantile,
+    /// at even and odd origins and widths.
+    #[test]
+    fn row_pattern_is_the_row_path_bit_for_bit() {
+        let mut one = gaussian_dist(0.0);
+        one.quantiles = vec![0.75];
+        for (grid, shading_len, residual) in
+            [([3u32, 4u32], 12usize, gaussian_dist(1.5)), ([0, 0], 0, gaussian_dist(2.5)), ([2, 2], 3, one)]
+        {
+            let shading: [Vec<f32>; POSITIONS] =
+                std::array::from_fn(|p| (0..shading_len).map(|i| (i as f32 * 0.61 - p as f32).cos() * 3.0).collect());
+            let fp = FixedPattern {
+                pixels: std::array::from_fn(|_| residual.clone()),
+                shading,
+                grid,
+                size: [40, 60],
+                frames: 8,
+                temporal_var: [1.0; POSITIONS],
+                in_pixel_noise: std::array::from_fn(|_| gaussian_dist(0.5)),
+                significant: true,
+            };
+            let st = IsoStructure { fpn: Some(fp), ..IsoStructure::empty(100) };
+            let s = StructureSampler::new(&st, Components::ALL).expect("a pattern");
+            let mut nonzero = 0;
+            for (y, x0, w) in [(0usize, 0usize, 60usize), (17, 3, 31), (39, 1, 2), (5, 2, 1)] {
+                let columns = s.pattern_columns(x0, w);
+                let mut want = vec![0i64; w];
+                s.add_pattern_row_at(&columns, y, &mut want);
+                let rp = s.row_pattern(&columns, y).expect("a pattern");
+                let got: Vec<i64> = (0..w).map(|i| rp.at(i)).collect();
+                assert_eq!(got, want, "grid {grid:?}, row {y}, columns {x0}..");
+                for i in (0..w.saturating_sub(1)).step_by(2) {
+                    assert_eq!(rp.pair(i), (want[i], want[i + 1]));
+                }
+                nonzero += want.iter().filter(|&&v| v != 0).count();
+            }
+            assert!(nonzero > 50, "grid {grid:?}: {nonzero} pixels with a pattern");
+        }
     }
 
     #[test]
