@@ -50,10 +50,10 @@ pub fn position_fine_levels(pack: &ModelPack, model: &IsoModel, pos: usize, bins
 
 /// [`position_fine_levels`] for clean images at the target ISO's brightness: the table of clean
 /// level `c` is the one of the reference level `x = black + (c − black)/gain` (`gain` the gain
-/// ratio the sampler divides by, [`crate::synth::CleanAt::Target`]), at the law's variance at
-/// `x` itself rather than at `x` rounded to a whole level (near black on a steep law, a level's
-/// rounding moved the variance by up to a third; `tests/e2e/tests/dark_end.rs`). `lut` is then
-/// indexed by the target's levels.
+/// ratio the sampler divides by for `CleanAt::Target`), at the law's variance at
+/// `x` itself rather than at `x` rounded to a whole level (near black on a steep law a whole
+/// level is a large step: with the rounded level random sensor 62 of `tests/e2e/tests/dark_end.rs`
+/// read up to 1.14× the real variance, now 1.08). `lut` is then indexed by the target's levels.
 pub fn target_fine_levels(
     pack: &ModelPack,
     model: &IsoModel,
@@ -151,7 +151,7 @@ pub fn fine_levels(
 }
 
 /// [`fine_levels`] with clean level `c` standing for the reference level `black + (c −
-/// black)/gain` (its bin that of the rounded level, as [`crate::synth::CleanAt::Target`] picks
+/// black)/gain` (its bin that of the rounded level, as the sampler for `CleanAt::Target` picks
 /// it, its variance the law's at the level itself); `gain` 1: the reference levels.
 fn fine_levels_at(
     binning: &Binning,
@@ -293,8 +293,7 @@ mod tests {
     fn target_levels_follow_the_law_at_their_own_reference_level() {
         // A gain ratio of 1.6 (a gain not ∝ ISO): target level `c` stands for the reference
         // level `(c − black)/1.6` above black, whose variance the table must have, not that of
-        // the reference level rounded (±0.5 DN there moves the variance by ±1.65 DN² against
-        // 4.8 at black).
+        // the reference level rounded (up to ±0.5 DN there: ±1.65 DN² against 4.8 at black).
         let bn = binning(64);
         let (a, b, g) = (3.3, 4.8, 1.6);
         let bins = law_bins(&bn, a, b);
@@ -314,7 +313,8 @@ mod tests {
             rounded = rounded.max((r / truth).max(truth / r));
         }
         assert!(worst < 1.06, "{worst}");
-        assert!(rounded > 1.2, "{rounded}");
+        // The rounded level's table is beyond the issue's ×1.10 just above black.
+        assert!(rounded > 1.15, "{rounded}");
         // Far above black the target levels draw from the bin of their reference level.
         assert_eq!(target.lut[1024 + 64 * 40], ((64.0 * 40.0 / g) / 64.0) as u16);
     }
