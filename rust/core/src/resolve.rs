@@ -11,10 +11,13 @@
 //!
 //! Messages name no front-end's flags: a front-end adds its own ("--extrapolate", `extrapolate=True`).
 
+use std::borrow::Cow;
+
 use ndarray::{Array2, ArrayView2};
 
 use crate::ModelPack;
 use crate::derive::baselines::{self, BaselineKind};
+use crate::derive::fine_levels::target_fine_levels;
 use crate::derive::interp;
 use crate::derive::structure::structure_at;
 use crate::error::ModelError;
@@ -150,7 +153,17 @@ pub fn sampler_for(
         ModelKind::Noisecal => (model.gain_ratio, Some(carried_gain_ratio(pack, model))),
         _ => (interp::gain_ratio_at(pack, model.iso, extrapolate)?, None),
     };
-    sampler.clean_at(clean_at, pack.layout.black, gains, carried).map_err(ModelError::Unsupported)
+    let sampler = sampler.clean_at(clean_at, pack.layout.black, gains, carried).map_err(ModelError::Unsupported)?;
+    if kind != ModelKind::Noisecal {
+        return Ok(sampler);
+    }
+    // Near black, the levels of a bin too wide for the noise there at their own reference level.
+    let fine = std::array::from_fn(|p| {
+        let own = &model.positions[p].bins;
+        let bins = sampler.structure().map_or(Cow::Borrowed(own), |st| Cow::Owned(st.deconvolved(p, own)));
+        target_fine_levels(pack, model, p, &bins, gains[p])
+    });
+    Ok(sampler.with_target_fine_levels(fine))
 }
 
 impl IsoSampler {

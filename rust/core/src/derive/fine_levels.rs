@@ -11,7 +11,7 @@
 
 use crate::derive::noise_law::{DarkLaw, dark_law};
 use crate::model::layout::Binning;
-use crate::model::pack::{BinModel, IsoModel, ModelPack};
+use crate::model::pack::{BinModel, IsoModel, ModelOrigin, ModelPack};
 use crate::model::structure::IsoStructure;
 
 /// A bin is split when the law's variance changes across it by more than this fraction of its
@@ -41,18 +41,77 @@ pub struct FineLevels {
 /// The tables of position `pos` of `model` (an ISO of `pack`) whose bins are too wide near
 /// black ([`fine_levels`]), `bins` the PMFs the sampler draws from. Only for a model the
 /// estimator made, at an ISO with a dark step (the variance at black measured,
-/// [`variance_at_black`]): a plain histogram, the parametric models and an ISO without dark
-/// frames keep one PMF per bin.
+/// [`variance_at_black`]), or interpolated between two such ISOs ([`interpolated_at_black`]):
+/// a plain histogram, the parametric models, an extrapolated ISO and an ISO without dark frames
+/// keep one PMF per bin.
 pub fn position_fine_levels(pack: &ModelPack, model: &IsoModel, pos: usize, bins: &[BinModel]) -> Option<FineLevels> {
-    let own = &model.positions[pos];
-    if !own.is_estimated() {
-        return None;
-    }
+    position_fine_levels_at(pack, model, pos, bins, 1.0)
+}
+
+/// [`position_fine_levels`] for clean images at the target ISO's brightness: the table of clean
+/// level `c` is the one of the reference level `x = black + (c − black)/gain` (`gain` the gain
+/// ratio the sampler divides by for `CleanAt::Target`), at the law's variance at
+/// `x` itself rather than at `x` rounded to a whole level (near black on a steep law a whole
+/// level is a large step: with the rounded level random sensor 62 of `tests/e2e/tests/dark_end.rs`
+/// read up to 1.14× the real variance, now 1.08). `lut` is then indexed by the target's levels.
+pub fn target_fine_levels(
+    pack: &ModelPack,
+    model: &IsoModel,
+    pos: usize,
+    bins: &[BinModel],
+    gain: f64,
+) -> Option<FineLevels> {
+    (gain.is_finite() && gain > 0.0).then(|| position_fine_levels_at(pack, model, pos, bins, gain)).flatten()
+}
+
+fn position_fine_levels_at(
+    pack: &ModelPack,
+    model: &IsoModel,
+    pos: usize,
+    bins: &[BinModel],
+    gain: f64,
+) -> Option<FineLevels> {
     // Without a dark step the variance at black is the fitted intercept, which a chart whose
     // darkest patch is well above black cannot pin: splitting on it made the random family's
     // pack lose to the plain histogram (median pack / plain 0.917 → 0.959, worst 1.00 → 1.76).
-    let at_black = variance_at_black(pack.structure_of(model.iso), pos)?;
-    fine_levels(&pack.binning(), pos, bins, &own.bins, Some(at_black))
+    let at_black = match &model.origin {
+        ModelOrigin::Calibrated if model.positions[pos].is_estimated() => {
+            variance_at_black(pack.structure_of(model.iso), pos)?
+        }
+        ModelOrigin::Interpolated { from } => interpolated_at_black(pack, model, pos, from)?,
+        _ => return None,
+    };
+    fine_levels_at(&pack.binning(), pos, bins, &model.positions[pos].bins, Some(at_black), gain)
+}
+
+/// The variance at black of an ISO interpolated between calibrated ones (`from`), when the two
+/// that bracket it are estimated at `pos` and both have a dark step: read noise before the gain
+/// grows with the square of the gain and what follows it does not, so the variance at black is
+/// `c₀ + c₂·G²` through the two, `G` the ISO times its gain ratio (exact where the dark frames
+/// hold only those two parts); `c₀` held at 0 where the two would make it negative, and `ln v`
+/// linear in `ln G` where the variance at black does not grow with the gain.
+pub fn interpolated_at_black(pack: &ModelPack, model: &IsoModel, pos: usize, from: &[u32]) -> Option<f64> {
+    let below = from.iter().copied().filter(|&k| k < model.iso).max()?;
+    let above = from.iter().copied().filter(|&k| k > model.iso).min()?;
+    let side = |k: u32| -> Option<(f64, f64)> {
+        let m = pack.iso(k).filter(|m| m.is_calibrated() && m.positions[pos].is_estimated())?;
+        let v = variance_at_black(pack.structure_of(k), pos)?;
+        Some((k as f64 * m.gain_ratio[pos], v))
+    };
+    let ((g0, v0), (g1, v1)) = (side(below)?, side(above)?);
+    let g = model.iso as f64 * model.gain_ratio[pos];
+    if !(g0 > 0.0 && g1 > g0 && g.is_finite()) {
+        return None;
+    }
+    let v = if v1 <= v0 {
+        let t = (g / g0).ln() / (g1 / g0).ln();
+        (v0.ln() + t * (v1.ln() - v0.ln())).exp()
+    } else {
+        let c2 = (v1 - v0) / (g1 * g1 - g0 * g0);
+        let c0 = v0 - c2 * g0 * g0;
+        if c0 >= 0.0 { c0 + c2 * g * g } else { g * g * (v0 * g0 * g0 + v1 * g1 * g1) / (g0.powi(4) + g1.powi(4)) }
+    };
+    v.is_finite().then_some(v)
 }
 
 /// The variance of the pack's pixel PMFs at black at one position when its ISO has a dark
@@ -88,6 +147,20 @@ pub fn fine_levels(
     pack_bins: &[BinModel],
     at_black: Option<f64>,
 ) -> Option<FineLevels> {
+    fine_levels_at(binning, pos, bins, pack_bins, at_black, 1.0)
+}
+
+/// [`fine_levels`] with clean level `c` standing for the reference level `black + (c −
+/// black)/gain` (its bin that of the rounded level, as the sampler for `CleanAt::Target` picks
+/// it, its variance the law's at the level itself); `gain` 1: the reference levels.
+fn fine_levels_at(
+    binning: &Binning,
+    pos: usize,
+    bins: &[BinModel],
+    pack_bins: &[BinModel],
+    at_black: Option<f64>,
+    gain: f64,
+) -> Option<FineLevels> {
     let w = binning.bin_width as f64;
     let black = binning.black[pos] as f64;
     let vars: Vec<Option<f64>> =
@@ -115,7 +188,17 @@ pub fn fine_levels(
     let count = read.iter().take(last + 2).flatten().count().max(2);
     let law = dark_law(&read, w, count, at_black)?;
     let variance_at = |x: f64| law.variance(x).max(MIN_VARIANCE);
-    let mut lut = binning.lut(pos);
+    let reference = binning.lut(pos);
+    let top = (reference.len() - 1) as f64;
+    // Level → bin: the reference level's own, or the bin of the rounded reference level the
+    // level stands for (as the sampler's map for clean images at the target brightness).
+    let mut lut: Vec<u16> = if gain == 1.0 {
+        reference
+    } else {
+        (0..reference.len())
+            .map(|c| reference[(black + (c as f64 - black) / gain).clamp(0.0, top).round() as usize])
+            .collect()
+    };
     let mut extra = Vec::new();
     let step = GROUP_STEP.ln();
     // (bin, group key) of the run being built, its levels and summed variance.
@@ -140,7 +223,7 @@ pub fn fine_levels(
             flush(&mut run, &mut lut, &mut extra);
             continue;
         }
-        let v = variance_at(level as f64 - black);
+        let v = variance_at((level as f64 - black) / gain);
         let key = (v.ln() / step).floor() as i64;
         match &mut run {
             Some((rb, rk, levels, sum)) if *rb == b && *rk == key => {
@@ -204,6 +287,36 @@ mod tests {
         // Bins far above black are whole (the law hardly changes across them).
         assert_eq!(fine.lut[1024 + 64 * 40], 40);
         assert!(fine.extra.len() < 400, "{}", fine.extra.len());
+    }
+
+    #[test]
+    fn target_levels_follow_the_law_at_their_own_reference_level() {
+        // A gain ratio of 1.6 (a gain not ∝ ISO): target level `c` stands for the reference
+        // level `(c − black)/1.6` above black, whose variance the table must have, not that of
+        // the reference level rounded (up to ±0.5 DN there: ±1.65 DN² against 4.8 at black).
+        let bn = binning(64);
+        let (a, b, g) = (3.3, 4.8, 1.6);
+        let bins = law_bins(&bn, a, b);
+        let var_of = |f: &FineLevels, level: usize| {
+            let k = f.lut[level] as usize;
+            if k < bins.len() { bins[k].moments().1 } else { f.extra[k - bins.len()].moments().1 }
+        };
+        let target = fine_levels_at(&bn, 0, &bins, &bins, None, g).expect("split");
+        let reference = fine_levels(&bn, 0, &bins, &bins, None).expect("split");
+        let (mut worst, mut rounded): (f64, f64) = (1.0, 1.0);
+        for x in 0..1024usize {
+            let truth = b + a * x as f64 / g;
+            let v = var_of(&target, 1024 + x);
+            worst = worst.max((v / truth).max(truth / v));
+            // What picking the rounded reference level's table gives.
+            let r = var_of(&reference, (1024.0 + x as f64 / g).round() as usize);
+            rounded = rounded.max((r / truth).max(truth / r));
+        }
+        assert!(worst < 1.06, "{worst}");
+        // The rounded level's table is beyond the issue's ×1.10 just above black.
+        assert!(rounded > 1.15, "{rounded}");
+        // Far above black the target levels draw from the bin of their reference level.
+        assert_eq!(target.lut[1024 + 64 * 40], ((64.0 * 40.0 / g) / 64.0) as u16);
     }
 
     #[test]

@@ -5,7 +5,7 @@ use std::borrow::Cow;
 use rand::Rng;
 use rayon::prelude::*;
 
-use crate::derive::fine_levels::position_fine_levels;
+use crate::derive::fine_levels::{FineLevels, position_fine_levels};
 use crate::model::codes::Snap;
 use crate::model::layout::{Binning, POSITIONS};
 use crate::model::pack::{BinModel, IsoModel, ModelPack};
@@ -345,6 +345,29 @@ impl IsoSampler {
         });
         self.target = Some(Box::new(TargetMap { luts, shifts, gains }));
         Ok(self)
+    }
+
+    /// For clean images at the target brightness: the levels near black whose bin is too wide
+    /// draw from the tables `fine` holds per position for them, each at the variance of its own
+    /// reference level rather than of that level rounded ([`target_fine_levels`]; its `lut` is
+    /// indexed by the target's levels, its tables after the bins). Unchanged for a sampler at
+    /// the reference brightness, and at a position whose tables would pass 16-bit indices.
+    pub fn with_target_fine_levels(mut self, fine: [Option<FineLevels>; POSITIONS]) -> Self {
+        let Some(t) = self.target.as_mut() else { return self };
+        for (p, f) in fine.into_iter().enumerate() {
+            let Some(f) = f else { continue };
+            let (bins, base) = (self.binning.bins(p), self.tables[p].len());
+            if base + f.extra.len() > u16::MAX as usize + 1 || f.lut.len() != t.luts[p].len() {
+                continue;
+            }
+            for (to, &k) in t.luts[p].iter_mut().zip(&f.lut) {
+                if k as usize >= bins {
+                    *to = (base + k as usize - bins) as u16;
+                }
+            }
+            self.tables[p].extend(f.extra.iter().map(BinTable::new));
+        }
+        self
     }
 
     /// Which brightness this sampler takes clean images at.
