@@ -150,7 +150,9 @@ pub struct FlatReport {
     pub unsteady: [u64; POSITIONS],
     /// Flat pixels per position left out because the reference burst saturated there (a full
     /// well below white, or white): their clean level is the ceiling, not their brightness
-    /// ([`crate::calibrate::saturated`]).
+    /// ([`crate::calibrate::saturated`]). Not kept in checkpoints (the clean levels are; a
+    /// resumed session reports 0 here).
+    #[serde(skip)]
     pub saturated: [u64; POSITIONS],
 }
 
