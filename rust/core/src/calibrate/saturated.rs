@@ -140,9 +140,10 @@ pub fn leave_out<V: Fn(usize) -> f64, L: Fn(usize, f64) -> f64>(view: BurstView<
     out
 }
 
-/// The chance that a pixel of pure noise (per-frame variance `var`, `m` frames, integer codes) is
-/// flagged: the continuous rate [`FALSE_POSITIVE`] plus the chance that every
-/// frame gave the same code (`s² = 0`), `≈ (2π·var)^{−(m−1)/2} / √m` for a rounded Gaussian
+/// About the chance that a pixel of pure noise (per-frame variance `var`, `m` frames, integer
+/// codes) is flagged, and not below it (an upper bound where only pixels whose codes all agree
+/// can fall below the threshold): the continuous rate [`FALSE_POSITIVE`] plus the chance that
+/// every frame gave the same code (`s² = 0`), `≈ (2π·var)^{−(m−1)/2} / √m` for a rounded Gaussian
 /// (at most 1).
 pub fn false_positive_rate(m: u32, var: f64) -> f64 {
     let m = m as f64;
@@ -278,11 +279,20 @@ mod tests {
                 flagged += f64::from(u8::from(*v < q * law(l)));
                 expected += false_positive_rate(m, law(l));
             }
-            // Within 6 SD and 25 % of the stated rate.
+            // Never above the stated rate (6 SD and 25 % over it); where `q·σ²` is a few DN²
+            // (codes fine against the threshold) at it within 25 %. Where `q·σ²` is under a DN²
+            // only pixels whose codes all agree can be flagged, so the stated rate (which adds
+            // the continuous 1 % to them) is an upper bound.
             assert!(
-                (flagged - expected).abs() < 6.0 * expected.sqrt() + 0.25 * expected,
+                flagged < expected + 6.0 * expected.sqrt() + 0.25 * expected,
                 "m = {m}, slope {slope}: {flagged} flagged, {expected:.0} expected"
             );
+            if q * law(2100.0) >= 3.0 {
+                assert!(
+                    flagged > expected - 6.0 * expected.sqrt() - 0.25 * expected,
+                    "m = {m}, slope {slope}: {flagged} flagged, {expected:.0} expected"
+                );
+            }
             let before = b.clean.clone();
             let s = run(&mut b, w, m, law, 4095);
             assert_eq!(s.cut, [None; POSITIONS], "m = {m}, slope {slope}: a ceiling in pure noise");
