@@ -98,7 +98,7 @@ pub fn leave_out<V: Fn(usize) -> f64, L: Fn(usize, f64) -> f64>(view: BurstView<
             continue;
         }
         let var = (view.law)(pos, x);
-        if !(var > 0.0) {
+        if var.is_nan() || var <= 0.0 {
             continue;
         }
         let g = group(x);
