@@ -229,6 +229,9 @@ fn lattice(i: usize, d: isize, n: usize) -> usize {
     }
 }
 
+/// One band of rows' edge samples and anchors (pixel, noise SD), as [`MotionProbe::new`] finds them.
+type BandSamples = (Vec<u32>, Vec<(u32, f32)>);
+
 /// One row of a clean image as [`MotionProbe::new`] reads it.
 struct ProbeRow<'a> {
     mean: &'a [u16],
@@ -336,7 +339,7 @@ impl MotionProbe {
         let row_step = if h > 512 { 4 } else { 1 };
         // Bands of rows in parallel, their edges and anchors joined in row order.
         let band_rows = 64;
-        let bands: Vec<(Vec<u32>, Vec<(u32, f32)>)> = gradient
+        let bands: Vec<BandSamples> = gradient
             .par_chunks_mut(band_rows * w.max(1))
             .enumerate()
             .map(|(b, rows)| {
