@@ -125,6 +125,9 @@ pub fn calibrate_path(
     opts: &CalibrateOptions,
     progress: &mut dyn FnMut(u64, u64),
 ) -> anyhow::Result<(ModelPack, CalibrateReport)> {
+    // The DNG read buffers are reused from frame to frame and freed when this returns (declared
+    // before the source, so dropped after the frames it holds).
+    let _buffers = ReleaseReadBuffers;
     let mut source = Source::open(path, opts.reference_iso)?;
     let info = source.info();
     let mut config = info.config.clone();
@@ -239,6 +242,15 @@ pub fn calibrate_path(
         msg
     })?;
     Ok((pack, report))
+}
+
+/// Frees the DNG read buffers when dropped.
+struct ReleaseReadBuffers;
+
+impl Drop for ReleaseReadBuffers {
+    fn drop(&mut self) {
+        crate::dng::release_read_buffers();
+    }
 }
 
 /// Pushes the dark frames found inside EV steps (re-read from their files, by ISO) into the

@@ -40,6 +40,23 @@ pub fn read_regular(path: &Path, max_bytes: u64) -> io::Result<Vec<u8>> {
     Ok(buf)
 }
 
+/// The file at `path` opened for reading, with its length, after the checks of
+/// [`read_regular`] (the same errors): for callers that read parts of it.
+pub fn open_regular(path: &Path, max_bytes: u64) -> io::Result<(File, u64)> {
+    check_regular(path, &fs::metadata(path)?)?;
+    let file = File::open(path)?;
+    // The open file is checked again: the path may have been replaced since.
+    let meta = file.metadata()?;
+    check_regular(path, &meta)?;
+    if meta.len() > max_bytes {
+        return Err(io::Error::new(
+            io::ErrorKind::FileTooLarge,
+            format!("{} is {} bytes long, more than the {max_bytes} bytes accepted", path.display(), meta.len()),
+        ));
+    }
+    Ok((file, meta.len()))
+}
+
 /// A read-only view of a whole regular file: memory-mapped (no copy; pages come from the page
 /// cache as they are touched), or an empty slice for an empty file.
 #[derive(Debug)]

@@ -14,7 +14,7 @@ use crate::calibrate::line_base::in_lines;
 use crate::calibrate::motion::{FrameMotion, MotionProbe, NEGLIGIBLE_MOTION_PX};
 use crate::calibrate::reference::CleanImage;
 use crate::calibrate::structure::{CELLS, FrameSums, StructureAccumulator};
-use crate::calibrate::window_counts::{LaneCounts, WindowCounts};
+use crate::calibrate::window_counts::{LaneCounts, Outside, WindowCounts, count_pairs};
 
 use crate::model::histogram::NoiseHistogram;
 use crate::model::layout::{Binning, POSITIONS};
@@ -277,7 +277,7 @@ fn fold_rows(
     let mut cols = [vec![0i64; w], vec![0i64; w]];
     let mut buf = vec![0u16; w];
     let mut noise = vec![0i32; w];
-    let mut masked = vec![0i32; w];
+    let (mut out0, mut out1): (Outside, Outside) = (Vec::new(), Vec::new());
     let identity = tf.identity();
     let top = white as usize;
     let (h0, h1) = hists.split_at_mut(1);
@@ -334,16 +334,18 @@ fn fold_rows(
         } else {
             &noise
         };
-        rows.push(line_sums(line_values, crow, line_top, &mut cols[half], &mut masked));
+        rows.push(line_sums(line_values, crow, line_top, &mut cols[half]));
         if let Some((codes0, codes1)) = apart.as_mut() {
             count_codes(crow, row, top, codes0, codes1);
         }
         // Even columns are position `2·parity`, odd ones `2·parity + 1`: one pass over the
         // row's column pairs feeds both, each pixel's window found by its clean level.
-        let mut even = PositionCounts::new(p0 as u8, &mut window0, &mut *hist0, by_level.then_some(&mut *codes_out0));
-        let mut odd = PositionCounts::new(p1 as u8, &mut window1, &mut *hist1, by_level.then_some(&mut *codes_out1));
-        let pairs = crow.chunks_exact(2).zip(noise.chunks_exact(2));
         if motion.is_some() {
+            let mut even =
+                PositionCounts::new(p0 as u8, &mut window0, &mut *hist0, by_level.then_some(&mut *codes_out0));
+            let mut odd =
+                PositionCounts::new(p1 as u8, &mut window1, &mut *hist1, by_level.then_some(&mut *codes_out1));
+            let pairs = crow.chunks_exact(2).zip(noise.chunks_exact(2));
             for (j, ((c, n), v)) in pairs.zip(row.chunks_exact(2)).enumerate() {
                 let x = 2 * j;
                 samples += even.add_kept(c[0], n[0], j, keep[x], v[0], &mut left_out);
@@ -354,13 +356,20 @@ fn fold_rows(
                 samples += even.add_kept(crow[x], noise[x], x >> 1, keep[x], row[x], &mut left_out);
             }
         } else {
-            for (j, (c, n)) in pairs.enumerate() {
-                even.add(c[0], n[0], j);
-                odd.add(c[1], n[1], j);
+            out0.clear();
+            out1.clear();
+            count_pairs(&mut window0, &mut window1, crow, &noise, [&mut out0, &mut out1]);
+            // The samples outside their windows, each position's in column order: a histogram
+            // only ever sees its own position's samples, so this is the order of adding in turn.
+            let mut even =
+                PositionCounts::new(p0 as u8, &mut window0, &mut *hist0, by_level.then_some(&mut *codes_out0));
+            for &(level, n) in &out0 {
+                even.outside(level as usize, n);
             }
-            if w % 2 == 1 {
-                let x = w - 1;
-                even.add(crow[x], noise[x], x >> 1);
+            let mut odd =
+                PositionCounts::new(p1 as u8, &mut window1, &mut *hist1, by_level.then_some(&mut *codes_out1));
+            for &(level, n) in &out1 {
+                odd.outside(level as usize, n);
             }
             samples += flat_pixels as u64;
         }
@@ -465,26 +474,27 @@ fn count_codes(crow: &[u16], row: &[u16], top: usize, even: &mut LaneCounts, odd
 }
 
 /// Adds one row's noise over its line pixels (flat, clean level at most `line_top`) into its
-/// columns' sums `cols`, and returns its sums per cell (`x & 3`); `masked` is scratch of the
-/// row's width. Branch-free loops, so that the compiler vectorises them.
+/// columns' sums `cols`, and returns its sums per cell (`x & 3`). One branch-free pass over the
+/// row's quads, so that the compiler vectorises it (integer sums: any order gives the same).
 #[inline]
-fn line_sums(noise: &[i32], crow: &[u16], line_top: u16, cols: &mut [i64], masked: &mut [i32]) -> [i64; CELLS] {
-    for ((m, &n), &c) in masked.iter_mut().zip(noise).zip(crow) {
-        *m = n & (in_lines(c, line_top) as i32).wrapping_neg();
-    }
-    for (col, &m) in cols.iter_mut().zip(masked.iter()) {
-        *col += m as i64;
-    }
+fn line_sums(noise: &[i32], crow: &[u16], line_top: u16, cols: &mut [i64]) -> [i64; CELLS] {
+    let n = noise.len().min(crow.len()).min(cols.len());
+    let (noise, crow, cols) = (&noise[..n], &crow[..n], &mut cols[..n]);
     let mut cells = [0i64; CELLS];
-    let quads = masked.chunks_exact(CELLS);
-    let rest = quads.remainder();
-    for q in quads {
-        for (cell, &m) in cells.iter_mut().zip(q) {
-            *cell += m as i64;
+    let masked = |n: i32, c: u16| (n & (in_lines(c, line_top) as i32).wrapping_neg()) as i64;
+    let quads = noise.chunks_exact(CELLS).zip(crow.chunks_exact(CELLS)).zip(cols.chunks_exact_mut(CELLS));
+    for ((qn, qc), qcols) in quads {
+        for k in 0..CELLS {
+            let m = masked(qn[k], qc[k]);
+            qcols[k] += m;
+            cells[k] += m;
         }
     }
-    for (cell, &m) in cells.iter_mut().zip(rest) {
-        *cell += m as i64;
+    let done = n / CELLS * CELLS;
+    for (k, ((&v, &c), col)) in noise[done..].iter().zip(&crow[done..]).zip(&mut cols[done..]).enumerate() {
+        let m = masked(v, c);
+        *col += m;
+        cells[k] += m;
     }
     cells
 }

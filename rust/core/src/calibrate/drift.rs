@@ -144,10 +144,10 @@ fn float_brightness_sums(
     out
 }
 
-/// [`brightness_sums`] in integers, where that gives the same sums to the last bit: a frame
-/// not transformed, integer black levels, and sums that cannot reach 2⁵³ (every term, and so
-/// every partial sum the floating-point loop forms, is then an integer it holds exactly, and
-/// the order of the additions changes nothing). `None` elsewhere.
+/// [`brightness_sums`] as exact sums of integers, where that gives the same sums to the last
+/// bit: a frame not transformed, integer black levels, and sums that cannot reach 2⁵³ (every
+/// term, and so every partial sum the floating-point loop forms, is then an integer it holds
+/// exactly, and the order of the additions changes nothing). `None` elsewhere.
 fn integer_brightness_sums(
     frame: &FrameView<'_>,
     base: &[u16],
@@ -169,22 +169,9 @@ fn integer_brightness_sums(
     if (w as u128) * (h as u128) * largest_base * 65536 >= 1u128 << 53 {
         return None;
     }
-    let mut bands = vec![[0i64; 5]; BANDS];
-    let (mut frame_pos, mut base_pos) = ([0i64; POSITIONS], [0i64; POSITIONS]);
+    let mut bands = vec![[0.0f64; 5]; BANDS];
+    let (mut frame_pos, mut base_pos) = ([0.0f64; POSITIONS], [0.0f64; POSITIONS]);
     let mut buf = vec![0u16; w];
-    // `[n, Σb, Σf, Σb², Σbf]` of one compared pixel (base level `c`, frame value `v`) over black
-    // `b`; a pixel not compared adds zeros (branch-free: flat and unclipped pixels mix at random).
-    #[inline(always)]
-    fn add(sums: &mut [i64; 5], c: u16, v: u16, b: i64, top: u16) {
-        let compared = c != NOT_FLAT && c <= top;
-        let mask = (compared as i64).wrapping_neg();
-        let (bv, fv) = ((c as i64 - b) & mask, (v as i64 - b) & mask);
-        sums[0] += compared as i64;
-        sums[1] += bv;
-        sums[2] += fv;
-        sums[3] += bv * bv;
-        sums[4] += bv * fv;
-    }
     for (y, band) in sampled_rows(h) {
         // The row in place where the frame's memory allows it.
         let row: &[u16] = match frame.row(y) {
@@ -198,16 +185,8 @@ fn integer_brightness_sums(
         let band = &mut bands[band];
         let parity = (y & 1) << 1;
         // Even columns are one position, odd ones the other: one pass over the column pairs.
-        let (b0, b1) = (black[parity], black[parity | 1]);
-        let (mut even, mut odd) = ([0i64; 5], [0i64; 5]);
-        for (c, v) in crow.chunks_exact(2).zip(row.chunks_exact(2)) {
-            add(&mut even, c[0], v[0], b0, top);
-            add(&mut odd, c[1], v[1], b1, top);
-        }
-        if w % 2 == 1 {
-            add(&mut even, crow[w - 1], row[w - 1], b0, top);
-        }
-        for (pos, sums) in [(parity, even), (parity | 1, odd)] {
+        let sums = row_sums(crow, row, [black[parity] as f64, black[parity | 1] as f64], top);
+        for (pos, sums) in [(parity, sums[0]), (parity | 1, sums[1])] {
             for (o, v) in band.iter_mut().zip(sums) {
                 *o += v;
             }
@@ -215,11 +194,44 @@ fn integer_brightness_sums(
             base_pos[pos] += sums[1];
         }
     }
-    Some(BrightnessSums {
-        bands: bands.iter().map(|b| b.map(|v| v as f64)).collect(),
-        frame_pos: frame_pos.map(|v| v as f64),
-        base_pos: base_pos.map(|v| v as f64),
-    })
+    Some(BrightnessSums { bands, frame_pos, base_pos })
+}
+
+/// `[n, Σb, Σf, Σb², Σbf]` of the even columns and of the odd ones of one row (base levels
+/// `crow`, frame values `row`) over the black levels `black` (integers), the pixels compared
+/// being those whose base level is flat and at most `top`. In `f64`, whose sums of these integer
+/// terms are exact below 2⁵³ (the caller's bound), so in any order: two lanes per sum, each
+/// pixel's terms added branch-free (a pixel not compared adds zeros), which the compiler turns
+/// into vector arithmetic.
+#[inline]
+fn row_sums(crow: &[u16], row: &[u16], black: [f64; 2], top: u16) -> [[f64; 5]; 2] {
+    const LANES: usize = 2;
+    let mut acc = [[[0.0f64; LANES]; 5]; 2];
+    #[inline(always)]
+    fn add(a: &mut [[f64; LANES]; 5], lane: usize, c: u16, v: u16, black: f64, top: u16) {
+        let m = (c != NOT_FLAT && c <= top) as u32 as f64;
+        let (bv, fv) = ((c as f64 - black) * m, (v as f64 - black) * m);
+        a[0][lane] += m;
+        a[1][lane] += bv;
+        a[2][lane] += fv;
+        a[3][lane] += bv * bv;
+        a[4][lane] += bv * fv;
+    }
+    let n = crow.len().min(row.len());
+    let (crow, row) = (&crow[..n], &row[..n]);
+    let steps = crow.chunks_exact(2 * LANES).zip(row.chunks_exact(2 * LANES));
+    for (c, v) in steps {
+        for lane in 0..LANES {
+            for p in 0..2 {
+                add(&mut acc[p], lane, c[2 * lane + p], v[2 * lane + p], black[p], top);
+            }
+        }
+    }
+    let done = n / (2 * LANES) * (2 * LANES);
+    for x in done..n {
+        add(&mut acc[x & 1], 0, crow[x], row[x], black[x & 1], top);
+    }
+    acc.map(|a| a.map(|l| l.iter().sum()))
 }
 
 /// Brightness of one frame against a base image (the clean image, or the burst's first frame).

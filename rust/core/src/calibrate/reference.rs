@@ -201,32 +201,39 @@ impl ReferenceBurst {
             // `[n, Σd, Σd²]` per position and group, in integers (see `exact_stats`).
             let mut sums = vec![[0i64; 3]; POSITIONS * GROUPS];
             let mut row_buf = vec![0u16; w];
-            let mut values = vec![0u32; w];
+            let mut codes = vec![0u16; w];
             for (y, sum_row, first_row, square_row) in rows.iter_mut() {
                 let y = *y;
-                frame.read_row(y, &mut row_buf);
-                if identity {
-                    for (v, &r) in values.iter_mut().zip(&row_buf) {
-                        *v = r as u32;
+                // The row's codes: the frame's row in place where its memory allows and no
+                // transform applies, else transformed into `codes` (every code is at most
+                // white, so a u16).
+                let values: &[u16] = if identity {
+                    match frame.row(y) {
+                        std::borrow::Cow::Borrowed(r) => r,
+                        std::borrow::Cow::Owned(v) => {
+                            row_buf.copy_from_slice(&v);
+                            &row_buf
+                        }
                     }
                 } else {
-                    for (x, (v, &r)) in values.iter_mut().zip(&row_buf).enumerate() {
+                    frame.read_row(y, &mut row_buf);
+                    for (x, (v, &r)) in codes.iter_mut().zip(&row_buf).enumerate() {
                         let pos = ((y & 1) << 1) | (x & 1);
-                        *v = code(pos, r);
+                        *v = code(pos, r) as u16;
                     }
-                }
-                for (s, &v) in sum_row.iter_mut().zip(&values) {
-                    *s += v;
+                    &codes
+                };
+                for (s, &v) in sum_row.iter_mut().zip(values) {
+                    *s += v as u32;
                 }
                 if first_frame {
-                    for (f, &v) in first_row.iter_mut().zip(&values) {
-                        *f = v as u16;
-                    }
+                    first_row.copy_from_slice(&values[..first_row.len()]);
                     continue;
                 }
-                for ((q, &v), &f0) in square_row.iter_mut().zip(&values).zip(first_row.iter()) {
-                    let di = v as i64 - f0 as i64;
-                    *q = q.saturating_add((di * di).min(u32::MAX as i64) as u32);
+                // (v − f0)² of two u16 is below 2³², so the u32 square is exact (no clamp).
+                for ((q, &v), &f0) in square_row.iter_mut().zip(values).zip(first_row.iter()) {
+                    let d = v.abs_diff(f0) as u32;
+                    *q = q.saturating_add(d * d);
                 }
                 if (y / 2) % stats_rows == 0 {
                     for (x, (&v, &f0)) in values.iter().zip(first_row.iter()).enumerate() {

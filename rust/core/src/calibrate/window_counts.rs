@@ -132,7 +132,8 @@ impl<'a> WindowCounts<'a> {
         }
         self.levels.push(LevelWindow { first: 0, len: 1, start, bin: 0 });
         self.counts.clear();
-        self.counts.resize((start as usize + 1) * LANES, 0);
+        // A power of two, so that [`count_pairs`] can mask its indices instead of checking them.
+        self.counts.resize(((start as usize + 1) * LANES).next_power_of_two(), 0);
     }
 
     /// Whether each flat level has a window of its own, so that [`WindowCounts::flush`] gives
@@ -224,6 +225,65 @@ impl<'a> WindowCounts<'a> {
                 }
             }
         }
+    }
+}
+
+/// A row's samples outside their windows, for one position: `(level, noise)` in column order.
+pub(crate) type Outside = Vec<(u32, i32)>;
+
+/// Counts one row of two positions, `even` taking the even columns and `odd` the odd ones, as
+/// [`WindowCounts::add`] of every pixel in turn (clean level `crow[x]`, at most the window's
+/// [`WindowCounts::not_flat`]; noise `noise[x]`; lane the column pair) would, except that the
+/// samples outside their windows are not added anywhere but listed in `outside` (even, odd), in
+/// column order, for the caller to add to the histograms.
+///
+/// The one loop of the target accumulation that runs per sample: its tables are local slices
+/// whose lengths the indexing can be checked against once (the levels end at the not-flat
+/// level, the counts are a power of two long), so a sample costs a load of its level's
+/// window, a compare and an increment.
+#[inline(never)]
+pub(crate) fn count_pairs(
+    even: &mut WindowCounts<'_>,
+    odd: &mut WindowCounts<'_>,
+    crow: &[u16],
+    noise: &[i32],
+    outside: [&mut Outside; 2],
+) {
+    let [out0, out1] = outside;
+    let (nf0, nf1) = (even.not_flat(), odd.not_flat());
+    let (levels0, levels1) = (&even.levels[..=nf0], &odd.levels[..=nf1]);
+    let (mask0, mask1) = (even.counts.len() - 1, odd.counts.len() - 1);
+    let (counts0, counts1) = (&mut even.counts[..=mask0], &mut odd.counts[..=mask1]);
+    let n = crow.len().min(noise.len());
+    let (crow, noise) = (&crow[..n], &noise[..n]);
+    #[inline(always)]
+    fn one(
+        levels: &[LevelWindow],
+        counts: &mut [u32],
+        mask: usize,
+        nf: usize,
+        c: u16,
+        n: i32,
+        lane: usize,
+        out: &mut Outside,
+    ) {
+        let level = (c as usize).min(nf);
+        let lw = levels[level];
+        let i = n.wrapping_sub(lw.first) as u32;
+        if i < lw.len {
+            counts[((lw.start + i) as usize * LANES + lane) & mask] += 1;
+        } else {
+            out.push((level as u32, n));
+        }
+    }
+    for (j, (c, v)) in crow.chunks_exact(2).zip(noise.chunks_exact(2)).enumerate() {
+        let lane = j & (LANES - 1);
+        one(levels0, counts0, mask0, nf0, c[0], v[0], lane, out0);
+        one(levels1, counts1, mask1, nf1, c[1], v[1], lane, out1);
+    }
+    if n % 2 == 1 {
+        let x = n - 1;
+        one(levels0, counts0, mask0, nf0, crow[x], noise[x], (x >> 1) & (LANES - 1), out0);
     }
 }
 
@@ -324,5 +384,69 @@ mod tests {
         assert!(!w.by_level());
         assert!(!w.add(5, 3, 1));
         assert!(w.add(w.not_flat(), 0, 1));
+    }
+
+    /// A row counted by [`count_pairs`] leaves both positions' windows as adding each pixel in
+    /// turn does, and lists exactly the samples outside, in column order: rows of odd and even
+    /// width, pixels not flat, levels without a window, noise far outside.
+    #[test]
+    fn count_pairs_is_adding_in_turn() {
+        let lut: Vec<u16> = (0..40).map(|l| l / 4).collect();
+        let flat: Vec<u16> = vec![3, 4, 5, 9, 10, 20, 21, 22, 23, 37];
+        let hists = vec![NoiseHistogram { first: -6, counts: vec![1; 13] }; 10];
+        let mut s = 0x2545_F491_4F6C_DD1Du64;
+        let mut next = move || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            s
+        };
+        for (width, budget) in [(101usize, usize::MAX), (64, usize::MAX), (77, 0)] {
+            let (mut even, mut odd) = (
+                WindowCounts::new(&hists, &lut, &flat, 1000, budget),
+                WindowCounts::new(&hists, &lut, &flat, 1000, budget),
+            );
+            let (mut even_turn, mut odd_turn) = (
+                WindowCounts::new(&hists, &lut, &flat, 1000, budget),
+                WindowCounts::new(&hists, &lut, &flat, 1000, budget),
+            );
+            let (mut out, mut out_turn) = ([Vec::new(), Vec::new()], [Vec::new(), Vec::new()]);
+            for _row in 0..20 {
+                let mut crow = Vec::with_capacity(width);
+                let mut noise = Vec::with_capacity(width);
+                for _ in 0..width {
+                    let r = next();
+                    let (c, n) = match r % 10 {
+                        // Not flat: the not-flat level, noise 0.
+                        0 => (u16::MAX, 0),
+                        // A level no flat pixel has (no window by level).
+                        1 => (30, (r >> 8) as i32 % 5),
+                        // Far outside.
+                        2 => (flat[(r >> 8) as usize % flat.len()], 50 + (r >> 20) as i32 % 50),
+                        _ => (flat[(r >> 8) as usize % flat.len()], ((r >> 20) % 13) as i32 - 6),
+                    };
+                    crow.push(c);
+                    noise.push(n);
+                }
+                let [o0, o1] = &mut out;
+                o0.clear();
+                o1.clear();
+                count_pairs(&mut even, &mut odd, &crow, &noise, [o0, o1]);
+                out_turn[0].clear();
+                out_turn[1].clear();
+                for (x, (&c, &n)) in crow.iter().zip(&noise).enumerate() {
+                    let w = if x % 2 == 0 { &mut even_turn } else { &mut odd_turn };
+                    let level = (c as usize).min(w.not_flat());
+                    if !w.add(level, n, x >> 1) {
+                        out_turn[x % 2].push((level as u32, n));
+                    }
+                }
+                assert_eq!(out, out_turn, "width {width}");
+                assert_eq!(even.counts, even_turn.counts);
+                assert_eq!(odd.counts, odd_turn.counts);
+            }
+            assert!(out_turn.iter().all(|o| !o.is_empty()), "samples fell outside");
+            assert!(even.counts.iter().any(|&c| c > 0) && odd.counts.iter().any(|&c| c > 0));
+        }
     }
 }

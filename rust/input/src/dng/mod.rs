@@ -18,6 +18,7 @@
 //! * [`Tag`] names every TIFF/DNG tag the reader and the writer use.
 //! * [`scan_folder`] lists the DNGs of a folder.
 
+mod buffers;
 mod compressed;
 mod edit;
 mod error;
@@ -27,6 +28,7 @@ mod meta;
 mod profile;
 mod raw_data;
 mod read;
+mod sparse;
 mod stream;
 mod tags;
 pub mod tiff;
@@ -39,6 +41,7 @@ use ndarray::{Array2, ArrayView2};
 use noisecal_core::error::FrameError;
 use noisecal_core::{FrameMeta, FrameView, SensorLayout};
 
+pub use buffers::release as release_read_buffers;
 pub use edit::PixelMode;
 pub use error::DngError;
 pub use profile::fitted_noise_profile;
@@ -89,10 +92,11 @@ pub struct DngImage {
     pub source: PathBuf,
 }
 
-/// A file's bytes: read into memory, or mapped.
+/// A file's bytes: read into memory (a buffer of its own, or one reused), or mapped.
 #[derive(Debug)]
 enum Bytes {
     Owned(Vec<u8>),
+    Read(buffers::Buffer),
     Mapped(noisecal_io::Mapped),
 }
 
@@ -102,6 +106,7 @@ impl std::ops::Deref for Bytes {
     fn deref(&self) -> &[u8] {
         match self {
             Bytes::Owned(v) => v,
+            Bytes::Read(b) => b,
             Bytes::Mapped(m) => m,
         }
     }
@@ -153,6 +158,7 @@ impl DngFile {
     pub(crate) fn into_bytes(self) -> Vec<u8> {
         match Arc::try_unwrap(self.bytes) {
             Ok(Bytes::Owned(v)) => v,
+            Ok(Bytes::Read(b)) => b.into_vec(),
             Ok(Bytes::Mapped(m)) => m.to_vec(),
             Err(shared) => shared.to_vec(),
         }

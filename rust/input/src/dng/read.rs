@@ -47,8 +47,11 @@ pub fn read_dng(path: &Path) -> Result<DngImage, DngError> {
 
 /// As [`read_dng`] without decoding the pixels (`pixels` is empty): the metadata a capture set is
 /// grouped by, at a fraction of the cost. The same checks apply, but for the data's integrity.
+/// The raw image data itself is not read where the file's directories say where it lies and lie
+/// outside it (see `sparse.rs`).
 pub fn read_dng_meta(path: &Path) -> Result<DngImage, DngError> {
-    parse(Src::Raw(source_of(path)?), path, false)
+    let bytes = super::sparse::meta_bytes(path, super::sparse::END_BYTES)?;
+    parse(Src::Raw(RawSource::new_from_shared_vec(Arc::new(bytes))), path, false)
 }
 
 /// Decodes a DNG held in memory, as [`read_dng`] decodes a file: the entry point for fuzzing and
@@ -74,9 +77,13 @@ pub fn read_dng_file(path: &Path) -> Result<DngFile, DngError> {
 /// As [`read_dng_file`], but the pixels of an uncompressed 16-bit raw image in this machine's
 /// byte order are not copied out of the file's bytes: read them with [`DngFile::pixels`] (for
 /// other storage they are decoded into `image.pixels`, as [`read_dng_file`] does). The file is
-/// memory-mapped, not read: it must not be truncated while the returned file lives.
+/// read into memory, not mapped: a file truncated or rewritten by another program while a
+/// calibration runs is then a decode error naming it, never a crash (a mapped page past a new
+/// end raises `SIGBUS`), at the cost of one copy from the page cache, into a buffer reused
+/// from an earlier file ([`release_read_buffers`](super::release_read_buffers) frees them).
 pub fn read_dng_source(path: &Path) -> Result<DngFile, DngError> {
-    let bytes = mapped_bytes(path)?;
+    let read = super::buffers::Buffer::read(path, MAX_DNG_BYTES).map_err(|e| DngError::io(path, e))?;
+    let bytes = Arc::new(Bytes::Read(read));
     let image = parse(Src::Slice(&bytes), path, false)?;
     let mut file = DngFile { image, bytes };
     if file.pixels().is_empty() {

@@ -1,0 +1,43 @@
+//! A DNG truncated while calibration holds it: the frame already read keeps its pixels (the file
+//! is read into memory, not mapped, so a page past the new end cannot raise SIGBUS), and reading
+//! the truncated file again is an error that names it.
+
+use noisecal_core::{CfaPattern, FrameMeta, SensorLayout};
+use noisecal_input::dng::{read_dng_meta, read_dng_source, write_dng_from_layout};
+
+#[test]
+fn a_file_truncated_under_a_read_frame_is_an_error_not_a_crash() {
+    let dir = tempfile::tempdir().unwrap();
+    let (w, h) = (512usize, 384usize);
+    let layout =
+        SensorLayout { width: w as u32, height: h as u32, cfa: CfaPattern::Rggb, black: [64.0; 4], white: 1023 };
+    let pixels = ndarray::Array2::from_shape_fn((h, w), |(y, x)| (64 + (7 * y + 3 * x) % 900) as u16);
+    let path = dir.path().join("f.dng");
+    write_dng_from_layout(&path, &layout, &FrameMeta::new(400, 10_000_000), "M", "P", &pixels).unwrap();
+    let len = std::fs::metadata(&path).unwrap().len();
+    assert!(len > 2 * (w * h) as u64, "the file holds the image");
+
+    let frame = read_dng_source(&path).unwrap();
+    // Another program truncates the file while the frame is held (a mapped file would now
+    // raise SIGBUS on the first read of a page past the new end, killing the process).
+    std::fs::OpenOptions::new().write(true).open(&path).unwrap().set_len(4096).unwrap();
+    assert_eq!(frame.pixels(), pixels.view(), "the frame read before the truncation keeps its pixels");
+    let view = frame.frame_view().unwrap();
+    assert_eq!(&*view.row(h - 1), pixels.row(h - 1).as_slice().unwrap());
+
+    // Read again, the truncated file is an error naming it, from both readers.
+    let name = path.display().to_string();
+    let e = read_dng_source(&path).expect_err("a truncated DNG").to_string();
+    assert!(e.contains(&name), "{e}");
+    let e = read_dng_meta(&path).expect_err("a truncated DNG").to_string();
+    assert!(e.contains(&name), "{e}");
+    // Truncated inside the image data, the directories intact: the full read says truncated.
+    write_dng_from_layout(&path, &layout, &FrameMeta::new(400, 10_000_000), "M", "P", &pixels).unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    let cut = len as usize / 2;
+    let mut shortened = bytes[..cut].to_vec();
+    shortened.extend_from_slice(&bytes[cut + 4096..]);
+    std::fs::write(&path, &shortened).unwrap();
+    let e = read_dng_source(&path).expect_err("a DNG whose data is cut short").to_string();
+    assert!(e.contains(&name), "{e}");
+}
