@@ -35,7 +35,7 @@ fn trial(seed: u64, row_var: f64) -> [[(f64, bool); 2]; 2] {
             // A column cell holds the rows `y ≡ cell (mod 4)`: their offsets' sum.
             let row_sum: [f64; CELLS] = std::array::from_fn(|c| (c..H).step_by(CELLS).map(|y| rows[y]).sum());
             let mut sums = FrameSums::new(W, H, [0.0; 4]);
-            let mut cell = |m: usize, clean: f64, offsets: f64, rng: &mut ChaCha8Rng| -> [i64; 3] {
+            let cell = |m: usize, clean: f64, offsets: f64, rng: &mut ChaCha8Rng| -> [i64; 3] {
                 let m_f = m as f64;
                 let n = m_f * clean * (brightness - 1.0) + offsets + (m_f * pixel_var(clean)).sqrt() * unit.sample(rng);
                 [n.round() as i64, (m_f * clean).round() as i64, m as i64]

@@ -316,10 +316,11 @@ fn deconvolve_bin_within(b: &BinModel, k0: i32, kernel: &[f64], max_iterations: 
     let high_mass = pmf.p[n - taps..].iter().sum::<f64>() / total;
     let misread =
         (low && high_mass >= 0.5 && high_mass > low_mass) || (high && low_mass >= 0.5 && low_mass > high_mass);
-    if b.clipped && (!(low || high) || misread) {
-        if let Some(start) = spread_pile_start(&pmf, k0, kernel.len(), km, kv) {
-            return from_weights(b, start.first, &start.p);
-        }
+    if b.clipped
+        && (!(low || high) || misread)
+        && let Some(start) = spread_pile_start(&pmf, k0, kernel.len(), km, kv)
+    {
+        return from_weights(b, start.first, &start.p);
     }
     let clipped = low || high;
     let start = match clipped {
