@@ -421,7 +421,7 @@ fn clipped_start(pmf: &Pmf, low: bool, k0: i32, taps: usize, km: f64, kv: f64) -
     Pmf { first, p }
 }
 
-/// For a clipped bin without a pile in an end cell: where most of its mass lies within the
+/// For a clipped bin whose end pile was read at the wrong end: where most of its mass lies within the
 /// kernel's reach of one end, that part is the clamp's pile spread over a few cells; it is moved
 /// past the clip by the kernel's reach (every offset added then leaves it at or beyond where it
 /// was, so the clamp takes it back onto the clip) and the rest is narrowed as in
