@@ -34,6 +34,8 @@ pub(crate) mod saturated;
 pub mod session;
 pub mod step;
 pub(crate) mod structure;
+#[cfg(test)]
+mod tests_structure;
 mod window_counts;
 
 pub use event::SessionRecord;
