@@ -77,23 +77,14 @@ impl std::ops::Deref for Mapped {
 /// The file must not be truncated while the mapping lives: reading a page past the new end raises
 /// `SIGBUS` (as for any mapped input). noisecal never writes over its inputs.
 pub fn map_regular(path: &Path, max_bytes: u64) -> io::Result<Mapped> {
-    check_regular(path, &fs::metadata(path)?)?;
-    let file = File::open(path)?;
-    let meta = file.metadata()?;
-    check_regular(path, &meta)?;
-    if meta.len() > max_bytes {
-        return Err(io::Error::new(
-            io::ErrorKind::FileTooLarge,
-            format!("{} is {} bytes long, more than the {max_bytes} bytes accepted", path.display(), meta.len()),
-        ));
-    }
-    if meta.len() == 0 {
+    let (file, len) = open_regular(path, max_bytes)?;
+    if len == 0 {
         return Ok(Mapped(None));
     }
     // SAFETY: a read-only private mapping of a regular file checked above; the bytes are only
     // read. Another process truncating the file while it is mapped is the one hazard (SIGBUS),
     // documented above.
-    let map = unsafe { memmap2::MmapOptions::new().len(meta.len() as usize).populate().map(&file)? };
+    let map = unsafe { memmap2::MmapOptions::new().len(len as usize).populate().map(&file)? };
     Ok(Mapped(Some(map)))
 }
 
