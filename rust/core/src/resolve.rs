@@ -190,7 +190,7 @@ pub fn resolve_model(pack: &ModelPack, iso: u32, kind: ModelKind, extrapolate: b
 /// index's noise laws ([`interp::plan_among`]); structured components not stored for the ISO
 /// need the calibrated ISOs they are derived from ([`derived_structure_sources`]). The
 /// parametric baselines are fitted over the calibrated ISOs: they decode the whole pack.
-pub fn resolve_on_demand<B: AsRef<[u8]>>(
+pub fn resolve_on_demand<B: std::ops::Deref<Target = [u8]>>(
     lazy: &LazyPack<B>,
     iso: u32,
     kind: ModelKind,

@@ -9,7 +9,8 @@
 //!     to_pack()               → every ISO (what ModelPack::from_bytes gives)
 //! ```
 //!
-//! The bytes are handed in (a copy, a mapping): the core reads no file. Thread-safe: a section
+//! The bytes are handed in (a copy, a mapping, a slice: anything that derefs to bytes): the core
+//! reads no file. Thread-safe: a section
 //! is decoded outside any lock and kept under a short one (two threads asking at once may both
 //! decode it; the first kept wins, the two are equal), so a process forked while another thread
 //! decodes is never left waiting on a lock nobody will release.
@@ -46,12 +47,12 @@ impl<B> std::fmt::Debug for LazyPack<B> {
     }
 }
 
-impl<B: AsRef<[u8]>> LazyPack<B> {
+impl<B: std::ops::Deref<Target = [u8]>> LazyPack<B> {
     /// Opens a pack file of any version this noisecal reads: the index and the pack-level fields
     /// are checked now (a file cut short, damaged or of an unknown version is refused here, with
     /// [`ModelPack::from_bytes`]'s messages); each ISO when it is decoded.
     pub fn open(bytes: B) -> Result<Self, CodecError> {
-        let b = bytes.as_ref();
+        let b: &[u8] = &bytes;
         let version = codec::sealed_version(WHAT, PACK_MAGIC, PACK_MAGIC_TEXT, PACK_VERSION_MIN..=PACK_VERSION, b)?;
         if version != PACK_VERSION {
             let whole = ModelPack::from_bytes(b)?;
@@ -82,7 +83,7 @@ impl<B: AsRef<[u8]>> LazyPack<B> {
     /// The file's bytes when it is of the current version (what writing its pack again gives),
     /// `None` for an older one.
     pub fn current_bytes(&self) -> Option<&[u8]> {
-        self.whole.is_none().then(|| self.bytes.as_ref())
+        self.whole.is_none().then_some(&*self.bytes)
     }
 
     /// A pack holding the ISOs of `isos` that the file has (others are left out), with their
@@ -133,7 +134,7 @@ impl<B: AsRef<[u8]>> LazyPack<B> {
         let mut cells = 0;
         let s = Arc::new(compact::decode_section(
             &self.index.isos[i],
-            &self.bytes.as_ref()[self.sections[i].clone()],
+            &self.bytes[self.sections[i].clone()],
             &mut cells,
         )?);
         let mut decoded = self.decoded.lock().unwrap_or_else(|p| p.into_inner());
