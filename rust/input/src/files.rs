@@ -49,12 +49,20 @@ pub fn open_pack(path: &Path) -> anyhow::Result<LazyPack<noisecal_io::Mapped>> {
     LazyPack::open(bytes).with_context(|| format!("{} is not a usable model pack", path.display()))
 }
 
+/// As [`open_pack`], the file copied into memory instead of mapped: for a pack kept open for a
+/// long time (a Python `Pack`), which a file replaced in place must not pull away from under it.
+pub fn open_pack_copy(path: &Path) -> anyhow::Result<LazyPack<Vec<u8>>> {
+    let bytes = noisecal_io::read_regular(path, MAX_PACK_BYTES)
+        .with_context(|| format!("cannot read model pack {}", path.display()))?;
+    LazyPack::open(bytes).with_context(|| format!("{} is not a usable model pack", path.display()))
+}
+
 /// The model of `kind` at `iso` from a pack opened by [`open_pack`] (`path` names it), and the
 /// pack of the ISOs it stands on ([`resolve_on_demand`]): a section that fails to decode is
 /// named as [`load_pack`] names a bad file; a model the pack cannot give keeps the core's error
 /// (and its remedy).
-pub fn resolve_pack(
-    lazy: &LazyPack<noisecal_io::Mapped>,
+pub fn resolve_pack<B: std::ops::Deref<Target = [u8]>>(
+    lazy: &LazyPack<B>,
     path: &Path,
     iso: u32,
     kind: ModelKind,
