@@ -259,3 +259,33 @@ pub fn decode(head: &[u8], rest: &[u8]) -> Result<ModelPack, CodecError> {
     }
     Ok(pack)
 }
+
+/// A version 9 file with its seals made to match its bytes again: each section's length kept
+/// (the last one's running to the end of the file) and its CRC recomputed, the index written
+/// again and resealed. For fuzzers, whose mutations would otherwise stop at the checksums; `None`
+/// when the file's framing or index cannot be read at all.
+pub fn reseal(file: &[u8]) -> Option<Vec<u8>> {
+    let header = codec::SEALED_HEAD_BYTES;
+    let head_len = usize::try_from(u64::from_le_bytes(file.get(12..20)?.try_into().ok()?)).ok()?;
+    let head = file.get(header..header.checked_add(head_len)?)?;
+    let rest = &file[header + head_len..];
+    let (raw_len, deflated) = head.split_first_chunk::<8>()?;
+    let raw = codec::inflate_exact(WHAT, u64::from_le_bytes(*raw_len), deflated).ok()?;
+    let mut index: PackIndex = codec::decode_payload(WHAT, &raw).ok()?;
+    let mut at = 0usize;
+    let n = index.isos.len();
+    for (i, e) in index.isos.iter_mut().enumerate() {
+        let len = if i + 1 == n { rest.len().checked_sub(at)? } else { usize::try_from(e.len).ok()? };
+        let section = rest.get(at..at.checked_add(len)?)?;
+        e.len = len as u64;
+        e.crc = crc32fast::hash(section);
+        at += len;
+    }
+    let raw = codec::encode_payload(WHAT, &index).ok()?;
+    let mut head = (raw.len() as u64).to_le_bytes().to_vec();
+    head.extend_from_slice(&codec::deflate(&raw));
+    let version = u16::from_le_bytes([file[8], file[9]]);
+    let mut out = codec::encode_sealed(PACK_MAGIC, version, &head);
+    out.extend_from_slice(rest);
+    Some(out)
+}

@@ -34,8 +34,9 @@ pub struct LazyPack<B> {
     sections: Vec<Range<usize>>,
     /// The whole pack, for a file of an older version (decoded when opened).
     whole: Option<ModelPack>,
-    /// The sections decoded so far, in the index's order.
-    decoded: Mutex<Vec<Option<Arc<IsoSection>>>>,
+    /// The sections decoded so far, in the index's order, and the weights they hold (once
+    /// expanded): the file's limit holds over every section decoded, as for a whole file.
+    decoded: Mutex<(Vec<Option<Arc<IsoSection>>>, u64)>,
 }
 
 impl<B> std::fmt::Debug for LazyPack<B> {
@@ -63,7 +64,7 @@ impl<B: std::ops::Deref<Target = [u8]>> LazyPack<B> {
                 index,
                 sections: Vec::new(),
                 whole: Some(whole),
-                decoded: Mutex::new(vec![None; n]),
+                decoded: Mutex::new((vec![None; n], 0)),
             });
         }
         let (_, head, rest) = codec::decode_sealed_head(WHAT, PACK_MAGIC, PACK_MAGIC_TEXT, version..=version, b)?;
@@ -72,7 +73,7 @@ impl<B: std::ops::Deref<Target = [u8]>> LazyPack<B> {
         let sections = ranges.into_iter().map(|r| r.start + start..r.end + start).collect();
         index.empty_pack().check()?;
         let n = index.isos.len();
-        Ok(Self { bytes, index, sections, whole: None, decoded: Mutex::new(vec![None; n]) })
+        Ok(Self { bytes, index, sections, whole: None, decoded: Mutex::new((vec![None; n], 0)) })
     }
 
     /// The pack-level fields and the ISO list.
@@ -122,22 +123,25 @@ impl<B: std::ops::Deref<Target = [u8]>> LazyPack<B> {
             return self.index.isos.iter().map(|e| e.iso).collect();
         }
         let decoded = self.decoded.lock().unwrap_or_else(|p| p.into_inner());
-        self.index.isos.iter().zip(decoded.iter()).filter(|(_, d)| d.is_some()).map(|(e, _)| e.iso).collect()
+        self.index.isos.iter().zip(decoded.0.iter()).filter(|(_, d)| d.is_some()).map(|(e, _)| e.iso).collect()
     }
 
     /// Section `i`, decoded now or earlier.
     fn section(&self, i: usize) -> Result<Arc<IsoSection>, CodecError> {
-        if let Some(s) = self.decoded.lock().unwrap_or_else(|p| p.into_inner())[i].clone() {
-            return Ok(s);
-        }
-        // Decoded outside the lock (see the module docs); each section counts its own cells.
-        let mut cells = 0;
-        let s = Arc::new(compact::decode_section(
-            &self.index.isos[i],
-            &self.bytes[self.sections[i].clone()],
-            &mut cells,
-        )?);
+        let before = {
+            let decoded = self.decoded.lock().unwrap_or_else(|p| p.into_inner());
+            if let Some(s) = decoded.0[i].clone() {
+                return Ok(s);
+            }
+            decoded.1
+        };
+        // Decoded outside the lock (see the module docs).
+        let mut cells = before;
+        let s = Arc::new(compact::decode_section(&self.index.isos[i], &self.bytes[self.sections[i].clone()], &mut cells)?);
         let mut decoded = self.decoded.lock().unwrap_or_else(|p| p.into_inner());
-        Ok(decoded[i].get_or_insert(s).clone())
+        if decoded.0[i].is_none() {
+            decoded.1 = decoded.1.saturating_add(cells - before);
+        }
+        Ok(decoded.0[i].get_or_insert(s).clone())
     }
 }
