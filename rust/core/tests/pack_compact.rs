@@ -456,7 +456,12 @@ fn a_random_sensors_pack_is_compact() {
     let v7 = p.to_bytes_v7().expect("bytes");
     assert_eq!(ModelPack::from_bytes(&v9).expect("loads"), p.compacted());
     assert!(v8.len() * 10 <= v7.len() * RANDOM_PACK_V8_TENTHS, "version 8 {} bytes, version 7 {}", v8.len(), v7.len());
-    assert!(v9.len() <= v8.len() + SECTION_OVERHEAD * p.isos.len(), "version 9 {} bytes, version 8 {}", v9.len(), v8.len());
+    assert!(
+        v9.len() <= v8.len() + SECTION_OVERHEAD * p.isos.len(),
+        "version 9 {} bytes, version 8 {}",
+        v9.len(),
+        v8.len()
+    );
     let calibrated = p.calibrated_isos().len();
     assert!(v9.len() <= BYTES_PER_CALIBRATED_ISO * calibrated, "{} bytes for {calibrated} calibrated ISOs", v9.len());
 }
@@ -674,4 +679,3 @@ fn demo_pack_and_heldout() -> (ModelPack, ModelPack) {
     let h = heldout(&sim, &plan, 1 << 40, &p);
     (p, h)
 }
-

@@ -47,7 +47,14 @@ fn ramp(pack: &ModelPack) -> Array2<u16> {
 /// Resolves `iso` on the whole pack and on demand from its file, and checks the two agree: the
 /// same model, the same error, the same synthesized bytes. Returns the ISOs decoded (`None`
 /// when both refuse).
-fn compare(bytes: &[u8], whole: &ModelPack, iso: u32, which: Components, clean_at: CleanAt, ext: bool) -> Option<Vec<u32>> {
+fn compare(
+    bytes: &[u8],
+    whole: &ModelPack,
+    iso: u32,
+    which: Components,
+    clean_at: CleanAt,
+    ext: bool,
+) -> Option<Vec<u32>> {
     let lazy = LazyPack::open(bytes).expect("opens");
     let full = resolve_model(whole, iso, ModelKind::Noisecal, ext);
     let demand = resolve_on_demand(&lazy, iso, ModelKind::Noisecal, which, ext);
@@ -60,7 +67,9 @@ fn compare(bytes: &[u8], whole: &ModelPack, iso: u32, which: Components, clean_a
             assert_eq!(a.model, b.model, "ISO {iso}: the model");
             (part, b)
         }
-        (a, b) => panic!("ISO {iso}: whole pack {:?}, on demand {:?}", a.map(|r| r.model.iso), b.map(|r| r.1.model.iso)),
+        (a, b) => {
+            panic!("ISO {iso}: whole pack {:?}, on demand {:?}", a.map(|r| r.model.iso), b.map(|r| r.1.model.iso))
+        }
     };
     let s_full = resolved.sampler(whole, which, clean_at, ext).expect("sampler");
     let s_part = resolved.sampler(&part, which, clean_at, ext).expect("sampler");
@@ -132,7 +141,8 @@ fn on_demand_plans_see_the_gain_switch() {
     // The index's laws are the decoded models' fits, bit for bit.
     let lazy = LazyPack::open(&bytes[..]).expect("opens");
     let laws = interp::calibrated_laws(&whole);
-    let stored: Vec<_> = lazy.index().isos.iter().filter(|e| e.is_calibrated()).map(|e| (e.iso, e.noise_law())).collect();
+    let stored: Vec<_> =
+        lazy.index().isos.iter().filter(|e| e.is_calibrated()).map(|e| (e.iso, e.noise_law())).collect();
     assert_eq!(stored, laws);
 }
 

@@ -54,7 +54,11 @@ impl Pack {
 
     /// A pack of these models with no sampler built yet.
     fn sharing(source: Arc<PackSource>, pattern_cache_bytes: usize) -> Self {
-        Self { source, samplers: Mutex::new(HashMap::new()), pattern_cache_bytes: AtomicUsize::new(pattern_cache_bytes) }
+        Self {
+            source,
+            samplers: Mutex::new(HashMap::new()),
+            pattern_cache_bytes: AtomicUsize::new(pattern_cache_bytes),
+        }
     }
 
     /// The sampler of `iso` for a model kind and noise components, built once per pack. The
@@ -496,9 +500,10 @@ impl Pack {
             guarded("Pack.renoise", || {
                 pool::run(|| {
                     let model = |iso: u32, which: &str| {
-                        self.source.resolve(iso, ModelKind::Noisecal, Components::PIXEL, extrapolate).map(|r| r.1.model).map_err(|e| {
-                            err(format!("no model for the {which} ISO {iso}: {e}"))
-                        })
+                        self.source
+                            .resolve(iso, ModelKind::Noisecal, Components::PIXEL, extrapolate)
+                            .map(|r| r.1.model)
+                            .map_err(|e| err(format!("no model for the {which} ISO {iso}: {e}")))
                     };
                     let (source, target) = (model(from_iso, "source")?, model(to_iso, "target")?);
                     let r = Renoiser::new(pack, &source, &target, method).map_err(to_py)?;

@@ -131,9 +131,7 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         // The written NoiseProfile is the target model's fit (resolved once, after `prepare` checked the ISOs).
         let target = match &target_model {
             Some(m) => m,
-            None => {
-                target_model.insert(resolve(&lazy, &args, args.to_iso)?.model)
-            }
+            None => target_model.insert(resolve(&lazy, &args, args.to_iso)?.model),
         };
         let profile = dng::fitted_noise_profile(&pack, target, &img.layout);
         dng::write_derived(&job.output, &file, &noisy, args.to_iso, profile.as_ref())?;

@@ -198,11 +198,17 @@ pub fn read_index(head: &[u8], rest: &[u8]) -> Result<(PackIndex, Vec<std::ops::
         codec::decode_payload(WHAT, &codec::inflate_exact(WHAT, u64::from_le_bytes(*raw_len), deflated)?)?;
     for w in index.isos.windows(2) {
         if w[0].iso >= w[1].iso {
-            return Err(bad(format!("the index lists ISOs out of order ({} then {}): the file is damaged", w[0].iso, w[1].iso)));
+            return Err(bad(format!(
+                "the index lists ISOs out of order ({} then {}): the file is damaged",
+                w[0].iso, w[1].iso
+            )));
         }
     }
     if let Some(e) = index.isos.iter().find(|e| e.law.iter().flatten().flatten().any(|v| !v.is_finite())) {
-        return Err(bad(format!("the index holds a noise law that is not a number for ISO {}: the file is damaged", e.iso)));
+        return Err(bad(format!(
+            "the index holds a noise law that is not a number for ISO {}: the file is damaged",
+            e.iso
+        )));
     }
     let mut ranges = Vec::with_capacity(index.isos.len());
     let mut at = 0u64;

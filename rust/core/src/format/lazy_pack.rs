@@ -137,7 +137,8 @@ impl<B: std::ops::Deref<Target = [u8]>> LazyPack<B> {
         };
         // Decoded outside the lock (see the module docs).
         let mut cells = before;
-        let s = Arc::new(compact::decode_section(&self.index.isos[i], &self.bytes[self.sections[i].clone()], &mut cells)?);
+        let s =
+            Arc::new(compact::decode_section(&self.index.isos[i], &self.bytes[self.sections[i].clone()], &mut cells)?);
         let mut decoded = self.decoded.lock().unwrap_or_else(|p| p.into_inner());
         if decoded.0[i].is_none() {
             decoded.1 = decoded.1.saturating_add(cells - before);

@@ -174,8 +174,8 @@ pub(crate) fn decode_iso(
                 return Err(damaged(&format!("{} claims {n} cells, more than the file holds", here())));
             }
             let mode = get_varint(weights, at).ok_or_else(|| damaged(&format!("{} has no predictor", here())))?;
-            let predictor = Predictor::from_id(mode % 4)
-                .ok_or_else(|| damaged(&format!("{} names no known predictor", here())))?;
+            let predictor =
+                Predictor::from_id(mode % 4).ok_or_else(|| damaged(&format!("{} names no known predictor", here())))?;
             let k = step_of(mode / 4).ok_or_else(|| damaged(&format!("{} names no known grid step", here())))?;
             *cells = cells.saturating_add(n.saturating_mul(k as u64));
             if *cells > MAX_CELLS {
