@@ -126,7 +126,7 @@ fn run_recording(input: &[u8]) -> String {
 
 fn run_pack(input: &[u8]) -> String {
     // The on-demand reader agrees with the whole one: both take the file or both refuse it, and
-    // take it to the same pack.
+    // take it to the same pack (compared as text: a pack may hold NaN, which equals nothing).
     let lazy = noisecal_core::format::lazy_pack::LazyPack::open(input);
     if let Ok(l) = &lazy
         && let Some(e) = l.index().isos.first()
@@ -135,7 +135,11 @@ fn run_pack(input: &[u8]) -> String {
     }
     let lazy_whole = lazy.and_then(|l| l.to_pack());
     let whole = ModelPack::from_bytes(input);
-    assert_eq!(lazy_whole.as_ref().ok(), whole.as_ref().ok(), "the on-demand reader and the whole one disagree");
+    let text = |p: &ModelPack| format!("{p:?}");
+    assert!(
+        lazy_whole.as_ref().ok().map(text) == whole.as_ref().ok().map(text),
+        "the on-demand reader and the whole one disagree"
+    );
     let pack = match whole {
         Ok(p) => p,
         Err(e) => return format!("err {}", signature(&e.to_string())),
