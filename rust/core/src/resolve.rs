@@ -6,6 +6,7 @@
 //! ```text
 //! ModelKind::parse("hg") ─ ModelRequest { kind, iso, extrapolate } ─ resolve(pack) → Resolved
 //!     Resolved::sampler(pack, components, clean_at) → IsoSampler
+//! resolve_on_demand(LazyPack, iso, kind, components) → (the ISOs it needs as a ModelPack, Resolved)
 //! BlackAlignment::around(image, white, origin, |on_pack_black| synthesize(…)) → on its own black
 //! ```
 //!
@@ -19,8 +20,10 @@ use crate::ModelPack;
 use crate::derive::baselines::{self, BaselineKind};
 use crate::derive::fine_levels::target_fine_levels;
 use crate::derive::interp;
-use crate::derive::structure::structure_at;
-use crate::error::ModelError;
+use crate::derive::interp::{CalibratedLaw, InterpOptions};
+use crate::derive::structure::{derived_structure_sources, structure_at};
+use crate::error::{Error, ModelError};
+use crate::format::lazy_pack::LazyPack;
 use crate::model::layout::{BlackAlignment, SensorLayout};
 use crate::model::pack::{IsoModel, ModelOrigin};
 use crate::model::structure::Components;
@@ -191,6 +194,52 @@ pub fn resolve_model(pack: &ModelPack, iso: u32, kind: ModelKind, extrapolate: b
         Some(b) => baselines::baseline_model(pack, iso, b, extrapolate)?,
     };
     Ok(Resolved { model, kind })
+}
+
+/// The model of `kind` at `iso` from a pack read on demand, and the pack of the ISOs it and its
+/// sampler with the components `which` stand on (decoded now if they were not): the same model
+/// and sampler as [`resolve_model`] and [`Resolved::sampler`] on the whole pack. A calibrated
+/// (or stored) ISO needs itself; an interpolated one its plan's neighbours, planned from the
+/// index's noise laws ([`interp::plan_among`]); structured components not stored for the ISO
+/// need the calibrated ISOs they are derived from ([`derived_structure_sources`]). The
+/// parametric baselines are fitted over the calibrated ISOs: they decode the whole pack.
+pub fn resolve_on_demand<B: std::ops::Deref<Target = [u8]>>(
+    lazy: &LazyPack<B>,
+    iso: u32,
+    kind: ModelKind,
+    which: Components,
+    extrapolate: bool,
+) -> Result<(ModelPack, Resolved), Error> {
+    if kind.baseline().is_some() {
+        let pack = lazy.to_pack()?;
+        let resolved = resolve_model(&pack, iso, kind, extrapolate)?;
+        return Ok((pack, resolved));
+    }
+    let index = lazy.index();
+    let stored = index.entry(iso);
+    let plan = match stored {
+        Some(_) => None,
+        None => {
+            let laws: Vec<CalibratedLaw> =
+                index.isos.iter().filter(|e| e.is_calibrated()).map(|e| (e.iso, e.noise_law())).collect();
+            Some(interp::plan_among(&laws, index.isos.is_empty(), iso, extrapolate, &InterpOptions::default())?)
+        }
+    };
+    let mut needed: Vec<u32> = match &plan {
+        None => vec![iso],
+        Some(p) => p.neighbours.iter().chain(&p.shape_from).copied().collect(),
+    };
+    if which.structured() && !stored.is_some_and(|e| e.structured) {
+        let measured: Vec<u32> =
+            index.isos.iter().filter(|e| e.is_calibrated() && e.structured).map(|e| e.iso).collect();
+        needed.extend(derived_structure_sources(&measured, iso));
+    }
+    let pack = lazy.pack_with(&needed)?;
+    let model = match &plan {
+        None => pack.require_iso(iso)?.clone(),
+        Some(p) => interp::interpolate_planned(&pack, p),
+    };
+    Ok((pack, Resolved { model, kind }))
 }
 
 /// Where an ISO model comes from, as reports and tables say it.

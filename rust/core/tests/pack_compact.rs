@@ -1,4 +1,5 @@
-//! Compact packs (format version 8): a calibrated pack written compactly loads to its stored
+//! Compact packs (format versions 8 and 9, the same models and coding; 9 puts each ISO in a
+//! section of its own, `tests/pack_lazy.rs`): a calibrated pack written compactly loads to its stored
 //! form ([`ModelPack::compacted`]: each weight, or each cell mass of a bin kept on a coarse grid,
 //! to the bits its bin's samples justify, rounded by error diffusion, tails cut where they hold no
 //! measurable mass); that form costs no held-out likelihood beyond its budget and synthesizes
@@ -23,6 +24,9 @@ use noisecal_sim::{Chart, SensorModel, SessionPlan, Simulator, random_sensor, ra
 /// PMFs), 0.056× on random sensor 1 (14-bit); bounds with a margin.
 const SMALL_PACK_V8_TENTHS: usize = 6;
 const RANDOM_PACK_V8_TENTHS: usize = 1;
+
+/// What version 9's index entry and separate deflate stream may add per ISO over version 8 (bytes).
+const SECTION_OVERHEAD: usize = 300;
 
 /// The goal per calibrated ISO at any bit depth: measured 96 KB on random sensor 1 (14-bit).
 const BYTES_PER_CALIBRATED_ISO: usize = 150_000;
@@ -246,29 +250,33 @@ fn spread(v: &mut [i64]) -> (f64, f64, f64) {
 #[test]
 fn compact_packs_round_trip_and_migrate() {
     let p = small_pack();
-    let v8 = p.to_bytes().expect("bytes");
+    let v9 = p.to_bytes().expect("bytes");
+    let v8 = p.to_bytes_v8().expect("bytes");
     let v7 = p.to_bytes_v7().expect("bytes");
     let v6 = p.to_bytes_v6().expect("bytes");
     let v5 = p.to_bytes_v5().expect("bytes");
     let v4 = p.to_bytes_v4().expect("bytes");
-    assert_eq!(&v8[..8], PACK_MAGIC);
-    assert_eq!(u16::from_le_bytes([v8[8], v8[9]]), PACK_VERSION);
-    assert_eq!(PACK_VERSION, 8);
-    for (bytes, version) in [(&v7, 7), (&v6, 6), (&v5, 5), (&v4, 4)] {
+    assert_eq!(&v9[..8], PACK_MAGIC);
+    assert_eq!(u16::from_le_bytes([v9[8], v9[9]]), PACK_VERSION);
+    assert_eq!(PACK_VERSION, 9);
+    for (bytes, version) in [(&v8, 8), (&v7, 7), (&v6, 6), (&v5, 5), (&v4, 4)] {
         assert_eq!(u16::from_le_bytes([bytes[8], bytes[9]]), version);
     }
     // Deterministic bytes.
-    assert_eq!(v8, p.to_bytes().expect("bytes"));
-    let from8 = ModelPack::from_bytes(&v8).expect("a version 8 pack loads");
+    assert_eq!(v9, p.to_bytes().expect("bytes"));
+    assert_eq!(v8, p.to_bytes_v8().expect("bytes"));
+    let from9 = ModelPack::from_bytes(&v9).expect("a version 9 pack loads");
+    let from8 = ModelPack::from_bytes(&v8).expect("a version 8 pack still loads");
     let from7 = ModelPack::from_bytes(&v7).expect("a version 7 pack still loads");
     let from6 = ModelPack::from_bytes(&v6).expect("a version 6 pack still loads");
     let from5 = ModelPack::from_bytes(&v5).expect("a version 5 pack still loads");
     let from4 = ModelPack::from_bytes(&v4).expect("a version 4 pack still loads");
     assert_eq!(from4, p, "version 4 loads byte for byte as before");
-    assert_eq!(from8, p.compacted());
+    assert_eq!(from9, p.compacted());
+    assert_eq!(from8, p.compacted(), "version 8 stores the same form as version 9");
     assert_eq!(from7, noisecal_core::format::pack_v7::stored_form(&p), "version 7 loads as version 7 stored it");
     assert_eq!(from6, noisecal_core::format::pack_v6::stored_form(&p), "version 6 loads as version 6 stored it");
-    assert_eq!(from8.compacted(), from8, "compacting is idempotent");
+    assert_eq!(from9.compacted(), from9, "compacting is idempotent");
     // Version 5 loads as version 5 rounded it (9 significant bits, tails kept).
     let mut rounded5 = p.clone();
     rounded5
@@ -279,11 +287,12 @@ fn compact_packs_round_trip_and_migrate() {
         .flat_map(|b| b.counts.iter_mut())
         .for_each(|w| *w = noisecal_core::format::pack_v5::quantize(*w));
     assert_eq!(from5, rounded5);
-    // Migrated to version 8: a version 4 file gives the same bytes as the pack itself; a loaded
-    // version 8 written again, the same bytes; a version 5, 6 or 7 file, its own stored form
-    // compacted (and that again the same).
-    assert_eq!(from4.to_bytes().expect("bytes"), v8);
-    assert_eq!(from8.to_bytes().expect("bytes"), v8);
+    // Migrated to version 9: a version 4 or 8 file gives the same bytes as the pack itself; a
+    // loaded version 9 written again, the same bytes; a version 5, 6 or 7 file, its own stored
+    // form compacted (and that again the same).
+    assert_eq!(from4.to_bytes().expect("bytes"), v9);
+    assert_eq!(from8.to_bytes().expect("bytes"), v9);
+    assert_eq!(from9.to_bytes().expect("bytes"), v9);
     for older in [&from7, &from6, &from5] {
         let back = ModelPack::from_bytes(&older.to_bytes().expect("bytes")).expect("loads");
         assert_eq!(back, older.compacted());
@@ -291,27 +300,35 @@ fn compact_packs_round_trip_and_migrate() {
     }
     // The cut tails hold at most the far tails of a bin's pseudo-sample (1/(N+1) of an N-sample
     // pool).
-    let (cut, coarse) = check_stored_form(&p, &from8);
+    let (cut, coarse) = check_stored_form(&p, &from9);
     let bins: usize = p.isos.iter().flat_map(|m| &m.positions).map(|q| q.bins.len()).sum();
     eprintln!("the cut tails held at most {cut:.2e} of a bin's mass; {coarse} of {bins} bins kept on a coarse grid");
     assert!(cut < 1e-4, "a bin's cut tails held {cut} of its mass");
     assert!(coarse > 0, "no bin of the small pack is kept coarse: the grid is not exercised");
     // A model derived on the fly (interpolated) is the one a pack that stores it loads back,
     // so synthesis at a derived ISO gives the same bytes whether the pack stores it or not.
-    let (m, _) = noisecal_core::derive::interp::model_for(&from8, 400, false).expect("interpolated");
-    let mut with = from8.clone();
+    let (m, _) = noisecal_core::derive::interp::model_for(&from9, 400, false).expect("interpolated");
+    let mut with = from9.clone();
     with.insert(m.clone().into_owned());
     let back = ModelPack::from_bytes(&with.to_bytes().expect("bytes")).expect("loads");
     assert_eq!(back.iso(400), Some(m.as_ref()));
     eprintln!(
-        "version 4 {} bytes, version 5 {}, version 6 {}, version 7 {}, version 8 {}",
+        "version 4 {} bytes, version 5 {}, version 6 {}, version 7 {}, version 8 {}, version 9 {}",
         v4.len(),
         v5.len(),
         v6.len(),
         v7.len(),
-        v8.len()
+        v8.len(),
+        v9.len()
     );
     assert!(v8.len() * 10 <= v7.len() * SMALL_PACK_V8_TENTHS, "version 8 {} bytes, version 7 {}", v8.len(), v7.len());
+    assert!(
+        v9.len() <= v8.len() + SECTION_OVERHEAD * p.isos.len(),
+        "version 9 {} bytes, version 8 {} for {} ISOs",
+        v9.len(),
+        v8.len(),
+        p.isos.len()
+    );
 }
 
 /// Rounding by error diffusion keeps a bin's mean and variance well inside their sampling noise
@@ -434,20 +451,27 @@ fn synthesis_from_the_stored_pack_matches_in_distribution() {
 #[test]
 fn a_random_sensors_pack_is_compact() {
     let p = random_pack(1);
-    let v8 = p.to_bytes().expect("bytes");
+    let v9 = p.to_bytes().expect("bytes");
+    let v8 = p.to_bytes_v8().expect("bytes");
     let v7 = p.to_bytes_v7().expect("bytes");
-    assert_eq!(ModelPack::from_bytes(&v8).expect("loads"), p.compacted());
+    assert_eq!(ModelPack::from_bytes(&v9).expect("loads"), p.compacted());
     assert!(v8.len() * 10 <= v7.len() * RANDOM_PACK_V8_TENTHS, "version 8 {} bytes, version 7 {}", v8.len(), v7.len());
+    assert!(
+        v9.len() <= v8.len() + SECTION_OVERHEAD * p.isos.len(),
+        "version 9 {} bytes, version 8 {}",
+        v9.len(),
+        v8.len()
+    );
     let calibrated = p.calibrated_isos().len();
-    assert!(v8.len() <= BYTES_PER_CALIBRATED_ISO * calibrated, "{} bytes for {calibrated} calibrated ISOs", v8.len());
+    assert!(v9.len() <= BYTES_PER_CALIBRATED_ISO * calibrated, "{} bytes for {calibrated} calibrated ISOs", v9.len());
 }
 
-/// Damage inside the compressed payload (with the CRC recomputed, as a fuzzer's mutants may
-/// be): refused with an error, never a panic.
+/// Damage inside a version 8 file's compressed payload (with the CRC recomputed, as a fuzzer's
+/// mutants may be): refused with an error, never a panic (version 9: `tests/pack_lazy.rs`).
 #[test]
 fn damaged_compact_packs_are_refused() {
     let p = small_pack();
-    let v8 = p.to_bytes().expect("bytes");
+    let v8 = p.to_bytes_v8().expect("bytes");
     let header = 8 + 2 + 2 + 8 + 4;
     let mut state = 0x2545_F491_4F6C_DD1Du64;
     for k in 0..200 {
@@ -515,10 +539,11 @@ fn pack_sizes() {
     }
     for (name, p, held) in &packs {
         let t0 = std::time::Instant::now();
-        let v8 = p.to_bytes().expect("bytes");
+        let v9 = p.to_bytes().expect("bytes");
         let enc = t0.elapsed();
         let t0 = std::time::Instant::now();
-        let back = ModelPack::from_bytes(&v8).expect("loads");
+        let back = ModelPack::from_bytes(&v9).expect("loads");
+        let v8 = p.to_bytes_v8().expect("bytes");
         let dec = t0.elapsed();
         assert_eq!(back, p.compacted());
         let v7 = p.to_bytes_v7().expect("bytes");
@@ -529,8 +554,9 @@ fn pack_sizes() {
         let cal = p.isos.iter().filter(|m| m.is_calibrated()).count().max(1);
         let (_, coarse) = check_stored_form(p, &back);
         println!(
-            "{name}\n  {} ISOs ({cal} calibrated): version 8 {} bytes ({} per calibrated ISO); version 7 {} bytes ({} per calibrated ISO); encode {enc:?}, load {dec:?}; {coarse} bins kept coarse\n  held-out cross-entropy exact {ce:.6} → version 8 {ce8:.6} nats ({:+.2e} relative; version 7 {:+.2e}); held-out samples outside the support {out:.2e} → {out8:.2e} (version 7 {out7:.2e})",
+            "{name}\n  {} ISOs ({cal} calibrated): version 9 {} bytes, version 8 {} bytes ({} per calibrated ISO); version 7 {} bytes ({} per calibrated ISO); encode {enc:?}, load {dec:?}; {coarse} bins kept coarse\n  held-out cross-entropy exact {ce:.6} → version 8 {ce8:.6} nats ({:+.2e} relative; version 7 {:+.2e}); held-out samples outside the support {out:.2e} → {out8:.2e} (version 7 {out7:.2e})",
             p.isos.len(),
+            v9.len(),
             v8.len(),
             v8.len() / cal,
             v7.len(),
@@ -575,6 +601,7 @@ fn pack_sizes() {
         }
         if let Ok(dir) = std::env::var("NOISECAL_DUMP") {
             let stem = name.split([':', ' ', '(']).filter(|w| !w.is_empty()).take(2).collect::<Vec<_>>().join("-");
+            std::fs::write(format!("{dir}/{stem}.v9.pack"), &v9).expect("write");
             std::fs::write(format!("{dir}/{stem}.v8.pack"), &v8).expect("write");
             std::fs::write(format!("{dir}/{stem}.v7.pack"), &v7).expect("write");
             std::fs::write(format!("{dir}/{stem}.v4.pack"), p.to_bytes_v4().expect("bytes")).expect("write");
@@ -583,12 +610,12 @@ fn pack_sizes() {
     }
 }
 
-/// The fuzz corpus's packs (written by older noisecal builds, versions 3, 5, 6 and 7) still
-/// load, and written as version 8 load back in their stored form. `NOISECAL_WRITE_SEEDS=1`
-/// writes those version 8 files into the corpus as seeds (`*-v8.pack`): this test is what makes
+/// The fuzz corpus's packs (written by older noisecal builds, versions 3, 5, 6, 7 and 8) still
+/// load, and written as version 9 load back in their stored form. `NOISECAL_WRITE_SEEDS=1`
+/// writes those version 9 files into the corpus as seeds (`*-v9.pack`): this test is what makes
 /// the corpus's pack seeds of the current version.
 #[test]
-fn older_pack_files_load_and_migrate_to_version_8() {
+fn older_pack_files_load_and_migrate_to_version_9() {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/fuzz-corpus/pack");
     let files = [
         ("plain", 3),
@@ -600,16 +627,18 @@ fn older_pack_files_load_and_migrate_to_version_8() {
         ("two-isos-v6", 6),
         ("plain-v7", 7),
         ("two-isos-v7", 7),
+        ("plain-v8", 8),
+        ("two-isos-v8", 8),
     ];
     for (name, version) in files {
         let bytes = std::fs::read(dir.join(format!("{name}.pack"))).expect("read seed");
         assert_eq!(u16::from_le_bytes([bytes[8], bytes[9]]), version, "{name} is a version {version} file");
         let old = ModelPack::from_bytes(&bytes).expect("an older pack loads");
-        let v8 = old.to_bytes().expect("bytes");
-        assert_eq!(ModelPack::from_bytes(&v8).expect("loads"), old.compacted(), "{name}");
+        let v9 = old.to_bytes().expect("bytes");
+        assert_eq!(ModelPack::from_bytes(&v9).expect("loads"), old.compacted(), "{name}");
         assert_eq!(ModelPack::from_bytes(&old.to_bytes_v4().expect("bytes")).expect("loads"), old, "{name}");
         if std::env::var_os("NOISECAL_WRITE_SEEDS").is_some() && version == 3 && name != "interpolated" {
-            std::fs::write(dir.join(format!("{name}-v8.pack")), &v8).expect("write seed");
+            std::fs::write(dir.join(format!("{name}-v9.pack")), &v9).expect("write seed");
         }
     }
 }

@@ -7,7 +7,7 @@
 //! |-------------|-----------------------------------------------------------------------------|
 //! | `dng`       | `noisecal_input::dng::decode_dng` and `decode_dng_meta`                        |
 //! | `recording` | `RecordingReader::from_bytes`, every record, frame views, and a replay       |
-//! | `pack`      | `ModelPack::from_bytes`, the self-check, a sampler and a small synthesis      |
+//! | `pack`      | `ModelPack::from_bytes` and `LazyPack` (must agree), the self-check, a sampler and a small synthesis |
 //! | `jni-frame` | `NativeSession::push_plane` (the JNI `pushFrame` without a JVM) and `FrameView::from_le_bytes` |
 
 pub mod mutate;
@@ -125,7 +125,22 @@ fn run_recording(input: &[u8]) -> String {
 }
 
 fn run_pack(input: &[u8]) -> String {
-    let pack = match ModelPack::from_bytes(input) {
+    // The on-demand reader agrees with the whole one: both take the file or both refuse it, and
+    // take it to the same pack (compared as text: a pack may hold NaN, which equals nothing).
+    let lazy = noisecal_core::format::lazy_pack::LazyPack::open(input);
+    if let Ok(l) = &lazy
+        && let Some(e) = l.index().isos.first()
+    {
+        let _ = l.pack_with(&[e.iso]);
+    }
+    let lazy_whole = lazy.and_then(|l| l.to_pack());
+    let whole = ModelPack::from_bytes(input);
+    let text = |p: &ModelPack| format!("{p:?}");
+    assert!(
+        lazy_whole.as_ref().ok().map(text) == whole.as_ref().ok().map(text),
+        "the on-demand reader and the whole one disagree"
+    );
+    let pack = match whole {
         Ok(p) => p,
         Err(e) => return format!("err {}", signature(&e.to_string())),
     };

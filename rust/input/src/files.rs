@@ -1,4 +1,5 @@
-//! The files every front-end reads and writes: a pack file read with a message that names it, and
+//! The files every front-end reads and writes: a pack file read (whole, or on demand) with a
+//! message that names it, and
 //! output files written so that nothing already written is lost (an output is refused when it
 //! would write over an input; missing parent directories are created, then the file is written through [`noisecal_io::write_atomic`] (a
 //! temporary file in the same directory, synced, then renamed; the permission policy is
@@ -8,6 +9,9 @@ use std::path::Path;
 
 use anyhow::Context;
 use noisecal_core::ModelPack;
+use noisecal_core::format::lazy_pack::LazyPack;
+use noisecal_core::model::structure::Components;
+use noisecal_core::resolve::{ModelKind, Resolved, resolve_on_demand};
 
 /// Writes `bytes` to `path` atomically, creating the parent directories first.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
@@ -34,6 +38,43 @@ pub fn load_pack(path: &Path) -> anyhow::Result<ModelPack> {
     let bytes = noisecal_io::read_regular(path, MAX_PACK_BYTES)
         .with_context(|| format!("cannot read model pack {}", path.display()))?;
     ModelPack::from_bytes(&bytes).with_context(|| format!("{} is not a usable model pack", path.display()))
+}
+
+/// Opens a pack file to be read on demand ([`LazyPack`]: its index now, each ISO when first
+/// asked for), with a message that names it; mapped, not copied. Only regular files are read,
+/// as [`load_pack`] reads them.
+pub fn open_pack(path: &Path) -> anyhow::Result<LazyPack<noisecal_io::Mapped>> {
+    let bytes = noisecal_io::map_regular(path, MAX_PACK_BYTES)
+        .with_context(|| format!("cannot read model pack {}", path.display()))?;
+    LazyPack::open(bytes).with_context(|| format!("{} is not a usable model pack", path.display()))
+}
+
+/// As [`open_pack`], the file copied into memory instead of mapped: for a pack kept open for a
+/// long time (a Python `Pack`), which a file replaced in place must not pull away from under it.
+pub fn open_pack_copy(path: &Path) -> anyhow::Result<LazyPack<Vec<u8>>> {
+    let bytes = noisecal_io::read_regular(path, MAX_PACK_BYTES)
+        .with_context(|| format!("cannot read model pack {}", path.display()))?;
+    LazyPack::open(bytes).with_context(|| format!("{} is not a usable model pack", path.display()))
+}
+
+/// The model of `kind` at `iso` from a pack opened by [`open_pack`] (`path` names it), and the
+/// pack of the ISOs it stands on ([`resolve_on_demand`]): a section that fails to decode is
+/// named as [`load_pack`] names a bad file; a model the pack cannot give keeps the core's error
+/// (and its remedy).
+pub fn resolve_pack<B: std::ops::Deref<Target = [u8]>>(
+    lazy: &LazyPack<B>,
+    path: &Path,
+    iso: u32,
+    kind: ModelKind,
+    which: Components,
+    extrapolate: bool,
+) -> anyhow::Result<(ModelPack, Resolved)> {
+    resolve_on_demand(lazy, iso, kind, which, extrapolate).map_err(|e| match e {
+        noisecal_core::Error::Codec(c) => {
+            anyhow::Error::from(c).context(format!("{} is not a usable model pack", path.display()))
+        }
+        other => anyhow::Error::from(other),
+    })
 }
 
 /// Refuses an output that would write over an input: the same file (through symlinks and hard

@@ -7,7 +7,8 @@ use numpy::PyArray2;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use noisecal_core::resolve::{ModelKind, resolve_model};
+use noisecal_core::model::structure::Components;
+use noisecal_core::resolve::ModelKind;
 use noisecal_input::calibrate::{CalibrateOptions, calibrate_path};
 use noisecal_input::dng;
 
@@ -53,7 +54,7 @@ pub fn read_dng<'py>(
     let policy = Mismatch::parse(mismatch)?;
     let img = py.detach(|| guarded("read_dng", || pool::run(|| dng::read_dng(&path).map_err(to_py))))?;
     if let Some(pack) = &pack {
-        checks::dng_matches(py, &path, &img.layout, &img.make, &img.model, &pack.inner, policy)?;
+        checks::dng_matches(py, &path, &img.layout, &img.make, &img.model, &pack.source.fields, policy)?;
     }
     let d = PyDict::new(py);
     d.set_item("iso", img.meta.iso)?;
@@ -85,7 +86,7 @@ pub fn write_dng<'py>(
     pack: Option<PyRef<'py, Pack>>,
 ) -> PyResult<()> {
     let pixels = one_image(pixels, "write_dng", " (what synth returns)")?;
-    let pack = pack.map(|p| p.inner.clone());
+    let pack = pack.map(|p| p.source.clone());
     py.detach(|| {
         guarded("write_dng", || {
             pool::run(|| {
@@ -102,9 +103,9 @@ pub fn write_dng<'py>(
                     )));
                 }
                 let profile = match &pack {
-                    Some(pack) => {
-                        let model = resolve_model(pack, iso, ModelKind::Noisecal, false).map_err(to_py)?.model;
-                        dng::fitted_noise_profile(pack, &model, layout)
+                    Some(source) => {
+                        let (pack, resolved) = source.resolve(iso, ModelKind::Noisecal, Components::PIXEL, false)?;
+                        dng::fitted_noise_profile(&pack, &resolved.model, layout)
                     }
                     None => None,
                 };

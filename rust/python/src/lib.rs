@@ -9,6 +9,8 @@
 //!   against the pack's black and white, NaN/inf, a DNG's sensor against the pack's).
 //! - [`errors`]: `NoisecalError(ValueError)` and its `InputError`, `MismatchError`; a wrong
 //!   dtype is a `TypeError`; a Rust panic is caught at the boundary and becomes an error too.
+//! - [`pack_source`]: a `Pack`'s models, read from its file on demand (each ISO decoded when a
+//!   sampler first needs it) or made in memory.
 //! - [`pool`]: the worker threads, one pool per process (so a forked child works).
 //!
 //! Arrays are read without copying, the GIL is released while the core works (`Python::detach`),
@@ -21,6 +23,7 @@ mod checks;
 mod errors;
 mod io;
 mod pack;
+mod pack_source;
 mod pool;
 
 use pyo3::prelude::*;

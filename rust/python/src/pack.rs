@@ -15,13 +15,14 @@ use noisecal_core::derive::interp::{self, InterpOptions};
 use noisecal_core::model::layout::{BlackAlignment, position};
 use noisecal_core::model::structure::Components;
 use noisecal_core::renoise::{Method, Renoiser};
-use noisecal_core::resolve::{ModelKind, resolve_model};
+use noisecal_core::resolve::ModelKind;
 use noisecal_core::synth::sampler::IsoSampler;
 use noisecal_core::synth::{CleanAt, DEFAULT_PATTERN_CACHE_BYTES, synthesize_at};
 use noisecal_core::{ModelPack, POSITIONS};
 
 use crate::checks::{self, OutOfRange, images};
 use crate::errors::{err, guarded, input, to_py};
+use crate::pack_source::PackSource;
 use crate::pool;
 
 /// A sampler cache key: ISO, model, extrapolate, components, brightness of the clean image.
@@ -35,7 +36,8 @@ type RenoiserKey = (u32, u32, Method, bool);
 #[derive(Debug)]
 #[pyclass(frozen, module = "noisecal")]
 pub struct Pack {
-    pub(crate) inner: Arc<ModelPack>,
+    /// Its models: read from its file on demand, or made in memory (shared by copies).
+    pub(crate) source: Arc<PackSource>,
     /// Samplers already built, by (ISO, model, extrapolate, components): building one costs more
     /// than synthesizing a small crop, and a training loop asks for the same few ISOs again and
     /// again.
@@ -51,13 +53,18 @@ pub struct Pack {
 
 impl Pack {
     pub(crate) fn new(pack: ModelPack) -> Self {
-        Self::sharing(Arc::new(pack), DEFAULT_PATTERN_CACHE_BYTES)
+        Self::sharing(Arc::new(PackSource::decoded(pack)), DEFAULT_PATTERN_CACHE_BYTES)
+    }
+
+    /// A pack file's bytes, read on demand (each ISO decoded when a sampler first needs it).
+    fn from_file(file: noisecal_core::format::lazy_pack::LazyPack<Vec<u8>>) -> Self {
+        Self::sharing(Arc::new(PackSource::on_demand(file)), DEFAULT_PATTERN_CACHE_BYTES)
     }
 
     /// A pack of these models with no sampler built yet.
-    fn sharing(inner: Arc<ModelPack>, pattern_cache_bytes: usize) -> Self {
+    fn sharing(source: Arc<PackSource>, pattern_cache_bytes: usize) -> Self {
         Self {
-            inner,
+            source,
             samplers: Mutex::new(HashMap::new()),
             pattern_cache_bytes: AtomicUsize::new(pattern_cache_bytes),
             renoisers: Mutex::new(HashMap::new()),
@@ -80,14 +87,15 @@ impl Pack {
         if let Some(r) = self.renoisers.lock().map_err(|_| poisoned())?.get(&key) {
             return Ok(r.clone());
         }
-        let pack = &*self.inner;
+        let pack = &self.source.fields;
         let built = py.detach(|| {
             guarded("Pack.renoise", || {
                 pool::run(|| {
                     let model = |iso: u32, which: &str| {
-                        resolve_model(pack, iso, ModelKind::Noisecal, extrapolate).map(|r| r.model).map_err(|e| {
-                            to_py(anyhow::Error::from(e).context(format!("no model for the {which} ISO {iso}")))
-                        })
+                        self.source
+                            .resolve(iso, ModelKind::Noisecal, Components::PIXEL, extrapolate)
+                            .map(|r| r.1.model)
+                            .map_err(|e| err(format!("no model for the {which} ISO {iso}: {e}")))
                     };
                     let (source, target) = (model(from_iso, "source")?, model(to_iso, "target")?);
                     Renoiser::new(pack, &source, &target, method).map_err(to_py)
@@ -112,8 +120,9 @@ impl Pack {
         if let Some(s) = self.samplers.lock().map_err(|_| err("a sampler cache was poisoned"))?.get(&key) {
             return Ok(s.clone());
         }
-        let resolved = resolve_model(&self.inner, iso, kind, extrapolate).map_err(to_py)?;
-        let s = Arc::new(resolved.sampler(&self.inner, which, clean_at, extrapolate).map_err(to_py)?);
+        // Only the ISOs the model stands on are decoded (once per pack file).
+        let (pack, resolved) = self.source.resolve(iso, kind, which, extrapolate)?;
+        let s = Arc::new(resolved.sampler(&pack, which, clean_at, extrapolate).map_err(to_py)?);
         s.set_pattern_cache_bytes(self.pattern_cache_bytes.load(Ordering::Relaxed));
         self.samplers.lock().map_err(|_| err("a sampler cache was poisoned"))?.insert(key, s.clone());
         Ok(s)
@@ -216,7 +225,9 @@ impl Pack {
     #[staticmethod]
     fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
         py.detach(|| {
-            guarded("Pack.load", || pool::run(|| noisecal_input::files::load_pack(&path).map(Self::new).map_err(to_py)))
+            guarded("Pack.load", || {
+                pool::run(|| noisecal_input::files::open_pack_copy(&path).map(Self::from_file).map_err(to_py))
+            })
         })
     }
 
@@ -226,8 +237,8 @@ impl Pack {
         py.detach(|| {
             guarded("Pack.from_bytes", || {
                 pool::run(|| {
-                    ModelPack::from_bytes(data)
-                        .map(Self::new)
+                    noisecal_core::format::lazy_pack::LazyPack::open(data.to_vec())
+                        .map(Self::from_file)
                         .map_err(|e| err(format!("cannot load the model pack: {e}")))
                 })
             })
@@ -236,15 +247,15 @@ impl Pack {
 
     /// The pack as bytes (what `save` writes).
     fn to_bytes<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyBytes>> {
-        let b = self.inner.to_bytes().map_err(to_py)?;
+        let b = py.detach(|| self.source.to_bytes())?;
         Ok(PyBytes::new(py, &b))
     }
 
     /// Writes the pack atomically (a temporary file, then a rename).
     fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
-        let pack = self.inner.clone();
+        let source = self.source.clone();
         py.detach(move || {
-            let b = pack.to_bytes().map_err(to_py)?;
+            let b = source.to_bytes()?;
             noisecal_input::files::write_atomic(&path, &b).map_err(to_py)
         })
     }
@@ -252,19 +263,19 @@ impl Pack {
     /// Every ISO the pack holds (calibrated and derived), ascending.
     #[getter]
     fn isos(&self) -> Vec<u32> {
-        self.inner.iso_list()
+        self.source.isos().to_vec()
     }
 
     /// The calibrated ISOs, ascending.
     #[getter]
     fn calibrated_isos(&self) -> Vec<u32> {
-        self.inner.calibrated_isos()
+        self.source.calibrated_isos().to_vec()
     }
 
     /// The sensor: CFA, black levels per CFA position, white level, bit depth, size.
     #[getter]
     fn layout<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let l = &self.inner.layout;
+        let l = &self.source.fields.layout;
         let d = PyDict::new(py);
         d.set_item("cfa", l.cfa.name())?;
         d.set_item("black", l.black.to_vec())?;
@@ -277,33 +288,33 @@ impl Pack {
 
     #[getter]
     fn make(&self) -> String {
-        self.inner.make.clone()
+        self.source.fields.make.clone()
     }
 
     #[getter]
     fn model(&self) -> String {
-        self.inner.model.clone()
+        self.source.fields.model.clone()
     }
 
     /// Levels per bin (DN).
     #[getter]
     fn bin_width(&self) -> u16 {
-        self.inner.bin_width
+        self.source.fields.bin_width
     }
 
     /// What the calibration noticed.
     #[getter]
     fn warnings(&self) -> Vec<String> {
-        self.inner.warnings.clone()
+        self.source.fields.warnings.clone()
     }
 
     fn __repr__(&self) -> String {
         format!(
             "<noisecal.Pack {} {} {} ISOs {}>",
-            self.inner.make,
-            self.inner.model,
-            self.inner.layout.cfa.name(),
-            self.inner.iso_summary()
+            self.source.fields.make,
+            self.source.fields.model,
+            self.source.fields.layout.cfa.name(),
+            self.source.isos().iter().map(|i| i.to_string()).collect::<Vec<_>>().join(", ")
         )
     }
 
@@ -337,7 +348,7 @@ impl Pack {
 
     /// A pack is immutable: a copy shares its models (and builds its own samplers).
     fn __copy__(&self) -> Self {
-        Self::sharing(self.inner.clone(), self.pattern_cache_bytes.load(Ordering::Relaxed))
+        Self::sharing(self.source.clone(), self.pattern_cache_bytes.load(Ordering::Relaxed))
     }
 
     /// As `__copy__`: nothing in a pack can change, so sharing its models is a deep copy.
@@ -383,10 +394,10 @@ impl Pack {
         let which = parse_components(components)?;
         let clean_at = parse_clean_at(clean_at)?;
         let policy = OutOfRange::parse(out_of_range)?;
-        let black = black_levels(&self.inner, black_level)?;
+        let black = black_levels(&self.source.fields, black_level)?;
         let view = clean.as_array();
         let (imgs, batch) = images(&view, "clean")?;
-        let pack = &*self.inner;
+        let pack = &self.source.fields;
         checks::levels_in_range(
             py,
             &imgs,
@@ -440,7 +451,7 @@ impl Pack {
         let policy = OutOfRange::parse(out_of_range)?;
         let view = clean.as_array();
         let (imgs, batch) = images(&view, "clean")?;
-        let pack = &*self.inner;
+        let pack = &self.source.fields;
         checks::floats_in_range(py, &imgs, "clean", pack, cfa_origin, policy)?;
         let black = pack.layout.black;
         let white = pack.layout.white as f32;
@@ -511,7 +522,7 @@ impl Pack {
             )));
         }
         let policy = OutOfRange::parse(out_of_range)?;
-        let black = black_levels(&self.inner, black_level)?;
+        let black = black_levels(&self.source.fields, black_level)?;
         let view = noisy.as_array();
         let (imgs, batch) = images(&view, "noisy")?;
         let est_view = estimate.as_ref().map(|e| e.as_array());
@@ -528,7 +539,7 @@ impl Pack {
             }
             None => None,
         };
-        let pack = &*self.inner;
+        let pack = &self.source.fields;
         checks::levels_in_range(py, &imgs, "noisy", pack, policy, "re-noise them as they are")?;
         let align = BlackAlignment::between(black, pack.layout.black);
         let r = self.renoiser(py, from_iso, to_iso, method, extrapolate)?;
@@ -558,11 +569,10 @@ impl Pack {
     /// A new pack with models for `isos` derived from the calibrated ones (as `noisecal interp`).
     #[pyo3(signature = (isos, *, extrapolate=false))]
     fn interp(&self, py: Python<'_>, isos: Vec<u32>, extrapolate: bool) -> PyResult<Self> {
-        let pack = &*self.inner;
         py.detach(|| {
             guarded("Pack.interp", || {
                 pool::run(|| {
-                    interp::materialize(pack, &isos, extrapolate, &InterpOptions::default())
+                    interp::materialize(&*self.source.whole()?, &isos, extrapolate, &InterpOptions::default())
                         .map(|(p, _)| Self::new(p))
                         .map_err(to_py)
                 })
@@ -576,10 +586,12 @@ impl Pack {
     /// `synth(..., clean_at="target")` divides clean levels by them to pick their noise.
     #[pyo3(signature = (iso, *, extrapolate=false))]
     fn gain_ratios(&self, py: Python<'_>, iso: u32, extrapolate: bool) -> PyResult<Vec<f64>> {
-        let pack = &*self.inner;
         py.detach(|| {
             guarded("Pack.gain_ratios", || {
-                pool::run(|| interp::gain_ratio_at(pack, iso, extrapolate).map(|g| g.to_vec()).map_err(to_py))
+                pool::run(|| {
+                    let pack = self.source.whole()?;
+                    interp::gain_ratio_at(&pack, iso, extrapolate).map(|g| g.to_vec()).map_err(to_py)
+                })
             })
         })
     }
@@ -607,13 +619,14 @@ impl Pack {
     ) -> PyResult<Bound<'py, PyDict>> {
         let kind = parse_model(model)?;
         let clean_at = parse_clean_at(clean_at)?;
-        let pack = &*self.inner;
+        let pack = &self.source.fields;
         let (sampler, gains, structure) = py.detach(|| {
             guarded("Pack.tables", || {
                 pool::run(|| {
                     let s = self.sampler(iso, kind, extrapolate, Components::PIXEL, clean_at)?;
-                    let g = interp::gain_ratio_at(pack, iso, extrapolate).map_err(to_py)?;
-                    Ok((s, g, structured_components(pack, iso, kind)))
+                    let whole = self.source.whole()?;
+                    let g = interp::gain_ratio_at(&whole, iso, extrapolate).map_err(to_py)?;
+                    Ok((s, g, structured_components(&whole, iso, kind)))
                 })
             })
         })?;

@@ -15,9 +15,12 @@ use noisecal_core::{BlackAlignment, ModelPack, position};
 use noisecal_core::resolve::ModelKind;
 use noisecal_input::dng;
 
-use crate::models::{align_input, check_layout_matches, resolve_model};
+use crate::models::{align_input, check_layout_matches};
 use crate::seeds::SeedBy;
-use noisecal_input::files::load_pack;
+use noisecal_core::format::lazy_pack::LazyPack;
+use noisecal_core::model::structure::Components;
+use noisecal_core::resolve::Resolved;
+use noisecal_input::files::{open_pack, resolve_pack};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -75,7 +78,10 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         inputs.push(e);
     }
     noisecal_input::files::refuse_overwriting_inputs(&args.output, &inputs)?;
-    let pack = load_pack(&args.pack)?;
+    // Only the ISOs the source and target models stand on are decoded; `pack` is the pack's
+    // fields (sensor layout, bins) without its ISOs, all the rest of the run needs.
+    let lazy = open_pack(&args.pack)?;
+    let pack = lazy.index().empty_pack();
     let jobs = plan_jobs(&args)?;
     let mut renoisers: BTreeMap<u32, Renoiser> = BTreeMap::new();
     let mut target_note_shown = false;
@@ -100,7 +106,7 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         let renoiser = match renoisers.entry(from) {
             Entry::Occupied(e) => e.into_mut(),
             Entry::Vacant(e) => {
-                let r = prepare(&pack, from, &args, quiet, !target_note_shown)?;
+                let r = prepare(&lazy, &pack, from, &args, quiet, !target_note_shown)?;
                 target_note_shown = true;
                 e.insert(r)
             }
@@ -125,9 +131,7 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         // The written NoiseProfile is the target model's fit (resolved once, after `prepare` checked the ISOs).
         let target = match &target_model {
             Some(m) => m,
-            None => {
-                target_model.insert(resolve_model(&pack, args.to_iso, ModelKind::Noisecal, args.extrapolate)?.model)
-            }
+            None => target_model.insert(resolve(&lazy, &args, args.to_iso)?.model),
         };
         let profile = dng::fitted_noise_profile(&pack, target, &img.layout);
         dng::write_derived(&job.output, &file, &noisy, args.to_iso, profile.as_ref())?;
@@ -226,18 +230,30 @@ fn same_path(a: &Path, b: &Path) -> bool {
     noisecal_io::same_file(a, b)
 }
 
-/// Models and bridge for `from → to`, with their notes and flags on stderr.
-fn prepare(pack: &ModelPack, from: u32, args: &Args, quiet: bool, show_target_note: bool) -> anyhow::Result<Renoiser> {
+/// The non-parametric model of `iso` (pixel noise: re-noising adds no structured components),
+/// decoding only the ISOs it stands on.
+fn resolve(lazy: &LazyPack<noisecal_io::Mapped>, args: &Args, iso: u32) -> anyhow::Result<Resolved> {
+    Ok(resolve_pack(lazy, &args.pack, iso, ModelKind::Noisecal, Components::PIXEL, args.extrapolate)?.1)
+}
+
+/// Models and bridge for `from → to`, with their notes and flags on stderr. `pack` holds the
+/// pack's fields (its ISOs are read from `lazy`).
+fn prepare(
+    lazy: &LazyPack<noisecal_io::Mapped>,
+    pack: &ModelPack,
+    from: u32,
+    args: &Args,
+    quiet: bool,
+    show_target_note: bool,
+) -> anyhow::Result<Renoiser> {
     let to = args.to_iso;
     if to <= from {
         bail!(
             "cannot renoise ISO {from} captures to ISO {to}: noise on noise only adds noise, so --to-iso must be above the source ISO {from}"
         );
     }
-    let source = resolve_model(pack, from, ModelKind::Noisecal, args.extrapolate)
-        .with_context(|| format!("no model for the source ISO {from}"))?;
-    let target = resolve_model(pack, to, ModelKind::Noisecal, args.extrapolate)
-        .with_context(|| format!("no model for the target ISO {to}"))?;
+    let source = resolve(lazy, args, from).with_context(|| format!("no model for the source ISO {from}"))?;
+    let target = resolve(lazy, args, to).with_context(|| format!("no model for the target ISO {to}"))?;
     let (source_note, target_note) = (crate::models::note(&source), crate::models::note(&target));
     let renoiser = Renoiser::new(pack, &source.model, &target.model, args.method)?;
     if !quiet {

@@ -14,9 +14,9 @@ use noisecal_core::synth::{CleanAt, DEFAULT_PATTERN_CACHE_BYTES, synthesize, syn
 use noisecal_core::resolve::ModelKind;
 use noisecal_input::dng;
 
-use crate::models::{align_input, check_layout_matches, model_parser, resolve_model};
+use crate::models::{align_input, check_layout_matches, model_parser};
 use crate::seeds::SeedBy;
-use noisecal_input::files::MAX_PACK_BYTES;
+use noisecal_input::files::{open_pack, resolve_pack};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -70,16 +70,6 @@ pub struct Args {
     pub output: PathBuf,
 }
 
-/// [`noisecal_input::files::load_pack`] (same checks, same messages) from a mapping of the file instead
-/// of a copy: the pack is decoded once, so copying it first only costs fresh pages (1 600 of them
-/// for the 6.7 MB pack of the simulated phone), on the path before sampling can start.
-fn load_pack_mapped(path: &Path) -> anyhow::Result<noisecal_core::ModelPack> {
-    let bytes = noisecal_io::map_regular(path, MAX_PACK_BYTES)
-        .with_context(|| format!("cannot read model pack {}", path.display()))?;
-    noisecal_core::ModelPack::from_bytes(&bytes)
-        .with_context(|| format!("{} is not a usable model pack", path.display()))
-}
-
 fn parse_components(s: &str) -> Result<Components, String> {
     Components::parse(s)
 }
@@ -94,14 +84,15 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
     std::thread::scope(|scope| {
         // A single input is read while the pack loads.
         let prefetch = (!folder).then(|| scope.spawn(|| dng::read_dng_source(&args.input)));
-        let pack = load_pack_mapped(&args.pack)?;
-        let resolved = resolve_model(&pack, args.iso, args.model, args.extrapolate)?;
+        // Only the ISOs the model stands on are decoded (the pack file is mapped, not copied).
+        let which = args.model.components(args.components);
+        let lazy = open_pack(&args.pack)?;
+        let (pack, resolved) = resolve_pack(&lazy, &args.pack, args.iso, args.model, which, args.extrapolate)?;
         if let Some(n) = crate::models::note(&resolved)
             && !quiet
         {
             eprintln!("{n}");
         }
-        let which = args.model.components(args.components);
         let sampler = resolved.sampler(&pack, which, args.clean_at, args.extrapolate)?;
         sampler.set_pattern_cache_bytes(args.pattern_cache_mb.saturating_mul(1 << 20));
         let model = resolved.model;

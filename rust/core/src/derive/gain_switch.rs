@@ -71,14 +71,20 @@ fn predict_read(points: &[NoiseParams], a: f64) -> Option<f64> {
 }
 
 pub(crate) fn detect(binning: &Binning, models: &[&IsoModel]) -> Vec<GainSwitch> {
-    let n = models.len();
+    let laws: Vec<(u32, [Option<NoiseParams>; POSITIONS])> =
+        models.iter().map(|m| (m.iso, std::array::from_fn(|pos| fit_params(binning, m, pos)))).collect();
+    detect_laws(&laws)
+}
+
+/// [`detect`] from the calibrated ISOs' noise laws per position (sorted by ISO; each law as
+/// [`fit_params`] gives it).
+pub(crate) fn detect_laws(laws: &[(u32, [Option<NoiseParams>; POSITIONS])]) -> Vec<GainSwitch> {
+    let n = laws.len();
     if n < 2 {
         return Vec::new();
     }
-    let params: Vec<[Option<NoiseParams>; POSITIONS]> = models
-        .iter()
-        .map(|m| std::array::from_fn(|pos| fit_params(binning, m, pos).filter(|p| p.a > 0.0 && p.b > 0.0)))
-        .collect();
+    let params: Vec<[Option<NoiseParams>; POSITIONS]> =
+        laws.iter().map(|(_, law)| law.map(|p| p.filter(|p| p.a > 0.0 && p.b > 0.0))).collect();
     let mut out = Vec::new();
     let mut seg_start = 0usize;
     for j in 0..n - 1 {
@@ -114,8 +120,8 @@ pub(crate) fn detect(binning: &Binning, models: &[&IsoModel]) -> Vec<GainSwitch>
         let ratio = median(&ratios);
         if ratio < SWITCH_RATIO {
             out.push(GainSwitch {
-                below_iso: models[j].iso,
-                above_iso: models[j + 1].iso,
+                below_iso: laws[j].0,
+                above_iso: laws[j + 1].0,
                 ratio,
                 input_read_var_below: median(&below_r),
                 input_read_var_above: median(&above_r),

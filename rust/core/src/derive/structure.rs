@@ -14,31 +14,70 @@ pub fn structure_at(pack: &ModelPack, iso: u32) -> Option<IsoStructure> {
     derived_structure(pack, iso)
 }
 
+/// Which calibrated ISOs' components [`derived_structure`] reads, and how.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Sources {
+    /// This ISO's own.
+    Own(u32),
+    /// The nearest end of the calibrated ones, scaled along the trend between the first and the
+    /// last.
+    Beyond { near: u32, first: u32, last: u32 },
+    /// The two calibrated ISOs around it, blended.
+    Between(u32, u32),
+}
+
+/// How `iso`'s components come from `measured` (the calibrated ISOs that have components,
+/// ascending); `None` when there are none.
+fn sources(measured: &[u32], iso: u32) -> Option<Sources> {
+    let (&first, &last) = (measured.first()?, measured.last()?);
+    if measured.contains(&iso) {
+        return Some(Sources::Own(iso));
+    }
+    if iso < first || iso > last {
+        return Some(Sources::Beyond { near: if iso < first { first } else { last }, first, last });
+    }
+    let above = measured.iter().position(|&k| k > iso)?;
+    Some(Sources::Between(measured[above - 1], measured[above]))
+}
+
+/// The calibrated ISOs whose components [`derived_structure`] reads for `iso`, of `measured`
+/// (the calibrated ISOs that have components, ascending): what a pack read on demand must decode
+/// to derive them.
+pub fn derived_structure_sources(measured: &[u32], iso: u32) -> Vec<u32> {
+    match sources(measured, iso) {
+        None => Vec::new(),
+        Some(Sources::Own(k)) => vec![k],
+        Some(Sources::Beyond { first, last, .. }) => vec![first, last],
+        Some(Sources::Between(a, b)) => vec![a, b],
+    }
+}
+
 /// The components derived for `iso` from the calibrated ISOs' (ignoring any stored for `iso`).
 pub fn derived_structure(pack: &ModelPack, iso: u32) -> Option<IsoStructure> {
     let measured: Vec<&IsoStructure> =
         pack.structure.iter().filter(|s| pack.iso(s.iso).is_some_and(|m| m.is_calibrated())).collect();
-    let first = *measured.first()?;
-    let last = *measured.last()?;
-    if let Some(s) = measured.iter().find(|s| s.iso == iso) {
-        return Some((*s).clone());
-    }
+    let isos: Vec<u32> = measured.iter().map(|s| s.iso).collect();
+    let of = |k: u32| measured.iter().find(|s| s.iso == k).copied();
     let ln = |i: u32| (i.max(1) as f64).ln();
-    if iso < first.iso || iso > last.iso {
-        let near = if iso < first.iso { first } else { last };
-        let slope = if last.iso > first.iso {
-            let (a, b) = (total_sd(first), total_sd(last));
-            if a > 0.0 && b > 0.0 { ((b / a).ln() / (ln(last.iso) - ln(first.iso))).clamp(0.0, 1.0) } else { 1.0 }
-        } else {
-            1.0
-        };
-        let k = (iso.max(1) as f64 / near.iso as f64).powf(slope);
-        return Some(near.scaled(iso, k));
+    match sources(&isos, iso)? {
+        Sources::Own(k) => of(k).cloned(),
+        Sources::Beyond { near, first, last } => {
+            let (near, first, last) = (of(near)?, of(first)?, of(last)?);
+            let slope = if last.iso > first.iso {
+                let (a, b) = (total_sd(first), total_sd(last));
+                if a > 0.0 && b > 0.0 { ((b / a).ln() / (ln(last.iso) - ln(first.iso))).clamp(0.0, 1.0) } else { 1.0 }
+            } else {
+                1.0
+            };
+            let k = (iso.max(1) as f64 / near.iso as f64).powf(slope);
+            Some(near.scaled(iso, k))
+        }
+        Sources::Between(a, b) => {
+            let (a, b) = (of(a)?, of(b)?);
+            let t = (ln(iso) - ln(a.iso)) / (ln(b.iso) - ln(a.iso));
+            Some(IsoStructure::blend(iso, a, b, t))
+        }
     }
-    let above = measured.iter().position(|s| s.iso > iso)?;
-    let (a, b) = (measured[above - 1], measured[above]);
-    let t = (ln(iso) - ln(a.iso)) / (ln(b.iso) - ln(a.iso));
-    Some(IsoStructure::blend(iso, a, b, t))
 }
 
 /// The standard deviation of all components together (rows, columns and frame, averaged over

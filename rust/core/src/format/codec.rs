@@ -137,6 +137,34 @@ pub fn decode_framing<'a>(
     supported: std::ops::RangeInclusive<u16>,
     bytes: &'a [u8],
 ) -> Result<(u16, &'a [u8]), CodecError> {
+    let (found, payload, rest) = decode_sealed_head(what, magic, magic_text, supported, bytes)?;
+    if !rest.is_empty() {
+        return Err(CodecError::Invalid { what, detail: format!("{} trailing bytes after the payload", rest.len()) });
+    }
+    Ok((found, payload))
+}
+
+/// The format version of a sealed file (one of `supported`), from its preamble alone.
+pub fn sealed_version(
+    what: &'static str,
+    magic: &[u8; 8],
+    magic_text: &'static str,
+    supported: std::ops::RangeInclusive<u16>,
+    bytes: &[u8],
+) -> Result<u16, CodecError> {
+    check_preamble(what, magic, magic_text, supported, bytes, SEALED_HEADER)
+}
+
+/// A sealed file whose sealed payload is a head that more bytes follow (each sealed on its
+/// own, as the head says): its format version, its head (checked against its CRC) and the
+/// bytes after it.
+pub fn decode_sealed_head<'a>(
+    what: &'static str,
+    magic: &[u8; 8],
+    magic_text: &'static str,
+    supported: std::ops::RangeInclusive<u16>,
+    bytes: &'a [u8],
+) -> Result<(u16, &'a [u8], &'a [u8]), CodecError> {
     let found = check_preamble(what, magic, magic_text, supported, bytes, SEALED_HEADER)?;
     let mut len_bytes = [0u8; 8];
     len_bytes.copy_from_slice(&bytes[12..20]);
@@ -150,16 +178,13 @@ pub fn decode_framing<'a>(
             expected: SEALED_HEADER.saturating_add(usize::try_from(len).unwrap_or(usize::MAX)),
         });
     }
-    let len = len as usize;
-    if payload.len() > len {
-        return Err(CodecError::Invalid {
-            what,
-            detail: format!("{} trailing bytes after the payload", payload.len() - len),
-        });
-    }
-    check_crc(what, crc32fast::hash(payload), crc)?;
-    Ok((found, payload))
+    let (head, rest) = payload.split_at(len as usize);
+    check_crc(what, crc32fast::hash(head), crc)?;
+    Ok((found, head, rest))
 }
+
+/// Bytes of a sealed file before its payload (preamble, reserved, length, CRC).
+pub const SEALED_HEAD_BYTES: usize = SEALED_HEADER;
 
 /// Decodes a payload returned by [`decode_framing`]; every byte must be used.
 pub fn decode_payload<T: DeserializeOwned>(what: &'static str, payload: &[u8]) -> Result<T, CodecError> {
@@ -326,6 +351,11 @@ pub(crate) fn inflate_fields_and_weights<T: DeserializeOwned>(
     let mut raw = inflate_exact(what, raw_len, deflated)?;
     let weights = raw.split_off(fields_len as usize);
     Ok((decode_payload(what, &raw)?, weights))
+}
+
+/// `raw` deflated at the compact pack payloads' level.
+pub(crate) fn deflate(raw: &[u8]) -> Vec<u8> {
+    miniz_oxide::deflate::compress_to_vec(raw, DEFLATE_LEVEL)
 }
 
 /// `deflated` inflated to exactly `raw_len` bytes (at most [`MAX_INFLATED`]), refusing a claim

@@ -1,239 +1,297 @@
-//! The payload of a version 8 pack file: the pack's fields as bincode with every bin's weights
-//! taken out, then the weights as a stream, the whole deflated:
+//! A version 9 pack file: a small sealed index (the pack-level fields and a table of its ISOs),
+//! then one section per ISO, compressed and sealed on its own, so a reader decodes only the ISOs
+//! it is asked for ([`super::lazy_pack`]):
 //!
-//! `raw_len u64 | fields_len u64 | deflate(bincode(pack without weights) | weights)`
+//! `magic | version u16 | reserved u16 | index_len u64 | crc32(index) u32 | index | section…`
 //!
-//! The weights: per bin its cell count, then one varint naming its [`Predictor`] and its grid
-//! step (`predictor + 4·log2 k`: a bin kept in cells of `k` DN, [`crate::model::coarse_grid`],
-//! stores the masses of its cells and is re-expanded at load; `k = 1` stores a weight per DN),
-//! then each cell's code less its guess (the previous code plus the slope the previous bin's
-//! weights, summed over this bin's cells, have at the same noise value, [`Slopes`]: neighbouring
-//! bins hold nearly the same PMF; or the previous code; or the previous code plus the slope before
-//! it), all as zigzagged LEB128 varints. The weights are the model's stored form
-//! ([`crate::model::precision`]): each weight (or cell mass) holds the significant bits its bin's
-//! [`Precision`](crate::model::precision::Precision) gives its bit length, and its code is its index among the values that precision
-//! holds ([`WeightCode`]), so a code's step is one stored step whatever the bin's precision. The
-//! precision is not stored: it follows from fields the file holds (the model calibrated or not,
-//! the position estimated or plain, the bin's samples). The envelope (lengths, deflate) is
-//! version 6's, [`codec::deflate_fields_and_weights`]. Version 7 (the same without grid steps) is
-//! read by [`super::pack_v7`].
+//! - **index**: `raw_len u64 | deflate(bincode(PackIndex))`, the [`PackIndex`]: layout, make, model, bin width, reference ISO,
+//!   pooling, warnings, and per ISO ([`IsoEntry`], sorted by ISO) its origin, whether it has
+//!   structured components, the noise law of a calibrated ISO per CFA position (what an
+//!   interpolation's plan reads to find conversion-gain switches without decoding every ISO:
+//!   [`crate::derive::noise_law::fit_params`] of the stored model, so the plan is the one the
+//!   whole pack gives), and its section's length and CRC-32. Sections follow in the index's
+//!   order, each right after the one before (offsets are the running sum of the lengths), and
+//!   end exactly at the end of the file.
+//! - **section**: `fields_len u64 | deflated_fields_len u64 | weights_len u64 |
+//!   deflate(fields) | deflate(weights)`: the fields are bincode of the ISO's model with its
+//!   bins' weights taken out and of its structured components, the weights its PMF weights as
+//!   version 8 codes them ([`super::weight_stream`]). The two are deflated apart: one stream of
+//!   both came out 2–3 % larger (deflate's blocks adapt poorly where the data changes kind).
 //!
-//! Same pack in, same bytes out (deflate is deterministic for a given `miniz_oxide`, pinned by
-//! Cargo.lock). The differences wrap in 64 bits (a bijection on `u64`): any codes round-trip and
-//! no input can overflow; a code naming no weight, a cell count beyond what the stream holds, an
-//! unknown predictor or step, more cells than [`MAX_CELLS`] once expanded, or bytes left over are
-//! refused as a damaged file.
+//! The index is checked whole when the file is opened (a file cut short or with bytes after its
+//! last section is refused then, before any section is read); a section is checked against its
+//! CRC, and its ISO, origin and components against the index, when it is decoded. Same pack in,
+//! same bytes out.
 
+use serde::{Deserialize, Serialize};
+
+use crate::derive::noise_law::{NoiseParams, fit_params};
 use crate::error::CodecError;
-use crate::format::codec::{self, get_varint, put_varint, unzigzag, zigzag};
-use crate::format::weight_code::{WeightCode, precision_for, precision_of};
-use crate::model::coarse_grid::{GRID_STEPS, cell_masses, expand, stored_step};
-use crate::model::pack::ModelPack;
+use crate::format::codec;
+use crate::format::pack_version::{PACK_MAGIC, PACK_VERSION};
+use crate::format::weight_stream::{check_used, decode_iso, encode_iso};
+use crate::model::layout::{POSITIONS, SensorLayout};
+use crate::model::pack::{IsoModel, ModelOrigin, ModelPack};
+use crate::model::structure::IsoStructure;
 
 const WHAT: &str = "model pack";
 
-/// The most cells (once re-expanded) a file's bins may hold together: 2²⁸ (2 GB of weights),
-/// beyond any pack noisecal writes (the 14-bit phone's 3 ISOs hold 1.5·10⁷); a damaged count or
-/// step cannot ask for more.
-pub const MAX_CELLS: u64 = 1 << 28;
-
-/// The steps a bin may be kept at, by their code (`log2 k`).
-fn step_of(code: u64) -> Option<usize> {
-    std::iter::once(1).chain(GRID_STEPS).find(|k| k.trailing_zeros() as u64 == code)
+/// The pack-level fields of a version 9 file and the table of its ISO sections.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PackIndex {
+    pub layout: SensorLayout,
+    pub make: String,
+    pub model: String,
+    pub bin_width: u16,
+    pub reference_iso: u32,
+    pub pooling: Option<u64>,
+    pub warnings: Vec<String>,
+    /// One entry per ISO, sorted by ISO, in the order of their sections.
+    pub isos: Vec<IsoEntry>,
 }
 
-/// The slopes of the previous bin's weights summed over this bin's cells (`first`, `k` DN each),
-/// coded at this bin's precision (`code[j] − code[j−1]`, the cell before the first included): the
-/// prediction of this bin's code differences.
-#[derive(Default)]
-struct Slopes {
-    slope: Vec<u64>,
+/// One ISO of a version 9 file, as its index lists it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct IsoEntry {
+    pub iso: u32,
+    pub origin: ModelOrigin,
+    /// The section holds structured components for this ISO.
+    pub structured: bool,
+    /// A calibrated ISO's noise law per CFA position, `[a, b]` of
+    /// [`fit_params`] (`None` where it fits nothing; every position `None` for a derived ISO).
+    pub law: [Option<[f64; 2]>; POSITIONS],
+    /// The section's length in bytes and its CRC-32.
+    pub len: u64,
+    pub crc: u32,
 }
 
-impl Slopes {
-    fn of(prev: Option<(i32, &[u64])>, first: i32, k: usize, cells: usize, code: &WeightCode) -> Self {
-        let Some((pf, pw)) = prev else { return Self::default() };
-        let mass = |j: i64| -> u64 {
-            let lo = first as i64 + j * k as i64 - pf as i64;
-            (lo..lo + k as i64)
-                .filter_map(|i| usize::try_from(i).ok().and_then(|i| pw.get(i)))
-                .fold(0u64, |a, &w| a.saturating_add(w))
-        };
-        let mut prev_code = code.code_near(mass(-1));
-        let slope = (0..cells as i64)
-            .map(|j| {
-                let c = code.code_near(mass(j));
-                c.wrapping_sub(std::mem::replace(&mut prev_code, c))
-            })
-            .collect();
-        Self { slope }
+impl IsoEntry {
+    pub fn is_calibrated(&self) -> bool {
+        matches!(self.origin, ModelOrigin::Calibrated)
     }
 
-    /// The predicted slope at cell `j`.
-    fn at(&self, j: usize) -> u64 {
-        self.slope.get(j).copied().unwrap_or(0)
+    /// The noise law per position, as [`fit_params`] gives it.
+    pub fn noise_law(&self) -> [Option<NoiseParams>; POSITIONS] {
+        self.law.map(|l| l.map(|[a, b]| NoiseParams { a, b }))
     }
 }
 
-/// How a cell's code is guessed from what came before it; each bin's weights are coded with
-/// whichever guesses them in the fewest bytes, named by a varint before them.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Predictor {
-    /// The previous cell's code plus the previous bin's slope at this noise value (a PMF that
-    /// changes little from bin to bin, spikes of a code lattice included).
-    Above = 0,
-    /// The previous cell's code (a smooth PMF kept to few bits: runs of equal codes).
-    Previous = 1,
-    /// The previous cell's code plus the slope before it (a smooth PMF kept to many bits).
-    Linear = 2,
-}
-
-impl Predictor {
-    const ALL: [Predictor; 3] = [Predictor::Above, Predictor::Previous, Predictor::Linear];
-
-    fn from_id(id: u64) -> Option<Self> {
-        Self::ALL.into_iter().find(|p| *p as u64 == id)
-    }
-
-    /// The guess of the code after `codes` (of cell `codes.len()`).
-    fn guess(self, codes: &[u64], above: &Slopes) -> u64 {
-        let last = codes.last().copied().unwrap_or(0);
-        match self {
-            Predictor::Above => last.wrapping_add(above.at(codes.len())),
-            Predictor::Previous => last,
-            Predictor::Linear => match codes {
-                [.., a, b] => b.wrapping_add(b.wrapping_sub(*a)),
-                _ => last,
-            },
+impl PackIndex {
+    /// The index of `pack` (in its stored form) with no sections measured yet.
+    pub fn of(pack: &ModelPack) -> Self {
+        let binning = pack.binning();
+        Self {
+            layout: pack.layout.clone(),
+            make: pack.make.clone(),
+            model: pack.model.clone(),
+            bin_width: pack.bin_width,
+            reference_iso: pack.reference_iso,
+            pooling: pack.pooling,
+            warnings: pack.warnings.clone(),
+            isos: pack
+                .isos
+                .iter()
+                .map(|m| IsoEntry {
+                    iso: m.iso,
+                    origin: m.origin.clone(),
+                    structured: pack.structure_of(m.iso).is_some(),
+                    law: std::array::from_fn(|pos| {
+                        m.is_calibrated().then(|| fit_params(&binning, m, pos)).flatten().map(|p| [p.a, p.b])
+                    }),
+                    len: 0,
+                    crc: 0,
+                })
+                .collect(),
         }
     }
-}
 
-/// The PMF weights of `pack` (already in its stored form) as the payload codes them.
-pub(crate) fn weight_stream(pack: &ModelPack) -> Result<Vec<u8>, CodecError> {
-    let mut out = Vec::new();
-    for m in &pack.isos {
-        for p in &m.positions {
-            let mut prev: Option<(i32, &[u64])> = None;
-            for b in &p.bins {
-                let precision = precision_of(m, p, b.samples);
-                let code = WeightCode::new(precision);
-                let k = stored_step(&b.counts, precision);
-                let values = if k > 1 { cell_masses(&b.counts, k) } else { b.counts.clone() };
-                let above = Slopes::of(prev, b.first, k, values.len(), &code);
-                put_varint(&mut out, values.len() as u64);
-                let codes: Vec<u64> = values
-                    .iter()
-                    .map(|&w| code.code(w))
-                    .collect::<Option<_>>()
-                    .ok_or_else(|| CodecError::Encode {
-                        what: WHAT,
-                        detail: format!(
-                            "ISO {} holds a weight with more significant bits than its bin keeps: store the pack's compacted form",
-                            m.iso
-                        ),
-                    })?;
-                let coded = |predictor: Predictor| {
-                    let mut bytes = Vec::new();
-                    for (i, &c) in codes.iter().enumerate() {
-                        put_varint(&mut bytes, zigzag(c.wrapping_sub(predictor.guess(&codes[..i], &above)) as i64));
-                    }
-                    bytes
-                };
-                let (predictor, bytes) = Predictor::ALL
-                    .into_iter()
-                    .map(|p| (p, coded(p)))
-                    .min_by_key(|(p, bytes)| (bytes.len(), *p as u8))
-                    .expect("predictors");
-                put_varint(&mut out, predictor as u64 + 4 * k.trailing_zeros() as u64);
-                out.extend_from_slice(&bytes);
-                prev = Some((b.first, &b.counts));
-            }
+    /// A pack with these fields and no ISO.
+    pub fn empty_pack(&self) -> ModelPack {
+        ModelPack {
+            layout: self.layout.clone(),
+            make: self.make.clone(),
+            model: self.model.clone(),
+            bin_width: self.bin_width,
+            reference_iso: self.reference_iso,
+            pooling: self.pooling,
+            isos: Vec::new(),
+            warnings: self.warnings.clone(),
+            structure: Vec::new(),
         }
     }
+
+    /// The entry of exactly this ISO.
+    pub fn entry(&self, iso: u32) -> Option<&IsoEntry> {
+        self.isos.iter().find(|e| e.iso == iso)
+    }
+}
+
+/// One ISO's model and structured components, as a section holds them.
+pub type IsoSection = (IsoModel, Option<IsoStructure>);
+
+/// The version 9 file of `pack` (already in its stored form, [`ModelPack::compacted`]).
+pub fn encode(pack: &ModelPack) -> Result<Vec<u8>, CodecError> {
+    let mut index = PackIndex::of(pack);
+    let mut sections = Vec::new();
+    for (m, entry) in pack.isos.iter().zip(index.isos.iter_mut()) {
+        let section = encode_section(m, pack.structure_of(m.iso))?;
+        entry.len = section.len() as u64;
+        entry.crc = crc32fast::hash(&section);
+        sections.extend_from_slice(&section);
+    }
+    let raw = codec::encode_payload(WHAT, &index)?;
+    let mut head = (raw.len() as u64).to_le_bytes().to_vec();
+    head.extend_from_slice(&codec::deflate(&raw));
+    let mut out = codec::encode_sealed(PACK_MAGIC, PACK_VERSION, &head);
+    out.extend_from_slice(&sections);
     Ok(out)
 }
 
-/// The version 8 payload of `pack` (already in its stored form, [`ModelPack::compacted`]).
-pub fn encode(pack: &ModelPack) -> Result<Vec<u8>, CodecError> {
-    let weights = weight_stream(pack)?;
-    let mut fields = pack.clone();
-    fields.isos.iter_mut().flat_map(|m| m.positions.iter_mut()).flat_map(|p| p.bins.iter_mut()).for_each(|b| {
-        b.counts = Vec::new();
-    });
-    codec::deflate_fields_and_weights(WHAT, &fields, &weights)
+fn encode_section(m: &IsoModel, structure: Option<&IsoStructure>) -> Result<Vec<u8>, CodecError> {
+    let mut weights = Vec::new();
+    encode_iso(m, &mut weights)?;
+    let mut fields = m.clone();
+    fields.positions.iter_mut().flat_map(|p| p.bins.iter_mut()).for_each(|b| b.counts = Vec::new());
+    let fields = codec::encode_payload(WHAT, &(fields, structure))?;
+    let (f, w) = (codec::deflate(&fields), codec::deflate(&weights));
+    let mut out = Vec::with_capacity(SECTION_LENGTHS + f.len() + w.len());
+    for len in [fields.len(), f.len(), weights.len()] {
+        out.extend_from_slice(&(len as u64).to_le_bytes());
+    }
+    out.extend_from_slice(&f);
+    out.extend_from_slice(&w);
+    Ok(out)
 }
 
-/// The pack in a version 8 payload (checked by the caller), refusing a damaged one with a clear
-/// error.
-pub fn decode(payload: &[u8]) -> Result<ModelPack, CodecError> {
-    let damaged = |what: &str| CodecError::Invalid { what: WHAT, detail: format!("{what}: the file is damaged") };
-    let (mut pack, weights): (ModelPack, Vec<u8>) = codec::inflate_fields_and_weights(WHAT, payload)?;
-    let weights = &weights[..];
-    let mut at = 0usize;
-    let mut cells = 0u64;
-    for (i, m) in pack.isos.iter_mut().enumerate() {
-        let calibrated = m.is_calibrated();
-        for (pos, p) in m.positions.iter_mut().enumerate() {
-            let estimated = p.is_estimated();
-            let mut prev: Option<(i32, Vec<u64>)> = None;
-            for (b, bin) in p.bins.iter_mut().enumerate() {
-                let here = || format!("model {i} position {pos} bin {b}");
-                let precision = precision_for(calibrated, estimated, bin.samples);
-                let code = WeightCode::new(precision);
-                let n =
-                    get_varint(weights, &mut at).ok_or_else(|| damaged(&format!("{} has no cell count", here())))?;
-                // Every cell takes at least a byte: a count beyond the bytes left is damage (and
-                // never allocated).
-                if n > (weights.len() - at) as u64 {
-                    return Err(damaged(&format!("{} claims {n} cells, more than the file holds", here())));
-                }
-                let mode =
-                    get_varint(weights, &mut at).ok_or_else(|| damaged(&format!("{} has no predictor", here())))?;
-                let predictor = Predictor::from_id(mode % 4)
-                    .ok_or_else(|| damaged(&format!("{} names no known predictor", here())))?;
-                let k = step_of(mode / 4).ok_or_else(|| damaged(&format!("{} names no known grid step", here())))?;
-                cells = cells.saturating_add(n.saturating_mul(k as u64));
-                if cells > MAX_CELLS {
-                    return Err(damaged(&format!("{} takes the pack beyond {MAX_CELLS} cells", here())));
-                }
-                let above = Slopes::of(prev.as_ref().map(|(f, w)| (*f, &w[..])), bin.first, k, n as usize, &code);
-                let mut codes = Vec::with_capacity(n as usize);
-                for _ in 0..n {
-                    let z = get_varint(weights, &mut at)
-                        .ok_or_else(|| damaged(&format!("{} ends inside a weight", here())))?;
-                    let guess = predictor.guess(&codes, &above);
-                    codes.push(guess.wrapping_add(unzigzag(z) as u64));
-                }
-                let values = codes
-                    .iter()
-                    .map(|&k| code.weight(k).ok_or_else(|| damaged(&format!("{} has a code naming no weight", here()))))
-                    .collect::<Result<Vec<u64>, _>>()?;
-                bin.counts = if k > 1 { expand(&values, k) } else { values };
-                prev = Some((bin.first, bin.counts.clone()));
-            }
+/// Bytes of a section's lengths (fields, deflated fields, weights).
+const SECTION_LENGTHS: usize = 24;
+
+/// The fields and the weights of a section, inflated; a damaged envelope is refused.
+fn inflate_section(section: &[u8]) -> Result<(Vec<u8>, Vec<u8>), CodecError> {
+    let Some((lens, rest)) = section.split_first_chunk::<SECTION_LENGTHS>() else {
+        return Err(CodecError::Truncated { what: WHAT, len: section.len(), expected: SECTION_LENGTHS });
+    };
+    let len = |i: usize| u64::from_le_bytes(lens[8 * i..8 * i + 8].try_into().expect("8 bytes"));
+    let (fields_len, deflated_len, weights_len) = (len(0), len(1), len(2));
+    if deflated_len > rest.len() as u64 {
+        return Err(CodecError::Invalid {
+            what: WHAT,
+            detail: format!(
+                "an ISO section claims {deflated_len} bytes of fields, more than its {} bytes: the file is damaged",
+                rest.len()
+            ),
+        });
+    }
+    let (f, w) = rest.split_at(deflated_len as usize);
+    Ok((codec::inflate_exact(WHAT, fields_len, f)?, codec::inflate_exact(WHAT, weights_len, w)?))
+}
+
+/// The index of a version 9 file whose framing (magic, version) was checked: `head` is its
+/// sealed index, `rest` the bytes after it. Returns the index and each section's byte range in
+/// `rest`. A file cut short inside its sections, or with bytes after the last, is refused here.
+pub fn read_index(head: &[u8], rest: &[u8]) -> Result<(PackIndex, Vec<std::ops::Range<usize>>), CodecError> {
+    let bad = |detail: String| CodecError::Invalid { what: WHAT, detail };
+    let Some((raw_len, deflated)) = head.split_first_chunk::<8>() else {
+        return Err(CodecError::Truncated { what: WHAT, len: codec::SEALED_HEAD_BYTES + head.len(), expected: 8 });
+    };
+    let index: PackIndex =
+        codec::decode_payload(WHAT, &codec::inflate_exact(WHAT, u64::from_le_bytes(*raw_len), deflated)?)?;
+    for w in index.isos.windows(2) {
+        if w[0].iso >= w[1].iso {
+            return Err(bad(format!(
+                "the index lists ISOs out of order ({} then {}): the file is damaged",
+                w[0].iso, w[1].iso
+            )));
         }
     }
-    if at != weights.len() {
-        return Err(damaged(&format!("{} bytes follow the last weight", weights.len() - at)));
+    if let Some(e) = index.isos.iter().find(|e| e.law.iter().flatten().flatten().any(|v| !v.is_finite())) {
+        return Err(bad(format!(
+            "the index holds a noise law that is not a number for ISO {}: the file is damaged",
+            e.iso
+        )));
+    }
+    let mut ranges = Vec::with_capacity(index.isos.len());
+    let mut at = 0u64;
+    for e in &index.isos {
+        let end = at.saturating_add(e.len);
+        ranges.push(at as usize..end.min(rest.len() as u64) as usize);
+        at = end;
+    }
+    if at > rest.len() as u64 {
+        let header = codec::SEALED_HEAD_BYTES + head.len();
+        return Err(CodecError::Truncated {
+            what: WHAT,
+            len: header + rest.len(),
+            expected: header.saturating_add(usize::try_from(at).unwrap_or(usize::MAX)),
+        });
+    }
+    if at < rest.len() as u64 {
+        return Err(bad(format!("{} trailing bytes after the last ISO section", rest.len() as u64 - at)));
+    }
+    Ok((index, ranges))
+}
+
+/// The model and structured components of `entry` from its section's bytes, refusing a damaged
+/// section with a clear error. `cells` counts the weights decoded so far from this file (a
+/// limit for the whole file: [`super::weight_stream::MAX_CELLS`]).
+pub fn decode_section(entry: &IsoEntry, section: &[u8], cells: &mut u64) -> Result<IsoSection, CodecError> {
+    let iso = entry.iso;
+    let damaged = |what: String| CodecError::Invalid { what: WHAT, detail: format!("{what}: the file is damaged") };
+    codec::check_crc(WHAT, crc32fast::hash(section), entry.crc)?;
+    let (fields, weights) = inflate_section(section)?;
+    let (mut m, structure): IsoSection = codec::decode_payload(WHAT, &fields)?;
+    if m.iso != iso || m.origin != entry.origin {
+        return Err(damaged(format!("the section of ISO {iso} holds the model of ISO {} ({:?})", m.iso, m.origin)));
+    }
+    if structure.is_some() != entry.structured || structure.as_ref().is_some_and(|s| s.iso != iso) {
+        return Err(damaged(format!("the structured components of ISO {iso} do not match the index")));
+    }
+    let mut at = 0;
+    decode_iso(&mut m, &format!("ISO {iso}"), &weights, &mut at, cells)?;
+    check_used(&weights, at)?;
+    Ok((m, structure))
+}
+
+/// Every ISO of a version 9 file (`head` its sealed index, `rest` the bytes after it), as one
+/// pack (checked by the caller).
+pub fn decode(head: &[u8], rest: &[u8]) -> Result<ModelPack, CodecError> {
+    let (index, ranges) = read_index(head, rest)?;
+    let mut pack = index.empty_pack();
+    let mut cells = 0u64;
+    for (entry, range) in index.isos.iter().zip(ranges) {
+        let (m, structure) = decode_section(entry, &rest[range], &mut cells)?;
+        pack.isos.push(m);
+        pack.structure.extend(structure);
     }
     Ok(pack)
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// The step codes name exactly 1 DN and the grid's steps (`log2 k`); any other is refused.
-    #[test]
-    fn step_codes_name_the_grid_steps_only() {
-        let named: Vec<usize> = (0..64).filter_map(step_of).collect();
-        let mut want = vec![1];
-        want.extend(GRID_STEPS);
-        assert_eq!(named, want);
-        for (code, k) in want.iter().enumerate() {
-            assert_eq!(step_of(code as u64), Some(*k));
-        }
-        assert_eq!(step_of(u64::MAX / 4), None);
+/// A version 9 file with its seals made to match its bytes again: each section's length kept
+/// (the last one's running to the end of the file) and its CRC recomputed, the index written
+/// again and resealed. For fuzzers, whose mutations would otherwise stop at the checksums; `None`
+/// when the file's framing or index cannot be read at all.
+pub fn reseal(file: &[u8]) -> Option<Vec<u8>> {
+    let header = codec::SEALED_HEAD_BYTES;
+    let head_len = usize::try_from(u64::from_le_bytes(file.get(12..20)?.try_into().ok()?)).ok()?;
+    let head = file.get(header..header.checked_add(head_len)?)?;
+    let rest = &file[header + head_len..];
+    let (raw_len, deflated) = head.split_first_chunk::<8>()?;
+    let raw = codec::inflate_exact(WHAT, u64::from_le_bytes(*raw_len), deflated).ok()?;
+    let mut index: PackIndex = codec::decode_payload(WHAT, &raw).ok()?;
+    let mut at = 0usize;
+    let n = index.isos.len();
+    for (i, e) in index.isos.iter_mut().enumerate() {
+        let len = if i + 1 == n { rest.len().checked_sub(at)? } else { usize::try_from(e.len).ok()? };
+        let section = rest.get(at..at.checked_add(len)?)?;
+        e.len = len as u64;
+        e.crc = crc32fast::hash(section);
+        at += len;
     }
+    let raw = codec::encode_payload(WHAT, &index).ok()?;
+    let mut head = (raw.len() as u64).to_le_bytes().to_vec();
+    head.extend_from_slice(&codec::deflate(&raw));
+    let version = u16::from_le_bytes([file[8], file[9]]);
+    let mut out = codec::encode_sealed(PACK_MAGIC, version, &head);
+    out.extend_from_slice(rest);
+    Some(out)
 }

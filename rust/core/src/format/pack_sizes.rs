@@ -1,11 +1,12 @@
 //! Where a pack file's bytes go: each part of the pack encoded and deflated on its own (the PMF
-//! weights as the compact payload codes them, the estimator's reports, the structured
+//! weights as the pack file codes them ([`super::weight_stream`]), the estimator's reports, the structured
 //! components, the bins' other fields, the rest), for `inspect` and the size measurements.
 //! Parts deflated apart sum to a little more than the file (each pays its own deflate header and
 //! cannot borrow from the others).
 
 use crate::error::CodecError;
-use crate::format::{codec, compact};
+use crate::format::codec;
+use crate::format::weight_stream::encode_iso;
 use crate::model::pack::ModelPack;
 
 /// One part of a pack: its name, its bytes before and after deflate.
@@ -26,7 +27,10 @@ fn part(name: &'static str, raw: Vec<u8>) -> PartSize {
 /// version writes them.
 pub fn part_sizes(pack: &ModelPack) -> Result<Vec<PartSize>, CodecError> {
     let stored = pack.compacted();
-    let weights = compact::weight_stream(&stored)?;
+    let mut weights = Vec::new();
+    for m in &stored.isos {
+        encode_iso(m, &mut weights)?;
+    }
     let mut rest = stored.clone();
     let mut reports = Vec::new();
     let mut bins = Vec::new();

@@ -50,7 +50,7 @@ mod plan;
 use std::borrow::Cow;
 
 pub use blend::blend_quantiles;
-pub use plan::{InterpOptions, InterpPlan, ShapeSource, plan, plan_with};
+pub use plan::{CalibratedLaw, InterpOptions, InterpPlan, ShapeSource, calibrated_laws, plan, plan_among, plan_with};
 
 use crate::derive::noise_law::fit_params;
 use crate::error::ModelError;

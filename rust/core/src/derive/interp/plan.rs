@@ -1,9 +1,11 @@
 //! Which calibrated ISOs an interpolation stands on: the segment between conversion-gain
 //! switches, the bracketing neighbours, the shape sources.
 
-use crate::derive::gain_switch::{GainSwitch, detect};
+use crate::derive::gain_switch::{GainSwitch, detect_laws};
+use crate::derive::noise_law::{NoiseParams, fit_params};
 use crate::error::ModelError;
-use crate::model::pack::{IsoModel, ModelPack};
+use crate::model::layout::POSITIONS;
+use crate::model::pack::ModelPack;
 
 /// Where the normalised shape of an interpolated PMF comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -54,9 +56,18 @@ pub struct InterpPlan {
     pub shape: ShapeSource,
 }
 
-/// The calibrated models a plan may stand on: every calibrated ISO except the target.
-fn sources(pack: &ModelPack, iso: u32) -> Vec<&IsoModel> {
-    pack.isos.iter().filter(|m| m.is_calibrated() && m.iso != iso).collect()
+/// A calibrated ISO as a plan reads it: its noise law per CFA position, as
+/// [`fit_params`] gives it (which conversion-gain switches lie between calibrated ISOs).
+pub type CalibratedLaw = (u32, [Option<NoiseParams>; POSITIONS]);
+
+/// The noise laws of the pack's calibrated ISOs, sorted by ISO.
+pub fn calibrated_laws(pack: &ModelPack) -> Vec<CalibratedLaw> {
+    let binning = pack.binning();
+    pack.isos
+        .iter()
+        .filter(|m| m.is_calibrated())
+        .map(|m| (m.iso, std::array::from_fn(|pos| fit_params(&binning, m, pos))))
+        .collect()
 }
 
 /// Plans the interpolation of `iso` with the default options.
@@ -73,14 +84,28 @@ pub fn plan_with(
     extrapolate: bool,
     opts: &InterpOptions,
 ) -> Result<InterpPlan, ModelError> {
-    let models = sources(pack, iso);
+    plan_among(&calibrated_laws(pack), pack.isos.is_empty(), iso, extrapolate, opts)
+}
+
+/// [`plan_with`] from the calibrated ISOs' noise laws alone (`laws`, sorted by ISO, as
+/// [`calibrated_laws`] gives them; `no_isos` when the pack holds no ISO at all): the plan of a
+/// pack whose ISOs are not decoded yet, the same as the decoded pack's.
+pub fn plan_among(
+    laws: &[CalibratedLaw],
+    no_isos: bool,
+    iso: u32,
+    extrapolate: bool,
+    opts: &InterpOptions,
+) -> Result<InterpPlan, ModelError> {
+    // Every calibrated ISO except the target may be stood on.
+    let models: Vec<CalibratedLaw> = laws.iter().filter(|(k, _)| *k != iso).copied().collect();
     if models.is_empty() {
         return Err(ModelError::IsoMissing {
             iso,
-            available: if pack.isos.is_empty() { "none".into() } else { format!("none calibrated besides ISO {iso}") },
+            available: if no_isos { "none".into() } else { format!("none calibrated besides ISO {iso}") },
         });
     }
-    let isos: Vec<u32> = models.iter().map(|m| m.iso).collect();
+    let isos: Vec<u32> = models.iter().map(|(k, _)| *k).collect();
     let (min, max) = (isos[0], isos[isos.len() - 1]);
     let outside = iso < min || iso > max;
     if outside && !extrapolate {
@@ -94,7 +119,7 @@ pub fn plan_with(
             (max as u64 * MAX_EXTRAPOLATION).min(u32::MAX as u64)
         )));
     }
-    let switches = detect(&pack.binning(), &models);
+    let switches = detect_laws(&models);
     // Segments: index ranges of `isos` between switches.
     let mut bounds = vec![0usize];
     for s in &switches {
