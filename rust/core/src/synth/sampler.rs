@@ -349,7 +349,7 @@ impl IsoSampler {
 
     /// For clean images at the target brightness: the levels near black whose bin is too wide
     /// draw from the tables `fine` holds per position for them, each at the variance of its own
-    /// reference level rather than of that level rounded ([`target_fine_levels`]; its `lut` is
+    /// reference level rather than of that level rounded (`derive::fine_levels::target_fine_levels`; its `lut` is
     /// indexed by the target's levels, its tables after the bins). Unchanged for a sampler at
     /// the reference brightness, and at a position whose tables would pass 16-bit indices.
     pub fn with_target_fine_levels(mut self, fine: [Option<FineLevels>; POSITIONS]) -> Self {
