@@ -34,8 +34,6 @@ pub(crate) mod saturated;
 pub mod session;
 pub mod step;
 pub(crate) mod structure;
-#[cfg(test)]
-mod tests_structure;
 mod window_counts;
 
 pub use event::SessionRecord;
