@@ -9,6 +9,7 @@
 //! coding of versions 8 and 9 ([`weight_stream`]).
 
 pub mod checkpoint;
+pub(crate) mod code_predictor;
 pub(crate) mod codec;
 pub mod compact;
 pub mod lazy_pack;

@@ -26,7 +26,8 @@
 //! bytes left over are refused as a damaged file.
 
 use crate::error::CodecError;
-use crate::format::codec::{self, get_varint, put_varint, unzigzag, zigzag};
+use crate::format::code_predictor::{Predictor, read_codes, write_codes};
+use crate::format::codec::{self, get_varint, put_varint};
 use crate::format::weight_code::{WeightCode, precision_for, precision_of};
 use crate::model::pack::ModelPack;
 use crate::model::precision::{bin_precision, quantize_derived, store_bin};
@@ -58,40 +59,6 @@ impl Slopes {
     fn at(&self, n: i32) -> u64 {
         let i = (n as i64) - (self.first as i64);
         if i <= 0 { 0 } else { self.slope.get(i as usize).copied().unwrap_or(0) }
-    }
-}
-
-/// How a cell's code is guessed from what came before it; each bin's weights are coded with
-/// whichever guesses them in the fewest bytes, named by a varint before them.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Predictor {
-    /// The previous cell's code plus the previous bin's slope at this noise value (a PMF that
-    /// changes little from bin to bin, spikes of a code lattice included).
-    Above = 0,
-    /// The previous cell's code (a smooth PMF kept to few bits: runs of equal codes).
-    Previous = 1,
-    /// The previous cell's code plus the slope before it (a smooth PMF kept to many bits).
-    Linear = 2,
-}
-
-impl Predictor {
-    const ALL: [Predictor; 3] = [Predictor::Above, Predictor::Previous, Predictor::Linear];
-
-    fn from_id(id: u64) -> Option<Self> {
-        Self::ALL.into_iter().find(|p| *p as u64 == id)
-    }
-
-    /// The guess of the code after `codes` at noise value `n`.
-    fn guess(self, codes: &[u64], above: &Slopes, n: i32) -> u64 {
-        let last = codes.last().copied().unwrap_or(0);
-        match self {
-            Predictor::Above => last.wrapping_add(above.at(n)),
-            Predictor::Previous => last,
-            Predictor::Linear => match codes {
-                [.., a, b] => b.wrapping_add(b.wrapping_sub(*a)),
-                _ => last,
-            },
-        }
     }
 }
 
@@ -137,19 +104,7 @@ fn weight_stream(pack: &ModelPack) -> Result<Vec<u8>, CodecError> {
                             m.iso
                         ),
                     })?;
-                let coded = |predictor: Predictor| {
-                    let mut bytes = Vec::new();
-                    for (i, &k) in codes.iter().enumerate() {
-                        let guess = predictor.guess(&codes[..i], &above, b.first + i as i32);
-                        put_varint(&mut bytes, zigzag(k.wrapping_sub(guess) as i64));
-                    }
-                    bytes
-                };
-                let (predictor, bytes) = Predictor::ALL
-                    .into_iter()
-                    .map(|p| (p, coded(p)))
-                    .min_by_key(|(p, bytes)| (bytes.len(), *p as u8))
-                    .expect("predictors");
+                let (predictor, bytes) = write_codes(&codes, |i| above.at(b.first.wrapping_add(i as i32)));
                 put_varint(&mut out, predictor as u64);
                 out.extend_from_slice(&bytes);
                 prev = Some((b.first, &b.counts));
@@ -196,13 +151,9 @@ pub fn decode(payload: &[u8]) -> Result<ModelPack, CodecError> {
                 let predictor = get_varint(weights, &mut at)
                     .and_then(Predictor::from_id)
                     .ok_or_else(|| damaged(&format!("{} names no known predictor", here())))?;
-                let mut codes = Vec::with_capacity(n as usize);
-                for c in 0..n as i32 {
-                    let z = get_varint(weights, &mut at)
+                let codes =
+                    read_codes(weights, &mut at, n as usize, predictor, |i| above.at(bin.first.wrapping_add(i as i32)))
                         .ok_or_else(|| damaged(&format!("{} ends inside a weight", here())))?;
-                    let guess = predictor.guess(&codes, &above, bin.first.wrapping_add(c));
-                    codes.push(guess.wrapping_add(unzigzag(z) as u64));
-                }
                 let counts = codes
                     .iter()
                     .map(|&k| code.weight(k).ok_or_else(|| damaged(&format!("{} has a code naming no weight", here()))))

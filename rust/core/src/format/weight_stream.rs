@@ -22,7 +22,8 @@
 //! [`MAX_CELLS`] once expanded are refused as a damaged file.
 
 use crate::error::CodecError;
-use crate::format::codec::{get_varint, put_varint, unzigzag, zigzag};
+use crate::format::code_predictor::{Predictor, read_codes, write_codes};
+use crate::format::codec::{get_varint, put_varint};
 use crate::format::weight_code::{WeightCode, precision_for, precision_of};
 use crate::model::coarse_grid::{GRID_STEPS, cell_masses, expand, stored_step};
 use crate::model::pack::IsoModel;
@@ -72,40 +73,6 @@ impl Slopes {
     }
 }
 
-/// How a cell's code is guessed from what came before it; each bin's weights are coded with
-/// whichever guesses them in the fewest bytes, named by a varint before them.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Predictor {
-    /// The previous cell's code plus the previous bin's slope at this noise value (a PMF that
-    /// changes little from bin to bin, spikes of a code lattice included).
-    Above = 0,
-    /// The previous cell's code (a smooth PMF kept to few bits: runs of equal codes).
-    Previous = 1,
-    /// The previous cell's code plus the slope before it (a smooth PMF kept to many bits).
-    Linear = 2,
-}
-
-impl Predictor {
-    const ALL: [Predictor; 3] = [Predictor::Above, Predictor::Previous, Predictor::Linear];
-
-    fn from_id(id: u64) -> Option<Self> {
-        Self::ALL.into_iter().find(|p| *p as u64 == id)
-    }
-
-    /// The guess of the code after `codes` (of cell `codes.len()`).
-    fn guess(self, codes: &[u64], above: &Slopes) -> u64 {
-        let last = codes.last().copied().unwrap_or(0);
-        match self {
-            Predictor::Above => last.wrapping_add(above.at(codes.len())),
-            Predictor::Previous => last,
-            Predictor::Linear => match codes {
-                [.., a, b] => b.wrapping_add(b.wrapping_sub(*a)),
-                _ => last,
-            },
-        }
-    }
-}
-
 /// Appends the PMF weights of `m` (already in its stored form, [`crate::model::pack::ModelPack::compacted`]) to `out`.
 pub(crate) fn encode_iso(m: &IsoModel, out: &mut Vec<u8>) -> Result<(), CodecError> {
     for p in &m.positions {
@@ -128,18 +95,7 @@ pub(crate) fn encode_iso(m: &IsoModel, out: &mut Vec<u8>) -> Result<(), CodecErr
                         m.iso
                     ),
                 })?;
-            let coded = |predictor: Predictor| {
-                let mut bytes = Vec::new();
-                for (i, &c) in codes.iter().enumerate() {
-                    put_varint(&mut bytes, zigzag(c.wrapping_sub(predictor.guess(&codes[..i], &above)) as i64));
-                }
-                bytes
-            };
-            let (predictor, bytes) = Predictor::ALL
-                .into_iter()
-                .map(|p| (p, coded(p)))
-                .min_by_key(|(p, bytes)| (bytes.len(), *p as u8))
-                .expect("predictors");
+            let (predictor, bytes) = write_codes(&codes, |i| above.at(i));
             put_varint(out, predictor as u64 + 4 * k.trailing_zeros() as u64);
             out.extend_from_slice(&bytes);
             prev = Some((b.first, &b.counts));
@@ -182,12 +138,8 @@ pub(crate) fn decode_iso(
                 return Err(damaged(&format!("{} takes the pack beyond {MAX_CELLS} cells", here())));
             }
             let above = Slopes::of(prev.as_ref().map(|(f, w)| (*f, &w[..])), bin.first, k, n as usize, &code);
-            let mut codes = Vec::with_capacity(n as usize);
-            for _ in 0..n {
-                let z = get_varint(weights, at).ok_or_else(|| damaged(&format!("{} ends inside a weight", here())))?;
-                let guess = predictor.guess(&codes, &above);
-                codes.push(guess.wrapping_add(unzigzag(z) as u64));
-            }
+            let codes = read_codes(weights, at, n as usize, predictor, |i| above.at(i))
+                .ok_or_else(|| damaged(&format!("{} ends inside a weight", here())))?;
             let values = codes
                 .iter()
                 .map(|&k| code.weight(k).ok_or_else(|| damaged(&format!("{} has a code naming no weight", here()))))
