@@ -163,8 +163,8 @@ pub fn sampler_for(
     // Near black, the levels of a bin too wide for the noise there at their own reference level.
     let fine = std::array::from_fn(|p| {
         let own = &model.positions[p].bins;
-        let bins = sampler.structure().map_or(Cow::Borrowed(own), |st| Cow::Owned(st.deconvolved(p, own)));
-        target_fine_levels(pack, model, p, &bins, gains[p])
+        let bins = || sampler.structure().map_or(Cow::Borrowed(&own[..]), |st| Cow::Owned(st.deconvolved(p, own)));
+        target_fine_levels(pack, model, p, bins, gains[p])
     });
     Ok(sampler.with_target_fine_levels(fine))
 }

@@ -9,8 +9,10 @@
 //! ISO's dark step (without one, nothing is split), never below [`MIN_VARIANCE`]. A bin's shape and mean
 //! are kept; only its spread moves.
 
+use std::borrow::Cow;
+
 use crate::derive::noise_law::{DarkLaw, dark_law};
-use crate::model::layout::Binning;
+use crate::model::layout::{Binning, lut_at_reference_levels};
 use crate::model::pack::{BinModel, IsoModel, ModelOrigin, ModelPack};
 use crate::model::structure::IsoStructure;
 
@@ -45,7 +47,7 @@ pub struct FineLevels {
 /// a plain histogram, the parametric models, an extrapolated ISO and an ISO without dark frames
 /// keep one PMF per bin.
 pub fn position_fine_levels(pack: &ModelPack, model: &IsoModel, pos: usize, bins: &[BinModel]) -> Option<FineLevels> {
-    position_fine_levels_at(pack, model, pos, bins, 1.0)
+    position_fine_levels_at(pack, model, pos, || Cow::Borrowed(bins), 1.0)
 }
 
 /// [`position_fine_levels`] for clean images at the target ISO's brightness: the table of clean
@@ -54,21 +56,23 @@ pub fn position_fine_levels(pack: &ModelPack, model: &IsoModel, pos: usize, bins
 /// `x` itself rather than at `x` rounded to a whole level (near black on a steep law a whole
 /// level is a large step: with the rounded level random sensor 62 of `tests/e2e/tests/dark_end.rs`
 /// read up to 1.14× the real variance, now 1.08). `lut` is then indexed by the target's levels.
-pub fn target_fine_levels(
+/// `bins` makes the PMFs the sampler draws from, asked for only where the position has tables
+/// to build (for a structured model they are deconvolved: no work where nothing is split).
+pub fn target_fine_levels<'b>(
     pack: &ModelPack,
     model: &IsoModel,
     pos: usize,
-    bins: &[BinModel],
+    bins: impl FnOnce() -> Cow<'b, [BinModel]>,
     gain: f64,
 ) -> Option<FineLevels> {
     (gain.is_finite() && gain > 0.0).then(|| position_fine_levels_at(pack, model, pos, bins, gain)).flatten()
 }
 
-fn position_fine_levels_at(
+fn position_fine_levels_at<'b>(
     pack: &ModelPack,
     model: &IsoModel,
     pos: usize,
-    bins: &[BinModel],
+    bins: impl FnOnce() -> Cow<'b, [BinModel]>,
     gain: f64,
 ) -> Option<FineLevels> {
     // Without a dark step the variance at black is the fitted intercept, which a chart whose
@@ -81,7 +85,7 @@ fn position_fine_levels_at(
         ModelOrigin::Interpolated { from } => interpolated_at_black(pack, model, pos, from)?,
         _ => return None,
     };
-    fine_levels_at(&pack.binning(), pos, bins, &model.positions[pos].bins, Some(at_black), gain)
+    fine_levels_at(&pack.binning(), pos, &bins(), &model.positions[pos].bins, Some(at_black), gain)
 }
 
 /// The variance at black of an ISO interpolated between calibrated ones (`from`), when the two
@@ -188,17 +192,10 @@ fn fine_levels_at(
     let count = read.iter().take(last + 2).flatten().count().max(2);
     let law = dark_law(&read, w, count, at_black)?;
     let variance_at = |x: f64| law.variance(x).max(MIN_VARIANCE);
-    let reference = binning.lut(pos);
-    let top = (reference.len() - 1) as f64;
     // Level → bin: the reference level's own, or the bin of the rounded reference level the
-    // level stands for (as the sampler's map for clean images at the target brightness).
-    let mut lut: Vec<u16> = if gain == 1.0 {
-        reference
-    } else {
-        (0..reference.len())
-            .map(|c| reference[(black + (c as f64 - black) / gain).clamp(0.0, top).round() as usize])
-            .collect()
-    };
+    // level stands for (the sampler's map for clean images at the target brightness).
+    let reference = binning.lut(pos);
+    let mut lut = if gain == 1.0 { reference } else { lut_at_reference_levels(&reference, black, gain) };
     let mut extra = Vec::new();
     let step = GROUP_STEP.ln();
     // (bin, group key) of the run being built, its levels and summed variance.

@@ -273,6 +273,20 @@ impl Binning {
     }
 }
 
+/// The reference level a clean level `c` stands for when the clean image is at the target ISO's
+/// brightness (`synth::CleanAt::Target`): `black + (c − black)/gain`, clamped to `[0, top]`.
+#[inline]
+pub fn reference_level(c: usize, black: f64, gain: f64, top: f64) -> f64 {
+    (black + (c as f64 - black) / gain).clamp(0.0, top)
+}
+
+/// A level → table map read at each level's rounded [`reference_level`]: the map of a clean image
+/// at the target brightness, from the reference brightness's `lut`.
+pub fn lut_at_reference_levels(lut: &[u16], black: f64, gain: f64) -> Vec<u16> {
+    let top = (lut.len() - 1) as f64;
+    (0..lut.len()).map(|c| lut[reference_level(c, black, gain, top).round() as usize]).collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -7,7 +7,7 @@ use rayon::prelude::*;
 
 use crate::derive::fine_levels::{FineLevels, position_fine_levels};
 use crate::model::codes::Snap;
-use crate::model::layout::{Binning, POSITIONS};
+use crate::model::layout::{Binning, POSITIONS, lut_at_reference_levels, reference_level};
 use crate::model::pack::{BinModel, IsoModel, ModelPack};
 use crate::model::structure::{Components, IsoStructure};
 use crate::synth::CleanAt;
@@ -326,19 +326,14 @@ impl IsoSampler {
                 self.iso
             ));
         }
-        let luts = std::array::from_fn(|p| {
-            let lut = &self.luts[p];
-            let top = (lut.len() - 1) as f64;
-            let b = black[p] as f64;
-            (0..lut.len()).map(|c| lut[(b + (c as f64 - b) / gains[p]).clamp(0.0, top).round() as usize]).collect()
-        });
+        let luts = std::array::from_fn(|p| lut_at_reference_levels(&self.luts[p], black[p] as f64, gains[p]));
         let shifts = std::array::from_fn(|p| {
             let n = self.luts[p].len();
             let top = (n - 1) as f64;
             let (b, g) = (black[p] as f64, gains[p]);
             (0..n)
                 .map(|c| {
-                    let x = (b + (c as f64 - b) / g).clamp(0.0, top);
+                    let x = reference_level(c, b, g, top);
                     carried.map_or(0, |k| fixed(-(k[p] - 1.0) * (x - b)))
                 })
                 .collect()
