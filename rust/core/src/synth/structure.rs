@@ -194,7 +194,8 @@ impl StructureSampler {
     }
 
     /// The fixed pattern of an image at `origin`, `height × width`, when the sampler keeps it
-    /// ([`PatternCache`]); `None`: computed row by row ([`Self::add_pattern_row_at`]).
+    /// ([`PatternCache`]); `None`: computed pixel by pixel in the synthesis pass
+    /// ([`Self::row_pattern`]).
     pub(crate) fn kept_pattern(
         &self,
         origin: (usize, usize),
@@ -614,18 +615,17 @@ mod tests {
         StructureSampler::new(&st, Components::ALL).expect("significant rows")
     }
 
-    /// The row path of the fixed pattern gives `pattern_at`'s values (to the last 2⁻³² DN), on a
-    /// shaded pattern and a crop at an odd origin.
-    #[test]
-    fn pattern_rows_match_pattern_at() {
-        let mut fp_dist = gaussian_dist(1.5);
-        fp_dist.significant = true;
-        let shading: [Vec<f32>; POSITIONS] =
-            std::array::from_fn(|p| (0..12).map(|i| (i as f32 * 0.37 + p as f32).sin() * 2.0).collect());
+    /// The sampler of a 40 × 60 fixed pattern alone: `residual` at every position, shaded by
+    /// `shading` on a `grid` (no shading where the grid does not match its length).
+    fn pattern_sampler(
+        residual: OffsetDistribution,
+        grid: [u32; 2],
+        shading: [Vec<f32>; POSITIONS],
+    ) -> StructureSampler {
         let fp = FixedPattern {
-            pixels: std::array::from_fn(|_| fp_dist.clone()),
+            pixels: std::array::from_fn(|_| residual.clone()),
             shading,
-            grid: [3, 4],
+            grid,
             size: [40, 60],
             frames: 8,
             temporal_var: [1.0; POSITIONS],
@@ -633,7 +633,15 @@ mod tests {
             significant: true,
         };
         let st = IsoStructure { fpn: Some(fp), ..IsoStructure::empty(100) };
-        let s = StructureSampler::new(&st, Components::ALL).expect("a pattern");
+        StructureSampler::new(&st, Components::ALL).expect("a pattern")
+    }
+
+    /// The row path of the fixed pattern gives `pattern_at`'s values (to the last 2⁻³² DN), on a
+    /// shaded pattern and a crop at an odd origin.
+    #[test]
+    fn pattern_rows_match_pattern_at() {
+        let shading = std::array::from_fn(|p| (0..12).map(|i| (i as f32 * 0.37 + p as f32).sin() * 2.0).collect());
+        let s = pattern_sampler(gaussian_dist(1.5), [3, 4], shading);
         for (y, x0) in [(0usize, 0usize), (17, 3), (39, 1)] {
             let mut row = vec![0i64; 50];
             s.add_pattern_row(y, x0, &mut row);
@@ -692,20 +700,9 @@ mod tests {
         for (grid, shading_len, residual) in
             [([3u32, 4u32], 12usize, gaussian_dist(1.5)), ([0, 0], 0, gaussian_dist(2.5)), ([2, 2], 3, one)]
         {
-            let shading: [Vec<f32>; POSITIONS] =
+            let shading =
                 std::array::from_fn(|p| (0..shading_len).map(|i| (i as f32 * 0.61 - p as f32).cos() * 3.0).collect());
-            let fp = FixedPattern {
-                pixels: std::array::from_fn(|_| residual.clone()),
-                shading,
-                grid,
-                size: [40, 60],
-                frames: 8,
-                temporal_var: [1.0; POSITIONS],
-                in_pixel_noise: std::array::from_fn(|_| gaussian_dist(0.5)),
-                significant: true,
-            };
-            let st = IsoStructure { fpn: Some(fp), ..IsoStructure::empty(100) };
-            let s = StructureSampler::new(&st, Components::ALL).expect("a pattern");
+            let s = pattern_sampler(residual, grid, shading);
             let mut nonzero = 0;
             for (y, x0, w) in [(0usize, 0usize, 60usize), (17, 3, 31), (39, 1, 2), (5, 2, 1)] {
                 let columns = s.pattern_columns(x0, w);
