@@ -34,11 +34,8 @@ pub(crate) struct PackSource {
 impl PackSource {
     /// A pack made in memory.
     pub(crate) fn decoded(pack: ModelPack) -> Self {
-        let mut fields = pack.clone();
-        fields.isos.clear();
-        fields.structure.clear();
         Self {
-            fields,
+            fields: pack.fields_only(),
             isos: pack.iso_list(),
             calibrated: pack.calibrated_isos(),
             file: None,

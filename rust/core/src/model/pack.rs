@@ -284,6 +284,22 @@ impl ModelPack {
         self.isos.iter().map(|m| m.iso).collect()
     }
 
+    /// The pack's own fields (sensor layout, names, bins, warnings) without its ISOs and their
+    /// structured components; nothing of those is copied.
+    pub fn fields_only(&self) -> ModelPack {
+        ModelPack {
+            layout: self.layout.clone(),
+            make: self.make.clone(),
+            model: self.model.clone(),
+            bin_width: self.bin_width,
+            reference_iso: self.reference_iso,
+            pooling: self.pooling,
+            isos: Vec::new(),
+            warnings: self.warnings.clone(),
+            structure: Vec::new(),
+        }
+    }
+
     pub fn calibrated_isos(&self) -> Vec<u32> {
         self.isos.iter().filter(|m| m.is_calibrated()).map(|m| m.iso).collect()
     }
