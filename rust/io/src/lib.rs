@@ -29,4 +29,4 @@ mod read;
 
 pub use atomic::{AtomicFile, start_writeback, sweep_stale_temps, write_all_at, write_atomic, write_bytes_atomic};
 pub use identity::same_file;
-pub use read::{Mapped, map_regular, open_regular, read_regular};
+pub use read::{Mapped, map_regular, open_regular, read_regular, read_regular_into};

@@ -18,26 +18,23 @@ use std::path::Path;
 /// Errors of the OS (a missing or unreadable file) are returned as [`std::fs::read`] returns
 /// them: callers add the path.
 pub fn read_regular(path: &Path, max_bytes: u64) -> io::Result<Vec<u8>> {
-    check_regular(path, &fs::metadata(path)?)?;
-    let file = File::open(path)?;
-    // The open file is checked again: the path may have been replaced since.
-    let meta = file.metadata()?;
-    check_regular(path, &meta)?;
-    let too_large = |len: u64| {
-        io::Error::new(
-            io::ErrorKind::FileTooLarge,
-            format!("{} is {len} bytes long, more than the {max_bytes} bytes accepted", path.display()),
-        )
-    };
-    if meta.len() > max_bytes {
-        return Err(too_large(meta.len()));
-    }
-    let mut buf = Vec::with_capacity(usize::try_from(meta.len()).unwrap_or(0));
-    file.take(max_bytes.saturating_add(1)).read_to_end(&mut buf)?;
-    if buf.len() as u64 > max_bytes {
-        return Err(too_large(buf.len() as u64));
-    }
+    let mut buf = Vec::new();
+    read_regular_into(path, max_bytes, &mut buf)?;
     Ok(buf)
+}
+
+/// As [`read_regular`] (the same checks, the same errors), into `buf` (cleared first): a buffer
+/// kept from an earlier file already has its pages, where a fresh one must have them faulted in
+/// and zeroed.
+pub fn read_regular_into(path: &Path, max_bytes: u64, buf: &mut Vec<u8>) -> io::Result<()> {
+    let (file, len) = open_regular(path, max_bytes)?;
+    buf.clear();
+    buf.reserve_exact(usize::try_from(len).unwrap_or(0));
+    file.take(max_bytes.saturating_add(1)).read_to_end(buf)?;
+    if buf.len() as u64 > max_bytes {
+        return Err(too_large(path, buf.len() as u64, max_bytes));
+    }
+    Ok(())
 }
 
 /// The file at `path` opened for reading, with its length, after the checks of
@@ -49,12 +46,16 @@ pub fn open_regular(path: &Path, max_bytes: u64) -> io::Result<(File, u64)> {
     let meta = file.metadata()?;
     check_regular(path, &meta)?;
     if meta.len() > max_bytes {
-        return Err(io::Error::new(
-            io::ErrorKind::FileTooLarge,
-            format!("{} is {} bytes long, more than the {max_bytes} bytes accepted", path.display(), meta.len()),
-        ));
+        return Err(too_large(path, meta.len(), max_bytes));
     }
     Ok((file, meta.len()))
+}
+
+fn too_large(path: &Path, len: u64, max_bytes: u64) -> io::Error {
+    io::Error::new(
+        io::ErrorKind::FileTooLarge,
+        format!("{} is {len} bytes long, more than the {max_bytes} bytes accepted", path.display()),
+    )
 }
 
 /// A read-only view of a whole regular file: memory-mapped (no copy; pages come from the page

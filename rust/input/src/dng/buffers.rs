@@ -4,7 +4,6 @@
 //! cost more than the copy from the page cache itself. [`release`] frees them when the
 //! calibration ends.
 
-use std::io::Read;
 use std::path::Path;
 use std::sync::Mutex;
 
@@ -18,20 +17,11 @@ static FREE: Mutex<Vec<Vec<u8>>> = Mutex::new(Vec::new());
 pub(super) struct Buffer(Vec<u8>);
 
 impl Buffer {
-    /// The file's bytes (after the checks of [`noisecal_io::read_regular`], with its errors),
-    /// read into a free buffer where there is one.
+    /// The file's bytes ([`noisecal_io::read_regular_into`]: its checks and errors), read into
+    /// a free buffer where there is one.
     pub(super) fn read(path: &Path, max_bytes: u64) -> std::io::Result<Self> {
-        let (file, len) = noisecal_io::open_regular(path, max_bytes)?;
         let mut buf = Buffer(FREE.lock().ok().and_then(|mut f| f.pop()).unwrap_or_default());
-        buf.0.clear();
-        buf.0.reserve(usize::try_from(len).unwrap_or(0));
-        file.take(max_bytes.saturating_add(1)).read_to_end(&mut buf.0)?;
-        if buf.0.len() as u64 > max_bytes {
-            return Err(std::io::Error::new(
-                std::io::ErrorKind::FileTooLarge,
-                format!("{} grew past the {max_bytes} bytes accepted while being read", path.display()),
-            ));
-        }
+        noisecal_io::read_regular_into(path, max_bytes, &mut buf.0)?;
         Ok(buf)
     }
 
