@@ -10,13 +10,13 @@ With `--benchmark-enable` the last test times a renoise of a small crop, the cas
 from __future__ import annotations
 
 import os
-import select
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
 
 import noisecal
+from workers import in_forked_child
 
 TIMEOUT = 120
 METHODS = ("bridge", "quantile", "denoised", "naive")
@@ -69,26 +69,15 @@ def test_a_child_forked_after_the_parent_renoised_renoises_the_same_bytes(pack):
     p = fresh(pack)
     noisy = capture(pack, 2)
     want = {m: p.renoise(noisy, 100, 800, 7, method=m) for m in ("bridge", "naive")}  # cached in the parent
-    r, w = os.pipe()
-    pid = os.fork()
-    if pid == 0:  # the child: a cached renoiser and one it builds itself
-        try:
-            os.close(r)
-            ok = np.array_equal(p.renoise(noisy, 100, 800, 7, method="bridge"), want["bridge"])
-            q = p.renoise(noisy, 100, 800, 7, method="quantile")
-            ok = ok and np.array_equal(q, fresh(pack).renoise(noisy, 100, 800, 7, method="quantile"))
-            os.write(w, b"ok" if ok else b"no")
-        finally:
-            os._exit(0)
-    os.close(w)
-    ready, _, _ = select.select([r], [], [], TIMEOUT)
-    if not ready:
-        os.kill(pid, 9)
-        os.waitpid(pid, 0)
-        pytest.fail(f"the forked child did not renoise within {TIMEOUT} s (hung)")
-    got = os.read(r, 2)
-    os.waitpid(pid, 0)
-    assert got == b"ok"
+
+    def child() -> bool:  # a cached renoiser and one it builds itself
+        ok = np.array_equal(p.renoise(noisy, 100, 800, 7, method="bridge"), want["bridge"])
+        q = p.renoise(noisy, 100, 800, 7, method="quantile")
+        return ok and np.array_equal(q, fresh(pack).renoise(noisy, 100, 800, 7, method="quantile"))
+
+    got = in_forked_child(child, TIMEOUT)
+    assert got != "hung", f"the forked child did not renoise within {TIMEOUT} s (hung)"
+    assert got == "ok"
 
 
 def test_bench_renoise_small_crop(benchmark, pack):

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 import noisecal
-from workers import NoisyDataset, RaySynth, clean_image, renoise_file, synth_from_path, synth_with
+from workers import NoisyDataset, RaySynth, clean_image, in_forked_child, renoise_file, synth_from_path, synth_with
 
 TIMEOUT = 120
 
@@ -42,26 +42,9 @@ def test_pickle_and_copies_synthesize_the_same_bytes(pack):
 @pytest.mark.skipif(not hasattr(os, "fork"), reason="no fork on this platform")
 def test_os_fork_after_the_parent_synthesized(pack):
     pack.synth(clean_image(0), 800, 0)  # the parent's pool exists now
-    r, w = os.pipe()
-    pid = os.fork()
-    if pid == 0:  # the child: exit code 0 only if its synth matched
-        try:
-            os.close(r)
-            out = synth_with(pack, 4)
-            os.write(w, b"ok" if out == synth_with(pack, 4) else b"no")
-        finally:
-            os._exit(0)
-    os.close(w)
-    import select
-
-    ready, _, _ = select.select([r], [], [], TIMEOUT)
-    if not ready:
-        os.kill(pid, 9)
-        os.waitpid(pid, 0)
-        pytest.fail(f"the forked child did not synthesize within {TIMEOUT} s (hung)")
-    got = os.read(r, 2)
-    os.waitpid(pid, 0)
-    assert got == b"ok"
+    got = in_forked_child(lambda: synth_with(pack, 4) == synth_with(pack, 4), TIMEOUT)
+    assert got != "hung", f"the forked child did not synthesize within {TIMEOUT} s (hung)"
+    assert got == "ok"
 
 
 @pytest.mark.parametrize("method", ["fork", "spawn", "forkserver"])

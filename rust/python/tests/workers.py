@@ -2,9 +2,35 @@
 
 from __future__ import annotations
 
+import os
+import select
+from typing import Callable
+
 import numpy as np
 
 import noisecal
+
+
+def in_forked_child(check: Callable[[], bool], timeout: float) -> str:
+    """Runs `check` in a child made by `os.fork()` and says what came of it: "ok" or "no" (its
+    answer), "hung" (no answer within `timeout` s: the child is killed) or "died" (it raised)."""
+    r, w = os.pipe()
+    pid = os.fork()
+    if pid == 0:
+        try:
+            os.close(r)
+            os.write(w, b"ok" if check() else b"no")
+        finally:
+            os._exit(0)
+    os.close(w)
+    ready, _, _ = select.select([r], [], [], timeout)
+    if not ready:
+        os.kill(pid, 9)
+        os.waitpid(pid, 0)
+        return "hung"
+    got = os.read(r, 2)
+    os.waitpid(pid, 0)
+    return got.decode() or "died"
 
 
 def clean_image(i: int = 0) -> np.ndarray:

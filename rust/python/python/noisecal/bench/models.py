@@ -156,10 +156,15 @@ def at_target_brightness(clean: np.ndarray, pack, iso: int) -> np.ndarray:
     g = np.asarray(pack.gain_ratios(iso), dtype=np.float64)
     lay = pack.layout
     black = np.asarray(lay["black"], dtype=np.float64)
-    pos = (np.arange(clean.shape[0])[:, None] % 2) * 2 + np.arange(clean.shape[1])[None, :] % 2
+    pos = cfa_positions(clean.shape)
     b = black[pos]
     out = b + g[pos] * (clean.astype(np.float64) - b)
     return np.rint(np.clip(out, 0, int(lay["white"]))).astype(np.uint16)
+
+
+def cfa_positions(shape: tuple[int, ...]) -> np.ndarray:
+    """(h, w): each pixel's CFA position, the core's ``position(row, column)`` = 2·(row % 2) + column % 2."""
+    return (np.arange(shape[0])[:, None] % 2) * 2 + np.arange(shape[1])[None, :] % 2
 
 
 def hg_mean_offset(pack, iso: int) -> np.ndarray:
@@ -202,7 +207,7 @@ def scale_variance(
     offset = hg_mean_offset(pack, iso) if offset is None else offset
     white = int(pack.layout["white"])
     level = np.minimum(clean.astype(np.int64), white)
-    pos = (np.arange(clean.shape[0])[:, None] % 2) * 2 + np.arange(clean.shape[1])[None, :] % 2
+    pos = cfa_positions(clean.shape)
     base = level if centre is None else centre.astype(np.int64)
     m = base + offset[pos, level]
     out = m + (noisy.astype(np.float64) - m) / math.sqrt(1 / factor)  # ½: exactly the earlier (x − m)/√2
