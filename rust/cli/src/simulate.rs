@@ -11,6 +11,13 @@ use rayon::prelude::*;
 
 use noisecal_input::dng;
 
+/// Frame indices of a preset's held-out set (`noisecal simulate --heldout` on a preset, and the
+/// `heldout/` folder `noisecal demo` writes) start here: the same sensor and chart with fresh
+/// noise, past the frames of any calibration session and of the demo's own printed table.
+pub const PRESET_HELDOUT_OFFSET: u64 = 1 << 41;
+/// Frames per burst of a preset's held-out set unless given: a few per ISO, as `eval` needs.
+pub const PRESET_HELDOUT_FRAMES: u32 = 4;
+
 /// A simulated session: sensor, scene and plan.
 #[derive(Debug, Clone)]
 pub struct SimSession {
@@ -130,6 +137,16 @@ impl SimSession {
         let sim = Simulator::new(model, chart, seed)?;
         let plan = SessionPlan::for_simulator(&sim, target_isos, frames_per_burst)?.with_ev_steps(ev_steps);
         Self::from_parts(sim, plan, name)
+    }
+
+    /// The held-out set of this (preset) session: the same sensor, chart, ISOs and EV steps with
+    /// `frames` per burst (the reference bursts included) and fresh noise from
+    /// [`PRESET_HELDOUT_OFFSET`].
+    pub fn heldout(mut self, frames: u32) -> anyhow::Result<Self> {
+        self.plan.frames_per_burst = frames;
+        self.plan.validate()?;
+        self.index_offset = PRESET_HELDOUT_OFFSET;
+        Ok(self)
     }
 
     /// Frames the session writes, dark frames included.

@@ -41,17 +41,12 @@ pub fn load_pack(path: &Path) -> anyhow::Result<ModelPack> {
 }
 
 /// Opens a pack file to be read on demand ([`LazyPack`]: its index now, each ISO when first
-/// asked for), with a message that names it; mapped, not copied. Only regular files are read,
-/// as [`load_pack`] reads them.
-pub fn open_pack(path: &Path) -> anyhow::Result<LazyPack<noisecal_io::Mapped>> {
-    let bytes = noisecal_io::map_regular(path, MAX_PACK_BYTES)
-        .with_context(|| format!("cannot read model pack {}", path.display()))?;
-    LazyPack::open(bytes).with_context(|| format!("{} is not a usable model pack", path.display()))
-}
-
-/// As [`open_pack`], the file copied into memory instead of mapped: for a pack kept open for a
-/// long time (a Python `Pack`), which a file replaced in place must not pull away from under it.
-pub fn open_pack_copy(path: &Path) -> anyhow::Result<LazyPack<Vec<u8>>> {
+/// asked for), with a message that names it. Only regular files are read, as [`load_pack`] reads
+/// them. The file is copied into memory, not mapped: a pack rewritten or truncated by another
+/// program while it is open (a long synthesis run, a Python `Pack` kept for hours) cannot pull
+/// pages from under it (a mapped page past a new end raises `SIGBUS`); the copy is one read of a
+/// file of a few MB.
+pub fn open_pack(path: &Path) -> anyhow::Result<LazyPack<Vec<u8>>> {
     let bytes = noisecal_io::read_regular(path, MAX_PACK_BYTES)
         .with_context(|| format!("cannot read model pack {}", path.display()))?;
     LazyPack::open(bytes).with_context(|| format!("{} is not a usable model pack", path.display()))

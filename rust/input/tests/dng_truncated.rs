@@ -41,3 +41,24 @@ fn a_file_truncated_under_a_read_frame_is_an_error_not_a_crash() {
     let e = read_dng_source(&path).expect_err("a DNG whose data is cut short").to_string();
     assert!(e.contains(&name), "{e}");
 }
+
+/// A template read for synthesis or re-noising (`read_dng_file`) is held the same way: truncated
+/// under it, its bytes and pixels stay (a mapped template raised SIGBUS on its next read).
+#[test]
+fn a_template_truncated_while_held_keeps_its_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let (w, h) = (512usize, 384usize);
+    let layout =
+        SensorLayout { width: w as u32, height: h as u32, cfa: CfaPattern::Rggb, black: [64.0; 4], white: 1023 };
+    let pixels = ndarray::Array2::from_shape_fn((h, w), |(y, x)| (64 + (5 * y + 11 * x) % 900) as u16);
+    let path = dir.path().join("t.dng");
+    write_dng_from_layout(&path, &layout, &FrameMeta::new(400, 10_000_000), "M", "P", &pixels).unwrap();
+    let original = std::fs::read(&path).unwrap();
+
+    let file = noisecal_input::dng::read_dng_file(&path).unwrap();
+    std::fs::OpenOptions::new().write(true).open(&path).unwrap().set_len(4096).unwrap();
+    assert!(file.bytes() == original.as_slice(), "the template keeps the file's bytes as read");
+    assert_eq!(file.pixels(), pixels.view(), "and its pixels");
+    let e = noisecal_input::dng::read_dng_file(&path).expect_err("a truncated template").to_string();
+    assert!(e.contains(&path.display().to_string()), "{e}");
+}

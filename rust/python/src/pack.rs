@@ -226,7 +226,7 @@ impl Pack {
     fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
         py.detach(|| {
             guarded("Pack.load", || {
-                pool::run(|| noisecal_input::files::open_pack_copy(&path).map(Self::from_file).map_err(to_py))
+                pool::run(|| noisecal_input::files::open_pack(&path).map(Self::from_file).map_err(to_py))
             })
         })
     }

@@ -1,5 +1,7 @@
 //! `noisecal demo --out demo/`: a simulated phone session written as DNGs, calibrated from that
-//! folder, then real vs synthetic noise on held-out captures, per ISO.
+//! folder, then real vs synthetic noise on held-out captures, per ISO. A held-out set of the same
+//! sensor is written beside the pack (`demo/heldout/`, laid out as `noisecal eval` reads it), so
+//! the demo pack can be scored and reported on like any other.
 
 use std::io::Write;
 use std::path::PathBuf;
@@ -12,7 +14,7 @@ use noisecal_core::synth::synthesize;
 use noisecal_core::{FrameView, ModelPack, POSITIONS};
 use noisecal_sim::SensorModel;
 
-use crate::simulate::SimSession;
+use crate::simulate::{PRESET_HELDOUT_FRAMES, SimSession};
 use crate::support::progress_bar;
 use noisecal_core::resolve::{ModelKind, resolve_model};
 use noisecal_input::calibrate::CalibrateOptions;
@@ -21,7 +23,7 @@ use noisecal_input::files::write_atomic;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// Folder for the captures, the pack and the example images.
+    /// Folder for the captures, the pack, the held-out set (heldout/) and the example images.
     #[arg(long, default_value = "demo")]
     pub out: PathBuf,
     /// Image width of the simulated sensor.
@@ -52,15 +54,12 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         (-4..=4).collect(),
     )?;
     let captures = args.out.join("captures");
-    if captures.exists() {
-        std::fs::remove_dir_all(&captures).with_context(|| format!("cannot clear {}", captures.display()))?;
-    }
-    let pb = progress_bar(session.plan.len() as u64, quiet, "simulating");
-    session.write(Some(&captures), None, 0, || pb.inc(1))?;
-    pb.finish_and_clear();
-    if !quiet {
-        eprintln!("wrote {} DNGs to {}", session.plan.len(), captures.display());
-    }
+    write_fresh(&session, &captures, quiet)?;
+    // The same sensor and chart with fresh noise, fewer frames: what `noisecal eval` scores on
+    // (the same frames as `noisecal simulate --preset phone10 --heldout` with the demo's size,
+    // ISOs and seed).
+    let heldout = args.out.join("heldout");
+    write_fresh(&session.clone().heldout(PRESET_HELDOUT_FRAMES)?, &heldout, quiet)?;
 
     let (pack, report) = crate::support::calibrate(&captures, &CalibrateOptions::default(), quiet)?;
     let pack_path = args.out.join("demo.pack");
@@ -142,6 +141,25 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
     write_example(&args.out, &pack, &clean, &noisy)?;
     if !quiet {
         eprintln!("example images: {0}/clean_ev0.dng, {0}/synth_iso1600.dng", args.out.display());
+        eprintln!(
+            "every score, the structured components against the pixel noise alone included: noisecal eval --pack {} {}",
+            pack_path.display(),
+            heldout.display()
+        );
+    }
+    Ok(())
+}
+
+/// Writes `session`'s DNGs into `dir`, emptied first (a folder of an earlier run would mix in).
+fn write_fresh(session: &SimSession, dir: &std::path::Path, quiet: bool) -> anyhow::Result<()> {
+    if dir.exists() {
+        std::fs::remove_dir_all(dir).with_context(|| format!("cannot clear {}", dir.display()))?;
+    }
+    let pb = progress_bar(session.plan.len() as u64, quiet, "simulating");
+    session.write(Some(dir), None, 0, || pb.inc(1))?;
+    pb.finish_and_clear();
+    if !quiet {
+        eprintln!("wrote {} DNGs to {}", session.plan.len(), dir.display());
     }
     Ok(())
 }

@@ -232,14 +232,14 @@ fn same_path(a: &Path, b: &Path) -> bool {
 
 /// The non-parametric model of `iso` (pixel noise: re-noising adds no structured components),
 /// decoding only the ISOs it stands on.
-fn resolve(lazy: &LazyPack<noisecal_io::Mapped>, args: &Args, iso: u32) -> anyhow::Result<Resolved> {
+fn resolve(lazy: &LazyPack<Vec<u8>>, args: &Args, iso: u32) -> anyhow::Result<Resolved> {
     Ok(resolve_pack(lazy, &args.pack, iso, ModelKind::Noisecal, Components::PIXEL, args.extrapolate)?.1)
 }
 
 /// Models and bridge for `from → to`, with their notes and flags on stderr. `pack` holds the
 /// pack's fields (its ISOs are read from `lazy`).
 fn prepare(
-    lazy: &LazyPack<noisecal_io::Mapped>,
+    lazy: &LazyPack<Vec<u8>>,
     pack: &ModelPack,
     from: u32,
     args: &Args,

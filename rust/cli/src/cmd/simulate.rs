@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use anyhow::bail;
 
-use crate::simulate::{Preset, SensorChoice, SimSession};
+use crate::simulate::{PRESET_HELDOUT_FRAMES, Preset, SensorChoice, SimSession};
 use crate::support::progress_bar;
 
 #[derive(clap::Args, Debug)]
@@ -55,8 +55,12 @@ pub struct Args {
     /// stays still.
     #[arg(long)]
     pub moving: bool,
-    /// With --sensor random:SEED: write the session's held-out set (same sensor and exposures,
-    /// fewer frames, fresh noise, possibly another size) instead of its calibration capture.
+    /// Write the session's held-out set instead of its calibration capture: the same sensor and
+    /// exposures with fresh noise and fewer frames. With random:SEED, the drawn session's held-out
+    /// set (possibly another size); with a preset, the same chart, size, ISOs and EV steps as the
+    /// calibration session given by the same options, 4 frames per burst unless --frames (the
+    /// demo's is `--preset phone10 --width 384 --height 288 --isos 100,200,400,800,1600,3200`,
+    /// which `noisecal demo` writes as demo/heldout/).
     #[arg(long)]
     pub heldout: bool,
     /// Write DNGs into this folder.
@@ -123,9 +127,6 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
     let choice = args.sensor.unwrap_or(SensorChoice::Preset(args.preset));
     let mut s = match choice {
         SensorChoice::Preset(preset) => {
-            if args.heldout {
-                bail!("--heldout needs --sensor random:SEED (for a preset, use --index-offset and fewer --frames)");
-            }
             let mut model = preset.model();
             if args.structured {
                 model = model.with_structured_noise();
@@ -136,7 +137,7 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
             if let Some(a) = args.flicker {
                 model.flicker = Some(noisecal_sim::Flicker { probability: 0.1, amplitude: a });
             }
-            if args.moving {
+            if args.moving && !args.heldout {
                 move_scene(&mut model, args.seed, args.flicker.is_some(), quiet);
             }
             let mut s = SimSession::new(
@@ -149,6 +150,9 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
                 args.frames.unwrap_or(8),
                 args.ev.clone().unwrap_or_else(|| (-4..=4).collect()),
             )?;
+            if args.heldout {
+                s = s.heldout(args.frames.unwrap_or(PRESET_HELDOUT_FRAMES))?;
+            }
             if let Some(k) = args.ev_per_stop {
                 s.plan = s.plan.clone().with_ev_steps_per_stop(k);
                 s.plan.validate()?;

@@ -582,7 +582,10 @@ fn eval_section(o: &mut String, ev: &EvalReport) -> anyhow::Result<()> {
         let mut ranked: Vec<&ModelScore> = ie.models.iter().collect();
         ranked.sort_by(|a, b| a.conditional_overall.total_cmp(&b.conditional_overall));
         for (i, m) in ranked.iter().enumerate() {
-            score_row(o, m, i == 0);
+            // What the row holds (e.g. the pixel noise alone, without the structured components)
+            // beside where its model comes from.
+            let shown = ModelScore { origin: format!("{}; {}", m.label, m.origin), ..(*m).clone() };
+            score_row(o, &shown, i == 0);
         }
         if let Some(f) = &ie.floor {
             floor_row(o, f);

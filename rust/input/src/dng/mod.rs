@@ -92,12 +92,12 @@ pub struct DngImage {
     pub source: PathBuf,
 }
 
-/// A file's bytes: read into memory (a buffer of its own, or one reused), or mapped.
+/// A file's bytes, read into memory (a buffer of its own, or one reused). Never mapped: a
+/// mapped page past the end of a file truncated under it raises `SIGBUS`.
 #[derive(Debug)]
 enum Bytes {
     Owned(Vec<u8>),
     Read(buffers::Buffer),
-    Mapped(noisecal_io::Mapped),
 }
 
 impl std::ops::Deref for Bytes {
@@ -107,7 +107,6 @@ impl std::ops::Deref for Bytes {
         match self {
             Bytes::Owned(v) => v,
             Bytes::Read(b) => b,
-            Bytes::Mapped(m) => m,
         }
     }
 }
@@ -154,12 +153,11 @@ impl DngFile {
         raw_data::active_view(&self.bytes, (self.image.layout.height as usize, self.image.layout.width as usize))
     }
 
-    /// The file's bytes, owned (copied only if this template is shared or mapped).
+    /// The file's bytes, owned (copied only if this template is shared).
     pub(crate) fn into_bytes(self) -> Vec<u8> {
         match Arc::try_unwrap(self.bytes) {
             Ok(Bytes::Owned(v)) => v,
             Ok(Bytes::Read(b)) => b.into_vec(),
-            Ok(Bytes::Mapped(m)) => m.to_vec(),
             Err(shared) => shared.to_vec(),
         }
     }

@@ -67,9 +67,12 @@ pub fn decode_dng_meta(bytes: &[u8], source: &Path) -> Result<DngImage, DngError
 }
 
 /// As [`read_dng`], keeping the file's bytes: the template [`super::write_derived`] writes a
-/// derived DNG from (the input with only its pixels and ISO-dependent tags changed).
+/// derived DNG from (the input with only its pixels and ISO-dependent tags changed). Read into
+/// memory (a reused buffer), not mapped, as [`read_dng_source`]: a template truncated by another
+/// program while synthesis holds it cannot raise `SIGBUS`.
 pub fn read_dng_file(path: &Path) -> Result<DngFile, DngError> {
-    let bytes = mapped_bytes(path)?;
+    let read = super::buffers::Buffer::read(path, MAX_DNG_BYTES).map_err(|e| DngError::io(path, e))?;
+    let bytes = Arc::new(Bytes::Read(read));
     let image = parse(Src::Slice(&bytes), path, true)?;
     Ok(DngFile { image, bytes })
 }
@@ -131,12 +134,6 @@ pub(crate) fn decode_full_raw(bytes: &[u8], path: &Path) -> Result<Vec<u16>, Dng
 fn file_bytes(path: &Path) -> Result<Arc<Vec<u8>>, DngError> {
     let bytes = noisecal_io::read_regular(path, MAX_DNG_BYTES).map_err(|e| DngError::io(path, e))?;
     Ok(Arc::new(bytes))
-}
-
-/// The file's bytes, mapped after checking it is a regular file of a sane size.
-fn mapped_bytes(path: &Path) -> Result<Arc<Bytes>, DngError> {
-    let map = noisecal_io::map_regular(path, MAX_DNG_BYTES).map_err(|e| DngError::io(path, e))?;
-    Ok(Arc::new(Bytes::Mapped(map)))
 }
 
 /// What [`parse`] reads: a source for the decoder, or bytes (given to the decoder as a copy, only
