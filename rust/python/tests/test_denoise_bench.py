@@ -218,6 +218,43 @@ def test_parse_model():
         B.parse_model("wrong:pixel")
 
 
+@pytest.fixture(scope="module")
+def gain_switch_pack(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A small phone12 session at ISOs 200, 800 and 3200: the sensor switches conversion gain at
+    ISO 800, so ISO 400 lies in the switch (between 200 and 800) and ISO 1600 does not."""
+    d = tmp_path_factory.mktemp("switch")
+    run(_cli(), "simulate", "--preset", "phone12", "--dngs", d / "cal", "--isos", "200,800,3200", "--frames", "4",
+        "--width", "96", "--height", "64", "--seed", "5")  # fmt: skip
+    noisecal.calibrate(d / "cal").save(d / "switch.pack")
+    return d / "switch.pack"
+
+
+def test_interpolated_rows_are_noted_with_the_packs_gain_switch_warning(gain_switch_pack: Path):
+    """Every pack row at an ISO its pack does not calibrate gets a note, and the one inside the
+    conversion-gain switch carries the pack's warning (modelled from one side: a brightness error
+    if it is the wrong one); parametric rows and calibrated ISOs get none. The notes reach the
+    terminal table."""
+    pack = noisecal.Pack.load(gain_switch_pack)
+    other = str(gain_switch_pack)
+    specs = [B.parse_model(m) for m in ("noisecal", "hg", "wrong", f"interp=noisecal@{other}")]
+    notes = B.interpolation_notes(specs, [400, 800, 1600], pack, {other: pack})
+    by = {}
+    for n in notes:
+        label, _, rest = n.partition(" at ISO ")
+        by[(label, int(rest.split(":")[0]))] = n
+    assert set(by) == {("noisecal", 400), ("noisecal", 1600), ("interp", 400), ("interp", 1600)}
+    for label in ("noisecal", "interp"):
+        assert "switches conversion gain" in by[(label, 400)] and "Calibrate ISO 400" in by[(label, 400)]
+        assert "switches conversion gain" not in by[(label, 1600)]
+    out = {
+        "summary": [], "isos": [], "controls": {}, "networks": [], "seeds": [0], "wall_seconds": 60.0, "notes": notes,
+        "config": {"steps": 1, "batch": 1, "crop": 16, "width": 4},
+    }  # fmt: skip
+    text = B.table(out)
+    assert sum(line.startswith("note: ") for line in text.splitlines()) == 4
+    assert "note: noisecal at ISO 400: interpolated by its pack; ISO 400 lies between ISO 200 and 800" in text
+
+
 def test_wrong_model_has_half_the_hg_variance(pack):
     """On a flat image, var(wrong) / var(hg) = 1/2 (a wrong scale, e.g. 1/2 instead of 1/√2,
     gives 1/4; no scaling 1), and the mean stays HG's (a centre off by the gain shift moves it)."""

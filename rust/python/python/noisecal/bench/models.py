@@ -212,3 +212,26 @@ def scale_variance(
     m = base + offset[pos, level]
     out = m + (noisy.astype(np.float64) - m) / math.sqrt(1 / factor)  # ½: exactly the earlier (x − m)/√2
     return np.rint(np.clip(out, 0, white)).astype(np.uint16)
+
+
+def interpolation_notes(specs: list, isos: list, pack, packs: dict) -> list[str]:
+    """One line per pack model (``noisecal``, ``plain``) and benchmarked ISO its pack does not
+    calibrate: the row's noise is interpolated, and when the ISO lies where the sensor switches
+    conversion gain the pack's warning goes with it. The core then models the ISO from one side of
+    the switch, and a wrong side shows in the table as a brightness error (the other gain ratio)
+    that costs the bright bands most (docs/bench.md, "interpolated ISOs")."""
+    notes = []
+    for s in specs:
+        if s.kind not in ("noisecal", "plain"):
+            continue
+        p = packs[s.pack_path] if s.pack_path else pack
+        for iso in isos:
+            if iso in p.calibrated_isos:
+                continue
+            try:
+                derived = p.interp([iso])
+            except noisecal.NoisecalError:
+                continue  # not interpolable: make_pairs refuses the row with the core's message
+            new = [w for w in derived.warnings if w not in p.warnings]
+            notes.append(f"{s.label} at ISO {iso}: interpolated by its pack" + "".join(f"; {w}" for w in new))
+    return notes

@@ -78,6 +78,7 @@ def table(out: dict) -> str:
             parts.append(f"loud (2× HG variance) below HG: {verdict} (by {c['loud_margin_db']:.2f} dB)")
         if parts:
             lines.append(f"controls at ISO {iso}: " + "; ".join(parts))
+    lines += [f"note: {n}" for n in out.get("notes", [])]
     n = len(out["networks"])
     lines.append(
         f"{n} networks, {out['config']['steps']} steps each (batch {out['config']['batch']}, crop {out['config']['crop']}, "

@@ -17,7 +17,7 @@ from .data import eval_pairs, load_captures, load_clean, load_eval
 from .errors import BenchError
 from .estimate import DEFAULT_ESTIMATE, estimates_for, parse_estimates
 from .layout import normalise
-from .models import RENOISE_METHODS, ModelSpec, Pairs, make_pairs, parse_model
+from .models import RENOISE_METHODS, ModelSpec, Pairs, interpolation_notes, make_pairs, parse_model
 from .network import _torch
 from .scenes import generate_clean, parse_levels
 from .scoring import controls, evaluate, score_input, summary
@@ -246,4 +246,5 @@ def run(args: argparse.Namespace) -> dict:
         "wall_seconds": time.time() - t0,
     }
     out["controls"] = controls(out["summary"])
+    out["notes"] = interpolation_notes(specs, isos, pack, packs)
     return out
