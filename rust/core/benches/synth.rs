@@ -10,6 +10,9 @@
 //!
 //!     NOISECAL_BENCH_PACK=bench.pack cargo bench -p noisecal-core --bench synth
 //!
+//! "pattern not kept" keeps no fixed pattern between calls (`with_pattern_cache_bytes(0)`): each
+//! frame computes it in its offsets pass, as a single image does (`noisecal synth` of one file).
+//!
 //! With `NOISECAL_BENCH_LOOP=n` it instead times n frames in a plain loop and prints the wall and
 //! the process CPU time per frame (for `rust/python/benches/interleaved.py --cpu`).
 
@@ -51,12 +54,17 @@ fn benches(c: &mut Criterion) {
     // `Pack.synth(components="pixel")`: the pixel-independent model alone, the yardstick of the
     // default components' cost.
     let pixel = IsoSampler::with_components(&pack, &model, Components::PIXEL);
+    // Nothing kept between calls: every frame computes the fixed pattern in its offsets pass,
+    // as a single image (the CLI's) does.
+    let unkept = IsoSampler::new(&pack, &model).with_pattern_cache_bytes(0);
     let clean = clean();
     let threads = rayon::current_num_threads();
     if let Some(n) = std::env::var("NOISECAL_BENCH_LOOP").ok().and_then(|s| s.parse::<u32>().ok()) {
         // A plain loop, with the process's CPU time as well as the wall time: on a shared machine
         // CPU time per frame compares two builds where wall time mostly measures the neighbours.
-        for (what, sampler) in [("default components", &sampler), ("components=pixel", &pixel)] {
+        let cases =
+            [("default components", &sampler), ("components=pixel", &pixel), ("default, pattern not kept", &unkept)];
+        for (what, sampler) in cases {
             synthesize_at(sampler, clean.view(), 1, (0, 0));
             let (t0, c0) = (std::time::Instant::now(), cpu_seconds());
             for _ in 0..n {
@@ -84,6 +92,9 @@ fn benches(c: &mut Criterion) {
     });
     g.bench_function(format!("synthesize_at, components=pixel, global pool ({threads} threads)"), |b| {
         b.iter(|| synthesize_at(&pixel, black_box(clean.view()), 1, (0, 0)))
+    });
+    g.bench_function(format!("synthesize_at, pattern not kept, global pool ({threads} threads)"), |b| {
+        b.iter(|| synthesize_at(&unkept, black_box(clean.view()), 1, (0, 0)))
     });
     g.finish();
 }

@@ -1,6 +1,7 @@
-//! Rounding to the nearest integer, halves away from zero, as `f64::round` does but without the
-//! call to libm's `round` that it compiles to on x86-64 without SSE4.1: for loops that round
-//! once per pixel (the fixed pattern at synthesis, the clean image's levels at calibration).
+//! Rounding to integers as `f64::round` and `f64::floor` do, but without the calls to libm's
+//! `round` and `floor` that they compile to on x86-64 without SSE4.1: for loops that round once
+//! per pixel (the fixed pattern at synthesis, the clean image's levels at calibration) or once
+//! per PMF cell (the sampler build's rescaled starts and grid densities).
 
 /// `v.round() as i64` (halves away from zero, saturating, NaN to 0), without the call to libm's
 /// `round` that `f64::round` is on x86-64 without SSE4.1, and without a branch, so that loops
@@ -14,14 +15,49 @@ pub fn round_half_away(v: f64) -> i64 {
     t.saturating_add((r >= 0.5) as i64).saturating_sub((r <= -0.5) as i64)
 }
 
+/// [`round_half_away`], faster on values below 2⁵¹ in magnitude (a pattern's 2⁻³² DN): there,
+/// adding 1.5·2⁵² rounds to the nearest integer, ties to even, and leaves that integer in the
+/// sum's low bits; a tie (`v` half an integer from it) that went toward zero is moved one away.
+/// Float adds, compares and an integer subtraction, where the conversion of `round_half_away`
+/// checks for overflow and NaN twice. Other values (and NaN) take `round_half_away` itself, a
+/// branch that a loop over values of one scale predicts alike every time.
+#[inline(always)]
+pub fn round_half_away_near(v: f64) -> i64 {
+    const SHIFT: f64 = 6755399441055744.0; // 1.5·2⁵²: the sum's unit in the last place is 1.
+    if v.abs() < 2251799813685248.0 {
+        let m = v + SHIFT;
+        let nearest = m.to_bits() as i64 - SHIFT.to_bits() as i64;
+        let d = v - (m - SHIFT);
+        nearest + ((d >= 0.5) & (v > 0.0)) as i64 - ((d <= -0.5) & (v < 0.0)) as i64
+    } else {
+        round_half_away(v)
+    }
+}
+
+/// `v.floor() as i32` (saturating, NaN to 0), without the call to libm's `floor`: the
+/// truncation toward zero is one below the floor exactly where it lies above `v` (a negative
+/// non-integer), and saturates where the floor's conversion does.
+#[inline(always)]
+pub fn floor_i32(v: f64) -> i32 {
+    let t = v as i32;
+    t.saturating_sub((t as f64 > v) as i32)
+}
+
+/// `v.floor() as i64` (saturating, NaN to 0), as [`floor_i32`].
+#[inline(always)]
+pub fn floor_i64(v: f64) -> i64 {
+    let t = v as i64;
+    t.saturating_sub((t as f64 > v) as i64)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
-    /// The rounding is `f64::round` exactly: at halves (both signs), next to them, at zero, at
-    /// NaN, past 2⁵², and on random values of a pattern's and a level's scale.
+    /// Both roundings are `f64::round` exactly: at halves (both signs), next to them, at zero,
+    /// at NaN, at and past 2⁵¹ and 2⁵², and on random values of a pattern's and a level's scale.
     #[test]
     fn round_half_away_is_round() {
         let two52 = 4503599627370496.0f64;
@@ -36,6 +72,14 @@ mod tests {
         for h in [0.5f64, 1.5, 12345.5, -0.5, -7.5] {
             vals.extend([h.next_down(), h.next_up()]);
         }
+        let two51 = 2251799813685248.0f64;
+        for x in [two51, -two51, two51 - 0.5, -two51 + 0.5, two51 - 1.5, two51 * 1.5] {
+            vals.extend([x, x.next_down(), x.next_up()]);
+        }
+        for k in -2000..2000 {
+            let h = k as f64 + 0.5;
+            vals.extend([h, h.next_down(), h.next_up(), h * 4294967296.0 + 0.5]);
+        }
         vals.push(0.49999999999999994);
         vals.push(-0.49999999999999994);
         let mut rng = ChaCha8Rng::seed_from_u64(3);
@@ -44,6 +88,28 @@ mod tests {
         vals.extend((0..100_000).map(|_| unit(rng.next_u64()) * 20000.0));
         for v in vals {
             assert_eq!(round_half_away(v), v.round() as i64, "{v:e}");
+            assert_eq!(round_half_away_near(v), v.round() as i64, "{v:e}");
+        }
+    }
+
+    /// The floors are `f64::floor`'s, converted: at and next to integers of both signs, at the
+    /// ends of both integer types (where the conversion saturates), at NaN and infinities, and
+    /// on random values of a PMF support's and a density grid's scale.
+    #[test]
+    fn floors_are_floor() {
+        let mut vals = vec![0.0, -0.0, 0.5, -0.5, 1.0, -1.0, 2.5, -2.5, f64::NAN, f64::INFINITY, f64::NEG_INFINITY];
+        vals.extend([f64::MAX, f64::MIN, 1e300, -1e300, 4503599627370496.0, -4503599627370496.0]);
+        for b in [i32::MIN as f64, i32::MAX as f64, i64::MIN as f64, i64::MAX as f64, 1.0, -1.0, 7.0, -7.0] {
+            vals.extend([b, b.next_down(), b.next_up(), b - 0.5, b + 0.5, b - 1.0, b + 1.0]);
+        }
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let unit = |u: u64| (u >> 11) as f64 / (1u64 << 53) as f64;
+        vals.extend((0..100_000).map(|_| (unit(rng.next_u64()) - 0.5) * 2000.0));
+        vals.extend((0..100_000).map(|_| (unit(rng.next_u64()) - 0.5) * 1e12));
+        vals.extend((0..1000).map(|i| i as f64 * 0.25 - 125.0));
+        for v in vals {
+            assert_eq!(floor_i32(v), v.floor() as i32, "{v:e}");
+            assert_eq!(floor_i64(v), v.floor() as i64, "{v:e}");
         }
     }
 }

@@ -1,6 +1,8 @@
 //! Operations on integer-grid PMFs: normalised shapes (paper Eq. 5) rescaled to a new mean and
 //! variance (Eq. 6), back on the integer grid.
 
+use crate::math::round::floor_i32;
+
 /// A probability mass function over `first, first + 1, …`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Pmf {
@@ -55,8 +57,8 @@ impl Pmf {
         // source cell [n-0.5, n+0.5] maps to [mu + a(n-0.5-m_s), mu + a(n+0.5-m_s)]
         let lo = mu + a * (self.first as f64 - 0.5 - m_s);
         let hi = mu + a * (self.last() as f64 + 0.5 - m_s);
-        let first = (lo + 0.5).floor() as i32;
-        let last = (hi + 0.5).floor() as i32;
+        let first = floor_i32(lo + 0.5);
+        let last = floor_i32(hi + 0.5);
         let mut out = vec![0.0f64; (last - first + 1).max(1) as usize];
         for (i, &p) in self.p.iter().enumerate() {
             if p <= 0.0 {
@@ -69,8 +71,8 @@ impl Pmf {
             if width <= 0.0 {
                 continue;
             }
-            let k0 = (a0 + 0.5).floor() as i32;
-            let k1 = (a1 + 0.5).floor() as i32;
+            let k0 = floor_i32(a0 + 0.5);
+            let k1 = floor_i32(a1 + 0.5);
             for k in k0..=k1 {
                 let c0 = (k as f64 - 0.5).max(a0);
                 let c1 = (k as f64 + 0.5).min(a1);

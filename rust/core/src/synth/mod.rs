@@ -4,6 +4,7 @@
 
 mod clean_at;
 mod pattern_cache;
+mod pattern_lanes;
 pub mod sampler;
 pub mod structure;
 
@@ -164,7 +165,7 @@ fn structured_filler<'a, const TARGET: bool>(
     {
         Box::new(move |band: usize, chunk: &mut [u16]| {
             let mut rng = band_rng(seed, band);
-            let mut offsets_row: Vec<i32> = Vec::with_capacity(w);
+            let mut offsets_row: Vec<i32> = vec![0; w];
             for (r, row) in chunk.chunks_mut(w).enumerate() {
                 let y = band * BAND_ROWS + r;
                 let src = clean_row(&clean, y);
@@ -205,7 +206,6 @@ fn structured_filler<'a, const TARGET: bool>(
                     }
                 };
                 let row_offsets = RowOffsets { src: &src, cols, ry, state, shift: &shift };
-                offsets_row.clear();
                 match (&kept, &pattern, &pattern_columns) {
                     (Some(k), _, _) => {
                         let k = k.row(y);
@@ -213,7 +213,12 @@ fn structured_filler<'a, const TARGET: bool>(
                     }
                     (None, Some(p), Some(pc)) => {
                         let rp = p.row_pattern(pc, origin.0 + y).expect("a fixed pattern");
-                        row_offsets.fill(&mut offsets_row, |i| rp.pair(i), |i| rp.at(i));
+                        match rp.computed() {
+                            Some([c0, c1]) => {
+                                row_offsets.fill(&mut offsets_row, |i| (c0[i >> 1], c1[i >> 1]), |i| c0[i >> 1])
+                            }
+                            None => row_offsets.fill(&mut offsets_row, |i| rp.pair(i), |i| rp.at(i)),
+                        }
                     }
                     _ => row_offsets.fill(&mut offsets_row, |_| (0, 0), |_| 0),
                 }
@@ -259,11 +264,11 @@ struct RowOffsets<'a, S: Fn(usize, u16) -> i64> {
 }
 
 impl<S: Fn(usize, u16) -> i64> RowOffsets<'_, S> {
-    /// Pushes every pixel's integer offset onto `out`, pixel `i`'s fixed pattern from
+    /// Writes every pixel's integer offset into `out` (the row's length), pixel `i`'s fixed pattern from
     /// `pair(i)` (for `i` and `i + 1`, `i` even) or `one(i)` (the last pixel of an odd width).
     /// One dither draw per pair, its low half for the even pixel.
     #[inline(always)]
-    fn fill(&self, out: &mut Vec<i32>, pair: impl Fn(usize) -> (i64, i64), one: impl Fn(usize) -> i64) {
+    fn fill(&self, out: &mut [i32], pair: impl Fn(usize) -> (i64, i64), one: impl Fn(usize) -> i64) {
         let mut state = self.state;
         let mut dither = || {
             state ^= state >> 12;
@@ -272,20 +277,21 @@ impl<S: Fn(usize, u16) -> i64> RowOffsets<'_, S> {
             state.wrapping_mul(0x2545_F491_4F6C_DD1D)
         };
         let (src, cols, ry) = (self.src, self.cols, self.ry);
-        for (j, (c, k)) in src.chunks_exact(2).zip(cols.chunks_exact(2)).enumerate() {
+        let w = src.len();
+        let pairs = src.chunks_exact(2).zip(cols.chunks_exact(2)).zip(out[..w].chunks_exact_mut(2));
+        for (j, ((c, k), o)) in pairs.enumerate() {
             let i = 2 * j;
             let v = dither();
             let (p0, p1) = pair(i);
             let k0 = k[0] + p0 + (self.shift)(i, c[0]);
             let k1 = k[1] + p1 + (self.shift)(i + 1, c[1]);
-            out.push(((k0 + ry + (v as u32) as i64) >> 32) as i32);
-            out.push(((k1 + ry + (v >> 32) as i64) >> 32) as i32);
+            o[0] = ((k0 + ry + (v as u32) as i64) >> 32) as i32;
+            o[1] = ((k1 + ry + (v >> 32) as i64) >> 32) as i32;
         }
-        let w = src.len();
         if w % 2 == 1 {
             let v = dither();
             let k = cols[w - 1] + one(w - 1) + (self.shift)(w - 1, src[w - 1]);
-            out.push(((k + ry + (v as u32) as i64) >> 32) as i32);
+            out[w - 1] = ((k + ry + (v as u32) as i64) >> 32) as i32;
         }
     }
 }

@@ -156,6 +156,17 @@ fn cdf_of(w: &[u64]) -> Vec<u64> {
             acc += c;
             cdf.push((acc << 32) / total);
         }
+    } else if total > 0 && total < 1 << 48 {
+        // The same quotients by long division in base 2¹⁶ (each remainder times 2¹⁶ stays below
+        // 2⁶⁴): three 64-bit divisions per entry instead of a call to the 128-bit one.
+        let (total, mut acc) = (total as u64, 0u64);
+        for &c in w {
+            acc += c;
+            let (q0, r) = (acc / total, acc % total);
+            let (q1, r) = ((r << 16) / total, (r << 16) % total);
+            let q2 = (r << 16) / total;
+            cdf.push(q0 << 32 | q1 << 16 | q2);
+        }
     } else {
         let mut acc: u128 = 0;
         for &c in w {
@@ -516,6 +527,43 @@ pub(crate) fn fixed(o: f64) -> i64 {
 mod tests {
     use super::*;
     use rand::SeedableRng;
+
+    /// Each of `cdf_of`'s three ways (64-bit quotients, base-2¹⁶ long division, 128-bit
+    /// division) gives `⌊acc·2³²/total⌋`, computed here in 128 bits, on weights whose totals
+    /// fall in each range and at its edges.
+    #[test]
+    fn cdf_of_is_the_exact_quotient() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4);
+        let reference = |w: &[u64]| -> Vec<u64> {
+            let total: u128 = w.iter().map(|&c| c as u128).sum();
+            let mut acc = 0u128;
+            let mut v: Vec<u64> = w
+                .iter()
+                .map(|&c| {
+                    acc += c as u128;
+                    (acc << 32).checked_div(total).unwrap_or(ONE as u128) as u64
+                })
+                .collect();
+            *v.last_mut().unwrap() = ONE;
+            v
+        };
+        let mut cases: Vec<Vec<u64>> = Vec::new();
+        for bits in [20u32, 31, 32, 33, 40, 47, 48, 49, 60] {
+            for len in [1usize, 2, 7, 300, 5000] {
+                // Random weights whose total is near 2^bits.
+                let each = ((1u128 << bits) / len as u128).max(1) as u64;
+                cases.push((0..len).map(|_| rng.next_u64() % (2 * each)).collect());
+            }
+        }
+        for total in [u32::MAX as u64, 1 << 32, (1 << 32) + 1, (1 << 48) - 1, 1 << 48] {
+            let a = rng.next_u64() % total;
+            cases.push(vec![a, 0, total - a]);
+            cases.push(vec![1, total - 2, 1]);
+        }
+        for w in cases.iter().filter(|w| w.iter().any(|&c| c > 0)) {
+            assert_eq!(cdf_of(w), reference(w), "weights totalling {}", w.iter().map(|&c| c as u128).sum::<u128>());
+        }
+    }
 
     #[test]
     fn empirical_pmf_matches_table() {

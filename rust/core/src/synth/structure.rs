@@ -17,7 +17,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
 use crate::math::deconv::{Problem, SolverLimits, richardson_lucy};
-use crate::math::round::round_half_away;
+use crate::math::round::{floor_i32, floor_i64, round_half_away, round_half_away_near};
 use crate::model::layout::POSITIONS;
 use crate::model::layout::position;
 use crate::model::pack::BinModel;
@@ -26,6 +26,7 @@ use crate::model::structure::{
     Components, FixedPattern, FrameOffsets, IsoStructure, OffsetDistribution, grid_coord, quantile_at,
 };
 use crate::synth::pattern_cache::{PatternCache, PatternRegion, Region};
+use crate::synth::pattern_lanes::{PATTERN_KEY, ParityColumns, lanes_apply, parity_row, quantile_pairs};
 
 /// Grid of the offset densities (cells per DN).
 const GRID: f64 = 32.0;
@@ -49,9 +50,6 @@ const CLIPPED_SMALL_SHARE_ITERATIONS: usize = 20;
 const PILE_MIN: f64 = 1e-6;
 /// RNG stream of the offsets (the pixel bands use streams `0 ..`, far below).
 const STREAM: u64 = 1 << 62;
-/// The fixed pattern's key: each sensor pixel's uniform draw is a hash of its position and this,
-/// whatever the seed and ISO (the pattern is the sensor's, not the image's).
-const PATTERN_KEY: u64 = 0x6E6F_6973_6563_616C;
 
 /// The components synthesis adds at one ISO.
 #[derive(Debug, Clone)]
@@ -60,6 +58,9 @@ pub struct StructureSampler {
     columns: [Option<OffsetDistribution>; 2],
     frame: Option<FrameOffsets>,
     fpn: Option<FixedPattern>,
+    /// Per position, the residual's quantile function as the vectorised loop reads it
+    /// ([`quantile_pairs`]), where that loop applies ([`lanes_apply`]).
+    lanes: Option<Arc<[Vec<u64>; POSITIONS]>>,
     /// The fixed pattern of the image region last synthesized (shared by clones).
     pattern_cache: Arc<PatternCache>,
 }
@@ -76,11 +77,16 @@ pub(crate) struct ImageOffsets {
 impl StructureSampler {
     /// The significant components of `st` that `which` asks for; `None` when that leaves none.
     pub fn new(st: &IsoStructure, which: Components) -> Option<Self> {
+        let fpn = st.fixed_pattern().filter(|_| which.fpn).cloned();
         let s = Self {
             rows: std::array::from_fn(|p| st.row(p).filter(|_| which.row).cloned()),
             columns: std::array::from_fn(|p| st.column(p).filter(|_| which.column).cloned()),
             frame: st.frame().filter(|_| which.frame).cloned(),
-            fpn: st.fixed_pattern().filter(|_| which.fpn).cloned(),
+            lanes: fpn
+                .as_ref()
+                .filter(|fp| lanes_apply(fp))
+                .map(|fp| Arc::new(std::array::from_fn(|p| quantile_pairs(&fp.pixels[p].quantiles)))),
+            fpn,
             pattern_cache: Arc::default(),
         };
         (s.rows.iter().chain(&s.columns).any(Option::is_some) || s.frame.is_some() || s.fpn.is_some()).then_some(s)
@@ -135,7 +141,11 @@ impl StructureSampler {
             }
             None => (Vec::new(), 1),
         };
-        PatternColumns { x0, cells, line_len }
+        let parity = std::array::from_fn(|p| match self.lanes {
+            Some(_) => ParityColumns::new(cells.iter().skip(p).step_by(2).copied()),
+            None => ParityColumns::default(),
+        });
+        PatternColumns { x0, cells, line_len, parity }
     }
 
     /// The fixed pattern of sensor row `y` over an image's columns ([`Self::pattern_columns`]),
@@ -151,7 +161,17 @@ impl StructureSampler {
             let line = fp.shading_line(pos, y).unwrap_or_else(|| vec![0.0; columns.line_len]);
             ParityPattern { line, q: fp.pixels[pos].quantiles.as_slice() }
         });
-        Some(RowPattern { y, columns, parity })
+        // The whole row at once where the vectorised loop applies, per parity.
+        let computed = self.lanes.as_ref().map(|pairs| {
+            std::array::from_fn(|px: usize| {
+                let cols = &columns.parity[px];
+                let mut out = vec![0i64; cols.len()];
+                let pairs = &pairs[position(y, columns.x0 + px)];
+                parity_row(y as u64, (columns.x0 + px) as u64, cols, &parity[px].line, pairs, &mut out);
+                out
+            })
+        });
+        Some(RowPattern { y, columns, parity, computed })
     }
 
     /// [`Self::add_pattern_row`] with the columns' shading cells computed beforehand
@@ -258,13 +278,14 @@ impl StructureSampler {
         }
         // Dither each grid point onto the integers.
         let (first_cell, w) = dens;
-        let lo = ((first_cell as f64) / GRID).floor() as i32;
-        let hi = (((first_cell + w.len() as i64) as f64) / GRID).floor() as i32 + 1;
+        let lo = floor_i32((first_cell as f64) / GRID);
+        let hi = floor_i32(((first_cell + w.len() as i64) as f64) / GRID) + 1;
         let mut out = vec![0.0; (hi - lo + 1) as usize];
         for (i, &p) in w.iter().enumerate() {
             let o = (first_cell + i as i64) as f64 / GRID;
-            let f = o.floor();
-            let k = (f as i32 - lo) as usize;
+            let fi = floor_i32(o);
+            let f = fi as f64;
+            let k = (fi - lo) as usize;
             out[k] += p * (1.0 - (o - f));
             out[k + 1] += p * (o - f);
         }
@@ -434,7 +455,8 @@ fn clipped_start(pmf: &Pmf, low: bool, k0: i32, taps: usize, km: f64, kv: f64) -
 /// `b` with its PMF replaced by the weights `q` over `first, first + 1, …`.
 fn from_weights(b: &BinModel, first: i32, q: &[f64]) -> BinModel {
     const SCALE: f64 = (1u64 << 30) as f64;
-    let counts: Vec<u64> = q.iter().map(|&x| (x * SCALE).round() as u64).collect();
+    // `(x·SCALE).round() as u64` (0 below zero and at NaN), without libm's `round`.
+    let counts: Vec<u64> = q.iter().map(|&x| round_half_away(x * SCALE).max(0) as u64).collect();
     let lo = counts.iter().position(|&c| c > 0);
     let hi = counts.iter().rposition(|&c| c > 0);
     let (Some(lo), Some(hi)) = (lo, hi) else {
@@ -474,13 +496,14 @@ fn on_grid(pts: &[(f64, f64)]) -> (i64, Vec<f64>) {
     if pts.is_empty() {
         return (0, vec![1.0]);
     }
-    let lo = pts.iter().map(|p| (p.0 * GRID).floor() as i64).min().unwrap_or(0);
-    let hi = pts.iter().map(|p| (p.0 * GRID).floor() as i64 + 1).max().unwrap_or(0);
+    let lo = pts.iter().map(|p| floor_i64(p.0 * GRID)).min().unwrap_or(0);
+    let hi = pts.iter().map(|p| floor_i64(p.0 * GRID) + 1).max().unwrap_or(0);
     let mut out = vec![0.0; (hi - lo + 1) as usize];
     for &(x, w) in pts {
         let g = x * GRID;
-        let f = g.floor();
-        let k = (f as i64 - lo) as usize;
+        let fi = floor_i64(g);
+        let f = fi as f64;
+        let k = (fi - lo) as usize;
         out[k] += w * (1.0 - (g - f));
         out[k + 1] += w * (g - f);
     }
@@ -500,6 +523,9 @@ pub(crate) struct PatternColumns {
     cells: Vec<(u32, u32, f64)>,
     /// Cells of a shading line (the length of the zero line of a position without shading).
     line_len: usize,
+    /// Per column parity, the cells as the vectorised loop reads them (empty where it does not
+    /// apply).
+    parity: [ParityColumns; 2],
 }
 
 /// The fixed pattern of one sensor row ([`StructureSampler::row_pattern`]), computed where the
@@ -509,6 +535,8 @@ pub(crate) struct RowPattern<'a> {
     y: usize,
     columns: &'a PatternColumns,
     parity: [ParityPattern<'a>; 2],
+    /// Per column parity, the row's values computed at once ([`parity_row`]), where it applies.
+    computed: Option<[Vec<i64>; 2]>,
 }
 
 struct ParityPattern<'a> {
@@ -517,6 +545,12 @@ struct ParityPattern<'a> {
 }
 
 impl RowPattern<'_> {
+    /// The row's values computed at once, per column parity (column `i` at `[i & 1][i >> 1]`),
+    /// where the vectorised loop applies; else [`Self::pair`] computes them pixel by pixel.
+    pub(crate) fn computed(&self) -> Option<&[Vec<i64>; 2]> {
+        self.computed.as_ref()
+    }
+
     /// The pattern (2⁻³² DN) of the image's columns `i` and `i + 1`, `i` even and `i + 1` within
     /// the row.
     #[inline(always)]
@@ -527,7 +561,10 @@ impl RowPattern<'_> {
     /// The pattern (2⁻³² DN) of the image's column `i`.
     #[inline]
     pub(crate) fn at(&self, i: usize) -> i64 {
-        self.value(&self.parity[i & 1], i)
+        match &self.computed {
+            Some(c) => c[i & 1][i >> 1],
+            None => self.value(&self.parity[i & 1], i),
+        }
     }
 
     /// [`StructureSampler::add_pattern_row_at`]'s expression for one pixel, with the same
@@ -549,7 +586,7 @@ impl RowPattern<'_> {
                 q[k] as f64 * (1.0 - f) + q[k + 1] as f64 * f
             }
         };
-        round_half_away((shade + residual) * 4294967296.0)
+        round_half_away_near((shade + residual) * 4294967296.0)
     }
 }
 
