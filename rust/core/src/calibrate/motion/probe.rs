@@ -1,0 +1,187 @@
+//! What registration and the motion test read of a clean image, made once when a reference
+//! burst closes ([`MotionProbe::new`]): each flat pixel's gradient in units of its motion
+//! tolerance, and the edge and anchor samples registration reads.
+
+use rayon::prelude::*;
+
+use super::{GRADIENT_UNITS, MAX_ANCHOR_SAMPLES, MAX_EDGE_SAMPLES, MOTION_TOLERANCE, MotionProbe, thin};
+use crate::calibrate::flat::{FlatReport, Groups, NOT_FLAT};
+use crate::math::fit::poly_eval;
+use crate::math::round::round_half_away;
+use crate::model::layout::{POSITIONS, position};
+
+/// One frame's noise standard deviation at a level and position, as the reference burst measured
+/// it (frame-to-frame differences; for a one-frame burst, the spatial spread of the clean image),
+/// never below a quarter DN (quantisation).
+fn frame_sd(flat: &FlatReport, groups: &Groups, frames: u32, pos: usize, level: f64) -> f64 {
+    let var = if frames >= 2 {
+        flat.mean_noise_at(groups, pos, level) * frames as f64
+    } else {
+        poly_eval(&flat.clean_variance[pos], (level - groups.black[pos] as f64).max(0.0))
+    };
+    var.max(0.0625).sqrt()
+}
+
+/// The gradient of `mean` at `(x, y)` on the pixel's own colour lattice (Sobel over ±2 px,
+/// clamped at the borders), DN per pixel.
+#[inline]
+pub(super) fn sobel(mean: &[u16], w: usize, h: usize, x: usize, y: usize) -> [f64; 2] {
+    let col = |dx: isize| lattice(x, dx, w);
+    let row = |dy: isize| lattice(y, dy, h);
+    let v = |yy: usize, xx: usize| mean[yy * w + xx] as f64;
+    let (xm, xp, ym, yp) = (col(-2), col(2), row(-2), row(2));
+    let dxs = if xp > xm { (xp - xm) as f64 } else { 1.0 };
+    let dys = if yp > ym { (yp - ym) as f64 } else { 1.0 };
+    let gx = (v(ym, xp) - v(ym, xm) + 2.0 * (v(y, xp) - v(y, xm)) + v(yp, xp) - v(yp, xm)) / (4.0 * dxs);
+    let gy = (v(yp, xm) - v(ym, xm) + 2.0 * (v(yp, x) - v(ym, x)) + v(yp, xp) - v(ym, xp)) / (4.0 * dys);
+    [gx, gy]
+}
+
+/// `i + d` kept on `i`'s parity inside `[0, n)`.
+#[inline]
+fn lattice(i: usize, d: isize, n: usize) -> usize {
+    let j = i as isize + d;
+    if j < 0 {
+        i & 1
+    } else if j as usize >= n {
+        let last = n - 1;
+        if last & 1 == i & 1 { last } else { last - 1 }
+    } else {
+        j as usize
+    }
+}
+
+/// One band of rows' edge samples and anchors (pixel, noise SD), as [`MotionProbe::new`] finds them.
+type BandSamples = (Vec<u32>, Vec<(u32, f32)>);
+
+/// One row of a clean image as [`MotionProbe::new`] reads it.
+struct ProbeRow<'a> {
+    mean: &'a [u16],
+    levels: &'a [u16],
+    w: usize,
+    h: usize,
+    y: usize,
+    frames: u32,
+    clip: f32,
+    tolerance: &'a [Vec<f32>; POSITIONS],
+}
+
+impl ProbeRow<'_> {
+    /// The row's gradients (flat pixels), and on a sampled row its edges and anchors in column
+    /// order. Interior pixels take the Sobel without border clamping, the same sums in the same
+    /// order; the rounding and the edge test are `f64::round` and `hypot` exactly, without
+    /// their libm calls.
+    fn fill(&self, grad_row: &mut [[i8; 2]], row_step: usize, edges: &mut Vec<u32>, anchors: &mut Vec<(u32, f32)>) {
+        let Self { mean, levels, w, h, y, frames, clip, tolerance } = *self;
+        let margin = 4;
+        let sampled = (y / 2) % row_step == 0 && y >= margin && y + margin < h;
+        let inner_row = y >= 2 && y + 2 < h;
+        for (x, gradient) in grad_row.iter_mut().enumerate() {
+            let i = y * w + x;
+            let pos = position(y, x);
+            let c = levels[i];
+            let need_gradient = c != NOT_FLAT || sampled;
+            if !need_gradient {
+                continue;
+            }
+            let m = mean[i] as f64;
+            let g = if inner_row && x >= 2 && x + 2 < w { sobel_inner(mean, w, x, y) } else { sobel(mean, w, h, x, y) };
+            let sd = tolerance[pos][mean[i] as usize] as f64 / MOTION_TOLERANCE;
+            if c != NOT_FLAT {
+                let tol = MOTION_TOLERANCE * sd;
+                let q = [g[0] / tol * GRADIENT_UNITS as f64, g[1] / tol * GRADIENT_UNITS as f64];
+                *gradient = if q[0].abs() > 127.0 || q[1].abs() > 127.0 {
+                    [i8::MIN, 0]
+                } else {
+                    [round_half_away(q[0]) as i8, round_half_away(q[1]) as i8]
+                };
+            }
+            if sampled && x >= margin && x + margin < w && (m as f32) < clip {
+                // An edge: a gradient far above what the mean's own noise makes (a Sobel
+                // difference of means of `frames` frames has SD ≈ 0.22 · sd / √frames).
+                let noise = 0.22 * sd / (frames.max(1) as f64).sqrt();
+                let threshold = (8.0 * noise).max(0.5);
+                if hypot_above(g, threshold) {
+                    edges.push(i as u32);
+                } else if c != NOT_FLAT {
+                    anchors.push((i as u32, sd as f32));
+                }
+            }
+        }
+    }
+}
+
+/// Whether `hypot(g) > t` (`t > 0`), by the squares where they decide it beyond their rounding,
+/// else by `hypot` itself.
+#[inline]
+fn hypot_above(g: [f64; 2], t: f64) -> bool {
+    let (s, t2) = (g[0] * g[0] + g[1] * g[1], t * t);
+    if s > t2 * (1.0 + 1e-9) {
+        true
+    } else if s < t2 * (1.0 - 1e-9) {
+        false
+    } else {
+        g[0].hypot(g[1]) > t
+    }
+}
+
+/// [`sobel`] for a pixel at least 2 px from every border: no clamping, divisor 16.
+#[inline]
+fn sobel_inner(mean: &[u16], w: usize, x: usize, y: usize) -> [f64; 2] {
+    let v = |yy: usize, xx: usize| mean[yy * w + xx] as f64;
+    let (xm, xp, ym, yp) = (x - 2, x + 2, y - 2, y + 2);
+    let gx = (v(ym, xp) - v(ym, xm) + 2.0 * (v(y, xp) - v(y, xm)) + v(yp, xp) - v(yp, xm)) / 16.0;
+    let gy = (v(yp, xm) - v(ym, xm) + 2.0 * (v(yp, x) - v(ym, x)) + v(yp, xp) - v(ym, xp)) / 16.0;
+    [gx, gy]
+}
+
+impl MotionProbe {
+    /// The probe of a closed reference burst: `mean` is its rounded mean at every pixel,
+    /// `levels` the clean image with [`NOT_FLAT`] where not flat, `flat` what the flat test
+    /// measured, `clip` the level above which values bend.
+    pub fn new(
+        mean: Vec<u16>,
+        levels: &[u16],
+        width: usize,
+        height: usize,
+        frames: u32,
+        flat: &FlatReport,
+        groups: &Groups,
+        clip: f32,
+    ) -> Self {
+        let (w, h) = (width, height);
+        // One frame's noise SD per position and level, looked up per pixel below.
+        let tolerance: [Vec<f32>; POSITIONS] = std::array::from_fn(|pos| {
+            (0..=groups.white as usize)
+                .map(|l| (MOTION_TOLERANCE * frame_sd(flat, groups, frames, pos, l as f64)) as f32)
+                .collect()
+        });
+        let mut gradient = vec![[0i8; 2]; w * h];
+        // Registration reads every fourth row pair of large frames.
+        let row_step = if h > 512 { 4 } else { 1 };
+        // Bands of rows in parallel, their edges and anchors joined in row order.
+        let band_rows = 64;
+        let bands: Vec<BandSamples> = gradient
+            .par_chunks_mut(band_rows * w.max(1))
+            .enumerate()
+            .map(|(b, rows)| {
+                let mut edges: Vec<u32> = Vec::new();
+                let mut anchors: Vec<(u32, f32)> = Vec::new();
+                for (dy, grad_row) in rows.chunks_mut(w.max(1)).enumerate() {
+                    let y = b * band_rows + dy;
+                    let probe = ProbeRow { mean: &mean, levels, w, h, y, frames, clip, tolerance: &tolerance };
+                    probe.fill(grad_row, row_step, &mut edges, &mut anchors);
+                }
+                (edges, anchors)
+            })
+            .collect();
+        let edges: Vec<u32> = bands.iter().flat_map(|b| b.0.iter().copied()).collect();
+        let anchors: Vec<(u32, f32)> = bands.into_iter().flat_map(|b| b.1).collect();
+        let mut samples: Vec<u32> = thin(edges, MAX_EDGE_SAMPLES);
+        let anchors_from = samples.len();
+        let anchors = thin(anchors, MAX_ANCHOR_SAMPLES);
+        samples.extend(anchors.iter().map(|a| a.0));
+        let anchor_sd: Vec<f32> = anchors.iter().map(|a| a.1).collect();
+        Self { mean, samples, anchors_from, anchor_sd, gradient, tolerance }
+    }
+}
