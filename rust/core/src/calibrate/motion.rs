@@ -28,12 +28,6 @@ use crate::math::stats::median;
 use crate::model::layout::{POSITIONS, position};
 use robust::{Row, demean_rows, median_in_place, robust_weights, tukey};
 
-/// A flat pixel is left out of a frame when the frame's motion changes its clean level by more
-/// than this many standard deviations of one frame's noise at its level (a motion error of at
-/// most a quarter SD adds at most 6 % to the variance of the pixels kept, and on average far
-/// less: most kept pixels are far from edges).
-pub const MOTION_TOLERANCE: f64 = 0.25;
-
 /// A frame that moved further than this (pixels, anywhere in the image) against its reference
 /// burst is refused: a sturdier mount, OIS off or a remote trigger is needed.
 pub const MAX_MOTION_PX: f64 = 2.0;
@@ -48,45 +42,8 @@ pub const RETAKE_MOTION_PX: f64 = 0.3;
 /// Below this (pixels, anywhere in the image) a frame's motion changes nothing worth a pass.
 pub const NEGLIGIBLE_MOTION_PX: f64 = 0.005;
 
-/// Gradients are stored in units of `tolerance / GRADIENT_UNITS` per pixel: an i8 then holds
-/// up to 16 tolerances (4 SD of a reference frame's noise) per pixel, more than the flat test
-/// lets a flat pixel have, at a resolution that misjudges a 2 px motion by at most 1/8 of the
-/// tolerance.
-const GRADIENT_UNITS: f32 = 8.0;
-
-/// Most edge samples a registration reads (a shift's standard error goes with one over the root
-/// of their number: at 4 096 edges of 20 σ/px it is about 10⁻³ px).
-const MAX_EDGE_SAMPLES: usize = 4_096;
-
-/// Most anchor samples (flat pixels: they pin each position's gain and offset, and measure how
-/// noisy the frame is).
-const MAX_ANCHOR_SAMPLES: usize = 1_024;
-
 /// Gauss–Newton iterations at most (sub-pixel motions converge in 2–4).
 const MAX_ITERATIONS: usize = 6;
-
-/// What registration and the motion test read of a clean image.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct MotionProbe {
-    /// The burst's mean, rounded, at every pixel (the clean image without its flat mask).
-    pub mean: Vec<u16>,
-    /// Pixels registration reads (row-major indices): strong edges, then flat anchors.
-    pub samples: Vec<u32>,
-    /// The first anchor in `samples` (the edges come before it).
-    pub anchors_from: usize,
-    /// Per anchor, one reference frame's noise SD at its level (DN): a target frame's anchors
-    /// measure how much noisier it is.
-    pub anchor_sd: Vec<f32>,
-    /// Per pixel, the clean level's gradient `[∂x, ∂y]` in units of the pixel's tolerance
-    /// ([`MOTION_TOLERANCE`] SD of one frame's noise at its level) per 8 px: a shift `u`
-    /// changes the pixel by more than its tolerance when `|g · u| > 8`. `[i8::MIN, 0]` where the
-    /// gradient is beyond the range (more than 16 tolerances per pixel); `[0, 0]` for pixels not
-    /// flat.
-    pub gradient: Vec<[i8; 2]>,
-    /// Per position and clean level, the tolerance (DN): [`MOTION_TOLERANCE`] SD of one
-    /// reference frame's noise there.
-    pub tolerance: [Vec<f32>; POSITIONS],
-}
 
 /// One frame of samples for registration: frame value, position, pixel coordinates.
 struct Sample {
@@ -213,15 +170,6 @@ impl MotionProbe {
         let squares = ((1.0 - a).powi(2) + a * a) * ((1.0 - b).powi(2) + b * b);
         (value, [gx, gy], squares)
     }
-}
-
-/// Every k-th of `v` so that at most `max` remain.
-fn thin<T>(v: Vec<T>, max: usize) -> Vec<T> {
-    if v.len() <= max {
-        return v;
-    }
-    let k = v.len().div_ceil(max);
-    v.into_iter().step_by(k).collect()
 }
 
 /// Parameters: 6 of the motion field, then gain and offset per position.
@@ -642,6 +590,8 @@ fn with_noise_scale(mut f: Fit) -> Fit {
 }
 
 mod probe;
+use probe::GRADIENT_UNITS;
+pub use probe::{MOTION_TOLERANCE, MotionProbe};
 mod robust;
 #[cfg(test)]
 mod still_charts;

@@ -3,12 +3,55 @@
 //! tolerance, and the edge and anchor samples registration reads.
 
 use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
 
-use super::{GRADIENT_UNITS, MAX_ANCHOR_SAMPLES, MAX_EDGE_SAMPLES, MOTION_TOLERANCE, MotionProbe, thin};
 use crate::calibrate::flat::{FlatReport, Groups, NOT_FLAT};
 use crate::math::fit::poly_eval;
 use crate::math::round::round_half_away;
 use crate::model::layout::{POSITIONS, position};
+
+/// A flat pixel is left out of a frame when the frame's motion changes its clean level by more
+/// than this many standard deviations of one frame's noise at its level (a motion error of at
+/// most a quarter SD adds at most 6 % to the variance of the pixels kept, and on average far
+/// less: most kept pixels are far from edges).
+pub const MOTION_TOLERANCE: f64 = 0.25;
+
+/// Gradients are stored in units of `tolerance / GRADIENT_UNITS` per pixel: an i8 then holds
+/// up to 16 tolerances (4 SD of a reference frame's noise) per pixel, more than the flat test
+/// lets a flat pixel have, at a resolution that misjudges a 2 px motion by at most 1/8 of the
+/// tolerance.
+pub(super) const GRADIENT_UNITS: f32 = 8.0;
+
+/// Most edge samples a registration reads (a shift's standard error goes with one over the root
+/// of their number: at 4 096 edges of 20 σ/px it is about 10⁻³ px).
+const MAX_EDGE_SAMPLES: usize = 4_096;
+
+/// Most anchor samples (flat pixels: they pin each position's gain and offset, and measure how
+/// noisy the frame is).
+const MAX_ANCHOR_SAMPLES: usize = 1_024;
+
+/// What registration and the motion test read of a clean image.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MotionProbe {
+    /// The burst's mean, rounded, at every pixel (the clean image without its flat mask).
+    pub mean: Vec<u16>,
+    /// Pixels registration reads (row-major indices): strong edges, then flat anchors.
+    pub samples: Vec<u32>,
+    /// The first anchor in `samples` (the edges come before it).
+    pub anchors_from: usize,
+    /// Per anchor, one reference frame's noise SD at its level (DN): a target frame's anchors
+    /// measure how much noisier it is.
+    pub anchor_sd: Vec<f32>,
+    /// Per pixel, the clean level's gradient `[∂x, ∂y]` in units of the pixel's tolerance
+    /// ([`MOTION_TOLERANCE`] SD of one frame's noise at its level) per 8 px: a shift `u`
+    /// changes the pixel by more than its tolerance when `|g · u| > 8`. `[i8::MIN, 0]` where the
+    /// gradient is beyond the range (more than 16 tolerances per pixel); `[0, 0]` for pixels not
+    /// flat.
+    pub gradient: Vec<[i8; 2]>,
+    /// Per position and clean level, the tolerance (DN): [`MOTION_TOLERANCE`] SD of one
+    /// reference frame's noise there.
+    pub tolerance: [Vec<f32>; POSITIONS],
+}
 
 /// One frame's noise standard deviation at a level and position, as the reference burst measured
 /// it (frame-to-frame differences; for a one-frame burst, the spatial spread of the clean image),
@@ -184,4 +227,13 @@ impl MotionProbe {
         let anchor_sd: Vec<f32> = anchors.iter().map(|a| a.1).collect();
         Self { mean, samples, anchors_from, anchor_sd, gradient, tolerance }
     }
+}
+
+/// Every k-th of `v` so that at most `max` remain.
+fn thin<T>(v: Vec<T>, max: usize) -> Vec<T> {
+    if v.len() <= max {
+        return v;
+    }
+    let k = v.len().div_ceil(max);
+    v.into_iter().step_by(k).collect()
 }
