@@ -96,7 +96,7 @@ mod tests {
             let mut sums: Vec<u32> = (0..50_000).map(|_| rng.next_u32()).collect();
             for k in [0u64, 1, 7, 1000, 65_534, 65_535] {
                 let half = k * 2 * m as u64 + m as u64; // 2s = (2k + 1)·m
-                if half % 2 == 0 && half / 2 <= u32::MAX as u64 {
+                if half.is_multiple_of(2) && half / 2 <= u32::MAX as u64 {
                     let s = (half / 2) as u32;
                     sums.extend([s.saturating_sub(1), s, s.saturating_add(1)]);
                     halves += 1;
