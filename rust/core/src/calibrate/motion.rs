@@ -20,21 +20,13 @@
 use serde::{Deserialize, Serialize};
 
 use crate::calibrate::drift::Transform;
-use crate::calibrate::flat::{FlatReport, Groups, NOT_FLAT};
+use crate::calibrate::flat::NOT_FLAT;
 use crate::calibrate::frame::FrameView;
-use crate::math::fit::{invert, poly_eval, solve};
-use crate::math::round::round_half_away;
+use crate::math::fit::{invert, solve};
 use crate::math::stats::median;
-use rayon::prelude::*;
 
 use crate::model::layout::{POSITIONS, position};
 use robust::{Row, demean_rows, median_in_place, robust_weights, tukey};
-
-/// A flat pixel is left out of a frame when the frame's motion changes its clean level by more
-/// than this many standard deviations of one frame's noise at its level (a motion error of at
-/// most a quarter SD adds at most 6 % to the variance of the pixels kept, and on average far
-/// less: most kept pixels are far from edges).
-pub const MOTION_TOLERANCE: f64 = 0.25;
 
 /// A frame that moved further than this (pixels, anywhere in the image) against its reference
 /// burst is refused: a sturdier mount, OIS off or a remote trigger is needed.
@@ -50,45 +42,8 @@ pub const RETAKE_MOTION_PX: f64 = 0.3;
 /// Below this (pixels, anywhere in the image) a frame's motion changes nothing worth a pass.
 pub const NEGLIGIBLE_MOTION_PX: f64 = 0.005;
 
-/// Gradients are stored in units of `tolerance / GRADIENT_UNITS` per pixel: an i8 then holds
-/// up to 16 tolerances (4 SD of a reference frame's noise) per pixel, more than the flat test
-/// lets a flat pixel have, at a resolution that misjudges a 2 px motion by at most 1/8 of the
-/// tolerance.
-const GRADIENT_UNITS: f32 = 8.0;
-
-/// Most edge samples a registration reads (a shift's standard error goes with one over the root
-/// of their number: at 4 096 edges of 20 σ/px it is about 10⁻³ px).
-const MAX_EDGE_SAMPLES: usize = 4_096;
-
-/// Most anchor samples (flat pixels: they pin each position's gain and offset, and measure how
-/// noisy the frame is).
-const MAX_ANCHOR_SAMPLES: usize = 1_024;
-
 /// Gauss–Newton iterations at most (sub-pixel motions converge in 2–4).
 const MAX_ITERATIONS: usize = 6;
-
-/// What registration and the motion test read of a clean image.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct MotionProbe {
-    /// The burst's mean, rounded, at every pixel (the clean image without its flat mask).
-    pub mean: Vec<u16>,
-    /// Pixels registration reads (row-major indices): strong edges, then flat anchors.
-    pub samples: Vec<u32>,
-    /// The first anchor in `samples` (the edges come before it).
-    pub anchors_from: usize,
-    /// Per anchor, one reference frame's noise SD at its level (DN): a target frame's anchors
-    /// measure how much noisier it is.
-    pub anchor_sd: Vec<f32>,
-    /// Per pixel, the clean level's gradient `[∂x, ∂y]` in units of the pixel's tolerance
-    /// ([`MOTION_TOLERANCE`] SD of one frame's noise at its level) per 8 px: a shift `u`
-    /// changes the pixel by more than its tolerance when `|g · u| > 8`. `[i8::MIN, 0]` where the
-    /// gradient is beyond the range (more than 16 tolerances per pixel); `[0, 0]` for pixels not
-    /// flat.
-    pub gradient: Vec<[i8; 2]>,
-    /// Per position and clean level, the tolerance (DN): [`MOTION_TOLERANCE`] SD of one
-    /// reference frame's noise there.
-    pub tolerance: [Vec<f32>; POSITIONS],
-}
 
 /// One frame of samples for registration: frame value, position, pixel coordinates.
 struct Sample {
@@ -188,181 +143,7 @@ impl FrameMotion {
     }
 }
 
-/// One frame's noise standard deviation at a level and position, as the reference burst measured
-/// it (frame-to-frame differences; for a one-frame burst, the spatial spread of the clean image),
-/// never below a quarter DN (quantisation).
-fn frame_sd(flat: &FlatReport, groups: &Groups, frames: u32, pos: usize, level: f64) -> f64 {
-    let var = if frames >= 2 {
-        flat.mean_noise_at(groups, pos, level) * frames as f64
-    } else {
-        poly_eval(&flat.clean_variance[pos], (level - groups.black[pos] as f64).max(0.0))
-    };
-    var.max(0.0625).sqrt()
-}
-
-/// The gradient of `mean` at `(x, y)` on the pixel's own colour lattice (Sobel over ±2 px,
-/// clamped at the borders), DN per pixel.
-#[inline]
-fn sobel(mean: &[u16], w: usize, h: usize, x: usize, y: usize) -> [f64; 2] {
-    let col = |dx: isize| lattice(x, dx, w);
-    let row = |dy: isize| lattice(y, dy, h);
-    let v = |yy: usize, xx: usize| mean[yy * w + xx] as f64;
-    let (xm, xp, ym, yp) = (col(-2), col(2), row(-2), row(2));
-    let dxs = if xp > xm { (xp - xm) as f64 } else { 1.0 };
-    let dys = if yp > ym { (yp - ym) as f64 } else { 1.0 };
-    let gx = (v(ym, xp) - v(ym, xm) + 2.0 * (v(y, xp) - v(y, xm)) + v(yp, xp) - v(yp, xm)) / (4.0 * dxs);
-    let gy = (v(yp, xm) - v(ym, xm) + 2.0 * (v(yp, x) - v(ym, x)) + v(yp, xp) - v(ym, xp)) / (4.0 * dys);
-    [gx, gy]
-}
-
-/// `i + d` kept on `i`'s parity inside `[0, n)`.
-#[inline]
-fn lattice(i: usize, d: isize, n: usize) -> usize {
-    let j = i as isize + d;
-    if j < 0 {
-        i & 1
-    } else if j as usize >= n {
-        let last = n - 1;
-        if last & 1 == i & 1 { last } else { last - 1 }
-    } else {
-        j as usize
-    }
-}
-
-/// One band of rows' edge samples and anchors (pixel, noise SD), as [`MotionProbe::new`] finds them.
-type BandSamples = (Vec<u32>, Vec<(u32, f32)>);
-
-/// One row of a clean image as [`MotionProbe::new`] reads it.
-struct ProbeRow<'a> {
-    mean: &'a [u16],
-    levels: &'a [u16],
-    w: usize,
-    h: usize,
-    y: usize,
-    frames: u32,
-    clip: f32,
-    tolerance: &'a [Vec<f32>; POSITIONS],
-}
-
-impl ProbeRow<'_> {
-    /// The row's gradients (flat pixels), and on a sampled row its edges and anchors in column
-    /// order. Interior pixels take the Sobel without border clamping, the same sums in the same
-    /// order; the rounding and the edge test are `f64::round` and `hypot` exactly, without
-    /// their libm calls.
-    fn fill(&self, grad_row: &mut [[i8; 2]], row_step: usize, edges: &mut Vec<u32>, anchors: &mut Vec<(u32, f32)>) {
-        let Self { mean, levels, w, h, y, frames, clip, tolerance } = *self;
-        let margin = 4;
-        let sampled = (y / 2) % row_step == 0 && y >= margin && y + margin < h;
-        let inner_row = y >= 2 && y + 2 < h;
-        for (x, gradient) in grad_row.iter_mut().enumerate() {
-            let i = y * w + x;
-            let pos = position(y, x);
-            let c = levels[i];
-            let need_gradient = c != NOT_FLAT || sampled;
-            if !need_gradient {
-                continue;
-            }
-            let m = mean[i] as f64;
-            let g = if inner_row && x >= 2 && x + 2 < w { sobel_inner(mean, w, x, y) } else { sobel(mean, w, h, x, y) };
-            let sd = tolerance[pos][mean[i] as usize] as f64 / MOTION_TOLERANCE;
-            if c != NOT_FLAT {
-                let tol = MOTION_TOLERANCE * sd;
-                let q = [g[0] / tol * GRADIENT_UNITS as f64, g[1] / tol * GRADIENT_UNITS as f64];
-                *gradient = if q[0].abs() > 127.0 || q[1].abs() > 127.0 {
-                    [i8::MIN, 0]
-                } else {
-                    [round_half_away(q[0]) as i8, round_half_away(q[1]) as i8]
-                };
-            }
-            if sampled && x >= margin && x + margin < w && (m as f32) < clip {
-                // An edge: a gradient far above what the mean's own noise makes (a Sobel
-                // difference of means of `frames` frames has SD ≈ 0.22 · sd / √frames).
-                let noise = 0.22 * sd / (frames.max(1) as f64).sqrt();
-                let threshold = (8.0 * noise).max(0.5);
-                if hypot_above(g, threshold) {
-                    edges.push(i as u32);
-                } else if c != NOT_FLAT {
-                    anchors.push((i as u32, sd as f32));
-                }
-            }
-        }
-    }
-}
-
-/// Whether `hypot(g) > t` (`t > 0`), by the squares where they decide it beyond their rounding,
-/// else by `hypot` itself.
-#[inline]
-fn hypot_above(g: [f64; 2], t: f64) -> bool {
-    let (s, t2) = (g[0] * g[0] + g[1] * g[1], t * t);
-    if s > t2 * (1.0 + 1e-9) {
-        true
-    } else if s < t2 * (1.0 - 1e-9) {
-        false
-    } else {
-        g[0].hypot(g[1]) > t
-    }
-}
-
-/// [`sobel`] for a pixel at least 2 px from every border: no clamping, divisor 16.
-#[inline]
-fn sobel_inner(mean: &[u16], w: usize, x: usize, y: usize) -> [f64; 2] {
-    let v = |yy: usize, xx: usize| mean[yy * w + xx] as f64;
-    let (xm, xp, ym, yp) = (x - 2, x + 2, y - 2, y + 2);
-    let gx = (v(ym, xp) - v(ym, xm) + 2.0 * (v(y, xp) - v(y, xm)) + v(yp, xp) - v(yp, xm)) / 16.0;
-    let gy = (v(yp, xm) - v(ym, xm) + 2.0 * (v(yp, x) - v(ym, x)) + v(yp, xp) - v(ym, xp)) / 16.0;
-    [gx, gy]
-}
-
 impl MotionProbe {
-    /// The probe of a closed reference burst: `mean` is its rounded mean at every pixel,
-    /// `levels` the clean image with [`NOT_FLAT`] where not flat, `flat` what the flat test
-    /// measured, `clip` the level above which values bend.
-    pub fn new(
-        mean: Vec<u16>,
-        levels: &[u16],
-        width: usize,
-        height: usize,
-        frames: u32,
-        flat: &FlatReport,
-        groups: &Groups,
-        clip: f32,
-    ) -> Self {
-        let (w, h) = (width, height);
-        // One frame's noise SD per position and level, looked up per pixel below.
-        let tolerance: [Vec<f32>; POSITIONS] = std::array::from_fn(|pos| {
-            (0..=groups.white as usize)
-                .map(|l| (MOTION_TOLERANCE * frame_sd(flat, groups, frames, pos, l as f64)) as f32)
-                .collect()
-        });
-        let mut gradient = vec![[0i8; 2]; w * h];
-        // Registration reads every fourth row pair of large frames.
-        let row_step = if h > 512 { 4 } else { 1 };
-        // Bands of rows in parallel, their edges and anchors joined in row order.
-        let band_rows = 64;
-        let bands: Vec<BandSamples> = gradient
-            .par_chunks_mut(band_rows * w.max(1))
-            .enumerate()
-            .map(|(b, rows)| {
-                let mut edges: Vec<u32> = Vec::new();
-                let mut anchors: Vec<(u32, f32)> = Vec::new();
-                for (dy, grad_row) in rows.chunks_mut(w.max(1)).enumerate() {
-                    let y = b * band_rows + dy;
-                    let probe = ProbeRow { mean: &mean, levels, w, h, y, frames, clip, tolerance: &tolerance };
-                    probe.fill(grad_row, row_step, &mut edges, &mut anchors);
-                }
-                (edges, anchors)
-            })
-            .collect();
-        let edges: Vec<u32> = bands.iter().flat_map(|b| b.0.iter().copied()).collect();
-        let anchors: Vec<(u32, f32)> = bands.into_iter().flat_map(|b| b.1).collect();
-        let mut samples: Vec<u32> = thin(edges, MAX_EDGE_SAMPLES);
-        let anchors_from = samples.len();
-        let anchors = thin(anchors, MAX_ANCHOR_SAMPLES);
-        samples.extend(anchors.iter().map(|a| a.0));
-        let anchor_sd: Vec<f32> = anchors.iter().map(|a| a.1).collect();
-        Self { mean, samples, anchors_from, anchor_sd, gradient, tolerance }
-    }
-
     /// The mean and its gradient at `(x + ux, y + uy)` on the colour lattice of `(x, y)`
     /// (bilinear between the four nearest same-colour pixels), and the sum of the four
     /// weights' squares (the share of one mean pixel's noise variance the value holds: 1 on a
@@ -389,15 +170,6 @@ impl MotionProbe {
         let squares = ((1.0 - a).powi(2) + a * a) * ((1.0 - b).powi(2) + b * b);
         (value, [gx, gy], squares)
     }
-}
-
-/// Every k-th of `v` so that at most `max` remain.
-fn thin<T>(v: Vec<T>, max: usize) -> Vec<T> {
-    if v.len() <= max {
-        return v;
-    }
-    let k = v.len().div_ceil(max);
-    v.into_iter().step_by(k).collect()
 }
 
 /// Parameters: 6 of the motion field, then gain and offset per position.
@@ -817,13 +589,18 @@ fn with_noise_scale(mut f: Fit) -> Fit {
     f
 }
 
+mod probe;
+use probe::GRADIENT_UNITS;
+pub use probe::{MOTION_TOLERANCE, MotionProbe};
 mod robust;
 #[cfg(test)]
 mod still_charts;
 
 #[cfg(test)]
 mod tests {
+    use super::probe::sobel;
     use super::*;
+    use crate::calibrate::flat::{FlatReport, Groups};
     use crate::model::layout::SensorLayout;
 
     /// A smooth test scene: a grid of blurred rectangular patches (edges in x and y, a row

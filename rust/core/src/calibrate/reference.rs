@@ -21,7 +21,7 @@ use crate::calibrate::line_base::LineBaseCache;
 use crate::calibrate::meta::FrameMeta;
 use crate::calibrate::motion::MotionProbe;
 use crate::error::SessionError;
-use crate::math::round::round_half_away;
+use crate::math::round::RoundedQuotient;
 use crate::model::layout::{Binning, POSITIONS, SensorLayout};
 
 /// The most frames one burst takes (its sums are u32).
@@ -305,9 +305,10 @@ impl ReferenceBurst {
         let groups = Groups { black: self.layout.black, white: self.layout.white };
         let (selection, level_selection) =
             deselect::bin_sums(&levels, w, NOT_FLAT, |pos, c| flat.mean_noise_at(&groups, pos, c), &luts);
-        let m = self.frames as f64;
-        let mean: Vec<u16> =
-            self.sum.iter().map(|&s| round_half_away(s as f64 / m).clamp(0, self.layout.white as i64) as u16).collect();
+        // `round(sum / frames)`, exactly as the division rounds, without one per pixel.
+        let mean_of = RoundedQuotient::new(self.frames);
+        let white = self.layout.white as i64;
+        let mean: Vec<u16> = self.sum.iter().map(|&s| mean_of.of(s).clamp(0, white) as u16).collect();
         let probe = MotionProbe::new(mean, &levels, w, h, self.frames, &flat, &groups, clip_level(&self.layout));
         Ok(CleanImage {
             levels,

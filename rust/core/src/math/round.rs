@@ -50,6 +50,36 @@ pub fn floor_i64(v: f64) -> i64 {
     t.saturating_sub((t as f64 > v) as i64)
 }
 
+/// `round(s / m)` with halves up, for many `u32` sums `s` over one divisor `m ≥ 1` (a burst's
+/// per-pixel mean): a product gives the quotient to within one, an integer comparison makes it
+/// exact, so no value takes a division. Up to `m = 2¹⁶` this is `round_half_away(s as f64 / m)`
+/// to the bit (a quotient that is not a half-integer lies at least `1/(2m)` from one, far beyond
+/// the division's rounding); beyond that divisor, and for `m = 0`, it is that expression.
+#[derive(Debug, Clone, Copy)]
+pub struct RoundedQuotient {
+    m: u64,
+    inv: f64,
+}
+
+impl RoundedQuotient {
+    pub fn new(m: u32) -> Self {
+        Self { m: m as u64, inv: 1.0 / m as f64 }
+    }
+
+    #[inline(always)]
+    pub fn of(&self, s: u32) -> i64 {
+        if self.m == 0 || self.m > 1 << 16 {
+            return round_half_away(s as f64 / self.m as f64);
+        }
+        // ⌊(2s + m) / 2m⌋: `k` is within one of it (the product is within 10⁻⁶ of s / m), and
+        // `k · 2m` stays below 2⁵¹.
+        let (n, d) = (2 * s as u64 + self.m, 2 * self.m);
+        let k = (s as f64 * self.inv + 0.5) as u64;
+        let k = k - (k * d > n) as u64;
+        (k + ((k + 1) * d <= n) as u64) as i64
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -111,5 +141,38 @@ mod tests {
             assert_eq!(floor_i32(v), v.floor() as i32, "{v:e}");
             assert_eq!(floor_i64(v), v.floor() as i64, "{v:e}");
         }
+    }
+
+    /// `RoundedQuotient` is `round_half_away(s as f64 / m)`: for every divisor up to 64 on
+    /// every sum up to 64·4096 (all the halves), for burst lengths up to 60 000 and the divisors
+    /// past 2¹⁶ on random sums and sums next to halves and to `u32::MAX`.
+    #[test]
+    fn rounded_quotient_is_the_division() {
+        let float = |s: u32, m: u32| round_half_away(s as f64 / m as f64);
+        for m in 1..=64u32 {
+            let r = RoundedQuotient::new(m);
+            for s in 0..=64 * 4096u32 {
+                assert_eq!(r.of(s), float(s, m), "{s} / {m}");
+            }
+        }
+        let mut rng = ChaCha8Rng::seed_from_u64(26);
+        let mut halves = 0;
+        for m in [65u32, 100, 255, 1000, 4097, 60_000, 65_535, 65_536, 65_537, 1 << 20, u32::MAX, 0] {
+            let r = RoundedQuotient::new(m);
+            let mut sums: Vec<u32> = (0..50_000).map(|_| rng.next_u32()).collect();
+            for k in [0u64, 1, 7, 1000, 65_534, 65_535] {
+                let half = k * 2 * m as u64 + m as u64; // 2s = (2k + 1)·m
+                if half.is_multiple_of(2) && half / 2 <= u32::MAX as u64 {
+                    let s = (half / 2) as u32;
+                    sums.extend([s.saturating_sub(1), s, s.saturating_add(1)]);
+                    halves += 1;
+                }
+            }
+            sums.extend([0, 1, u32::MAX - 1, u32::MAX]);
+            for s in sums {
+                assert_eq!(r.of(s), float(s, m), "{s} / {m}");
+            }
+        }
+        assert!(halves >= 20, "{halves} exact halves");
     }
 }

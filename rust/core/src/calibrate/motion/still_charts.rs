@@ -8,6 +8,7 @@
 //! sensor does.
 
 use super::*;
+use crate::calibrate::flat::{FlatReport, Groups};
 use crate::model::layout::{CfaColor, SensorLayout};
 use crate::{CfaPattern, FrameMeta};
 

@@ -1,0 +1,333 @@
+//! What registration and the motion test read of a clean image, made once when a reference
+//! burst closes ([`MotionProbe::new`]): each flat pixel's gradient in units of its motion
+//! tolerance, and the edge and anchor samples registration reads.
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::calibrate::flat::{FlatReport, Groups, NOT_FLAT};
+use crate::math::fit::poly_eval;
+use crate::math::round::round_half_away;
+use crate::model::layout::{POSITIONS, position};
+
+/// A flat pixel is left out of a frame when the frame's motion changes its clean level by more
+/// than this many standard deviations of one frame's noise at its level (a motion error of at
+/// most a quarter SD adds at most 6 % to the variance of the pixels kept, and on average far
+/// less: most kept pixels are far from edges).
+pub const MOTION_TOLERANCE: f64 = 0.25;
+
+/// Gradients are stored in units of `tolerance / GRADIENT_UNITS` per pixel: an i8 then holds
+/// up to 16 tolerances (4 SD of a reference frame's noise) per pixel, more than the flat test
+/// lets a flat pixel have, at a resolution that misjudges a 2 px motion by at most 1/8 of the
+/// tolerance.
+pub(super) const GRADIENT_UNITS: f32 = 8.0;
+
+/// Most edge samples a registration reads (a shift's standard error goes with one over the root
+/// of their number: at 4 096 edges of 20 σ/px it is about 10⁻³ px).
+const MAX_EDGE_SAMPLES: usize = 4_096;
+
+/// Most anchor samples (flat pixels: they pin each position's gain and offset, and measure how
+/// noisy the frame is).
+const MAX_ANCHOR_SAMPLES: usize = 1_024;
+
+/// What registration and the motion test read of a clean image.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MotionProbe {
+    /// The burst's mean, rounded, at every pixel (the clean image without its flat mask).
+    pub mean: Vec<u16>,
+    /// Pixels registration reads (row-major indices): strong edges, then flat anchors.
+    pub samples: Vec<u32>,
+    /// The first anchor in `samples` (the edges come before it).
+    pub anchors_from: usize,
+    /// Per anchor, one reference frame's noise SD at its level (DN): a target frame's anchors
+    /// measure how much noisier it is.
+    pub anchor_sd: Vec<f32>,
+    /// Per pixel, the clean level's gradient `[∂x, ∂y]` in units of the pixel's tolerance
+    /// ([`MOTION_TOLERANCE`] SD of one frame's noise at its level) per 8 px: a shift `u`
+    /// changes the pixel by more than its tolerance when `|g · u| > 8`. `[i8::MIN, 0]` where the
+    /// gradient is beyond the range (more than 16 tolerances per pixel); `[0, 0]` for pixels not
+    /// flat.
+    pub gradient: Vec<[i8; 2]>,
+    /// Per position and clean level, the tolerance (DN): [`MOTION_TOLERANCE`] SD of one
+    /// reference frame's noise there.
+    pub tolerance: [Vec<f32>; POSITIONS],
+}
+
+/// One frame's noise standard deviation at a level and position, as the reference burst measured
+/// it (frame-to-frame differences; for a one-frame burst, the spatial spread of the clean image),
+/// never below a quarter DN (quantisation).
+fn frame_sd(flat: &FlatReport, groups: &Groups, frames: u32, pos: usize, level: f64) -> f64 {
+    let var = if frames >= 2 {
+        flat.mean_noise_at(groups, pos, level) * frames as f64
+    } else {
+        poly_eval(&flat.clean_variance[pos], (level - groups.black[pos] as f64).max(0.0))
+    };
+    var.max(0.0625).sqrt()
+}
+
+/// The gradient of `mean` at `(x, y)` on the pixel's own colour lattice (Sobel over ±2 px,
+/// clamped at the borders), DN per pixel.
+#[inline]
+pub(super) fn sobel(mean: &[u16], w: usize, h: usize, x: usize, y: usize) -> [f64; 2] {
+    let col = |dx: isize| lattice(x, dx, w);
+    let row = |dy: isize| lattice(y, dy, h);
+    let v = |yy: usize, xx: usize| mean[yy * w + xx] as f64;
+    let (xm, xp, ym, yp) = (col(-2), col(2), row(-2), row(2));
+    let dxs = if xp > xm { (xp - xm) as f64 } else { 1.0 };
+    let dys = if yp > ym { (yp - ym) as f64 } else { 1.0 };
+    let gx = (v(ym, xp) - v(ym, xm) + 2.0 * (v(y, xp) - v(y, xm)) + v(yp, xp) - v(yp, xm)) / (4.0 * dxs);
+    let gy = (v(yp, xm) - v(ym, xm) + 2.0 * (v(yp, x) - v(ym, x)) + v(yp, xp) - v(ym, xp)) / (4.0 * dys);
+    [gx, gy]
+}
+
+/// `i + d` kept on `i`'s parity inside `[0, n)`.
+#[inline]
+fn lattice(i: usize, d: isize, n: usize) -> usize {
+    let j = i as isize + d;
+    if j < 0 {
+        i & 1
+    } else if j as usize >= n {
+        let last = n - 1;
+        if last & 1 == i & 1 { last } else { last - 1 }
+    } else {
+        j as usize
+    }
+}
+
+/// One band of rows' edge samples and anchors (pixel, noise SD), as [`MotionProbe::new`] finds them.
+type BandSamples = (Vec<u32>, Vec<(u32, f32)>);
+
+/// One row of a clean image as [`MotionProbe::new`] reads it.
+struct ProbeRow<'a> {
+    mean: &'a [u16],
+    levels: &'a [u16],
+    w: usize,
+    h: usize,
+    y: usize,
+    frames: u32,
+    clip: f32,
+    tolerance: &'a [Vec<f32>; POSITIONS],
+    /// Per position and level, `GRADIENT_UNITS / tol` ([`quantised`]).
+    units_per_dn: &'a [Vec<f64>; POSITIONS],
+}
+
+impl ProbeRow<'_> {
+    /// The row's gradients (flat pixels), and on a sampled row its edges and anchors in column
+    /// order. Interior pixels take the Sobel without border clamping, the same sums in the same
+    /// order; the rounding and the edge test are `f64::round` and `hypot` exactly, without
+    /// their libm calls.
+    fn fill(&self, grad_row: &mut [[i8; 2]], row_step: usize, edges: &mut Vec<u32>, anchors: &mut Vec<(u32, f32)>) {
+        let Self { mean, levels, w, h, y, frames, clip, tolerance, units_per_dn } = *self;
+        let margin = 4;
+        let sampled = (y / 2) % row_step == 0 && y >= margin && y + margin < h;
+        let inner_row = y >= 2 && y + 2 < h;
+        for (x, gradient) in grad_row.iter_mut().enumerate() {
+            let i = y * w + x;
+            let pos = position(y, x);
+            let c = levels[i];
+            let need_gradient = c != NOT_FLAT || sampled;
+            if !need_gradient {
+                continue;
+            }
+            let m = mean[i] as f64;
+            let g = if inner_row && x >= 2 && x + 2 < w { sobel_inner(mean, w, x, y) } else { sobel(mean, w, h, x, y) };
+            let sd = tolerance[pos][mean[i] as usize] as f64 / MOTION_TOLERANCE;
+            if c != NOT_FLAT {
+                let tol = MOTION_TOLERANCE * sd;
+                *gradient = quantised(g, tol, units_per_dn[pos][mean[i] as usize]);
+            }
+            if sampled && x >= margin && x + margin < w && (m as f32) < clip {
+                // An edge: a gradient far above what the mean's own noise makes (a Sobel
+                // difference of means of `frames` frames has SD ≈ 0.22 · sd / √frames).
+                let noise = 0.22 * sd / (frames.max(1) as f64).sqrt();
+                let threshold = (8.0 * noise).max(0.5);
+                if hypot_above(g, threshold) {
+                    edges.push(i as u32);
+                } else if c != NOT_FLAT {
+                    anchors.push((i as u32, sd as f32));
+                }
+            }
+        }
+    }
+}
+
+/// The gradient `g` (DN per pixel) in units of `tol / GRADIENT_UNITS`, rounded half away from
+/// zero, `[i8::MIN, 0]` where either component is beyond ±127: `round(g / tol · GRADIENT_UNITS)`
+/// exactly. The product with `per_dn` (`GRADIENT_UNITS / tol`, rounded) is within a few units
+/// in the last place of that quotient (under 10⁻¹³ below 128), so wherever it lies further than
+/// [`QUANTISE_MARGIN`] from every half-integer and from ±127 it rounds and range-tests as the
+/// quotient does; the rare values that close are decided by the division itself. Two
+/// multiplications instead of two divisions per flat pixel of a 12 MP clean image.
+#[inline]
+fn quantised(g: [f64; 2], tol: f64, per_dn: f64) -> [i8; 2] {
+    const LIMIT: f64 = 127.0;
+    let p = [g[0] * per_dn, g[1] * per_dn];
+    let a = [p[0].abs(), p[1].abs()];
+    if a[0] > LIMIT + QUANTISE_MARGIN || a[1] > LIMIT + QUANTISE_MARGIN {
+        return [i8::MIN, 0];
+    }
+    // Below 128 in magnitude: truncation and its fraction are exact, and nothing saturates.
+    let t = [p[0] as i64, p[1] as i64];
+    let f = [p[0] - t[0] as f64, p[1] - t[1] as f64];
+    let near = |a: f64, f: f64| (a - LIMIT).abs() <= QUANTISE_MARGIN || (f.abs() - 0.5).abs() <= QUANTISE_MARGIN;
+    if near(a[0], f[0]) || near(a[1], f[1]) {
+        let q = [g[0] / tol * GRADIENT_UNITS as f64, g[1] / tol * GRADIENT_UNITS as f64];
+        return if q[0].abs() > LIMIT || q[1].abs() > LIMIT {
+            [i8::MIN, 0]
+        } else {
+            [round_half_away(q[0]) as i8, round_half_away(q[1]) as i8]
+        };
+    }
+    let round = |t: i64, f: f64| (t + (f > 0.5) as i64 - (f < -0.5) as i64) as i8;
+    [round(t[0], f[0]), round(t[1], f[1])]
+}
+
+/// How close to a rounding boundary (DN in gradient units) [`quantised`]'s product may come
+/// before the division decides: far above the product's error, far below any spacing of
+/// values that matters.
+const QUANTISE_MARGIN: f64 = 1e-9;
+
+/// Whether `hypot(g) > t` (`t > 0`), by the squares where they decide it beyond their rounding,
+/// else by `hypot` itself.
+#[inline]
+fn hypot_above(g: [f64; 2], t: f64) -> bool {
+    let (s, t2) = (g[0] * g[0] + g[1] * g[1], t * t);
+    if s > t2 * (1.0 + 1e-9) {
+        true
+    } else if s < t2 * (1.0 - 1e-9) {
+        false
+    } else {
+        g[0].hypot(g[1]) > t
+    }
+}
+
+/// [`sobel`] for a pixel at least 2 px from every border: no clamping, divisor 16.
+#[inline]
+fn sobel_inner(mean: &[u16], w: usize, x: usize, y: usize) -> [f64; 2] {
+    let v = |yy: usize, xx: usize| mean[yy * w + xx] as f64;
+    let (xm, xp, ym, yp) = (x - 2, x + 2, y - 2, y + 2);
+    let gx = (v(ym, xp) - v(ym, xm) + 2.0 * (v(y, xp) - v(y, xm)) + v(yp, xp) - v(yp, xm)) / 16.0;
+    let gy = (v(yp, xm) - v(ym, xm) + 2.0 * (v(yp, x) - v(ym, x)) + v(yp, xp) - v(ym, xp)) / 16.0;
+    [gx, gy]
+}
+
+impl MotionProbe {
+    /// The probe of a closed reference burst: `mean` is its rounded mean at every pixel,
+    /// `levels` the clean image with [`NOT_FLAT`] where not flat, `flat` what the flat test
+    /// measured, `clip` the level above which values bend.
+    pub fn new(
+        mean: Vec<u16>,
+        levels: &[u16],
+        width: usize,
+        height: usize,
+        frames: u32,
+        flat: &FlatReport,
+        groups: &Groups,
+        clip: f32,
+    ) -> Self {
+        let (w, h) = (width, height);
+        // One frame's noise SD per position and level, looked up per pixel below.
+        let tolerance: [Vec<f32>; POSITIONS] = std::array::from_fn(|pos| {
+            (0..=groups.white as usize)
+                .map(|l| (MOTION_TOLERANCE * frame_sd(flat, groups, frames, pos, l as f64)) as f32)
+                .collect()
+        });
+        let units_per_dn: [Vec<f64>; POSITIONS] = std::array::from_fn(|pos| {
+            tolerance[pos]
+                .iter()
+                .map(|&t| GRADIENT_UNITS as f64 / (MOTION_TOLERANCE * (t as f64 / MOTION_TOLERANCE)))
+                .collect()
+        });
+        let mut gradient = vec![[0i8; 2]; w * h];
+        // Registration reads every fourth row pair of large frames.
+        let row_step = if h > 512 { 4 } else { 1 };
+        // Bands of rows in parallel, their edges and anchors joined in row order.
+        let band_rows = 64;
+        let bands: Vec<BandSamples> = gradient
+            .par_chunks_mut(band_rows * w.max(1))
+            .enumerate()
+            .map(|(b, rows)| {
+                let mut edges: Vec<u32> = Vec::new();
+                let mut anchors: Vec<(u32, f32)> = Vec::new();
+                for (dy, grad_row) in rows.chunks_mut(w.max(1)).enumerate() {
+                    let y = b * band_rows + dy;
+                    let probe = ProbeRow {
+                        mean: &mean,
+                        levels,
+                        w,
+                        h,
+                        y,
+                        frames,
+                        clip,
+                        tolerance: &tolerance,
+                        units_per_dn: &units_per_dn,
+                    };
+                    probe.fill(grad_row, row_step, &mut edges, &mut anchors);
+                }
+                (edges, anchors)
+            })
+            .collect();
+        let edges: Vec<u32> = bands.iter().flat_map(|b| b.0.iter().copied()).collect();
+        let anchors: Vec<(u32, f32)> = bands.into_iter().flat_map(|b| b.1).collect();
+        let mut samples: Vec<u32> = thin(edges, MAX_EDGE_SAMPLES);
+        let anchors_from = samples.len();
+        let anchors = thin(anchors, MAX_ANCHOR_SAMPLES);
+        samples.extend(anchors.iter().map(|a| a.0));
+        let anchor_sd: Vec<f32> = anchors.iter().map(|a| a.1).collect();
+        Self { mean, samples, anchors_from, anchor_sd, gradient, tolerance }
+    }
+}
+
+/// Every k-th of `v` so that at most `max` remain.
+fn thin<T>(v: Vec<T>, max: usize) -> Vec<T> {
+    if v.len() <= max {
+        return v;
+    }
+    let k = v.len().div_ceil(max);
+    v.into_iter().step_by(k).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// The division `quantised` stands for.
+    fn divided(g: [f64; 2], tol: f64) -> [i8; 2] {
+        let q = [g[0] / tol * GRADIENT_UNITS as f64, g[1] / tol * GRADIENT_UNITS as f64];
+        if q[0].abs() > 127.0 || q[1].abs() > 127.0 {
+            [i8::MIN, 0]
+        } else {
+            [round_half_away(q[0]) as i8, round_half_away(q[1]) as i8]
+        }
+    }
+
+    /// `quantised` is the division exactly: on every Sobel value (sixteenths of a DN) up to
+    /// ±40 DN/px against tolerances that are powers of two (the quotients then hit half-integers
+    /// and ±127 exactly: the division's path), tolerances a frame's noise gives (an f32 times a
+    /// quarter), and random ones; each component against the other's extremes.
+    #[test]
+    fn quantised_is_the_division() {
+        let mut rng = ChaCha8Rng::seed_from_u64(26);
+        let mut tols: Vec<f64> = vec![0.0625, 0.125, 0.25, 0.5, 1.0, 2.0, 0.75, 1.5, 3.0, 0.3];
+        tols.extend((0..40).map(|_| (rng.random_range(0.25f64..60.0) as f32) as f64 * MOTION_TOLERANCE));
+        let (mut checked, mut at_boundary) = (0u64, 0u64);
+        for &tol in &tols {
+            let per_dn = GRADIENT_UNITS as f64 / tol;
+            for s in -640i32..=640 {
+                let g0 = s as f64 / 16.0;
+                for g1 in [0.0, g0, -g0, 1.0 / 16.0, 40.0, -40.0] {
+                    for g in [[g0, g1], [g1, g0]] {
+                        assert_eq!(quantised(g, tol, per_dn), divided(g, tol), "g {g:?}, tol {tol}");
+                        checked += 1;
+                        let q = g[0] / tol * GRADIENT_UNITS as f64;
+                        at_boundary += (q.abs() == 127.0 || (q.abs().fract() == 0.5)) as u64;
+                    }
+                }
+            }
+        }
+        assert!(checked > 500_000, "{checked}");
+        assert!(at_boundary > 1_000, "only {at_boundary} values on a rounding boundary");
+    }
+}
