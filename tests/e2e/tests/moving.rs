@@ -260,11 +260,77 @@ fn motion_between_frames_is_not_measured_as_noise() {
             v.last().copied().unwrap_or(f64::NAN)
         );
     }
+    print_audit(&outcomes);
     println!("{judged} (ISO, EV step) pairs judged, {} failures", failures.len());
     if std::env::var("NOISECAL_SEEDS").is_err() {
         assert!(judged >= 60, "too few pairs judged: {judged}");
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// One pair's figure in the audit summary: |ln| of the ratio, the ratio, where.
+type Scored = (f64, f64, String);
+
+/// How many of `scored` lie beyond `bound` (as a ratio, either side), and beyond it plus
+/// `slack_sd` of each pair's own sampling SD in log; the three farthest pairs.
+fn audit_line(name: &str, bound: f64, slack_sd: f64, scored: &mut [(Scored, f64)]) {
+    let beyond = scored.iter().filter(|((l, _, _), _)| *l > bound.ln()).count();
+    let beyond_slack = scored.iter().filter(|((l, _, _), sd)| *l > bound.ln() + slack_sd * sd).count();
+    scored.sort_by(|a, b| b.0.0.total_cmp(&a.0.0));
+    let worst: Vec<String> = scored.iter().take(3).map(|((_, r, at), _)| format!("{r:.3} {at}")).collect();
+    println!(
+        "  {name:<22} beyond {bound:.2}: {beyond:>3} of {:>3}; beyond it + {slack_sd} SD: {beyond_slack:>3}; worst: {}",
+        scored.len(),
+        worst.join(", ")
+    );
+}
+
+/// The audit of the "Done when" bounds over every judged pair, still and moving: variance ratio
+/// (≤ 1.03 still, ≤ 1.10 moving; pairs with at least [`MIN_SAMPLES`]), 0.1 % / 99.9 % tail
+/// ratios (≤ 1.25; at least [`MIN_TAIL_SAMPLES`]), row- and column-mean variance ratios on the
+/// line study's held-out set (≤ 1.2). Counts with and without each pair's sampling slack
+/// (variance: `Moments::var_ratio_se` doubled for heavy tails; lines: `Moments::line_log_sd`);
+/// printed only, the asserts are the study's own.
+fn print_audit(outcomes: &[Outcome]) {
+    println!("audit of the bounds (count beyond / pairs; slack in SD of each pair's own log ratio):");
+    for (k, name) in ["still", "moving"].into_iter().enumerate() {
+        let (mut var, mut tails, mut rows, mut cols) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        for o in outcomes {
+            let (fid, lines) = if k == 0 { (&o.still, &o.still_lines) } else { (&o.moving, &o.moving_lines) };
+            for m in fid.iter().filter(|m| m.samples >= MIN_SAMPLES) {
+                let at = format!("(seed {} ISO {} EV {})", o.seed, m.iso, m.step);
+                let r = m.var_ratio();
+                var.push(((r.ln().abs(), r, at.clone()), 2.0 * m.var_ratio_se()));
+                if m.samples >= MIN_TAIL_SAMPLES {
+                    let (lo, hi) = m.tail_ratios();
+                    // The 0.1 % quantile of a Gaussian: SD sqrt(p/n)/φ(z) against a width of
+                    // z = 3.09 SD, so 3.04/sqrt(n) relative; two independent sides.
+                    let sd = 4.3 / (m.samples as f64).sqrt();
+                    tails.push(((lo.ln().abs(), lo, format!("{at} 0.1 %")), sd));
+                    tails.push(((hi.ln().abs(), hi, format!("{at} 99.9 %")), sd));
+                }
+            }
+            for m in lines {
+                let at = format!("(seed {} ISO {} EV {})", o.seed, m.iso, m.step);
+                let (r, c) = m.line_ratios();
+                let (rs, cs) = m.line_log_sd();
+                if r.is_finite() {
+                    rows.push(((r.ln().abs(), r, at.clone()), rs));
+                }
+                if c.is_finite() {
+                    cols.push(((c.ln().abs(), c, at), cs));
+                }
+            }
+        }
+        println!(" {name}:");
+        audit_line("variance ratio", if k == 0 { 1.03 } else { 1.10 }, 3.0, &mut var);
+        if k == 0 {
+            audit_line("variance ratio", 1.10, 3.0, &mut var);
+        }
+        audit_line("tail ratios", 1.25, 3.0, &mut tails);
+        audit_line("row-mean var ratio", 1.2, LINE_SLACK_SD, &mut rows);
+        audit_line("col-mean var ratio", 1.2, LINE_SLACK_SD, &mut cols);
+    }
 }
 
 /// A target frame that moved further than [`noisecal_core::calibrate::motion::MAX_MOTION_PX`]
