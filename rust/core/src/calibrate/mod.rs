@@ -33,6 +33,8 @@ pub mod reference;
 pub mod session;
 pub mod step;
 pub(crate) mod structure;
+#[cfg(test)]
+mod tests_structure;
 mod window_counts;
 
 pub use event::SessionRecord;

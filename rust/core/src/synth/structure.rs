@@ -355,6 +355,24 @@ fn deconvolve_bin_within(b: &BinModel, k0: i32, kernel: &[f64], max_iterations: 
         (true, true) => (false, true),
         (lo, hi) => (lo, hi),
     };
+    // A clipped bin whose pile is spread over a few cells (its pixels' clean levels a few DN apart
+    // below the clip) with pooled tails past it can have a tail's floor count read as a pile at
+    // the other end, while most of its mass lies within the kernel's reach of this one; the
+    // sensor's clamp holds that pile in place whatever offsets came before it
+    // ([`spread_pile_start`]). Also applied to bins with no end pile at all, it moved the floor
+    // piles of short PMFs near black the wrong way (random sensors 16 and 21: pack / plain 1.25
+    // and 1.97), so only this misreading is taken.
+    let taps = kernel.len().min(n);
+    let total: f64 = pmf.p.iter().sum();
+    let low_mass = pmf.p[..taps].iter().sum::<f64>() / total;
+    let high_mass = pmf.p[n - taps..].iter().sum::<f64>() / total;
+    let misread = (low && high_mass >= 0.5 && low_mass < 0.5) || (high && low_mass >= 0.5 && high_mass < 0.5);
+    if b.clipped
+        && misread
+        && let Some(start) = spread_pile_start(&pmf, k0, kernel.len(), km, kv)
+    {
+        return from_weights(b, start.first, &start.p);
+    }
     let clipped = low || high;
     let start = match clipped {
         false => narrowed(&pmf, pm - km, pm, pv, kv),
@@ -450,6 +468,46 @@ fn clipped_start(pmf: &Pmf, low: bool, k0: i32, taps: usize, km: f64, kv: f64) -
     let mut p: Vec<f64> = (first..=last).map(|v| narrowed.at(v) * (1.0 - pile)).collect();
     p[(at - first) as usize] += pile;
     Pmf { first, p }
+}
+
+/// For a clipped bin whose end pile was read at the wrong end: where most of its mass lies within the
+/// kernel's reach of one end, that part is the clamp's pile spread over a few cells; it is moved
+/// past the clip by the kernel's reach (every offset added then leaves it at or beyond where it
+/// was, so the clamp takes it back onto the clip) and the rest is narrowed as in
+/// [`clipped_start`]. Narrowed with the rest instead, the pile moved inward toward the mean its
+/// pooled tails set, below the clip: on a 14-bit random sensor at ISO 2000 (row offsets of
+/// 17 DN², the saturated pixels' bin holding 0.3 of a DN² of spread besides its tails) the
+/// saturated pixels came out 24 DN below white, and the group's JSD went from 0.05 to 0.68.
+/// `None` when neither end holds most of the mass.
+fn spread_pile_start(pmf: &Pmf, k0: i32, taps: usize, km: f64, kv: f64) -> Option<Pmf> {
+    let n = pmf.p.len();
+    if taps >= n {
+        return None;
+    }
+    let total: f64 = pmf.p.iter().sum();
+    let low_mass: f64 = pmf.p[..taps].iter().sum::<f64>() / total;
+    let high_mass: f64 = pmf.p[n - taps..].iter().sum::<f64>() / total;
+    let (pile, rest, shift) = if high_mass >= 0.5 && high_mass >= low_mass {
+        (n - taps..n, 0..n - taps, -k0)
+    } else if low_mass >= 0.5 {
+        (0..taps, taps..n, -(k0 + taps as i32 - 1))
+    } else {
+        return None;
+    };
+    let pile_mass: f64 = pmf.p[pile.clone()].iter().sum::<f64>() / total;
+    let moved = Pmf::from_weights(pmf.first + pile.start as i32 + shift, pmf.p[pile].iter().copied())?;
+    let narrowed = Pmf::from_weights(pmf.first + rest.start as i32, pmf.p[rest].iter().copied()).map(|inner| {
+        let (im, iv) = inner.moments();
+        if iv > kv + 1.0 / 12.0 { inner.rescaled(im - km, iv - kv) } else { inner }
+    });
+    let (first, last) = match &narrowed {
+        Some(r) => (r.first.min(moved.first), r.last().max(moved.last())),
+        None => (moved.first, moved.last()),
+    };
+    let p: Vec<f64> = (first..=last)
+        .map(|v| moved.at(v) * pile_mass + narrowed.as_ref().map_or(0.0, |r| r.at(v) * (1.0 - pile_mass)))
+        .collect();
+    Some(Pmf { first, p })
 }
 
 /// `b` with its PMF replaced by the weights `q` over `first, first + 1, …`.
