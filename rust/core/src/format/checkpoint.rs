@@ -7,8 +7,11 @@ use crate::format::codec;
 
 pub const CHECKPOINT_MAGIC: &[u8; 8] = b"NCALCKPT";
 /// Version 3 adds the structured-noise sums; version 4 the dark frames; version 5 the motion
-/// probe of the clean image and the per-ISO motion figures.
-pub const CHECKPOINT_VERSION: u16 = 5;
+/// probe of the clean image and the per-ISO motion figures; version 6 the same layout, with a
+/// finished burst's line sums holding the spread of its line components over lines (their standard
+/// error), not over line-frames: a version-5 session would resume with too small an error on the
+/// bursts it had finished, so it is refused by name rather than resumed into different bytes.
+pub const CHECKPOINT_VERSION: u16 = 6;
 
 impl CalibrationSession {
     /// The session as bytes, to resume after an interruption.
