@@ -206,10 +206,11 @@ fn without_structured_noise_the_pack_matches_in_space_too() {
         // same in every real one (the line statistic's centring over frames takes it out), so the
         // plain ratio `L_s / L_r` reads it as line noise. Measured on this sensor at ISO 100 (the
         // reference burst at ISO 50, 8 frames: the clean error is 1/8 of the shot noise at the
-        // target): plain 1.157, on the real pixels 1.092 (HG 1.148 / 1.090, PG 1.149 / 1.091);
-        // the EV +4 step, whose rows cross the brightest patches and dominate the mean, alone 1.185
-        // plain. Before the reference pixels at white left the flat set, 1.129 / 1.058: their zero
-        // noise had diluted the rows that cross the white patch, which now weigh more.
+        // target): plain 1.157, on the real pixels 1.100 (1.092 with every pixel of a line kept;
+        // HG 1.148 / 1.090, PG 1.149 / 1.091 so); the EV +4 step, whose rows cross the brightest
+        // patches and dominate the mean, alone 1.185 plain. Before the reference pixels at white
+        // left the flat set, 1.129 / 1.058: their zero noise had diluted the rows that cross the
+        // white patch, which now weigh more.
         for (what, r, raw) in
             [("row", m.row_var_ratio_on_real, m.row_var_ratio), ("col", m.col_var_ratio_on_real, m.col_var_ratio)]
         {
