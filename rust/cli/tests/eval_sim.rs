@@ -77,11 +77,21 @@ fn noisecal_beats_gaussian_baselines_on_heavy_tailed_noise() {
         let (pc, _) = score(&f.honest, iso, "pg");
         // What a model adds above the finite-sample floor is its own error: the Gaussian's
         // (wrong tails) must be clearly larger than the non-parametric model's (sampling noise of
-        // a small calibration set).
+        // a small calibration set). The bound is 0.8 since reference pixels at the sensor's
+        // ceiling leave the flat set (calibrate/saturated.rs): they had spoiled the HG fit too (a
+        // session like this one at ISO 100: HG 0.0153 → 0.0078 conditional, noisecal 0.0068 →
+        // 0.0070, floor 0.0055), so HG's excess over the floor halved while noisecal's stayed; a
+        // model with the Gaussian's tails reads 1.0 here. Measured on this fixture (ISO 100 / 400
+        // / 800): noisecal 0.73 / 0.69 / 0.77, PG (Gaussian tails on its own law) 0.86 / 0.88 /
+        // 0.89; the bound must keep PG out, or it no longer tells tails apart.
         assert!(nc > fl, "ISO {iso}: {nc:.5} below the scaled floor {fl:.5}");
         assert!(
-            nc - fl < 0.7 * (hc - fl),
+            nc - fl < 0.8 * (hc - fl),
             "ISO {iso}: noisecal conditional {nc:.5} not clearly below HG {hc:.5} (floor {fl:.5})"
+        );
+        assert!(
+            pc - fl >= 0.8 * (hc - fl),
+            "ISO {iso}: PG {pc:.5} passes the bound that noisecal is held to (HG {hc:.5}, floor {fl:.5})"
         );
         assert!(nc < pc, "ISO {iso}: noisecal conditional {nc:.5} not below PG {pc:.5}");
         assert!(nc < 0.05, "ISO {iso}: noisecal conditional JSD {nc:.5} is large");

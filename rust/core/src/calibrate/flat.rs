@@ -10,6 +10,7 @@
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::calibrate::saturated::{self, BurstView};
 use crate::math::fit::{nn_poly_fit, poly_eval};
 use crate::math::round::round_half_away;
 use crate::model::layout::{POSITIONS, position};
@@ -147,6 +148,12 @@ pub struct FlatReport {
     /// Pixels per position left out because their own spread over the burst is beyond what the
     /// noise at their level allows ([`unsteady_limit`]): motion, moving dust, a flickering LED.
     pub unsteady: [u64; POSITIONS],
+    /// Flat pixels per position left out because the reference burst saturated there (a full
+    /// well below white, or white): their clean level is the ceiling, not their brightness
+    /// ([`crate::calibrate::saturated`]). Not kept in checkpoints (the clean levels are; a
+    /// resumed session reports 0 here).
+    #[serde(skip)]
+    pub saturated: [u64; POSITIONS],
 }
 
 /// The largest ratio of a pixel's variance over an `m`-frame burst to the noise variance at its
@@ -440,6 +447,20 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
             report.unsteady[pos] += unsteady[pos];
             report.flat[pos] += flat_count[pos];
         }
+    }
+    let sat = saturated::leave_out(BurstView {
+        clean: &mut clean,
+        width: w,
+        not_flat: NOT_FLAT,
+        frames: inp.frames,
+        black: inp.black,
+        white: inp.white,
+        burst_variance: pixel_var,
+        law: |pos, x| poly_eval(&robust[pos], x).max(0.0),
+    });
+    for pos in 0..POSITIONS {
+        report.flat[pos] -= sat.left_out[pos];
+        report.saturated[pos] = sat.left_out[pos];
     }
     (clean, report)
 }

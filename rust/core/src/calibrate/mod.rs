@@ -30,6 +30,7 @@ mod line_base;
 pub mod meta;
 pub mod motion;
 pub mod reference;
+pub(crate) mod saturated;
 pub mod session;
 pub mod step;
 pub(crate) mod structure;

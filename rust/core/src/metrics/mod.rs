@@ -25,7 +25,10 @@
 //! - Spatial measures (row and column means, row-offset distribution, frame offsets, noise power
 //!   spectra of flat crops) are in [`spatial`].
 
+mod line_pixels;
 pub mod spatial;
+#[cfg(test)]
+mod tests_line_pixels;
 
 use ndarray::ArrayView2;
 

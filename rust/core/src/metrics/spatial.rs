@@ -52,6 +52,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::line_pixels::LinePixelPart;
 use crate::model::layout::{POSITIONS, position};
 
 /// Side of an NPS crop in same-colour pixels (a crop spans 2·NPS_TILE sensor pixels).
@@ -384,6 +385,8 @@ pub struct SpatialSamples {
     nps_count: [u64; POSITIONS],
     nps_norm_count: [u64; POSITIONS],
     frames: u64,
+    /// The part of the line-mean variances the pixels' own noise makes.
+    pub(crate) line_pixels: LinePixelPart,
 }
 
 impl Default for SpatialSamples {
@@ -459,6 +462,7 @@ impl SpatialSamples {
             nps_count: [0; POSITIONS],
             nps_norm_count: [0; POSITIONS],
             frames: 0,
+            line_pixels: LinePixelPart::default(),
         }
     }
 
@@ -487,6 +491,9 @@ impl SpatialSamples {
             row_sum[y] += v;
             col_sum[x] += v;
         }
+        self.line_pixels.add_frame(&layout.flat, w, (&layout.row_count, &layout.col_count), |i| {
+            noise[i] as f64 - pos_mean[position(i / w, i % w)]
+        });
         self.burst_rows.push(line_means(&row_sum, &layout.row_count));
         self.burst_cols.push(line_means(&col_sum, &layout.col_count));
         self.burst.push(std::array::from_fn(|p| (pos_n[p] > 0).then(|| pos_sum[p] / pos_n[p] as f64)));
@@ -541,6 +548,7 @@ impl SpatialSamples {
         }
         self.burst_rows.clear();
         self.burst_cols.clear();
+        self.line_pixels.end_burst(MIN_LINE_PIXELS);
     }
 
     /// Frames added.
@@ -612,6 +620,7 @@ impl SpatialSamples {
             self.nps_norm_count[p] += other.nps_norm_count[p];
         }
         self.frames += other.frames;
+        self.line_pixels.merge(&other.line_pixels);
     }
 }
 
@@ -660,6 +669,14 @@ pub struct SpatialComparison {
     pub nps_row_distance: Option<f64>,
     #[serde(default)]
     pub nps_col_distance: Option<f64>,
+    /// Row-mean and column-mean variance with the other set's pixels' own noise swapped for
+    /// the real set's, `(L_o − P_o + P_r) / L_r` ([`super::line_pixels`]): what the lines share,
+    /// free of a difference in the pixels' frame-to-frame noise (the calibration clean image's
+    /// error, which synthesis draws afresh in every frame). Not written to the eval JSON.
+    #[serde(skip)]
+    pub row_var_ratio_on_real: Option<f64>,
+    #[serde(skip)]
+    pub col_var_ratio_on_real: Option<f64>,
 }
 
 fn ratio_se(a: Option<(f64, f64)>, b: Option<(f64, f64)>) -> (Option<f64>, Option<f64>) {
@@ -703,7 +720,15 @@ pub fn compare_spatial(real: &SpatialSamples, other: &SpatialSamples, bin_width:
         }
     }
     let [nps_distance, nps_row_distance, nps_col_distance] = acc.map(|v| (wsum > 0.0).then(|| v / wsum));
+    let on_real = |l_r: Option<(f64, f64)>, l_o: Option<(f64, f64)>, p_r: &[f64], p_o: &[f64]| {
+        let (l_r, l_o) = (l_r?.0, l_o?.0);
+        let (p_r, p_o) = (LinePixelPart::mean(p_r)?, LinePixelPart::mean(p_o)?);
+        (l_r > 0.0).then(|| (l_o - p_o + p_r) / l_r)
+    };
+    let (rp, op) = (&real.line_pixels, &other.line_pixels);
     SpatialComparison {
+        row_var_ratio_on_real: on_real(real.row_var(), other.row_var(), &rp.rows, &op.rows),
+        col_var_ratio_on_real: on_real(real.col_var(), other.col_var(), &rp.cols, &op.cols),
         row_var_ratio,
         row_var_ratio_se,
         col_var_ratio,
@@ -733,6 +758,8 @@ pub fn mean_comparison(v: &[SpatialComparison]) -> SpatialComparison {
         nps_distance: mean(&|c| c.nps_distance),
         nps_row_distance: mean(&|c| c.nps_row_distance),
         nps_col_distance: mean(&|c| c.nps_col_distance),
+        row_var_ratio_on_real: mean(&|c| c.row_var_ratio_on_real),
+        col_var_ratio_on_real: mean(&|c| c.col_var_ratio_on_real),
     }
 }
 
