@@ -10,11 +10,12 @@
 //! the components' variance out of the pixel PMFs (deconvolution), so a pixel's marginal keeps
 //! its variance whatever the components, and the row variance is ≤ 0.4 % of a pixel's.
 //!
-//! Not asserted, printed: the level group that reaches white (clipped pixels). There, synthesis
-//! with row offsets moved the clamp's pile below white (JSD up to 0.66 at ISO 3200 against 0.004
-//! for pixel-only); the pile fix of the line-rule branch (`spread_pile_start` in
-//! `noisecal_core::synth::structure`) cures ISO 800–3200, and ISO 100/200 still lose there
-//! (0.019 against 0.001). The marginal JSD, which pools that group, is printed for the same reason.
+//! The level group that reaches white (clipped pixels) is asserted from ISO 200 on: synthesis
+//! with row offsets had moved the clamp's pile below white (JSD up to 0.66 at ISO 3200 against
+//! 0.004 for pixel-only; fixed by `spread_pile_start` in `noisecal_core::synth::structure`, and
+//! for bins too narrow to deconvolve by `narrow_pile_moved`). ISO 100 is printed, not asserted:
+//! 0.018 → 0.0033 against pixel-only's 0.0006. The marginal JSD, which pools that group, is
+//! printed for the same reason.
 
 mod support;
 
@@ -103,6 +104,18 @@ fn the_demos_components_beat_pixel_only_and_doubled_ones_do_not() {
             "ISO {}: with its components the pack scores {nc_below:.4} below white, pixel-only {px_below:.4}",
             iso.iso
         );
+        // At white: the clamp's pile must stay on white whatever the offsets (a pile smeared 1 DN
+        // below white scored 0.018 against 0.0006 at ISO 100, 0.66 against 0.004 at ISO 3200).
+        // Fewer samples than below white: 5 % and 5·10⁻⁴ of slack. ISO 100 is printed only: a
+        // bin there whose pile is followed by a few cells past it (position 3) keeps 0.0033
+        // against 0.0006.
+        if iso.iso >= 200 {
+            assert!(
+                nc_white <= 1.05 * px_white + 5e-4,
+                "ISO {}: with its components the pack scores {nc_white:.4} at white, pixel-only {px_white:.4}",
+                iso.iso
+            );
+        }
         // Closer to the real row-mean variance than pixel-only, within two standard errors.
         let (nc_off, px_off, dbl_off) = (nc_row.ln().abs(), px_row.ln().abs(), dbl_row.ln().abs());
         assert!(

@@ -303,7 +303,8 @@ impl StructureSampler {
         if kernel.len() <= 1 {
             return bins.to_vec();
         }
-        bins.par_iter().map(|b| deconvolve_bin(b, k0, &kernel)).collect()
+        let half = bins.len() / 2;
+        bins.par_iter().enumerate().map(|(i, b)| deconvolve_bin(b, k0, &kernel, i >= half)).collect()
     }
 }
 
@@ -311,17 +312,18 @@ impl StructureSampler {
 /// paper, [`Pmf::rescaled`]) as the start, then Richardson–Lucy. In a clipped bin the sensor's
 /// clamp piled mass at one end of `P`; synthesis clamps after adding the offsets, so `Q ∗ K` is
 /// folded onto that end the same way before it is compared with `P`.
-fn deconvolve_bin(b: &BinModel, k0: i32, kernel: &[f64]) -> BinModel {
-    deconvolve_bin_within(b, k0, kernel, RL_ITERATIONS)
+fn deconvolve_bin(b: &BinModel, k0: i32, kernel: &[f64], upper: bool) -> BinModel {
+    deconvolve_bin_within(b, k0, kernel, RL_ITERATIONS, upper)
 }
 
 /// [`deconvolve_bin`] with at most `max_iterations` Richardson–Lucy iterations.
-fn deconvolve_bin_within(b: &BinModel, k0: i32, kernel: &[f64], max_iterations: usize) -> BinModel {
+/// `upper`: the bin lies in the upper half of the levels, so a clip it reached is white's.
+fn deconvolve_bin_within(b: &BinModel, k0: i32, kernel: &[f64], max_iterations: usize, upper: bool) -> BinModel {
     let pmf = b.pmf();
     let (lo, hi) = core_span(&pmf.p);
     let core = hi - lo + 1;
     if core < kernel.len() + 2 {
-        return b.clone();
+        return narrow_pile_moved(b, &pmf, k0, kernel, upper).unwrap_or_else(|| b.clone());
     }
     // The moments of the support less its negligible tails: a tail of 10⁻⁶ of the mass far out
     // would move the variance, thus the start, by as much as the iterations then fail to undo.
@@ -329,10 +331,10 @@ fn deconvolve_bin_within(b: &BinModel, k0: i32, kernel: &[f64], max_iterations: 
         .map_or_else(|| pmf.moments(), |c| c.moments());
     let km: f64 = kernel.iter().enumerate().map(|(i, p)| (k0 + i as i32) as f64 * p).sum();
     let kv: f64 = kernel.iter().enumerate().map(|(i, p)| ((k0 + i as i32) as f64 - km).powi(2) * p).sum();
-    if pv <= kv + 1.0 / 12.0 {
-        return b.clone();
-    }
     let n = pmf.p.len();
+    if pv <= kv + 1.0 / 12.0 {
+        return narrow_pile_moved(b, &pmf, k0, kernel, upper).unwrap_or_else(|| b.clone());
+    }
     let start_only = kv < RESCALE_ONLY * pv;
     // Richardson–Lucy costs `n · K` per iteration: bounded per bin, so a wide bin with a long
     // kernel cannot stall the sampler build (the start is already close there). The bound counts
@@ -394,6 +396,43 @@ fn deconvolve_bin_within(b: &BinModel, k0: i32, kernel: &[f64], max_iterations: 
     let problem = Problem { a: kernel.to_vec(), b: target, clip_lo: ext_lo, clip_hi: ext_lo + n - 1 };
     richardson_lucy(&problem, &mut q, &SolverLimits { max_iterations: iterations, tolerance: 1e-5 });
     from_weights(b, q_first, &q)
+}
+
+/// A clipped bin too narrow to deconvolve (its variance within the kernel's, or its support
+/// within the kernel's length): nothing to narrow, but a clamp's pile kept where it is would be
+/// smeared onto its neighbour by the offsets. The demo at ISO 100 (bins of saturated pixels,
+/// 0.9995–1 of their mass at white, row offsets of ±1 DN at 5.5 % each) put 5.6 % of them 1 DN
+/// below white. So the pile still moves past the clip by the kernel's reach, as in a wider
+/// clipped bin ([`clipped_start`]). The pile is the end cell [`is_pile`] finds; a PMF of fewer
+/// than four cells has no trend to judge by, and there the heaviest cell is the pile if it is an
+/// end cell (a single cell is at the clip of the half of the levels the bin lies in, `upper`).
+/// `None` when the bin is not clipped or holds no pile at an end.
+fn narrow_pile_moved(b: &BinModel, pmf: &Pmf, k0: i32, kernel: &[f64], upper: bool) -> Option<BinModel> {
+    let n = pmf.p.len();
+    if !b.clipped || n == 0 {
+        return None;
+    }
+    let low = if n >= 4 {
+        let pile_lo = is_pile([pmf.p[0], pmf.p[1], pmf.p[2], pmf.p[3]]);
+        let pile_hi = is_pile([pmf.p[n - 1], pmf.p[n - 2], pmf.p[n - 3], pmf.p[n - 4]]);
+        match (pile_lo, pile_hi) {
+            (false, false) => return None,
+            (true, true) => pmf.p[0] >= pmf.p[n - 1],
+            (lo, _) => lo,
+        }
+    } else {
+        let heaviest = pmf.p.iter().enumerate().fold(0, |m, (i, &x)| if x > pmf.p[m] { i } else { m });
+        match (heaviest == 0, heaviest == n - 1) {
+            (true, true) => !upper,
+            (true, false) => true,
+            (false, true) => false,
+            (false, false) => return None,
+        }
+    };
+    let km: f64 = kernel.iter().enumerate().map(|(i, p)| (k0 + i as i32) as f64 * p).sum();
+    let kv: f64 = kernel.iter().enumerate().map(|(i, p)| ((k0 + i as i32) as f64 - km).powi(2) * p).sum();
+    let start = clipped_start(pmf, low, k0, kernel.len(), km, kv);
+    Some(from_weights(b, start.first, &start.p))
 }
 
 /// Whether the end cell of `run` (the end cell first, then its three neighbours inward) is the
@@ -859,7 +898,7 @@ mod tests {
         };
         let measured = fold(conv(&q, -half));
         let bin = BinModel::estimated(&measured, 100_000, BinSource::Measured, None, true);
-        let d = deconvolve_bin_within(&bin, k0, &k, iterations);
+        let d = deconvolve_bin_within(&bin, k0, &k, iterations, true);
         let dp = d.pmf();
         let back = fold(conv(&dp.p, dp.first));
         let kept = fold(conv(&measured.p, measured.first));
@@ -877,6 +916,53 @@ mod tests {
         };
         let truth = Pmf { first: -half, p: q };
         (jsd_kept, jsd_after, below(&dp) / below(&truth))
+    }
+
+    /// A bin of saturated pixels, narrower than the kernel (nothing to narrow): its pile must
+    /// still move past the clip, or the offsets smear it onto the code below white. Known truth:
+    /// 0.9995 of the mass at the clip, a thin tail below; synthesis adds the offsets and clamps.
+    #[test]
+    fn a_pile_narrower_than_the_kernel_stays_at_the_clip() {
+        use crate::model::pack::BinSource;
+        use crate::model::pmf::Pmf;
+        let (k0, k) = rows_only(0.25).kernel(0);
+        let kv: f64 = {
+            let km: f64 = k.iter().enumerate().map(|(i, p)| (k0 + i as i32) as f64 * p).sum();
+            k.iter().enumerate().map(|(i, p)| ((k0 + i as i32) as f64 - km).powi(2) * p).sum()
+        };
+        let below = k0.unsigned_abs() as f64;
+        assert!(below >= 1.0 && k[0] > 0.01, "the kernel reaches below zero: {k0} {k:?}");
+        let mut p = vec![1e-4; 6];
+        p.push(1.0 - 6e-4);
+        let measured = Pmf { first: -6, p };
+        assert!(measured.moments().1 <= kv + 1.0 / 12.0, "the case is the narrow one");
+        let bin = BinModel::estimated(&measured, 100_000, BinSource::Measured, None, true);
+        // fold(Q ∗ K) at the clip 0: what synthesis draws for a pixel at white.
+        let synth_at = |q: &Pmf, n: i32| -> f64 {
+            let mut y = vec![0.0; q.p.len() + k.len() - 1];
+            crate::math::deconv::convolve(&k, &q.p, &mut y);
+            let first = q.first + k0;
+            let v = |i: usize| first + i as i32;
+            match n {
+                0 => y.iter().enumerate().filter(|&(i, _)| v(i) >= 0).map(|(_, x)| x).sum(),
+                _ => y.iter().enumerate().filter(|&(i, _)| v(i) == n).map(|(_, x)| x).sum(),
+            }
+        };
+        let kept = synth_at(&measured, -1);
+        let d = deconvolve_bin(&bin, k0, &k, true).pmf();
+        let after = synth_at(&d, -1);
+        // The truth puts 1e-4 one below white; kept as measured, the offsets put k[0] ≈ 0.05 there.
+        assert!(kept > 0.01, "the case smears when kept: {kept}");
+        assert!(after < 3e-4, "1 DN below white: {after} (kept as measured: {kept})");
+        assert!(synth_at(&d, 0) > 0.999 - 6e-4, "at white: {}", synth_at(&d, 0));
+        // A bin whose every sample sat at white (one cell): the same, the clip by its half.
+        let all = BinModel::estimated(&Pmf { first: 0, p: vec![1.0] }, 1000, BinSource::Measured, None, true);
+        assert!(synth_at(&all.pmf(), -1) > 0.01, "one cell kept smears too");
+        let d = deconvolve_bin(&all, k0, &k, true).pmf();
+        assert!(synth_at(&d, -1) < 1e-9 && synth_at(&d, 0) > 1.0 - 1e-9, "one cell: {d:?}");
+        // At black (the lower half) it moves the other way.
+        let d = deconvolve_bin(&all, k0, &k, false).pmf();
+        assert!(d.last() < 0, "one cell at black moves below it: {d:?}");
     }
 
     /// A bin flagged clipped whose PMF has no pile at either end (its tails are floor counts
@@ -901,13 +987,13 @@ mod tests {
         let pmf = Pmf { first: -200, p: p.iter().map(|x| x / s).collect() };
         let flagged = BinModel::estimated(&pmf, 100_000, BinSource::Measured, None, true);
         let plain = BinModel { clipped: false, ..flagged.clone() };
-        let (a, b) = (deconvolve_bin(&flagged, k0, &k), deconvolve_bin(&plain, k0, &k));
+        let (a, b) = (deconvolve_bin(&flagged, k0, &k, true), deconvolve_bin(&plain, k0, &k, true));
         assert_eq!((a.first, &a.counts), (b.first, &b.counts));
         // The same PMF cut at the clip has its pile at the end: folded, so not the unclipped result.
         let cut = Pmf { first: -200, p: pmf.p[..=(200 + clip) as usize].to_vec() };
         let piled = BinModel::estimated(&cut, 100_000, BinSource::Measured, None, true);
         let unflagged = BinModel { clipped: false, ..piled.clone() };
-        let (c, d) = (deconvolve_bin(&piled, k0, &k), deconvolve_bin(&unflagged, k0, &k));
+        let (c, d) = (deconvolve_bin(&piled, k0, &k, true), deconvolve_bin(&unflagged, k0, &k, true));
         assert_ne!((c.first, &c.counts), (d.first, &d.counts));
     }
 
