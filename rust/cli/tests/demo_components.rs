@@ -13,7 +13,7 @@
 //! The level group that reaches white (clipped pixels) is asserted from ISO 200 on: synthesis
 //! with row offsets had moved the clamp's pile below white (JSD up to 0.66 at ISO 3200 against
 //! 0.004 for pixel-only; fixed by `spread_pile_start` in `noisecal_core::synth::structure`, and
-//! for bins too narrow to deconvolve by `narrow_pile_moved`). ISO 100 is printed, not asserted:
+//! for bins too narrow to deconvolve by `clamp_end` in `deconvolve_bin_within`). ISO 100 is printed, not asserted:
 //! 0.018 → 0.0033 against pixel-only's 0.0006. The marginal JSD, which pools that group, is
 //! printed for the same reason.
 

@@ -5,15 +5,27 @@
 use noisecal_core::{CfaPattern, FrameMeta, SensorLayout};
 use noisecal_input::dng::{read_dng_meta, read_dng_source, write_dng_from_layout};
 
+/// A 10-bit RGGB DNG of `w × h` written to `dir/name`, pixels `64 + (a·y + b·x) mod 900`; its
+/// path, layout and pixels.
+fn written_dng(
+    dir: &std::path::Path,
+    name: &str,
+    (w, h): (usize, usize),
+    (a, b): (usize, usize),
+) -> (std::path::PathBuf, SensorLayout, ndarray::Array2<u16>) {
+    let layout =
+        SensorLayout { width: w as u32, height: h as u32, cfa: CfaPattern::Rggb, black: [64.0; 4], white: 1023 };
+    let pixels = ndarray::Array2::from_shape_fn((h, w), |(y, x)| (64 + (a * y + b * x) % 900) as u16);
+    let path = dir.join(name);
+    write_dng_from_layout(&path, &layout, &FrameMeta::new(400, 10_000_000), "M", "P", &pixels).expect("write the DNG");
+    (path, layout, pixels)
+}
+
 #[test]
 fn a_file_truncated_under_a_read_frame_is_an_error_not_a_crash() {
     let dir = tempfile::tempdir().unwrap();
     let (w, h) = (512usize, 384usize);
-    let layout =
-        SensorLayout { width: w as u32, height: h as u32, cfa: CfaPattern::Rggb, black: [64.0; 4], white: 1023 };
-    let pixels = ndarray::Array2::from_shape_fn((h, w), |(y, x)| (64 + (7 * y + 3 * x) % 900) as u16);
-    let path = dir.path().join("f.dng");
-    write_dng_from_layout(&path, &layout, &FrameMeta::new(400, 10_000_000), "M", "P", &pixels).unwrap();
+    let (path, layout, pixels) = written_dng(dir.path(), "f.dng", (w, h), (7, 3));
     let len = std::fs::metadata(&path).unwrap().len();
     assert!(len > 2 * (w * h) as u64, "the file holds the image");
 
@@ -47,12 +59,7 @@ fn a_file_truncated_under_a_read_frame_is_an_error_not_a_crash() {
 #[test]
 fn a_template_truncated_while_held_keeps_its_bytes() {
     let dir = tempfile::tempdir().unwrap();
-    let (w, h) = (512usize, 384usize);
-    let layout =
-        SensorLayout { width: w as u32, height: h as u32, cfa: CfaPattern::Rggb, black: [64.0; 4], white: 1023 };
-    let pixels = ndarray::Array2::from_shape_fn((h, w), |(y, x)| (64 + (5 * y + 11 * x) % 900) as u16);
-    let path = dir.path().join("t.dng");
-    write_dng_from_layout(&path, &layout, &FrameMeta::new(400, 10_000_000), "M", "P", &pixels).unwrap();
+    let (path, _, pixels) = written_dng(dir.path(), "t.dng", (512, 384), (5, 11));
     let original = std::fs::read(&path).unwrap();
 
     let file = noisecal_input::dng::read_dng_file(&path).unwrap();

@@ -92,18 +92,7 @@ fn weight_stream(pack: &ModelPack) -> Result<Vec<u8>, CodecError> {
                 let code = WeightCode::new(precision_of(m, p, b.samples));
                 let above = prev.map_or_else(Slopes::default, |(f, w)| Slopes::of(f, w, &code));
                 put_varint(&mut out, b.counts.len() as u64);
-                let codes: Vec<u64> = b
-                    .counts
-                    .iter()
-                    .map(|&w| code.code(w))
-                    .collect::<Option<_>>()
-                    .ok_or_else(|| CodecError::Encode {
-                        what: WHAT,
-                        detail: format!(
-                            "ISO {} holds a weight with more significant bits than its bin keeps: store the pack's compacted form",
-                            m.iso
-                        ),
-                    })?;
+                let codes = code.codes(&b.counts, m.iso)?;
                 let (predictor, bytes) = write_codes(&codes, |i| above.at(b.first.wrapping_add(i as i32)));
                 put_varint(&mut out, predictor as u64);
                 out.extend_from_slice(&bytes);

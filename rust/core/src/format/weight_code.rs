@@ -2,6 +2,7 @@
 //! is its index among the values its bin's [`Precision`] holds, so a code's step is one stored
 //! step whatever the precision. Part of both formats' bytes: a change here is a format change.
 
+use crate::error::CodecError;
 use crate::model::pack::{IsoModel, PositionModel};
 use crate::model::precision::{DERIVED_BITS, Precision, bin_precision};
 
@@ -43,6 +44,17 @@ impl WeightCode {
         let len = 64 - w.leading_zeros();
         let drop = len - self.precision.bits(len).min(len);
         (w & ((1u64 << drop) - 1) == 0).then(|| self.start[len as usize] + (w >> drop) - (1u64 << (len - 1 - drop)))
+    }
+
+    /// The codes of a bin's `weights` (of ISO `iso`), or the error that names a weight this
+    /// precision does not hold (a pack not in its compacted form).
+    pub(super) fn codes(&self, weights: &[u64], iso: u32) -> Result<Vec<u64>, CodecError> {
+        weights.iter().map(|&w| self.code(w)).collect::<Option<_>>().ok_or_else(|| CodecError::Encode {
+            what: "model pack",
+            detail: format!(
+                "ISO {iso} holds a weight with more significant bits than its bin keeps: store the pack's compacted form"
+            ),
+        })
     }
 
     /// The weight a code names, or `None` beyond the last.

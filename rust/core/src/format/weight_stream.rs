@@ -84,17 +84,7 @@ pub(crate) fn encode_iso(m: &IsoModel, out: &mut Vec<u8>) -> Result<(), CodecErr
             let values = if k > 1 { cell_masses(&b.counts, k) } else { b.counts.clone() };
             let above = Slopes::of(prev, b.first, k, values.len(), &code);
             put_varint(out, values.len() as u64);
-            let codes: Vec<u64> = values
-                .iter()
-                .map(|&w| code.code(w))
-                .collect::<Option<_>>()
-                .ok_or_else(|| CodecError::Encode {
-                    what: WHAT,
-                    detail: format!(
-                        "ISO {} holds a weight with more significant bits than its bin keeps: store the pack's compacted form",
-                        m.iso
-                    ),
-                })?;
+            let codes = code.codes(&values, m.iso)?;
             let (predictor, bytes) = write_codes(&codes, |i| above.at(i));
             put_varint(out, predictor as u64 + 4 * k.trailing_zeros() as u64);
             out.extend_from_slice(&bytes);

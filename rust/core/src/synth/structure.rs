@@ -320,20 +320,33 @@ fn deconvolve_bin(b: &BinModel, k0: i32, kernel: &[f64], upper: bool) -> BinMode
 /// `upper`: the bin lies in the upper half of the levels, so a clip it reached is white's.
 fn deconvolve_bin_within(b: &BinModel, k0: i32, kernel: &[f64], max_iterations: usize, upper: bool) -> BinModel {
     let pmf = b.pmf();
+    let (km, kv) = kernel_moments(k0, kernel);
+    // Which end holds the clamp's pile, if any ([`clamp_end`]): `Some(true)` the low end.
+    let pile_end = clamp_end(b, &pmf, upper);
+    // Too narrow to deconvolve (support within the kernel's length, or variance within its
+    // variance): nothing to narrow, but a clamp's pile kept where it is would be smeared onto its
+    // neighbour by the offsets. The demo at ISO 100 (bins of saturated pixels, 0.9995–1 of their
+    // mass at white, row offsets of ±1 DN at 5.5 % each) put 5.6 % of them 1 DN below white. So
+    // the pile still moves past the clip by the kernel's reach, as in a wider clipped bin.
+    let kept = |pmf: &Pmf| match pile_end {
+        Some(low) => {
+            let start = clipped_start(pmf, low, k0, kernel.len(), km, kv);
+            from_weights(b, start.first, &start.p)
+        }
+        None => b.clone(),
+    };
     let (lo, hi) = core_span(&pmf.p);
     let core = hi - lo + 1;
     if core < kernel.len() + 2 {
-        return narrow_pile_moved(b, &pmf, k0, kernel, upper).unwrap_or_else(|| b.clone());
+        return kept(&pmf);
     }
     // The moments of the support less its negligible tails: a tail of 10⁻⁶ of the mass far out
     // would move the variance, thus the start, by as much as the iterations then fail to undo.
     let (pm, pv) = Pmf::from_weights(pmf.first + lo as i32, pmf.p[lo..=hi].iter().copied())
         .map_or_else(|| pmf.moments(), |c| c.moments());
-    let km: f64 = kernel.iter().enumerate().map(|(i, p)| (k0 + i as i32) as f64 * p).sum();
-    let kv: f64 = kernel.iter().enumerate().map(|(i, p)| ((k0 + i as i32) as f64 - km).powi(2) * p).sum();
     let n = pmf.p.len();
     if pv <= kv + 1.0 / 12.0 {
-        return narrow_pile_moved(b, &pmf, k0, kernel, upper).unwrap_or_else(|| b.clone());
+        return kept(&pmf);
     }
     let start_only = kv < RESCALE_ONLY * pv;
     // Richardson–Lucy costs `n · K` per iteration: bounded per bin, so a wide bin with a long
@@ -344,19 +357,10 @@ fn deconvolve_bin_within(b: &BinModel, k0: i32, kernel: &[f64], max_iterations: 
     // clip: 20 leave a JSD near 10⁻⁵ on clipped Gaussians, far below a bin's sampling floor.
     let cap = if start_only { max_iterations.min(CLIPPED_SMALL_SHARE_ITERATIONS) } else { max_iterations };
     let iterations = (RL_WORK / (core * kernel.len()) as f64).min(cap as f64) as usize;
-    // Which end holds the clamp's pile: in a clipped bin, the heavier end cell that is a pile
-    // ([`is_pile`]). A bin whose samples reached a clip can have no pile at either end of its
-    // PMF (pooled neighbours, whose clips sit elsewhere, leave floor-count tails past its own):
-    // such a bin is deconvolved as an unclipped one, since there is nothing at an end to fold.
-    // (A PMF of fewer than four cells has no trend to stand above: no pile.)
-    let pile_lo = b.clipped && n >= 4 && is_pile([pmf.p[0], pmf.p[1], pmf.p[2], pmf.p[3]]);
-    let pile_hi = b.clipped && n >= 4 && is_pile([pmf.p[n - 1], pmf.p[n - 2], pmf.p[n - 3], pmf.p[n - 4]]);
-    let (low, high) = match (pile_lo, pile_hi) {
-        (false, false) => (false, false),
-        (true, true) if pmf.p[0] >= pmf.p[n - 1] => (true, false),
-        (true, true) => (false, true),
-        (lo, hi) => (lo, hi),
-    };
+    // A bin whose samples reached a clip can have no pile at either end of its PMF (pooled
+    // neighbours, whose clips sit elsewhere, leave floor-count tails past its own): such a bin
+    // is deconvolved as an unclipped one, since there is nothing at an end to fold.
+    let (low, high) = (pile_end == Some(true), pile_end == Some(false));
     // A clipped bin whose pile is spread over a few cells (its pixels' clean levels a few DN apart
     // below the clip) with pooled tails past it can have a tail's floor count read as a pile at
     // the other end, while most of its mass lies within the kernel's reach of this one; the
@@ -398,41 +402,40 @@ fn deconvolve_bin_within(b: &BinModel, k0: i32, kernel: &[f64], max_iterations: 
     from_weights(b, q_first, &q)
 }
 
-/// A clipped bin too narrow to deconvolve (its variance within the kernel's, or its support
-/// within the kernel's length): nothing to narrow, but a clamp's pile kept where it is would be
-/// smeared onto its neighbour by the offsets. The demo at ISO 100 (bins of saturated pixels,
-/// 0.9995–1 of their mass at white, row offsets of ±1 DN at 5.5 % each) put 5.6 % of them 1 DN
-/// below white. So the pile still moves past the clip by the kernel's reach, as in a wider
-/// clipped bin ([`clipped_start`]). The pile is the end cell [`is_pile`] finds; a PMF of fewer
-/// than four cells has no trend to judge by, and there the heaviest cell is the pile if it is an
-/// end cell (a single cell is at the clip of the half of the levels the bin lies in, `upper`).
-/// `None` when the bin is not clipped or holds no pile at an end.
-fn narrow_pile_moved(b: &BinModel, pmf: &Pmf, k0: i32, kernel: &[f64], upper: bool) -> Option<BinModel> {
+/// The mean and variance of the offset kernel whose first offset is `k0`.
+fn kernel_moments(k0: i32, kernel: &[f64]) -> (f64, f64) {
+    let km: f64 = kernel.iter().enumerate().map(|(i, p)| (k0 + i as i32) as f64 * p).sum();
+    let kv: f64 = kernel.iter().enumerate().map(|(i, p)| ((k0 + i as i32) as f64 - km).powi(2) * p).sum();
+    (km, kv)
+}
+
+/// Which end of a clipped bin's PMF holds the clamp's pile: `Some(true)` the low end,
+/// `Some(false)` the high end, `None` for an unclipped bin or one with no pile at an end. The
+/// pile is the heavier end cell that [`is_pile`] finds. A PMF of fewer than four cells has no
+/// trend to judge by (only a bin too narrow to deconvolve has one): there the heaviest cell is
+/// the pile if it is an end cell, and a single cell lies at the clip of the half of the levels
+/// its bin lies in (`upper`: white's).
+fn clamp_end(b: &BinModel, pmf: &Pmf, upper: bool) -> Option<bool> {
     let n = pmf.p.len();
     if !b.clipped || n == 0 {
         return None;
     }
-    let low = if n >= 4 {
+    if n >= 4 {
         let pile_lo = is_pile([pmf.p[0], pmf.p[1], pmf.p[2], pmf.p[3]]);
         let pile_hi = is_pile([pmf.p[n - 1], pmf.p[n - 2], pmf.p[n - 3], pmf.p[n - 4]]);
-        match (pile_lo, pile_hi) {
-            (false, false) => return None,
-            (true, true) => pmf.p[0] >= pmf.p[n - 1],
-            (lo, _) => lo,
-        }
-    } else {
-        let heaviest = pmf.p.iter().enumerate().fold(0, |m, (i, &x)| if x > pmf.p[m] { i } else { m });
-        match (heaviest == 0, heaviest == n - 1) {
-            (true, true) => !upper,
-            (true, false) => true,
-            (false, true) => false,
-            (false, false) => return None,
-        }
-    };
-    let km: f64 = kernel.iter().enumerate().map(|(i, p)| (k0 + i as i32) as f64 * p).sum();
-    let kv: f64 = kernel.iter().enumerate().map(|(i, p)| ((k0 + i as i32) as f64 - km).powi(2) * p).sum();
-    let start = clipped_start(pmf, low, k0, kernel.len(), km, kv);
-    Some(from_weights(b, start.first, &start.p))
+        return match (pile_lo, pile_hi) {
+            (false, false) => None,
+            (true, true) => Some(pmf.p[0] >= pmf.p[n - 1]),
+            (lo, _) => Some(lo),
+        };
+    }
+    let heaviest = pmf.p.iter().enumerate().fold(0, |m, (i, &x)| if x > pmf.p[m] { i } else { m });
+    match (heaviest == 0, heaviest == n - 1) {
+        (true, true) => Some(!upper),
+        (true, false) => Some(true),
+        (false, true) => Some(false),
+        (false, false) => None,
+    }
 }
 
 /// Whether the end cell of `run` (the end cell first, then its three neighbours inward) is the
@@ -926,10 +929,7 @@ mod tests {
         use crate::model::pack::BinSource;
         use crate::model::pmf::Pmf;
         let (k0, k) = rows_only(0.25).kernel(0);
-        let kv: f64 = {
-            let km: f64 = k.iter().enumerate().map(|(i, p)| (k0 + i as i32) as f64 * p).sum();
-            k.iter().enumerate().map(|(i, p)| ((k0 + i as i32) as f64 - km).powi(2) * p).sum()
-        };
+        let (_, kv) = kernel_moments(k0, &k);
         let below = k0.unsigned_abs() as f64;
         assert!(below >= 1.0 && k[0] > 0.01, "the kernel reaches below zero: {k0} {k:?}");
         let mut p = vec![1e-4; 6];
