@@ -18,9 +18,9 @@ levels; options after the script's own go to ``noisecal-bench``.
   ``clean(t) = D + d(t) + s(t)·F``, with ``D`` the dark burst's mean (100 frames), ``d(t)`` the
   shift of the black level at ``t`` (its dark pair's mean minus ``D``'s; 0 where the set has no
   dark pair), ``s(t)`` the pair's mean signal and ``F`` the flat field's shape (mean 1): the sum
-  of every pair's signal below 80 % of the range over the sum of their mean signals. ``F`` pools
-  about 120 frames, so its error at the evaluated levels is a small fraction of a DN (the noise
-  is 0.3–2 DN). (The set's burst is at 6 DN above black: scaling its mean up to 100 DN, as set
+  of the pairs' signals between 2 % and 80 % of the range over the sum of their mean signals,
+  the held-out frames left out. ``F`` pools about 120 frames, so its error at the evaluated levels
+  is a small fraction of a DN (the noise is 0.3–1.4 DN). (The set's burst is at 6 DN above black: scaling its mean up to 100 DN, as set
   001's script does with its half-scale burst, would multiply its error by 16.)
 - **Calibration** (``OUT/cal``, the frames' central ``CAL_W`` columns): every pair up to
   ``CAL_MAX`` of the range, its frame 0 a target ("ISO 200") against its clean image handed to
@@ -119,8 +119,10 @@ def convert(src: Source, out: Path, say) -> dict:
     pairs.sort(key=lambda x: x[0].exposure_ns)
     signal = [float(np.mean([f.mean() for f in p])) - float(d_mean.mean()) - s for _, p, s in pairs]
     level = [v / span for v in signal]
+    evaluated = set(ladder(level))
+    # The shape from every pair's frames but the held-out ones (frame 1 of an evaluated pair).
     shape_of = [i for i, v in enumerate(level) if 0.02 < v < SHAPE_MAX]
-    shape = flat_shape([np.mean(pairs[i][1], axis=0) - d_mean - pairs[i][2] for i in shape_of])
+    shape = flat_shape([np.mean(pairs[i][1][: 1 if i in evaluated else 2], axis=0) - d_mean - pairs[i][2] for i in shape_of])
 
     def write(path: Path, px: np.ndarray, iso: int, exposure_ns: int):
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -132,7 +134,6 @@ def convert(src: Source, out: Path, say) -> dict:
     half = len(dark) // 2
     for i, f in enumerate(dark):
         write(out / "cal" / f"dark_{i:03}.dng", centre(f, CAL_W).astype(np.uint16), 100 if i < half else 200, burst_d.exposure_ns * EXPOSURE_UNIT_NS)
-    evaluated = set(ladder(level))
     held = []
     for i, ((b, pair, shift), s, v) in enumerate(zip(pairs, signal, level)):
         if v > CAL_MAX:
