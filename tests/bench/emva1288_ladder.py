@@ -2,8 +2,10 @@
 
     python tests/bench/emva1288_ladder.py --repo DATASETS [--out target/emva002] [noisecal-bench options]
 
-``DATASETS`` is a clone (bare or not) of ``EMVA1288/datasets`` on GitHub. Its set 002 (STEMMER
-IMAGING GmbH, CC BY-SA 3.0) is an 8-bit monochrome CMOS camera, 2048×512: a flat field at 100
+``DATASETS`` is a clone (bare or not) of ``EMVA1288/datasets`` on GitHub. Its set 002 (Copyright
+(C) 2011 STEMMER IMAGING GmbH, author Manfred Wuetschner; Creative Commons Attribution-ShareAlike
+3.0 Unported, as its ``EMVA1288_Data.txt`` states; fetched, not committed here) is an 8-bit
+monochrome CMOS camera, 2048×512: a flat field at 100
 exposures 40 µs apart (photon-transfer pairs, two frames each, with a dark pair at each of the
 first 26 exposures), a 100-frame burst at 140 µs and a 100-frame dark burst. Its exposures climb
 about 3.5 DN apart from black (2.9 DN) to saturation, so it holds several real levels in the bench's
