@@ -165,3 +165,21 @@ fn pg_levels_keep_their_own_lattice() {
     let off = tv(&drawn(&s, 0, 102), 100);
     assert!(off > 0.2, "{off}");
 }
+
+#[test]
+fn pg_without_a_visible_lattice_shares_tables_and_still_follows_its_law() {
+    // 4 DN per electron under 3 DN of read noise: the lattice's modulation is exp(−2π²·9/16) ≈
+    // 2·10⁻⁵, so levels share tables as HG's do (one per level would be 4 096 per position).
+    let p = pack_of(BaselineKind::Pg, NoiseParams { a: 4.0, b: 9.0 }, 1.0);
+    let binning = p.binning();
+    let law = baselines::baseline(&p, 200, BaselineKind::Pg, false).expect("fit");
+    let s = sampler(&p, ModelKind::Pg, CleanAt::Reference);
+    let tables = s.tables(0).len() - binning.bins(0);
+    assert!(tables < 1500, "{tables} level tables");
+    let mut worst: f64 = 1.0;
+    for level in BLACK as u16..WHITE - 300 {
+        let want = law.level_pmf(&binning, 0, level as i32).moments().1;
+        worst = worst.max(ratio(moments(&drawn(&s, 0, level)).1, want));
+    }
+    assert!(worst < 1.006, "{worst}");
+}

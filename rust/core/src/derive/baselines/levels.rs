@@ -8,7 +8,7 @@
 //! 16 DN above black on the EMVA 1288 set 001 CCD: 1.26× the law's there). The sampler of a
 //! baseline draws from these tables instead: levels share a table while the law's variance stays
 //! within [`LEVEL_STEP`] of the run's first, the table drawn at the run's middle variance; a
-//! Poisson–Gaussian level whose lattice shows (read noise below the gain, exact Poisson sums)
+//! Poisson–Gaussian level whose lattice shows (read SD below half the gain, exact Poisson sums)
 //! has a table of its own (the lattice's phase moves with the level). Tables are not clipped:
 //! synthesis clamps to `[0, white]`, which is the clipping of [`Baseline::level_pmf`] at every
 //! level of a run (a clipped table would fold at the run's level, not each level's).
@@ -28,6 +28,13 @@ use super::{Baseline, BaselineKind};
 /// (0.5 %: the table at the run's middle is within ±0.25 % of every level's variance).
 pub const LEVEL_STEP: f64 = 1.005;
 
+/// A Poisson–Gaussian's lattice (period the gain `a`) shows where the read noise's SD is below
+/// this fraction of `a`: the rounded Gaussian then leaves a modulation of
+/// `exp(−2π²σ²/a²)` ≥ 0.7 % of the PMF. Below it levels get tables of their own (the lattice's
+/// phase moves with the level); above it they share tables as HG's do, which keeps a high-gain
+/// sensor with a larger read noise at a few hundred tables rather than one per level.
+pub const LATTICE_SHOWS: f64 = 0.5;
+
 impl Baseline {
     /// The level → table map of position `pos` for a sampler's clean levels `0..=white`, each
     /// standing for the reference level `black + (c − black)/gain` (`gain` 1: the reference
@@ -44,7 +51,7 @@ impl Baseline {
         let own_table = |x: f64| match self.kind {
             BaselineKind::Pg => {
                 let read = (p.b - 1.0 / 12.0).max(0.0);
-                p.a > 0.0 && read.sqrt() < p.a && x / p.a <= PG_EXACT_MAX_LAMBDA && x > 0.0
+                p.a > 0.0 && read.sqrt() < LATTICE_SHOWS * p.a && x / p.a <= PG_EXACT_MAX_LAMBDA && x > 0.0
             }
             BaselineKind::Hg | BaselineKind::NoiseProfile => false,
         };

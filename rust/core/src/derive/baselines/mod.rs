@@ -48,7 +48,7 @@ use crate::math::fit::{nn_poly_fit, poly_eval};
 use crate::model::layout::{Binning, POSITIONS};
 use crate::model::pack::{BinModel, IsoModel, ModelOrigin, ModelPack, NoiseProfile, PositionModel};
 use crate::model::pmf::Pmf;
-pub use levels::LEVEL_STEP;
+pub use levels::{LATTICE_SHOWS, LEVEL_STEP};
 pub use pmf::{LEVELS_PER_BIN, PG_EXACT_MAX_LAMBDA};
 use pmf::{average, clip, gaussian_cells, pg_cells};
 
