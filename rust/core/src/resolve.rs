@@ -24,7 +24,7 @@ use crate::derive::interp::{CalibratedLaw, InterpOptions};
 use crate::derive::structure::{derived_structure_sources, structure_at};
 use crate::error::{Error, ModelError};
 use crate::format::lazy_pack::LazyPack;
-use crate::model::layout::{BlackAlignment, SensorLayout};
+use crate::model::layout::{BlackAlignment, POSITIONS, SensorLayout};
 use crate::model::pack::{IsoModel, ModelOrigin};
 use crate::model::structure::Components;
 use crate::synth::CleanAt;
@@ -150,7 +150,7 @@ pub fn sampler_for(
 ) -> Result<IsoSampler, ModelError> {
     let sampler = IsoSampler::with_components(pack, model, which);
     if clean_at == CleanAt::Reference {
-        return Ok(sampler);
+        return baseline_levels(pack, model, kind, sampler, [1.0; POSITIONS], extrapolate);
     }
     let (gains, carried) = match kind {
         ModelKind::Noisecal => (model.gain_ratio, Some(carried_gain_ratio(pack, model))),
@@ -158,7 +158,7 @@ pub fn sampler_for(
     };
     let sampler = sampler.clean_at(clean_at, pack.layout.black, gains, carried).map_err(ModelError::Unsupported)?;
     if kind != ModelKind::Noisecal {
-        return Ok(sampler);
+        return baseline_levels(pack, model, kind, sampler, gains, extrapolate);
     }
     // Near black, the levels of a bin too wide for the noise there at their own reference level.
     let fine = std::array::from_fn(|p| {
@@ -167,6 +167,24 @@ pub fn sampler_for(
         target_fine_levels(pack, model, p, bins, gains[p])
     });
     Ok(sampler.with_target_fine_levels(fine))
+}
+
+/// A parametric baseline's sampler drawing at each clean level from its law at that level (its
+/// reference level `black + (c − black)/gain`), not from the bin's average
+/// ([`baselines::Baseline::level_tables`]); the non-parametric model's sampler as it is.
+fn baseline_levels(
+    pack: &ModelPack,
+    model: &IsoModel,
+    kind: ModelKind,
+    sampler: IsoSampler,
+    gains: [f64; POSITIONS],
+    extrapolate: bool,
+) -> Result<IsoSampler, ModelError> {
+    let Some(b) = kind.baseline() else { return Ok(sampler) };
+    let baseline = baselines::baseline(pack, model.iso, b, extrapolate)?;
+    let binning = pack.binning();
+    let tables = std::array::from_fn(|p| baseline.level_tables(&binning, p, gains[p]));
+    Ok(sampler.with_level_tables(tables))
 }
 
 impl IsoSampler {
