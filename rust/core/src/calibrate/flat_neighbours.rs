@@ -113,7 +113,7 @@ mod tests {
             for base in [0i64, top as i64 / 2, top as i64 - at - 3] {
                 for d in at - 2..=at + 2 {
                     let (sa, sb) = (base.max(0), base.max(0) + d);
-                    if sb < 0 || sb > top as i64 {
+                    if !(0..=top as i64).contains(&sb) {
                         continue;
                     }
                     check(sa as u32, sb as u32, m, t, &lim);

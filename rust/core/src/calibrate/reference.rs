@@ -423,8 +423,10 @@ mod tests {
         assert!(matches!(b.close_spending(&binning, nothing, 4.5), Err(SessionError::NoFlatPixels)));
         assert_eq!(b, before);
         let got = b.close_spending(&binning, None, 4.5).expect("close");
-        assert_eq!(got, want);
+        // NaN marks level groups without differences: compared as printed, NaN as NaN.
+        assert!(format!("{got:?}") == format!("{want:?}"), "close_spending differs from close");
         assert_eq!(got.probe.mean, want.probe.mean);
+        assert_eq!(got.levels, want.levels);
         assert!(matches!(b.close_spending(&binning, None, 4.5), Err(SessionError::ReferenceClosed)));
         let f = ndarray::Array2::<u16>::from_elem((32, 48), 500);
         let policy = SessionConfig::new(100).drift_policy();
