@@ -76,9 +76,22 @@ fn chart_only(laws: &[CalibratedLaw]) -> Vec<CalibratedLaw> {
     laws.iter().map(|l| CalibratedLaw { at_black: [None; 4], ..*l }).collect()
 }
 
+/// The laws as the detector before pinning read them: every positive chart intercept trusted
+/// (a position whose intercept is not positive left out, as it left it out). Its calls are
+/// [`gaps`]' on these, an undetermined gap read as "no switch".
+fn trusting_every_intercept(laws: &[CalibratedLaw]) -> Vec<CalibratedLaw> {
+    laws.iter()
+        .map(|l| {
+            let law = l.law.map(|p| p.filter(|p| p.a > 0.0 && p.b > 0.0));
+            CalibratedLaw { iso: l.iso, law, at_black: law.map(|p| p.map(|p| p.b)) }
+        })
+        .collect()
+}
+
 #[test]
 fn family_switch_calls() {
-    let rows: Vec<(u64, String, Vec<(u32, u32, bool, GapCall, GapCall)>)> = (0..SENSORS)
+    type Calls = Vec<(u32, u32, bool, GapCall, GapCall, GapCall)>;
+    let rows: Vec<(u64, String, Calls)> = (0..SENSORS)
         .into_par_iter()
         .map(|seed| {
             let sensor = random_sensor(seed);
@@ -89,11 +102,17 @@ fn family_switch_calls() {
             let laws = calibrated_laws(&pack);
             let with_dark = gaps(&laws);
             let chart = gaps(&chart_only(&laws));
+            let before = gaps(&trusting_every_intercept(&chart_only(&laws)));
             let calls = with_dark
                 .into_iter()
                 .zip(chart)
-                .map(|(d, c)| {
-                    (d.below_iso, d.above_iso, truth_switch(&sensor.model, d.below_iso, d.above_iso), d.call, c.call)
+                .zip(before)
+                .map(|((d, c), b)| {
+                    let b = match b.call {
+                        GapCall::Switch(s) => GapCall::Switch(s),
+                        _ => GapCall::NoSwitch,
+                    };
+                    (d.below_iso, d.above_iso, truth_switch(&sensor.model, d.below_iso, d.above_iso), d.call, c.call, b)
                 })
                 .collect();
             let dg = sensor
@@ -104,21 +123,25 @@ fn family_switch_calls() {
             (seed, format!("{} bits, {dg}, ISOs {:?}", sensor.bits, pack.iso_list()), calls)
         })
         .collect();
-    let (mut dark, mut chart) = (Tally::default(), Tally::default());
+    let (mut dark, mut chart, mut before) = (Tally::default(), Tally::default(), Tally::default());
     for (seed, what, calls) in &rows {
         eprintln!("random sensor {seed}: {what}");
-        for (lo, hi, truth, d, c) in calls {
+        for (lo, hi, truth, d, c, b) in calls {
             dark.add(*truth, d);
             chart.add(*truth, c);
+            before.add(*truth, b);
             eprintln!(
-                "  {lo:>6} → {hi:<6} truth {:<9} with dark frames {:<16} chart only {}",
+                "  {lo:>6} → {hi:<6} truth {:<7} with dark frames {:<16} chart only {:<16} trusting every intercept {}",
                 if *truth { "SWITCH" } else { "none" },
                 call_text(d),
-                call_text(c)
+                call_text(c),
+                call_text(b)
             );
         }
     }
-    eprintln!("with dark frames: {dark:?}\nchart only:       {chart:?}");
+    eprintln!(
+        "with dark frames: {dark:?}\nchart only:       {chart:?}\ntrusting every intercept (the detector before): {before:?}"
+    );
     for (name, t) in [("with dark frames", dark), ("chart only", chart)] {
         assert_eq!(t.false_switch, 0, "{name}: switches called where the gain does not change: {t:?}");
         assert_eq!(t.missed, 0, "{name}: real switches called 'no switch': {t:?}");
