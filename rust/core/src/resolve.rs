@@ -18,11 +18,11 @@ use ndarray::{Array2, ArrayView2};
 
 use crate::ModelPack;
 use crate::derive::baselines::{self, BaselineKind};
-use crate::derive::fine_levels::target_fine_levels;
+use crate::derive::fine_levels::{target_fine_levels, variance_at_black};
 use crate::derive::interp;
 use crate::derive::interp::{CalibratedLaw, InterpOptions};
 use crate::derive::structure::{derived_structure_sources, structure_at};
-use crate::error::{Error, ModelError};
+use crate::error::{CodecError, Error, ModelError};
 use crate::format::lazy_pack::LazyPack;
 use crate::model::layout::{BlackAlignment, POSITIONS, SensorLayout};
 use crate::model::pack::{IsoModel, ModelOrigin};
@@ -238,8 +238,21 @@ pub fn resolve_on_demand<B: std::ops::Deref<Target = [u8]>>(
     let plan = match stored {
         Some(_) => None,
         None => {
-            let laws: Vec<CalibratedLaw> =
-                index.isos.iter().filter(|e| e.is_calibrated()).map(|e| (e.iso, e.noise_law())).collect();
+            // The laws from the index; a dark step's variance at black from the ISO's
+            // structured components (read without its weights): the whole pack's plan.
+            let laws = index
+                .isos
+                .iter()
+                .filter(|e| e.is_calibrated())
+                .map(|e| {
+                    let st = lazy.structure_of(e.iso)?;
+                    Ok(CalibratedLaw {
+                        iso: e.iso,
+                        law: e.noise_law(),
+                        at_black: std::array::from_fn(|p| variance_at_black(st.as_ref(), p)),
+                    })
+                })
+                .collect::<Result<Vec<CalibratedLaw>, CodecError>>()?;
             Some(interp::plan_among(&laws, index.isos.is_empty(), iso, extrapolate, &InterpOptions::default())?)
         }
     };

@@ -252,6 +252,35 @@ pub fn decode_section(entry: &IsoEntry, section: &[u8], cells: &mut u64) -> Resu
     Ok((m, structure))
 }
 
+/// The structured components of `entry` from its section's bytes, without expanding the
+/// model's weights (the section's CRC, ISO, origin and components checked as
+/// [`decode_section`] checks them): what an interpolation's plan reads of a calibrated ISO it
+/// will not stand on (its dark step's variance at black).
+pub fn decode_section_structure(entry: &IsoEntry, section: &[u8]) -> Result<Option<IsoStructure>, CodecError> {
+    let iso = entry.iso;
+    let damaged = |what: String| CodecError::Invalid { what: WHAT, detail: format!("{what}: the file is damaged") };
+    codec::check_crc(WHAT, crc32fast::hash(section), entry.crc)?;
+    let Some((lens, rest)) = section.split_first_chunk::<SECTION_LENGTHS>() else {
+        return Err(CodecError::Truncated { what: WHAT, len: section.len(), expected: SECTION_LENGTHS });
+    };
+    let len = |i: usize| u64::from_le_bytes(lens[8 * i..8 * i + 8].try_into().expect("8 bytes"));
+    let (fields_len, deflated_len) = (len(0), len(1));
+    let Some(f) = rest.get(..usize::try_from(deflated_len).unwrap_or(usize::MAX)) else {
+        return Err(damaged(format!(
+            "an ISO section claims {deflated_len} bytes of fields, more than its {} bytes",
+            rest.len()
+        )));
+    };
+    let (m, structure): IsoSection = codec::decode_payload(WHAT, &codec::inflate_exact(WHAT, fields_len, f)?)?;
+    if m.iso != iso || m.origin != entry.origin {
+        return Err(damaged(format!("the section of ISO {iso} holds the model of ISO {} ({:?})", m.iso, m.origin)));
+    }
+    if structure.is_some() != entry.structured || structure.as_ref().is_some_and(|s| s.iso != iso) {
+        return Err(damaged(format!("the structured components of ISO {iso} do not match the index")));
+    }
+    Ok(structure)
+}
+
 /// Every ISO of a version 9 file (`head` its sealed index, `rest` the bytes after it), as one
 /// pack (checked by the caller).
 pub fn decode(head: &[u8], rest: &[u8]) -> Result<ModelPack, CodecError> {
