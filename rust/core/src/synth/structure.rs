@@ -34,13 +34,6 @@ const GRID: f64 = 32.0;
 /// 5–6): the shape error is second order in the share (the excess kurtosis of `Q ∗ K` comes out
 /// `(1 − share)²` of the measured one), while Richardson–Lucy would cost `n · K` per iteration.
 const RESCALE_ONLY: f64 = 0.1;
-/// An unclipped bin whose support (less its negligible tails) spans at most this many cells is
-/// deconvolved by Richardson–Lucy whatever the kernel's share: narrowing a PMF a few DN wide
-/// re-bins its steps and reshapes it (near black at the demo's ISO 100, variance about 1.2 DN²
-/// and the row kernel's 0.11, the default components scored 0.00041 against pixel-only's
-/// 0.00029 in the darkest level group), and there the iterations cost at most
-/// `RL_ITERATIONS · 64 · K`.
-const RL_NARROW_CORE: usize = 64;
 /// Richardson–Lucy iterations at most, and the work (`iterations · n · K`) per bin at most, `n`
 /// the PMF's support less its negligible tails ([`TAIL_MASS`]).
 const RL_ITERATIONS: usize = 200;
@@ -362,10 +355,7 @@ fn deconvolve_bin_within(b: &BinModel, k0: i32, kernel: &[f64], max_iterations: 
     // A clipped bin where the kernel is a small share of the variance starts close (the pile
     // past the clip, the rest narrowed) and needs few iterations to fit the cells next to the
     // clip: 20 leave a JSD near 10⁻⁵ on clipped Gaussians, far below a bin's sampling floor.
-    let cap = match start_only && pile_end.is_some() {
-        true => max_iterations.min(CLIPPED_SMALL_SHARE_ITERATIONS),
-        false => max_iterations,
-    };
+    let cap = if start_only { max_iterations.min(CLIPPED_SMALL_SHARE_ITERATIONS) } else { max_iterations };
     let iterations = (RL_WORK / (core * kernel.len()) as f64).min(cap as f64) as usize;
     // A bin whose samples reached a clip can have no pile at either end of its PMF (pooled
     // neighbours, whose clips sit elsewhere, leave floor-count tails past its own): such a bin
@@ -394,7 +384,7 @@ fn deconvolve_bin_within(b: &BinModel, k0: i32, kernel: &[f64], max_iterations: 
         false => narrowed(&pmf, pm - km, pm, pv, kv),
         true => clipped_start(&pmf, low, k0, kernel.len(), km, kv),
     };
-    if (start_only && !clipped && core > RL_NARROW_CORE) || iterations < 10 {
+    if (start_only && !clipped) || iterations < 10 {
         return from_weights(b, start.first, &start.p);
     }
     let ext = kernel.len();
