@@ -61,7 +61,7 @@ fn run(seed: u64) -> Outcome {
     let hplan = spec.heldout_plan(&plan).expect("held-out plan");
     let off = spec.heldout.index_offset;
     let mut lplan = hplan.clone();
-    lplan.frames_per_burst = LINE_FRAMES;
+    lplan.frames_per_burst = line_frames();
     // The line study's held-out captures do not shake ([`still_heldout_for_lines`]).
     let mut still_sensor = sensor.model.clone();
     still_heldout_for_lines(&mut still_sensor);
@@ -97,6 +97,12 @@ fn still_heldout_for_lines(model: &mut noisecal_sim::SensorModel) {
 /// in log, so ×1.2 (0.18) cannot be judged there. With 24 frames (≥ 35 × 23 degrees of freedom
 /// per row parity on most pairs) the SD is about 0.05.
 const LINE_FRAMES: u32 = 24;
+
+/// [`LINE_FRAMES`], or `NOISECAL_LINE_FRAMES` where set (to see a line ratio converge: a
+/// ratio beyond ×1.2 that is sampling shrinks toward 1 as the frames grow).
+fn line_frames() -> u32 {
+    std::env::var("NOISECAL_LINE_FRAMES").ok().and_then(|s| s.trim().parse().ok()).unwrap_or(LINE_FRAMES).max(2)
+}
 
 /// Sampling slack on the line ratios, in standard deviations of their logarithm (each pair's
 /// own, from its degrees of freedom: `Moments::line_log_sd`).
@@ -208,19 +214,19 @@ fn motion_between_frames_is_not_measured_as_noise() {
     let mut line_stats = [[0usize; 2]; 2];
     let mut line_logs: [Vec<f64>; 2] = [Vec::new(), Vec::new()];
     for o in &outcomes {
-        println!("{:>4} rows/cols on {LINE_FRAMES} frames per burst: still | moving", o.seed);
+        println!("{:>4} rows/cols on {} frames per burst: still | moving", o.seed, line_frames());
         for (s, m) in o.still_lines.iter().zip(&o.moving_lines) {
             let (sr, sc) = s.line_ratios();
             let (mr, mc) = m.line_ratios();
             let (rsr, rsc) = s.raw_line_ratios();
             let (rmr, rmc) = m.raw_line_ratios();
+            let (srs, scs) = s.line_log_sd();
+            let (mrs, mcs) = m.line_log_sd();
             println!(
-                "     {:>5} {:>4} | {sr:.3} {sc:.3} | {mr:.3} {mc:.3}  (as measured {rsr:.3} {rsc:.3} | {rmr:.3} {rmc:.3}; real row var {:.4} of which pixels {:.4}, col var {:.4} of which pixels {:.4})",
+                "     {:>5} {:>4} | {sr:.3} {sc:.3} | {mr:.3} {mc:.3}  (log SD {srs:.3} {scs:.3}; as measured {rsr:.3} {rsc:.3} | {rmr:.3} {rmc:.3}; real row var {:.4} of which pixels {:.4}, col var {:.4} of which pixels {:.4})",
                 s.iso, s.step, s.row_var.0, s.row_pixel.0, s.col_var.0, s.col_pixel.0
             );
             // Both sessions, at every pair: ×1.2, plus each ratio's own sampling slack.
-            let (srs, scs) = s.line_log_sd();
-            let (mrs, mcs) = m.line_log_sd();
             for (session, what, r, sd) in [
                 ("still", "row", sr, srs),
                 ("still", "column", sc, scs),
