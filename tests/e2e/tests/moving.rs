@@ -94,9 +94,13 @@ fn still_heldout_for_lines(model: &mut noisecal_sim::SensorModel) {
 
 /// Held-out frames per burst for the row- and column-mean variances. The fidelity held-out set
 /// (2–8 frames of 72–128 rows) gives the ratio of two such variances a sampling SD of about 0.17
-/// in log, so ×1.2 (0.18) cannot be judged there. With 24 frames (≥ 35 × 23 degrees of freedom
-/// per row parity on most pairs) the SD is about 0.05.
-const LINE_FRAMES: u32 = 24;
+/// in log, so ×1.2 (0.18) cannot be judged there. With 24 frames the SD was about 0.05 at most
+/// pairs, but 0.13 (rows) and 0.19 (columns) on seed 4 at EV +4, where the saturation rule
+/// leaves few rows and columns with 16 flat pixels of a parity on its 64 × 48 held-out image:
+/// there rows 1.358 at ISO 250 and columns 0.689 at ISO 3200 were sampling (2.3 and 2.0 SD),
+/// not the model or the score. With 192 frames the same pairs read 0.933 and 0.991 (SD 0.051
+/// and 0.065) and the SD elsewhere is about 0.02.
+const LINE_FRAMES: u32 = 192;
 
 /// [`LINE_FRAMES`], or `NOISECAL_LINE_FRAMES` where set (to see a line ratio converge: a
 /// ratio beyond ×1.2 that is sampling shrinks toward 1 as the frames grow).
