@@ -98,18 +98,8 @@ impl TemporalStats {
     /// are large; they dominate sparse level groups, never the patch interiors that fill the
     /// populated ones. Zero where the burst has no differences.
     pub fn robust_variance_fits(&self, groups: &Groups) -> [[f64; 3]; POSITIONS] {
-        self.robust_variance_fits_below(groups, f64::INFINITY)
-    }
-
-    /// [`Self::robust_variance_fits`] over the level groups that lie wholly below `below` (DN
-    /// above black): the law of a burst that saturated, fitted without the levels where the
-    /// ceiling cut its noise ([`crate::calibrate::saturated`]). With `below` infinite, every
-    /// group.
-    pub fn robust_variance_fits_below(&self, groups: &Groups, below: f64) -> [[f64; 3]; POSITIONS] {
         std::array::from_fn(|pos| {
-            let span = (groups.white as f64 - groups.black[pos] as f64).max(1.0);
             let mut pts: Vec<(f64, f64, f64)> = (0..GROUPS)
-                .filter(|&g| below.is_infinite() || (g + 1) as f64 / GROUPS as f64 * span <= below)
                 .filter_map(|g| {
                     let [n, s1, s2] = self.acc[pos * GROUPS + g];
                     (n >= 64.0).then(|| {
@@ -164,10 +154,6 @@ pub struct FlatReport {
     /// resumed session reports 0 here).
     #[serde(skip)]
     pub saturated: [u64; POSITIONS],
-    /// Per position, the lowest clean level the saturation rule left out (DN), `None` where it
-    /// found no ceiling. Not kept in checkpoints, as `saturated`.
-    #[serde(skip)]
-    pub saturation_cut: [Option<u16>; POSITIONS],
 }
 
 /// The largest ratio of a pixel's variance over an `m`-frame burst to the noise variance at its
@@ -470,15 +456,12 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
         black: inp.black,
         white: inp.white,
         burst_variance: pixel_var,
-        law_below: |below| {
-            if below.is_infinite() { robust } else { inp.temporal.robust_variance_fits_below(&groups, below) }
-        },
+        law: |pos, x| poly_eval(&robust[pos], x).max(0.0),
     });
     for pos in 0..POSITIONS {
         report.flat[pos] -= sat.left_out[pos];
         report.saturated[pos] = sat.left_out[pos];
     }
-    report.saturation_cut = sat.cut;
     (clean, report)
 }
 
