@@ -388,17 +388,22 @@ struct ClosedParts {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::calibrate::session::SessionConfig;
     use crate::model::layout::CfaPattern;
     use rand::{RngExt, SeedableRng};
     use rand_chacha::ChaCha8Rng;
+
+    /// A session's default drift policy (`SessionConfig::new`), written out: the session's file
+    /// uses this one, so this one does not use it (`tests/layers.rs`, no circles between files).
+    fn policy() -> DriftPolicy {
+        DriftPolicy { z: 5.0, floor: 0.002, max: 0.05, normalise: true }
+    }
 
     /// A burst of 4 frames of a chart (flat patches, noise of a few DN).
     fn burst() -> (ReferenceBurst, SensorLayout) {
         let layout = SensorLayout { width: 48, height: 32, cfa: CfaPattern::Rggb, black: [64.0; 4], white: 1023 };
         let mut rng = ChaCha8Rng::seed_from_u64(9);
         let mut b = ReferenceBurst::new(&layout, 1_000_000);
-        let policy = SessionConfig::new(100).drift_policy();
+        let policy = policy();
         for _ in 0..4 {
             let f = ndarray::Array2::from_shape_fn((32, 48), |(y, x)| {
                 100 + 200 * ((y / 8) * 6 + x / 8) as u16 % 900 + rng.random_range(0..5)
@@ -429,7 +434,7 @@ mod tests {
         assert_eq!(got.levels, want.levels);
         assert!(matches!(b.close_spending(&binning, None, 4.5), Err(SessionError::ReferenceClosed)));
         let f = ndarray::Array2::<u16>::from_elem((32, 48), 500);
-        let policy = SessionConfig::new(100).drift_policy();
+        let policy = policy();
         let pushed = b.push(&FrameView::from_array(&f).expect("view"), &FrameMeta::new(100, 1_000_000), &policy);
         assert!(matches!(pushed, Err(SessionError::ReferenceClosed)));
     }
