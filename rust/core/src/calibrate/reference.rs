@@ -284,7 +284,7 @@ impl ReferenceBurst {
     /// the selection sums per bin of `binning`. Errors when the burst is empty or nothing is
     /// flat.
     pub fn close(&self, binning: &Binning, roi: Option<Roi>, flat_k: f64) -> Result<CleanImage, SessionError> {
-        self.close_into(binning, roi, flat_k, vec![0; self.sum.len()])
+        self.close_parts(binning, roi, flat_k).map(|parts| self.finish(parts, Vec::with_capacity(self.sum.len())))
     }
 
     /// [`ReferenceBurst::close`] for a burst that is dropped once closed (a calibration
@@ -306,17 +306,6 @@ impl ReferenceBurst {
             let mean = std::mem::take(&mut self.first);
             self.finish(parts, mean)
         })
-    }
-
-    /// [`ReferenceBurst::close`] with `mean` the buffer its rounded mean is written into.
-    fn close_into(
-        &self,
-        binning: &Binning,
-        roi: Option<Roi>,
-        flat_k: f64,
-        mean: Vec<u16>,
-    ) -> Result<CleanImage, SessionError> {
-        self.close_parts(binning, roi, flat_k).map(|parts| self.finish(parts, mean))
     }
 
     /// What a clean image holds besides the mean and what is made of it: the flat levels, the
@@ -349,7 +338,8 @@ impl ReferenceBurst {
         Ok(ClosedParts { levels, flat, selection, level_selection })
     }
 
-    /// The clean image of `parts`, its rounded mean written into `mean` (as long as the sums).
+    /// The clean image of `parts`, its rounded mean written into `mean` (whose contents are
+    /// replaced; its capacity is reused).
     fn finish(&self, parts: ClosedParts, mut mean: Vec<u16>) -> CleanImage {
         let ClosedParts { levels, flat, selection, level_selection } = parts;
         let (w, h) = (self.layout.width as usize, self.layout.height as usize);
@@ -357,10 +347,8 @@ impl ReferenceBurst {
         // `round(sum / frames)`, exactly as the division rounds, without one per pixel.
         let mean_of = RoundedQuotient::new(self.frames);
         let white = self.layout.white as i64;
-        mean.resize(self.sum.len(), 0);
-        for (m, &s) in mean.iter_mut().zip(&self.sum) {
-            *m = mean_of.of(s).clamp(0, white) as u16;
-        }
+        mean.clear();
+        mean.extend(self.sum.iter().map(|&s| mean_of.of(s).clamp(0, white) as u16));
         let probe = MotionProbe::new(mean, &levels, w, h, self.frames, &flat, &groups, clip_level(&self.layout));
         CleanImage {
             levels,
