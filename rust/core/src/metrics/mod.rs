@@ -23,9 +23,10 @@
 //!   [`floor_scale`] ([`Floor`]).
 //! - A model with several synthetic sets (seeds) scores their mean ([`score_seeds`]).
 //! - Spatial measures (row and column means, row-offset distribution, frame offsets, noise power
-//!   spectra of flat crops) are in [`spatial`].
+//!   spectra of flat crops) are in [`spatial`], the noise power spectra in [`nps`].
 
 mod line_pixels;
+pub mod nps;
 pub mod spatial;
 #[cfg(test)]
 mod tests_line_pixels;
