@@ -1,9 +1,11 @@
 //! Calibrate → synthesize → compare with held-out simulated captures: per-bin moments, and JSD
 //! against a heteroscedastic-Gaussian fit when the read noise is heavy-tailed.
 
-use noisecal_core::derive::baselines::{BaselineKind, baseline_model};
 use noisecal_core::metrics::{NoiseSamples, compare};
 use noisecal_core::model::layout::position;
+use noisecal_core::model::structure::Components;
+use noisecal_core::resolve::{ModelKind, resolve_model};
+use noisecal_core::synth::CleanAt;
 use noisecal_core::synth::sampler::IsoSampler;
 use noisecal_core::synth::synthesize;
 use noisecal_e2e::{calibrate, heldout_clean, setup};
@@ -28,8 +30,11 @@ fn synthetic_noise_matches_heldout_captures_and_beats_hg() {
     for (i, &iso) in [200u32, 800].iter().enumerate() {
         let model = pack.iso(iso).expect("calibrated");
         let sampler = IsoSampler::new(&pack, model);
-        let hg = baseline_model(&pack, iso, BaselineKind::Hg, false).expect("hg");
-        let hg_sampler = IsoSampler::new(&pack, &hg);
+        // HG as `synth --model hg` draws it: its law at each clean level, not the bin's average.
+        let hg_sampler = resolve_model(&pack, iso, ModelKind::Hg, false)
+            .expect("hg")
+            .sampler(&pack, Components::PIXEL, CleanAt::Reference, false)
+            .expect("hg sampler");
         let mut real = NoiseSamples::new(&binning, 4);
         let mut real_b = NoiseSamples::new(&binning, 4);
         let mut syn = NoiseSamples::new(&binning, 4);

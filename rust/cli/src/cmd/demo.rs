@@ -17,6 +17,7 @@ use noisecal_sim::SensorModel;
 use crate::simulate::{PRESET_HELDOUT_FRAMES, SimSession};
 use crate::support::progress_bar;
 use noisecal_core::resolve::{ModelKind, resolve_model};
+use noisecal_core::synth::CleanAt;
 use noisecal_input::calibrate::CalibrateOptions;
 use noisecal_input::clean::CleanImages;
 use noisecal_input::files::write_atomic;
@@ -99,9 +100,15 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         let mut syn = NoiseSamples::new(&binning, 8);
         let mut hg = NoiseSamples::new(&binning, 8);
         let m_nc = resolve_model(&pack, iso, ModelKind::Noisecal, false)?.model;
-        let m_hg = resolve_model(&pack, iso, ModelKind::Hg, false)?.model;
         let s_nc = IsoSampler::new(&pack, &m_nc);
-        let s_hg = IsoSampler::with_components(&pack, &m_hg, noisecal_core::model::structure::Components::PIXEL);
+        // HG as `synth --model hg` draws it: the law at each clean level (the clean image is at
+        // the reference brightness).
+        let s_hg = resolve_model(&pack, iso, ModelKind::Hg, false)?.sampler(
+            &pack,
+            noisecal_core::model::structure::Components::PIXEL,
+            CleanAt::Reference,
+            false,
+        )?;
         for k in 0..frames {
             let (px, _) = sim.capture(iso, exp, HELDOUT_BASE + 1000 * (i as u64 + 1) + k)?;
             if k % 2 == 1 {

@@ -79,8 +79,21 @@ pub(super) struct Candidates {
     pub(super) loo_from: Option<Vec<u32>>,
 }
 
-/// A candidate's model with its label, origin and (leave-one-out) the ISOs it came from.
-type Built = Result<(String, String, IsoModel, Option<Vec<u32>>), String>;
+/// A candidate other than the pack's own model, as built.
+struct BuiltModel {
+    label: String,
+    origin: String,
+    model: IsoModel,
+    /// Leave-one-out: the calibrated ISOs the left-out ISO was interpolated from.
+    from: Option<Vec<u32>>,
+    /// A parametric baseline's law: its sampler draws at each clean level from the law at that
+    /// level, as `synth --model` does ([`baselines::Baseline::level_tables`]), not from the
+    /// bin's average.
+    law: Option<baselines::Baseline>,
+}
+
+/// A candidate, or why it cannot be scored.
+type Built = Result<BuiltModel, String>;
 
 /// The candidates scored at `iso`, each with `seeds` empty accumulators from `fresh`; errors for
 /// an ISO the pack cannot model. `profile` is the held-out captures' NoiseProfile of the ISO.
@@ -117,7 +130,12 @@ pub(super) fn candidates(
         p.structure.retain(|s| s.iso != iso);
         p
     });
-    let candidate = |kind: CandidateKind, label: String, origin: String, m: &IsoModel| Candidate {
+    let binning = pack.binning();
+    let candidate = |kind: CandidateKind,
+                     label: String,
+                     origin: String,
+                     m: &IsoModel,
+                     law: Option<&baselines::Baseline>| Candidate {
         kind,
         label,
         origin,
@@ -131,12 +149,21 @@ pub(super) fn candidates(
             CandidateKind::NoisecalLoo => {
                 IsoSampler::with_components(without.as_ref().unwrap_or(pack), m, Components::ON_OWN_CAPTURES)
             }
-            _ => IsoSampler::with_components(pack, m, Components::PIXEL),
+            // The held-out clean images are at the reference brightness: each level's law is the
+            // law at that level (gain 1).
+            _ => {
+                let sampler = IsoSampler::with_components(pack, m, Components::PIXEL);
+                match law {
+                    Some(b) => sampler.with_level_tables(std::array::from_fn(|p| b.level_tables(&binning, p, 1.0))),
+                    None => sampler,
+                }
+            }
         },
         synth: (0..seeds).map(|_| fresh()).collect(),
         spatial: (0..seeds).map(|_| SpatialSamples::new()).collect(),
     };
-    let mut list = vec![candidate(CandidateKind::Noisecal, "noisecal (non-parametric)".into(), origin.clone(), &model)];
+    let mut list =
+        vec![candidate(CandidateKind::Noisecal, "noisecal (non-parametric)".into(), origin.clone(), &model, None)];
     // With structured components, the pixel-independent model alone is scored next to it: what
     // the components add (the pixel-only model and the full one side by side in one evaluation).
     if list[0].sampler.structure().is_some() {
@@ -159,14 +186,14 @@ pub(super) fn candidates(
     let mut loo_from = None;
     for (kind, r) in built {
         match r {
-            Some(Ok((label, origin, m, from))) => {
+            Some(Ok(b)) => {
                 if kind.is_leave_one_out() && !loo_ok {
                     continue;
                 }
-                if from.is_some() {
-                    loo_from = from;
+                if b.from.is_some() {
+                    loo_from = b.from;
                 }
-                list.push(candidate(kind, label, origin, &m));
+                list.push(candidate(kind, b.label, b.origin, &b.model, b.law.as_ref()));
             }
             Some(Err(e)) => notes.push(e),
             None => {}
@@ -185,8 +212,12 @@ fn build(
     profile: Option<NoiseProfile>,
     without: Option<&ModelPack>,
 ) -> Option<Built> {
-    let baseline = |b: baselines::Baseline, bk: BaselineKind| {
-        (bk.label().to_string(), baseline_origin(&b.source), b.to_model(pack), None)
+    let baseline = |b: baselines::Baseline, bk: BaselineKind| BuiltModel {
+        label: bk.label().to_string(),
+        origin: baseline_origin(&b.source),
+        model: b.to_model(pack),
+        from: None,
+        law: Some(b),
     };
     match kind {
         CandidateKind::Noisecal | CandidateKind::NoisecalPixel => None,
@@ -209,22 +240,23 @@ fn build(
             .map(|b| Ok(baseline(b, BaselineKind::NoiseProfile))),
         CandidateKind::NoisecalLoo => without.map(|w| {
             interp::interpolate_with(w, iso, false, &interp::InterpOptions::default())
-                .map(|(m, plan)| {
-                    let from = format!("interpolated from {:?} (ISO {iso} left out)", plan.neighbours);
-                    (
-                        "noisecal interpolated (leave-one-out; same components as the calibrated row)".to_string(),
-                        from,
-                        m,
-                        Some(plan.neighbours),
-                    )
+                .map(|(m, plan)| BuiltModel {
+                    label: "noisecal interpolated (leave-one-out; same components as the calibrated row)".to_string(),
+                    origin: format!("interpolated from {:?} (ISO {iso} left out)", plan.neighbours),
+                    model: m,
+                    from: Some(plan.neighbours),
+                    law: None,
                 })
                 .map_err(|e| format!("leave-one-out at ISO {iso}: {e}"))
         }),
         CandidateKind::HgLoo => without.map(|w| {
             baselines::interpolate(w, iso, BaselineKind::Hg, false)
-                .map(|h| {
-                    let m = h.to_model(pack);
-                    ("HG interpolated parametrically (leave-one-out)".to_string(), baseline_origin(&h.source), m, None)
+                .map(|h| BuiltModel {
+                    label: "HG interpolated parametrically (leave-one-out)".to_string(),
+                    origin: baseline_origin(&h.source),
+                    model: h.to_model(pack),
+                    from: None,
+                    law: Some(h),
                 })
                 .map_err(|e| format!("leave-one-out HG at ISO {iso}: {e}"))
         }),
