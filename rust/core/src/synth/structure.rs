@@ -556,13 +556,23 @@ fn spread_pile_start(pmf: &Pmf, k0: i32, taps: usize, km: f64, kv: f64) -> Optio
 fn from_weights(b: &BinModel, first: i32, q: &[f64]) -> BinModel {
     const SCALE: f64 = (1u64 << 30) as f64;
     // `(x·SCALE).round() as u64` (0 below zero and at NaN), without libm's `round`.
-    let counts: Vec<u64> = q.iter().map(|&x| round_half_away(x * SCALE).max(0) as u64).collect();
-    let lo = counts.iter().position(|&c| c > 0);
-    let hi = counts.iter().rposition(|&c| c > 0);
+    let count = |x: f64| round_half_away(x * SCALE).max(0) as u64;
+    let lo = q.iter().position(|&x| count(x) > 0);
+    let hi = q.iter().rposition(|&x| count(x) > 0);
     let (Some(lo), Some(hi)) = (lo, hi) else {
         return b.clone();
     };
-    BinModel { first: first + lo as i32, counts: counts[lo..=hi].to_vec(), ..b.clone() }
+    // The counts of the cells kept, and `b`'s other fields (`..b.clone()` copied its counts
+    // only to drop them).
+    let counts = q[lo..=hi].iter().map(|&x| count(x)).collect();
+    BinModel {
+        first: first + lo as i32,
+        counts,
+        samples: b.samples,
+        source: b.source,
+        measured: b.measured,
+        clipped: b.clipped,
+    }
 }
 
 /// A quantile function as a density on the grid.
