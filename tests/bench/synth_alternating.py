@@ -10,6 +10,10 @@ components and with `--components pixel`.
 
     python3 tests/bench/synth_alternating.py --old /tmp/noisecal-old --new target/release/noisecal
 
+With `--small`, the clean image is 64×48 instead: the run is then the pack's load and the
+sampler build (the deconvolution of every bin with structured components), and the difference
+between a case and its `-pixel` case is the build's cost of the components.
+
 Mpix/s is 12 MP over the median CPU time divided by the 2 cores (what the process would do on two
 free cores), and over the median wall time; `uptime`'s load is printed before and after.
 """
@@ -53,6 +57,7 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=7)
     ap.add_argument("--work", type=Path, help="folder for the pack and images (kept; made if missing)")
     ap.add_argument("--cases", default="fpn,fpn-pixel,demo,demo-pixel")
+    ap.add_argument("--small", action="store_true", help="a 64x48 clean image: the pack load and sampler build alone")
     a = ap.parse_args()
     work = a.work or Path(tempfile.mkdtemp(prefix="synth_alt_"))
     work.mkdir(parents=True, exist_ok=True)
@@ -68,7 +73,9 @@ def main() -> None:
     setup(["demo", "--out", "demo"], work / "demo")
     setup(["simulate", "--width", str(W), "--height", str(H), "--frames", "1", "--isos", "100", "--ev=0",
            "--dngs", "big"], work / "big")
-    clean = str(min((work / "big").glob("*.dng")))
+    setup(["simulate", "--width", "64", "--height", "48", "--frames", "1", "--isos", "100", "--ev=0",
+           "--dngs", "small"], work / "small")
+    clean = str(min((work / ("small" if a.small else "big")).glob("*.dng")))
     demo_pack = str(min((work / "demo").glob("*.pack")))
     cases = {
         "fpn": ["--pack", str(work / "fpn.pack"), "--iso", "1600"],
@@ -77,7 +84,8 @@ def main() -> None:
         "demo-pixel": ["--pack", demo_pack, "--iso", "3200", "--components", "pixel"],
     }
     names = a.cases.split(",")
-    print(f"load before: {load()}; {a.rounds} rounds; 12 MP = {W}x{H}")
+    size = "64x48" if a.small else f"12 MP = {W}x{H}"
+    print(f"load before: {load()}; {a.rounds} rounds; {size}")
     cpu = {(c, s): [] for c in names for s in ("old", "new")}
     wall = {(c, s): [] for c in names for s in ("old", "new")}
     for r in range(a.rounds):
@@ -92,7 +100,7 @@ def main() -> None:
             if not filecmp.cmp(work / f"out_{c}_old.dng", work / f"out_{c}_new.dng", shallow=False):
                 raise SystemExit(f"case {c}: old and new outputs differ")
     print(f"load after: {load()}; outputs of old and new identical in every case and round")
-    mp = W * H / 1e6
+    mp = (64 * 48 if a.small else W * H) / 1e6
     print("case        side  CPU median ms (range)        Mpix/s (CPU/2)  wall median ms  Mpix/s (wall)")
     for c in names:
         for side in ("old", "new"):
