@@ -13,6 +13,8 @@
 //! "pattern not kept" keeps no fixed pattern between calls (`with_pattern_cache_bytes(0)`): each
 //! frame computes it in its offsets pass, as a single image does (`noisecal synth` of one file).
 //!
+//! "sampler build" times building the sampler (default components and pixel-only) on its own.
+//!
 //! With `NOISECAL_BENCH_LOOP=n` it instead times n frames in a plain loop and prints the wall and
 //! the process CPU time per frame (for `rust/python/benches/interleaved.py --cpu`).
 
@@ -79,6 +81,19 @@ fn benches(c: &mut Criterion) {
         }
         return;
     }
+
+    // The sampler build alone (what `noisecal synth` does once per run before the first image,
+    // and `Pack.synth` once per pack and ISO): the structured components' deconvolution of every
+    // bin, the fine levels near black, the tables.
+    let mut g = c.benchmark_group("sampler build");
+    g.sample_size(20);
+    g.bench_function(format!("default components, global pool ({threads} threads)"), |b| {
+        b.iter(|| IsoSampler::new(black_box(&pack), black_box(&model)))
+    });
+    g.bench_function(format!("components=pixel, global pool ({threads} threads)"), |b| {
+        b.iter(|| IsoSampler::with_components(black_box(&pack), black_box(&model), Components::PIXEL))
+    });
+    g.finish();
 
     let mut g = c.benchmark_group("synth 12MP");
     g.throughput(Throughput::Elements((W * H) as u64));

@@ -4,6 +4,8 @@
 //! EM, minimising KL). Used by the bridge models of noise on noise and by the structured components
 //! synthesis draws from (their pixel PMFs are deconvolved by the other components).
 
+use multiversion::multiversion;
+
 /// How the deconvolution `p_a ∗ q ≈ p_b` is solved.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Deconvolution {
@@ -34,6 +36,7 @@ pub(crate) fn solve(problem: &Problem, q: &mut [f64], solver: Deconvolution, lim
 }
 
 /// Full discrete convolution `out[i + j] += a[i] q[j]`.
+#[inline(always)]
 pub(crate) fn convolve(a: &[f64], q: &[f64], out: &mut [f64]) {
     out.fill(0.0);
     let m = q.len();
@@ -48,6 +51,7 @@ pub(crate) fn convolve(a: &[f64], q: &[f64], out: &mut [f64]) {
 }
 
 /// Adjoint of [`convolve`]: `out[j] = Σ_i a[i] r[i + j]`.
+#[inline(always)]
 pub(crate) fn correlate(a: &[f64], r: &[f64], out: &mut [f64]) {
     // Taps outermost (the same summation order per output as a sum over `i`, so the same bits).
     let m = out.len();
@@ -89,6 +93,7 @@ pub(crate) struct Problem {
 }
 
 impl Problem {
+    #[inline(always)]
     pub(crate) fn forward(&self, q: &[f64], y: &mut [f64]) {
         convolve(&self.a, q, y);
         let n = y.len();
@@ -105,6 +110,7 @@ impl Problem {
     }
 
     /// Adjoint of [`Problem::forward`]: unfold `r` (beyond a clip, the clip's value), correlate.
+    #[inline(always)]
     pub(crate) fn adjoint(&self, r: &mut [f64], g: &mut [f64]) {
         let n = r.len();
         if self.clip_hi + 1 < n {
@@ -121,6 +127,16 @@ impl Problem {
 
 /// Richardson–Lucy: `q ← q ⊙ Aᵀ(b ⊘ Aq)` (columns of A sum to 1, so Σq stays 1). Stops when the
 /// KL divergence improves by less than `tolerance` (relative) over 10 iterations.
+///
+/// Compiled for AVX-512 and AVX2 as well as the baseline, the CPU's best picked at run time
+/// (`multiversion`), with the convolution, its adjoint and the element-wise steps inlined: the
+/// same operations on each element in the same order (Rust fuses no multiply-add and reorders
+/// no sum), so the same bits, in vectors of 8 or 4 where baseline x86-64 has 2. It is most of
+/// the sampler build with structured components (every bin of every position, each run).
+#[multiversion(targets(
+    "x86_64+avx512f+avx512dq+avx512vl+avx2+avx+fma+bmi1+bmi2+lzcnt+popcnt+sse4.1+sse4.2+ssse3",
+    "x86_64+avx2+avx+fma+bmi1+bmi2+lzcnt+popcnt+sse4.1+sse4.2+ssse3"
+))]
 pub(crate) fn richardson_lucy(prob: &Problem, q: &mut [f64], opts: &SolverLimits) -> usize {
     let n = prob.b.len();
     let mut y = vec![0.0; n];
@@ -210,6 +226,7 @@ pub(crate) fn projected_gradient(prob: &Problem, q: &mut [f64], opts: &SolverLim
 }
 
 /// KL(b ‖ y) over aligned vectors (terms with b = 0 vanish).
+#[inline(always)]
 fn kl(b: &[f64], y: &[f64]) -> f64 {
     b.iter()
         .zip(y)

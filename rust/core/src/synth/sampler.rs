@@ -2,6 +2,7 @@
 
 use std::borrow::Cow;
 
+use multiversion::multiversion;
 use rand::Rng;
 use rayon::prelude::*;
 
@@ -150,12 +151,14 @@ fn cdf_of(w: &[u64]) -> Vec<u64> {
     let mut cdf = Vec::with_capacity(w.len().max(1));
     if total > 0 && total <= u32::MAX as u128 {
         // The same quotients in 64 bits (acc · 2³² < 2⁶⁴): a 128-bit division per entry was
-        // most of the sampler build.
+        // most of the sampler build. The running sums first, then their quotients by a product
+        // and a correction ([`Quotients`]): no division, and a loop the compiler vectorises.
         let (total, mut acc) = (total as u64, 0u64);
-        for &c in w {
+        cdf.extend(w.iter().map(|&c| {
             acc += c;
-            cdf.push((acc << 32) / total);
-        }
+            acc << 32
+        }));
+        Quotients::new(total).floor_all(&mut cdf);
     } else if total > 0 && total < 1 << 48 {
         // The same quotients by long division in base 2¹⁶ (each remainder times 2¹⁶ stays below
         // 2⁶⁴): three 64-bit divisions per entry instead of a call to the 128-bit one.
@@ -182,6 +185,41 @@ fn cdf_of(w: &[u64]) -> Vec<u64> {
         *last = ONE;
     }
     cdf
+}
+
+/// `⌊n / d⌋` for many `n < 2⁶⁴` over one divisor `0 < d < 2³²` whose quotients stay within
+/// `2³²` (a cumulative weight over the total, [`cdf_of`]), without a division: the product
+/// `n · (1/d)` in `f64` is within `2³² · 2⁻⁵¹` of `n / d` (three roundings of at most 2⁻⁵³
+/// each), so its truncation is the quotient or one off, and the remainder `n − q·d` (which
+/// then lies in `[−d, 2d)`, exact in 64-bit wrapping arithmetic) says which.
+struct Quotients {
+    d: u64,
+    inv: f64,
+}
+
+impl Quotients {
+    fn new(d: u64) -> Self {
+        debug_assert!(d > 0 && d <= u32::MAX as u64);
+        Self { d, inv: 1.0 / d as f64 }
+    }
+
+    /// Replaces each `n` of `values` (each `n / d` at most `2³²`) by `⌊n / d⌋`.
+    fn floor_all(&self, values: &mut [u64]) {
+        floor_quotients(self.d, self.inv, values);
+    }
+}
+
+#[multiversion(targets(
+    "x86_64+avx512f+avx512dq+avx512vl+avx2+avx+fma+bmi1+bmi2+lzcnt+popcnt+sse4.1+sse4.2+ssse3",
+    "x86_64+avx2+avx+fma+bmi1+bmi2+lzcnt+popcnt+sse4.1+sse4.2+ssse3"
+))]
+fn floor_quotients(d: u64, inv: f64, values: &mut [u64]) {
+    for v in values.iter_mut() {
+        let n = *v;
+        let q = (n as f64 * inv) as u64;
+        let r = n.wrapping_sub(q.wrapping_mul(d)) as i64;
+        *v = q.wrapping_sub((r < 0) as u64).wrapping_add((r >= d as i64) as u64);
+    }
 }
 
 /// How many guide cells a table has (8 … 4096 cells, 16 bits each): an inverse CDF maps a draw
@@ -580,6 +618,38 @@ mod tests {
         for w in cases.iter().filter(|w| w.iter().any(|&c| c > 0)) {
             assert_eq!(cdf_of(w), reference(w), "weights totalling {}", w.iter().map(|&c| c as u128).sum::<u128>());
         }
+    }
+
+    /// The quotients by product and correction are `⌊n / d⌋` exactly: at every multiple of
+    /// the divisor and one either side (where a truncated product one off would show), for
+    /// divisors from 1 to `2³² − 1` and numerators up to `(2³² − 1)·2³²`, and on random ones.
+    /// A bare truncated product (no correction) misses thousands of these.
+    #[test]
+    fn quotients_are_exact() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let mut checked = 0usize;
+        let divisors = [1u64, 2, 3, 7, 1000, 65_537, 1 << 30, (1 << 30) + 12_345, u32::MAX as u64 - 1, u32::MAX as u64];
+        for &d in divisors.iter().chain(&(0..40).map(|_| 1 + rng.next_u64() % u32::MAX as u64).collect::<Vec<_>>()) {
+            let mut ns: Vec<u64> = Vec::new();
+            for _ in 0..300 {
+                // A quotient up to 2³² (the cumulative weight at the total), n near q·d.
+                let q = rng.next_u64() % ((1u64 << 32) + 1);
+                let m = q as u128 * d as u128;
+                for n in [m.wrapping_sub(1), m, m + 1, m + d as u128 - 1] {
+                    if n < (1u128 << 64) && n / d as u128 <= 1 << 32 {
+                        ns.push(n as u64);
+                    }
+                }
+                ns.push((rng.next_u64() >> 1) % (d << 32).max(1));
+            }
+            let mut got = ns.clone();
+            Quotients::new(d).floor_all(&mut got);
+            for (n, g) in ns.iter().zip(&got) {
+                assert_eq!(*g, n / d, "{n} / {d}");
+                checked += 1;
+            }
+        }
+        assert!(checked > 50_000, "{checked} quotients");
     }
 
     #[test]

@@ -26,7 +26,7 @@ use crate::model::structure::{
     Components, FixedPattern, FrameOffsets, IsoStructure, OffsetDistribution, grid_coord, quantile_at,
 };
 use crate::synth::pattern_cache::{PatternCache, PatternRegion, Region};
-use crate::synth::pattern_lanes::{PATTERN_KEY, ParityColumns, lanes_apply, parity_row, quantile_pairs};
+use crate::synth::pattern_lanes::{PATTERN_KEY, ParityColumns, lanes_apply, parity_row};
 
 /// Grid of the offset densities (cells per DN).
 const GRID: f64 = 32.0;
@@ -58,9 +58,8 @@ pub struct StructureSampler {
     columns: [Option<OffsetDistribution>; 2],
     frame: Option<FrameOffsets>,
     fpn: Option<FixedPattern>,
-    /// Per position, the residual's quantile function as the vectorised loop reads it
-    /// ([`quantile_pairs`]), where that loop applies ([`lanes_apply`]).
-    lanes: Option<Arc<[Vec<u64>; POSITIONS]>>,
+    /// Whether the vectorised loop computes the fixed pattern's rows ([`lanes_apply`]).
+    lanes: bool,
     /// The fixed pattern of the image region last synthesized (shared by clones).
     pattern_cache: Arc<PatternCache>,
 }
@@ -82,10 +81,7 @@ impl StructureSampler {
             rows: std::array::from_fn(|p| st.row(p).filter(|_| which.row).cloned()),
             columns: std::array::from_fn(|p| st.column(p).filter(|_| which.column).cloned()),
             frame: st.frame().filter(|_| which.frame).cloned(),
-            lanes: fpn
-                .as_ref()
-                .filter(|fp| lanes_apply(fp))
-                .map(|fp| Arc::new(std::array::from_fn(|p| quantile_pairs(&fp.pixels[p].quantiles)))),
+            lanes: fpn.as_ref().is_some_and(lanes_apply),
             fpn,
             pattern_cache: Arc::default(),
         };
@@ -142,8 +138,8 @@ impl StructureSampler {
             None => (Vec::new(), 1),
         };
         let parity = std::array::from_fn(|p| match self.lanes {
-            Some(_) => ParityColumns::new(cells.iter().skip(p).step_by(2).copied()),
-            None => ParityColumns::default(),
+            true => ParityColumns::new(cells.iter().skip(p).step_by(2).copied()),
+            false => ParityColumns::default(),
         });
         PatternColumns { x0, cells, line_len, parity }
     }
@@ -162,12 +158,11 @@ impl StructureSampler {
             ParityPattern { line, q: fp.pixels[pos].quantiles.as_slice() }
         });
         // The whole row at once where the vectorised loop applies, per parity.
-        let computed = self.lanes.as_ref().map(|pairs| {
+        let computed = self.lanes.then(|| {
             std::array::from_fn(|px: usize| {
                 let cols = &columns.parity[px];
                 let mut out = vec![0i64; cols.len()];
-                let pairs = &pairs[position(y, columns.x0 + px)];
-                parity_row(y as u64, (columns.x0 + px) as u64, cols, &parity[px].line, pairs, &mut out);
+                parity_row(y as u64, (columns.x0 + px) as u64, cols, &parity[px].line, parity[px].q, &mut out);
                 out
             })
         });
@@ -556,13 +551,23 @@ fn spread_pile_start(pmf: &Pmf, k0: i32, taps: usize, km: f64, kv: f64) -> Optio
 fn from_weights(b: &BinModel, first: i32, q: &[f64]) -> BinModel {
     const SCALE: f64 = (1u64 << 30) as f64;
     // `(x·SCALE).round() as u64` (0 below zero and at NaN), without libm's `round`.
-    let counts: Vec<u64> = q.iter().map(|&x| round_half_away(x * SCALE).max(0) as u64).collect();
-    let lo = counts.iter().position(|&c| c > 0);
-    let hi = counts.iter().rposition(|&c| c > 0);
+    let count = |x: f64| round_half_away(x * SCALE).max(0) as u64;
+    let lo = q.iter().position(|&x| count(x) > 0);
+    let hi = q.iter().rposition(|&x| count(x) > 0);
     let (Some(lo), Some(hi)) = (lo, hi) else {
         return b.clone();
     };
-    BinModel { first: first + lo as i32, counts: counts[lo..=hi].to_vec(), ..b.clone() }
+    // The counts of the cells kept, and `b`'s other fields (`..b.clone()` copied its counts
+    // only to drop them).
+    let counts = q[lo..=hi].iter().map(|&x| count(x)).collect();
+    BinModel {
+        first: first + lo as i32,
+        counts,
+        samples: b.samples,
+        source: b.source,
+        measured: b.measured,
+        clipped: b.clipped,
+    }
 }
 
 /// A quantile function as a density on the grid.
