@@ -127,13 +127,13 @@ fn the_demos_components_beat_pixel_only_and_doubled_ones_do_not() {
         // the row kernel 9 % of its variance) are narrowed alone, and the narrowing's re-binning
         // lost 3 % of their variance and thinned their tails; with it, ISO 100 scored 0.00132 /
         // 0.00024 against pixel-only's 0.00125 / 0.00020 and ISO 200 0.00136 / 0.00013 against
-        // 0.00132 / 0.00012 (3 seeds). Now 0.00125 / 0.00021 against 0.00125 / 0.00020, and
-        // 0.00133 / 0.00012 against 0.00132 / 0.00012 (2 seeds): 2·10⁻⁵ of slack, twice what
-        // the seeds move these by.
+        // 0.00132 / 0.00012 (3 seeds; conditional 1.056× and 1.03×). Now 0.00125 / 0.00021
+        // against 0.00125 / 0.00020, and 0.00133 / 0.00012 against 0.00132 / 0.00012 (2 seeds,
+        // printed to 5 digits): 2 % of slack on the conditional, 3·10⁻⁵ on the marginal.
         if iso.iso <= 200 {
             assert!(
-                nc.conditional_overall <= px.conditional_overall + 2e-5
-                    && nc.marginal_overall <= px.marginal_overall + 2e-5,
+                nc.conditional_overall <= 1.02 * px.conditional_overall
+                    && nc.marginal_overall <= px.marginal_overall + 3e-5,
                 "ISO {}: with its components the pack scores {:.5} / {:.5}, pixel-only {:.5} / {:.5}",
                 iso.iso,
                 nc.conditional_overall,
