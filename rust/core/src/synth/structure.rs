@@ -457,7 +457,8 @@ fn is_pile(run: [f64; 4]) -> bool {
 
 /// `pmf`'s shape narrowed by the variance `kv` about its core ([`core_span`]), whose mean and
 /// variance are `cm`, `cv`, and centred at `mu` ([`Pmf::rescaled`], Eq. 5–6, with the affine
-/// factor and centre of the core's moments instead of the whole PMF's).
+/// factor and centre of the core's moments instead of the whole PMF's), its variance met to
+/// [`REBIN_TOLERANCE`] whatever the re-binning onto the integers takes.
 fn narrowed(pmf: &Pmf, mu: f64, cm: f64, cv: f64, kv: f64) -> Pmf {
     let (m, v) = pmf.moments();
     // `rescaled` maps `n` to `mu' + a'(n − m)` with `a' = √((var − 1/12) / (v + 1/12))`; the
