@@ -70,7 +70,6 @@ fn a_clean_level_at_white_reads_white_as_the_sensor_does() {
         })
     };
     let at_white: Vec<usize> = (0..h * w).filter(|&i| all(i / w, i % w, &|c| c == white)).collect();
-    let below: Vec<usize> = (0..h * w).filter(|&i| all(i / w, i % w, &|c| (white - 40..white).contains(&c))).collect();
     assert!(at_white.len() >= 500, "{} interior pixels at white: the chart does not saturate", at_white.len());
     for model in &pack.isos {
         let iso = model.iso;
