@@ -21,6 +21,14 @@
 //! 1010–1023 DN the two agree at every ISO (share at white within 0.002, about one standard
 //! error of that check; variance within 0.3 %). The marginal JSD, which pools that group, is
 //! printed only.
+//!
+//! **Open:** since the saturation rule's margin is the stated 2 noise SDs (it was about 0.5), the
+//! held-out set keeps no flat pixel in the group that reaches white: both models score 0 there
+//! and the check at white cannot fail. The highest populated group is 960–992 DN (1 076 real
+//! samples per ISO); judged there with the same bound, ISO 100 scores 0.0885 against pixel-only's
+//! 0.0888, ISO 200 0.1038 / 0.1147, ISO 400 0.1277 / 0.1191 (over the bound 0.1256; one run of 2
+//! seeds, where one seed's score of the 640-sample group at white moved by up to 0.008 against
+//! another's: not settled whether it is sampling).
 
 mod support;
 

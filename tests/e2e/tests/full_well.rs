@@ -24,6 +24,9 @@ struct Tally {
     /// `(3 + 4/√M)` noise SDs of the ceiling).
     left_out: u64,
     near_ceiling: usize,
+    /// Per position where the ceiling is reached: the ceiling (the largest true level), the
+    /// rule's cut, and the true per-frame noise SD at the ceiling (DN).
+    cuts: Vec<(f32, u16, f32)>,
 }
 
 /// Per EV step of `plan` on `sim`, the flat test's saturated pixels against the truth of
@@ -71,12 +74,19 @@ fn tally(sim: &Simulator, truth: &Simulator, plan: &SessionPlan, off: u64) -> Ve
                 t.kept_at_ceiling += at.iter().filter(|&&i| clean[i] != NOT_FLAT).count();
                 t.near_ceiling +=
                     of_pos().filter(|(_, v)| **v >= top - (3.0 + 4.0 / m.sqrt() as f32) * sd - 3.0).count();
+                if let Some(cut) = report.saturation_cut[pos] {
+                    t.cuts.push((top, cut, sd));
+                }
             }
         }
         out.push((f.step, t));
     }
     out
 }
+
+/// The margin below the ceiling method.md states, in per-frame noise SDs at the ceiling
+/// (`calibrate/saturated.rs`, `MARGIN_SIGMAS`).
+const MARGIN_SIGMAS: f32 = 2.0;
 
 /// Pixels at the ceiling from which every one must leave the flat set.
 const SMALLEST_CROWD: usize = 30;
@@ -129,6 +139,16 @@ fn pixels_at_the_ceiling_leave_the_flat_set_and_no_others() {
                     t.kept_at_ceiling,
                     t.at_ceiling
                 );
+                // The margin below the ceiling is the stated `MARGIN_SIGMAS` (2) SDs of the true
+                // noise there, plus the flagged levels' spread: at least 1.8 SD. With the law
+                // fitted over every level, the saturated ones included, it read 0.5–0.8 SD.
+                for &(top, cut, sd) in &t.cuts {
+                    let margin = (top - cut as f32) / sd;
+                    assert!(
+                        margin >= 0.9 * MARGIN_SIGMAS,
+                        "{at}: cut {cut} is {margin:.2} SD below the ceiling {top:.0}"
+                    );
+                }
             }
         }
         assert!(saturated_steps >= 3, "seed {seed}: the sessions never reached the ceiling");

@@ -100,7 +100,7 @@ impl TemporalStats {
     /// populated ones. Zero where the burst has no differences.
     pub fn robust_variance_fits(&self, groups: &Groups) -> [[f64; 3]; POSITIONS] {
         std::array::from_fn(|pos| {
-            let mut pts: Vec<(f64, f64, f64)> = (0..GROUPS)
+            let pts: Vec<(f64, f64, f64)> = (0..GROUPS)
                 .filter_map(|g| {
                     let [n, s1, s2] = self.acc[pos * GROUPS + g];
                     (n >= 64.0).then(|| {
@@ -109,26 +109,61 @@ impl TemporalStats {
                     })
                 })
                 .collect();
-            let mut c = vec![0.0, 0.0];
-            for _ in 0..3 {
-                if pts.is_empty() {
-                    return [0.0; 3];
-                }
-                let x: Vec<f64> = pts.iter().map(|p| p.0).collect();
-                let y: Vec<f64> = pts.iter().map(|p| p.1).collect();
-                let w: Vec<f64> = pts.iter().map(|p| p.2).collect();
-                c = nn_poly_fit(&x, &y, &w, usize::from(pts.len() >= 2));
-                c.resize(2, 0.0);
-                let keep: Vec<(f64, f64, f64)> =
-                    pts.iter().copied().filter(|p| p.1 <= 2.0 * poly_eval(&c, p.0) + 1.0).collect();
-                if keep.len() == pts.len() {
-                    break;
-                }
-                pts = keep;
-            }
-            [c[0], c[1], 0.0]
+            robust_line(pts)
         })
     }
+}
+
+/// A robust line `[c0, c1, 0]` through `(level, variance, weight)` points: weighted, and
+/// refitted (up to three times) without the points above twice the line plus 1 DN². Zero
+/// without points.
+fn robust_line(mut pts: Vec<(f64, f64, f64)>) -> [f64; 3] {
+    let mut c = vec![0.0, 0.0];
+    for _ in 0..3 {
+        if pts.is_empty() {
+            return [0.0; 3];
+        }
+        let x: Vec<f64> = pts.iter().map(|p| p.0).collect();
+        let y: Vec<f64> = pts.iter().map(|p| p.1).collect();
+        let w: Vec<f64> = pts.iter().map(|p| p.2).collect();
+        c = nn_poly_fit(&x, &y, &w, usize::from(pts.len() >= 2));
+        c.resize(2, 0.0);
+        let keep: Vec<(f64, f64, f64)> =
+            pts.iter().copied().filter(|p| p.1 <= 2.0 * poly_eval(&c, p.0) + 1.0).collect();
+        if keep.len() == pts.len() {
+            break;
+        }
+        pts = keep;
+    }
+    [c[0], c[1], 0.0]
+}
+
+/// Per-frame noise variance as one robust line in (level − black) for every position, through
+/// the level groups' median pixel variances of all four (`medians`, per `pos * GROUPS + group`,
+/// NaN where a group has too few pixels; weighted by the groups' pixel counts `pixels`), over
+/// the groups that lie wholly below `below` (DN above black): the law of a burst that
+/// saturated, without the levels the ceiling cut ([`crate::calibrate::saturated`]). A median is
+/// not moved by the chart's edges where it moved between frames (a minority of any populated
+/// level), which the frame differences' line reads. The positions share the line: their noise
+/// against the level above black is one sensor's, and on a short held-out burst a line per
+/// position put the margin below one ceiling at 1.72–2.27 true SDs (seed 0 of the random
+/// family, EV +2, `tests/e2e/tests/full_well.rs`).
+pub fn median_variance_fits_below(
+    medians: &[f64],
+    pixels: &[usize],
+    groups: &Groups,
+    below: f64,
+) -> [[f64; 3]; POSITIONS] {
+    let pts: Vec<(f64, f64, f64)> = (0..POSITIONS)
+        .flat_map(|pos| {
+            let span = (groups.white as f64 - groups.black[pos] as f64).max(1.0);
+            (0..GROUPS).filter(move |&g| (g + 1) as f64 / GROUPS as f64 * span <= below).filter_map(move |g| {
+                let (v, n) = (medians[pos * GROUPS + g], pixels[pos * GROUPS + g]);
+                v.is_finite().then(|| (groups.center(pos, g), v, n as f64))
+            })
+        })
+        .collect();
+    [robust_line(pts); POSITIONS]
 }
 
 /// What the flat test found.
@@ -155,6 +190,10 @@ pub struct FlatReport {
     /// resumed session reports 0 here).
     #[serde(skip)]
     pub saturated: [u64; POSITIONS],
+    /// Per position, the lowest clean level the saturation rule left out (DN), `None` where it
+    /// found no ceiling. Not kept in checkpoints, as `saturated`.
+    #[serde(skip)]
+    pub saturation_cut: [Option<u16>; POSITIONS],
 }
 
 /// The largest ratio of a pixel's variance over an `m`-frame burst to the noise variance at its
@@ -340,6 +379,7 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
         (sq as f64 - (sum_d as f64).powi(2) / mf as f64) / (mf - 1) as f64
     };
     let mut group_medians = vec![f64::NAN; POSITIONS * GROUPS];
+    let mut group_pixels = vec![0usize; POSITIONS * GROUPS];
     if inp.frames >= 2 {
         let mut vars = grouped_by_rows(&sampled, |y, vars| {
             for x in 0..w {
@@ -348,7 +388,8 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
                 vars[pos * GROUPS + groups.group(pos, mean(i) as f32)].push(pixel_var(i) as f32);
             }
         });
-        for (gm, v) in group_medians.iter_mut().zip(vars.iter_mut()) {
+        for ((gm, n), v) in group_medians.iter_mut().zip(group_pixels.iter_mut()).zip(vars.iter_mut()) {
+            *n = v.len();
             if v.len() >= 32 {
                 let mid = v.len() / 2;
                 let (_, med, _) = v.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
@@ -463,12 +504,14 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
         black: inp.black,
         white: inp.white,
         burst_variance: pixel_var,
-        law: |pos, x| poly_eval(&robust[pos], x).max(0.0),
+        law: robust,
+        law_below: |below| median_variance_fits_below(&group_medians, &group_pixels, &groups, below),
     });
     for pos in 0..POSITIONS {
         report.flat[pos] -= sat.left_out[pos];
         report.saturated[pos] = sat.left_out[pos];
     }
+    report.saturation_cut = sat.cut;
     (clean, report)
 }
 

@@ -25,6 +25,7 @@
 //! flagged levels' own spread) or above it leaves the flat set. A sensor whose burst never
 //! saturates keeps every pixel: the rule cannot fire, and its pack is unchanged.
 
+use crate::math::fit::poly_eval;
 use crate::math::special::ln_gamma;
 use crate::model::layout::{POSITIONS, position};
 
@@ -47,8 +48,20 @@ pub const UPPER_RANGE: f64 = 0.5;
 /// Level groups over the tested range, per position.
 const GROUPS: usize = 32;
 
+/// Levels this many per-frame noise SDs below the flagged crowd (`ceiling − 2·spread`) and
+/// lower are the ones the rule's noise law is fitted on: a level 3 SD below a ceiling reaches
+/// it in 0.13 % of its frames, and its variance is cut by under 0.1 %.
+pub const REFIT_SIGMAS: f64 = 3.0;
+/// Refits of the law at most (each moves the fitted range down by the SD it reads; two settle
+/// it on the random family).
+const MAX_REFITS: usize = 4;
+
+/// A burst's per-frame noise variance per position: `[c0, c1, c2]`, a polynomial in the level
+/// above black.
+pub type Law = [[f64; 3]; POSITIONS];
+
 /// What the rule needs of one reference burst.
-pub struct BurstView<'a, V: Fn(usize) -> f64, L: Fn(usize, f64) -> f64> {
+pub struct BurstView<'a, V: Fn(usize) -> f64, L: Fn(f64) -> Law> {
     /// Row-major clean levels, `not_flat` where a pixel is not flat.
     pub clean: &'a mut [u16],
     pub width: usize,
@@ -58,8 +71,13 @@ pub struct BurstView<'a, V: Fn(usize) -> f64, L: Fn(usize, f64) -> f64> {
     pub white: u16,
     /// A pixel's variance over the burst (unbiased, `m − 1` degrees of freedom).
     pub burst_variance: V,
-    /// The burst's per-frame noise variance at `(position, level above black)`.
-    pub law: L,
+    /// The burst's per-frame noise law over every level (the robust line of its frame-to-frame
+    /// differences): the per-pixel test reads it.
+    pub law: Law,
+    /// The burst's per-frame noise law fitted over the levels below the argument (DN above
+    /// black) from each level's median pixel variance, which the chart's motion does not move:
+    /// the margin below the ceiling reads it.
+    pub law_below: L,
 }
 
 /// What the rule did, per position.
@@ -71,13 +89,79 @@ pub struct Saturation {
     pub left_out: [u64; POSITIONS],
 }
 
+/// Where flagged pixels crowd: the ceiling (DN above black) and the robust SD of the flagged
+/// levels there.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Ceiling {
+    level: f64,
+    spread: f64,
+}
+
+fn variance(law: &Law, pos: usize, x: f64) -> f64 {
+    poly_eval(&law[pos], x).max(0.0)
+}
+
 /// Finds the ceiling (one level above black for all positions: the well and the ADC are
 /// shared by the CFA's colours) and takes the flat pixels at or near it out of `view.clean`.
-pub fn leave_out<V: Fn(usize) -> f64, L: Fn(usize, f64) -> f64>(view: BurstView<'_, V, L>) -> Saturation {
+///
+/// The ceiling is found with the law of every level (`view.law`). The margin below it is read
+/// from a law fitted without the levels the ceiling cut: fitted over every level, the saturated
+/// ones (whose burst variance is the read noise behind the well, or nothing) pull it down at the
+/// ceiling (a tenth of the unsaturated law's variance on the random family: 0.5 SD of margin
+/// where 2 are stated). So the margin's law is refitted below `ceiling − 2·spread −
+/// REFIT_SIGMAS·σ(ceiling)` (σ from the refitted law, until that bound stops falling), from the
+/// levels' median pixel variances (`view.law_below`): where the chart moved between frames the
+/// robust line of the frame differences reads the edges (three times the noise SD at the
+/// ceiling on seed 2 of the random family), and a ceiling found again with a law refitted on it
+/// was a crowd of pure-noise pixels 470 DN lower and 700 DN wide, which cut the whole upper
+/// half of the range.
+pub fn leave_out<V: Fn(usize) -> f64, L: Fn(f64) -> Law>(view: BurstView<'_, V, L>) -> Saturation {
     let mut out = Saturation::default();
     if view.frames < 2 {
         return out;
     }
+    let Some(ceiling) = find_ceiling(&view, &view.law) else {
+        return out;
+    };
+    let sd_at = |law: &Law, x: f64| (0..POSITIONS).map(|p| variance(law, p, x)).fold(0.0, f64::max).sqrt();
+    let (mut law, mut below) = (view.law, f64::INFINITY);
+    for _ in 0..MAX_REFITS {
+        let b = ceiling.level - 2.0 * ceiling.spread - REFIT_SIGMAS * sd_at(&law, ceiling.level);
+        if b >= below {
+            break;
+        }
+        let refit = (view.law_below)(b);
+        if (0..POSITIONS).any(|p| variance(&refit, p, ceiling.level) <= 0.0) {
+            break;
+        }
+        (law, below) = (refit, b);
+    }
+    let span = (0..POSITIONS).map(|p| view.white as f64 - view.black[p] as f64).fold(f64::INFINITY, f64::min).max(1.0);
+    let lowest = UPPER_RANGE * span;
+    for pos in 0..POSITIONS {
+        let sd = variance(&law, pos, ceiling.level).sqrt();
+        let cut = (view.black[pos] as f64 + ceiling.level - 2.0 * ceiling.spread - MARGIN_SIGMAS * sd)
+            .floor()
+            .max(view.black[pos] as f64 + lowest);
+        out.cut[pos] = Some(cut.clamp(0.0, view.white as f64) as u16);
+    }
+    let w = view.width.max(1);
+    for (i, c) in view.clean.iter_mut().enumerate() {
+        let pos = position(i / w, i % w);
+        if let Some(cut) = out.cut[pos]
+            && *c != view.not_flat
+            && *c >= cut
+        {
+            *c = view.not_flat;
+            out.left_out[pos] += 1;
+        }
+    }
+    out
+}
+
+/// The ceiling where flagged pixels crowd under the noise law `law`, `None` where they
+/// crowd nowhere.
+fn find_ceiling<V: Fn(usize) -> f64, L: Fn(f64) -> Law>(view: &BurstView<'_, V, L>, law: &Law) -> Option<Ceiling> {
     let q = chi2_mean_quantile(view.frames - 1, FALSE_POSITIVE);
     let w = view.width.max(1);
     // Levels above black; the tested range is the upper part of the narrowest position's.
@@ -97,7 +181,7 @@ pub fn leave_out<V: Fn(usize) -> f64, L: Fn(usize, f64) -> f64>(view: BurstView<
         if c == view.not_flat || x < lowest {
             continue;
         }
-        let var = (view.law)(pos, x);
+        let var = poly_eval(&law[pos], x);
         if var.is_nan() || var <= 0.0 {
             continue;
         }
@@ -113,31 +197,13 @@ pub fn leave_out<V: Fn(usize) -> f64, L: Fn(usize, f64) -> f64>(view: BurstView<
         .collect();
     let mut at: Vec<f64> = levels.iter().filter(|(g, _)| crowded[*g]).map(|&(_, x)| x).collect();
     if at.is_empty() {
-        return out;
+        return None;
     }
     at.sort_by(f64::total_cmp);
-    let ceiling = at[at.len() / 2];
-    let mut dev: Vec<f64> = at.iter().map(|x| (x - ceiling).abs()).collect();
+    let level = at[at.len() / 2];
+    let mut dev: Vec<f64> = at.iter().map(|x| (x - level).abs()).collect();
     dev.sort_by(f64::total_cmp);
-    let spread = 1.4826 * dev[dev.len() / 2];
-    for pos in 0..POSITIONS {
-        let sd = (view.law)(pos, ceiling).max(0.0).sqrt();
-        let cut = (view.black[pos] as f64 + ceiling - 2.0 * spread - MARGIN_SIGMAS * sd)
-            .floor()
-            .max(view.black[pos] as f64 + lowest);
-        out.cut[pos] = Some(cut.clamp(0.0, view.white as f64) as u16);
-    }
-    for (i, c) in view.clean.iter_mut().enumerate() {
-        let pos = position(i / w, i % w);
-        if let Some(cut) = out.cut[pos]
-            && *c != view.not_flat
-            && *c >= cut
-        {
-            *c = view.not_flat;
-            out.left_out[pos] += 1;
-        }
-    }
-    out
+    Some(Ceiling { level, spread: 1.4826 * dev[dev.len() / 2] })
 }
 
 /// About the chance that a pixel of pure noise (per-frame variance `var`, `m` frames, integer
@@ -190,6 +256,7 @@ fn lower_gamma_regularized(a: f64, x: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::calibrate::flat::{GROUPS as FLAT_GROUPS, Groups, median_variance_fits_below};
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
     use rand_distr::{Distribution, Normal};
@@ -247,8 +314,64 @@ mod tests {
 
     const BLACK: f64 = 64.0;
 
-    fn run(b: &mut Burst, w: usize, m: u32, law: impl Fn(f64) -> f64, white: u16) -> Saturation {
+    /// The burst's per-frame noise law over every level, as a line through the pixels' mean
+    /// burst variance per level group (64 over the range, those with 64 pixels or more, weighted
+    /// by their count): what the per-pixel flags read (flat.rs reads the frame differences'
+    /// robust line, which the saturated levels pull down alike).
+    fn fitted_law(b: &Burst, white: u16) -> Law {
+        const G: usize = 64;
+        let span = white as f64 - BLACK;
+        let mut acc = [[0f64; 2]; G];
+        for (c, v) in b.clean.iter().zip(&b.var) {
+            let g = (((*c as f64 - BLACK) / span * G as f64).floor().max(0.0) as usize).min(G - 1);
+            acc[g][0] += 1.0;
+            acc[g][1] += v;
+        }
+        let (mut x, mut y, mut wt) = (Vec::new(), Vec::new(), Vec::new());
+        for (g, [n, s]) in acc.iter().enumerate() {
+            if *n >= 64.0 {
+                x.push((g as f64 + 0.5) / G as f64 * span);
+                y.push(s / n);
+                wt.push(*n);
+            }
+        }
+        let mut c = if x.is_empty() { vec![0.0] } else { crate::math::fit::nn_poly_fit(&x, &y, &wt, 1) };
+        c.resize(3, 0.0);
+        [[c[0], c[1], c[2]]; POSITIONS]
+    }
+
+    /// The margin's law as `flat.rs` fits it ([`median_variance_fits_below`]): per position and
+    /// level group the median burst variance over the median of `χ²ₖ/k` (Wilson–Hilferty), from
+    /// groups of 32 pixels or more.
+    fn median_law(b: &Burst, w: usize, m: u32, white: u16, below: f64) -> Law {
+        let groups = Groups { black: [BLACK as f32; POSITIONS], white };
+        let mut vars = vec![Vec::new(); POSITIONS * FLAT_GROUPS];
+        for (i, (c, v)) in b.clean.iter().zip(&b.var).enumerate() {
+            let pos = position(i / w, i % w);
+            vars[pos * FLAT_GROUPS + groups.group(pos, *c as f32)].push(*v);
+        }
+        let k = (m - 1) as f64;
+        let factor = (1.0 - 2.0 / (9.0 * k)).powi(3);
+        let pixels: Vec<usize> = vars.iter().map(Vec::len).collect();
+        let medians: Vec<f64> = vars
+            .iter_mut()
+            .map(|v| {
+                if v.len() < 32 {
+                    return f64::NAN;
+                }
+                let mid = v.len() / 2;
+                let (_, med, _) = v.select_nth_unstable_by(mid, f64::total_cmp);
+                *med / factor
+            })
+            .collect();
+        median_variance_fits_below(&medians, &pixels, &groups, below)
+    }
+
+    /// The rule on burst `b` with the law fitted from its own pixels (`fitted_law`), as the flat
+    /// test runs it.
+    fn run(b: &mut Burst, w: usize, m: u32, white: u16) -> Saturation {
         let var = b.var.clone();
+        let fit = Burst { clean: b.clean.clone(), var: b.var.clone() };
         leave_out(BurstView {
             clean: &mut b.clean,
             width: w,
@@ -257,7 +380,8 @@ mod tests {
             black: [BLACK as f32; POSITIONS],
             white,
             burst_variance: move |i| var[i],
-            law: move |_, x| law(x),
+            law: fitted_law(&fit, white),
+            law_below: move |below| median_law(&fit, w, m, white, below),
         })
     }
 
@@ -294,7 +418,7 @@ mod tests {
                 );
             }
             let before = b.clean.clone();
-            let s = run(&mut b, w, m, law, 4095);
+            let s = run(&mut b, w, m, 4095);
             assert_eq!(s.cut, [None; POSITIONS], "m = {m}, slope {slope}: a ceiling in pure noise");
             assert_eq!(b.clean, before);
         }
@@ -312,7 +436,7 @@ mod tests {
             let level = |y: usize, x: usize| 2000.0 + ((y * w + x) * 7 % 5600) as f64;
             let mut b = burst(w, h, m, level, law, Some((well, 8.7)), 4095, 10 + m as u64);
             let truth: Vec<f64> = (0..h).flat_map(|y| (0..w).map(move |x| level(y, x))).collect();
-            let s = run(&mut b, w, m, law, 4095);
+            let s = run(&mut b, w, m, 4095);
             let sd = law(well).sqrt();
             for cut in s.cut {
                 let cut = cut.expect("a ceiling") as f64 - BLACK;
@@ -343,7 +467,7 @@ mod tests {
         let law = |l: f64| 0.5 + 0.3 * l;
         let level = |y: usize, x: usize| 500.0 + ((y * w + x) * 3 % 900) as f64;
         let mut b = burst(w, h, 4, level, law, None, 1023, 5);
-        let s = run(&mut b, w, 4, law, 1023);
+        let s = run(&mut b, w, 4, 1023);
         for cut in s.cut {
             let cut = cut.expect("a ceiling");
             assert!((980..1023).contains(&cut), "cut {cut}");

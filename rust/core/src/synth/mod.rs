@@ -6,6 +6,7 @@ mod clean_at;
 mod pattern_cache;
 mod pattern_lanes;
 pub mod sampler;
+pub mod saturated;
 pub mod structure;
 
 pub use clean_at::CleanAt;

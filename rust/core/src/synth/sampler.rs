@@ -12,6 +12,7 @@ use crate::model::layout::{Binning, POSITIONS, lut_at_reference_levels, referenc
 use crate::model::pack::{BinModel, IsoModel, ModelPack};
 use crate::model::structure::{Components, IsoStructure};
 use crate::synth::CleanAt;
+use crate::synth::saturated;
 use crate::synth::structure::StructureSampler;
 
 const ONE: u64 = 1 << 32;
@@ -329,11 +330,22 @@ impl IsoSampler {
         // The denser guide unless it takes the ISO's tables past the budget.
         let lens = sources.iter().flat_map(|(bins, extra)| bins.iter().chain(extra)).map(|b| b.counts.len());
         let guide = Guide::for_tables(TABLE_BUDGET, lens);
-        let tables = std::array::from_fn(|p| {
+        let mut tables: [Vec<BinTable>; POSITIONS] = std::array::from_fn(|p| {
             let (bins, extra) = &sources[p];
             bins.par_iter().chain(extra.par_iter()).map(|b| BinTable::with_guide(b, guide)).collect()
         });
         let white = pack.layout.white;
+        // Clean levels at the reference's ceiling are saturated pixels: they read the ceiling.
+        for (p, (lut, tabs)) in luts.iter_mut().zip(tables.iter_mut()).enumerate() {
+            let k = tabs.len();
+            if k > u16::MAX as usize {
+                continue;
+            }
+            tabs.push(BinTable::new(&saturated::at_the_ceiling(white)));
+            for l in lut.iter_mut().skip(saturated::saturated_from(pack, p) as usize) {
+                *l = k as u16;
+            }
+        }
         let snaps = std::array::from_fn(|p| model.lattice[p].as_ref().map(|l| Snap::new(l, white)));
         let range = std::array::from_fn(|p| {
             let [f, c] = model.range[p];
