@@ -22,13 +22,17 @@
 //! error of that check; variance within 0.3 %). The marginal JSD, which pools that group, is
 //! printed only.
 //!
-//! **Open:** since the saturation rule's margin is the stated 2 noise SDs (it was about 0.5), the
-//! held-out set keeps no flat pixel in the group that reaches white: both models score 0 there
-//! and the check at white cannot fail. The highest populated group is 960–992 DN (1 076 real
-//! samples per ISO); judged there with the same bound, ISO 100 scores 0.0885 against pixel-only's
-//! 0.0888, ISO 200 0.1038 / 0.1147, ISO 400 0.1277 / 0.1191 (over the bound 0.1256; one run of 2
-//! seeds, where one seed's score of the 640-sample group at white moved by up to 0.008 against
-//! another's: not settled whether it is sampling).
+//! **No longer asserted here:** since the saturation rule's margin is the stated 2 noise SDs (it
+//! was about 0.5), the held-out set keeps no flat pixel in the group that reaches white: both
+//! models scored 0 there and a check at white could not fail, so it is gone (the group's score is
+//! printed). What it guarded is asserted with known truth elsewhere: a clean level at white reads
+//! white as the sensor does, and one code below it keeps the law's draw
+//! (`rust/core/tests/synth_at_white.rs`); the clamp's pile under row offsets stays on white
+//! (`a_pile_narrower_than_the_kernel_stays_at_the_clip` and its neighbours in
+//! `rust/core/src/synth/tests_structure.rs`). The highest populated
+//! group, 960–992 DN (1 076 real samples per ISO), scored ISO 100 0.0885 against pixel-only's
+//! 0.0888, ISO 200 0.1038 / 0.1147, ISO 400 0.1277 / 0.1191 (one run of 2 seeds; one seed's
+//! score of a group this size moves by up to 0.008 against another's): not asserted.
 
 mod support;
 
@@ -150,16 +154,6 @@ fn the_demos_components_beat_pixel_only_and_doubled_ones_do_not() {
                 px.marginal_overall
             );
         }
-        // At white: the clamp's pile must stay on white whatever the offsets (a pile smeared 1 DN
-        // below white scored 0.018 against 0.0006 at ISO 100, 0.66 against 0.004 at ISO 3200,
-        // when the group held the saturated pixels). 640 real samples: 5 % and 5·10⁻⁴ of slack,
-        // about one standard deviation of the synthetic sampling (one seed's group score moves
-        // by up to 0.008 against another's).
-        assert!(
-            nc_white <= 1.05 * px_white + 5e-4,
-            "ISO {}: with its components the pack scores {nc_white:.4} at white, pixel-only {px_white:.4}",
-            iso.iso
-        );
         // Closer to the real row-mean variance than pixel-only, within two standard errors.
         let (nc_off, px_off, dbl_off) = (nc_row.ln().abs(), px_row.ln().abs(), dbl_row.ln().abs());
         assert!(
