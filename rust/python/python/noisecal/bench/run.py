@@ -16,6 +16,7 @@ import noisecal
 from .data import eval_pairs, load_captures, load_clean, load_eval
 from .errors import BenchError
 from .estimate import DEFAULT_ESTIMATE, estimates_for, parse_estimates
+from .headroom import headroom
 from .layout import normalise
 from .models import RENOISE_METHODS, ModelSpec, Pairs, interpolation_notes, make_pairs, parse_model
 from .network import _torch
@@ -246,5 +247,8 @@ def run(args: argparse.Namespace) -> dict:
         "wall_seconds": time.time() - t0,
     }
     out["controls"] = controls(out["summary"])
+    # How much of the evaluation noise a filter removes (no network; half a DN the flat test).
+    tol = 0.5 / (float(layout["white"]) - max(float(b) for b in layout["black"]))
+    out["headroom"] = {iso: headroom(eval_at(iso), tol) for iso in inputs}
     out["notes"] = interpolation_notes(specs, isos, pack, packs)
     return out
