@@ -553,6 +553,34 @@ def test_input_scale_scales_what_the_layers_see_and_nothing_else():
 
 
 @pytest.mark.torch
+def test_highpass_layers_see_the_input_less_its_local_mean_in_noise_units():
+    """``make_net(w, highpass_sigma=σ)``: ``x + σ·correction((x − m)/σ)``, ``m`` the 5×5 local mean.
+    With a trained-looking (non-zero) output layer and zero biases, a flat input of any level comes
+    back unchanged (the layers never see the level; a network fed ``x/σ`` instead moves it by
+    σ·f(x/σ)), and a textured one equals the formula computed by hand."""
+    torch = pytest.importorskip("torch")
+    torch.manual_seed(3)
+    net = B.make_net(8, highpass_sigma=0.004)
+    torch.manual_seed(3)
+    plain = B.make_net(8)
+    gen = torch.Generator().manual_seed(2)
+    with torch.no_grad():
+        for m in (net, plain):
+            m.out.weight.copy_(torch.randn(m.out.weight.shape, generator=torch.Generator().manual_seed(5)) * 0.1)
+        for level in (0.0, 0.1, 0.37):
+            flat = torch.full((1, 4, 16, 16), level)
+            # Exact up to float rounding of the local mean (a network fed x/σ shifts a flat input).
+            assert float((net(flat) - flat).abs().max()) < 1e-6
+        x = 0.2 + 0.05 * torch.rand(2, 4, 16, 16, generator=gen)
+        m = torch.nn.functional.avg_pool2d(x, 5, stride=1, padding=2, count_include_pad=False)
+        want = x + 0.004 * (plain((x - m) / 0.004) - (x - m) / 0.004)
+        assert torch.allclose(net(x), want, atol=1e-6)
+        assert (net(x) - x).abs().max() > 1e-4  # the correction is not zero: the check above is not vacuous
+    with pytest.raises(B.BenchError):
+        B.make_net(8, 2.0, highpass_sigma=0.004)
+
+
+@pytest.mark.torch
 def test_the_network_starts_as_the_identity_with_layers_that_keep_their_signal():
     """He initialisation for LeakyReLU(0.2) and a zero output layer: an untrained network returns
     its input exactly, and a unit-variance input keeps a mean square of about 1 through the first

@@ -63,7 +63,7 @@ from .models import (
 from .network import make_net
 from .estimate import DEFAULT_ESTIMATE, ESTIMATES, denoise, estimates_for, parse_estimates
 from .training import batch_plan, train_one
-from .scoring import controls, evaluate, score_input, summary
+from .scoring import controls, evaluate, noise_rms, score_input, summary
 from .report import gain_table, gains, headroom_lines, table
 from .run import networks_trained, run, steps_for_minutes
 from .cli import main, parser
@@ -106,6 +106,7 @@ __all__ = [
     "make_net",
     "make_pairs",
     "networks_trained",
+    "noise_rms",
     "mosaic",
     "normalise",
     "pack_raw",
