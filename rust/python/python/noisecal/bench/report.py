@@ -61,8 +61,8 @@ def headroom_lines(out: dict) -> list[str]:
         line = f"headroom at ISO {iso}: best linear 5×5 filter {lin:+.2f} dB, clean-guided flat filter {guided:+.2f} dB over the noisy input"
         if lin < LINEAR_FLOOR_DB and guided > 1.0:
             line += (
-                ": only an edge-aware filter removes this noise; rows at the noisy input's PSNR did not learn it "
-                "and rank nothing"
+                ": only an edge-aware filter removes this noise; a row at the noisy input's PSNR did not learn it "
+                "and ranks nothing (--highpass --loss mse may help: docs/bench.md)"
             )
         lines.append(line)
     return lines
