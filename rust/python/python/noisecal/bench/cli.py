@@ -80,7 +80,7 @@ def parser() -> argparse.ArgumentParser:
         help="the layers see the input's high-pass (less its 5×5 local mean) in units of the evaluation noise's RMS at the "
         "ISO and correct in those units, the same for every model: for noise far below the scene's edges, e.g. 8-bit "
         "frames (docs/bench.md, \"Why nothing learnt on EMVA set 002\"; with --lr 0.01 it diverged on a simulated phone "
-        "at ISO 1600); not with --input-scale",
+        "at ISO 1600, at 0.003 it kept the controls); not with --input-scale",
     )
     p.add_argument("--lr", type=float, default=3e-3, help="Adam learning rate, cosine-decayed to 2 %% of it [default: %(default)s]")
     p.add_argument("--device", default="cpu", help="torch device: cpu, cuda, cuda:1, mps …")
