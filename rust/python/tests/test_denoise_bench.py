@@ -553,6 +553,34 @@ def test_input_scale_scales_what_the_layers_see_and_nothing_else():
 
 
 @pytest.mark.torch
+def test_highpass_layers_see_the_input_less_its_local_mean_in_noise_units():
+    """``make_net(w, highpass_sigma=σ)``: ``x + σ·correction((x − m)/σ)``, ``m`` the 5×5 local mean.
+    With a trained-looking (non-zero) output layer and zero biases, a flat input of any level comes
+    back unchanged (the layers never see the level; a network fed ``x/σ`` instead moves it by
+    σ·f(x/σ)), and a textured one equals the formula computed by hand."""
+    torch = pytest.importorskip("torch")
+    torch.manual_seed(3)
+    net = B.make_net(8, highpass_sigma=0.004)
+    torch.manual_seed(3)
+    plain = B.make_net(8)
+    gen = torch.Generator().manual_seed(2)
+    with torch.no_grad():
+        for m in (net, plain):
+            m.out.weight.copy_(torch.randn(m.out.weight.shape, generator=torch.Generator().manual_seed(5)) * 0.1)
+        for level in (0.0, 0.1, 0.37):
+            flat = torch.full((1, 4, 16, 16), level)
+            # Exact up to float rounding of the local mean (a network fed x/σ shifts a flat input).
+            assert float((net(flat) - flat).abs().max()) < 1e-6
+        x = 0.2 + 0.05 * torch.rand(2, 4, 16, 16, generator=gen)
+        m = torch.nn.functional.avg_pool2d(x, 5, stride=1, padding=2, count_include_pad=False)
+        want = x + 0.004 * (plain((x - m) / 0.004) - (x - m) / 0.004)
+        assert torch.allclose(net(x), want, atol=1e-6)
+        assert (net(x) - x).abs().max() > 1e-4  # the correction is not zero: the check above is not vacuous
+    with pytest.raises(B.BenchError):
+        B.make_net(8, 2.0, highpass_sigma=0.004)
+
+
+@pytest.mark.torch
 def test_the_network_starts_as_the_identity_with_layers_that_keep_their_signal():
     """He initialisation for LeakyReLU(0.2) and a zero output layer: an untrained network returns
     its input exactly, and a unit-variance input keeps a mean square of about 1 through the first
@@ -658,3 +686,48 @@ def _ci_pack(bench_set: Path) -> Path:
         noisecal.calibrate(cal).save(p)
         shutil.rmtree(cal)
     return p
+
+
+# ---------------------------------------------------------------------------------------------
+# Headroom: how much noise a filter removes (numpy)
+
+
+def test_linear_headroom_is_the_box_mean_on_flat_fields():
+    """Flat fields under white Gaussian noise: the best linear 5×5 residual filter is the box mean,
+    10·log10(25) = 13.98 dB over the input (less a little at the replicated borders). A 3×3 window
+    scores 9.54 dB, a filter fitted without the neighbours' differences (absolute levels) or on one
+    channel's scale would miss the bound; the clean-guided filter on a flat field is the same box
+    mean."""
+    rng = np.random.default_rng(7)
+    pairs = []
+    for level in (0.1, 0.2, 0.3, 0.4):
+        c = np.full((4, 96, 96), level, np.float32)
+        pairs.append(((c + rng.normal(0, 0.01, c.shape)).astype(np.float32), c))
+    lin = B.linear_gain(pairs)
+    assert 13.4 < lin < 14.1, lin
+    assert 9.0 < B.linear_gain(pairs, radius=1) < 9.7
+    guided = B.guided_gain(pairs, 0.002)
+    assert 13.4 < guided < 14.1, guided
+
+
+def test_headroom_tells_edge_bound_noise_from_none():
+    """Dense edges of high contrast under noise a 100th of it (EMVA set 002's regime, 8-bit, 0.3–1.4
+    DN of noise against edges of tens of DN): no linear filter gains (< 0.1 dB: any smoothing loses
+    more at the edges than it wins between them) where the clean-guided filter gains > 5 dB; a
+    warning names it. The same scenes under noise as large as the edges' contrast: the linear
+    filter gains > 1 dB and no warning. (A linear fit without a train/test split, or a guided
+    filter that smooths across edges, scores above 0.1 dB in the first case.)"""
+    rng = np.random.default_rng(3)
+    pairs_low, pairs_high = [], []
+    for i in range(4):
+        grey = B.dead_leaves(128, 128, rng).mean(-1)
+        grey = np.log(np.maximum(grey, 1e-3))
+        c = B.pack_raw((0.4 * (grey - grey.min()) / (grey.max() - grey.min())).astype(np.float32))
+        pairs_low.append(((c + rng.normal(0, 0.002, c.shape)).astype(np.float32), c))
+        pairs_high.append(((c + rng.normal(0, 0.08, c.shape)).astype(np.float32), c))
+    low = B.headroom(pairs_low, 0.5 / 252)
+    assert low["linear_db"] < 0.1 and low["guided_db"] > 5, low
+    high = B.headroom(pairs_high, 0.5 / 252)
+    assert high["linear_db"] > 1.0, high
+    warn = B.headroom_lines({"headroom": {200: low, 400: high}})
+    assert len(warn) == 2 and "only an edge-aware filter" in warn[0] and "edge-aware" not in warn[1], warn

@@ -30,7 +30,7 @@ The metric and data-layout functions here are numpy and import without torch.
 
 The package, one concern per module: ``layout`` (packed raw), ``scenes`` (generated training
 scenes), ``data`` (the evaluation set and training images from disk), ``metrics`` (PSNR, SSIM,
-bands), ``models`` (each model's training pairs), ``network`` (the UNet), ``training``,
+bands), ``headroom`` (how much noise a filter removes), ``models`` (each model's training pairs), ``network`` (the UNet), ``training``,
 ``estimate`` (the clean estimate noise on noise starts from), ``scoring`` (networks scored, the
 summary and the controls), ``report`` (the table), ``run``
 (a whole run) and ``cli``. The names below are its public API.
@@ -43,6 +43,7 @@ from .layout import mosaic, normalise, pack_raw, per_position, unpack_raw
 from .scenes import dead_leaves, generate_clean, parse_levels
 from .data import EvalScene, eval_pairs, load_captures, load_clean, load_eval
 from .metrics import BANDS, band_masks, psnr, score, ssim, ssim_map, summarise
+from .headroom import guided_gain, headroom, linear_gain
 from .models import (
     BASE_MODELS,
     DEFAULT_MODELS,
@@ -62,8 +63,8 @@ from .models import (
 from .network import make_net
 from .estimate import DEFAULT_ESTIMATE, ESTIMATES, denoise, estimates_for, parse_estimates
 from .training import batch_plan, train_one
-from .scoring import controls, evaluate, score_input, summary
-from .report import gain_table, gains, table
+from .scoring import controls, evaluate, noise_rms, score_input, summary
+from .report import gain_table, gains, headroom_lines, table
 from .run import networks_trained, run, steps_for_minutes
 from .cli import main, parser
 
@@ -90,10 +91,14 @@ __all__ = [
     "evaluate",
     "gain_table",
     "gains",
+    "guided_gain",
+    "headroom",
+    "headroom_lines",
     "generate_clean",
     "half_variance",
     "hg_mean_offset",
     "interpolation_notes",
+    "linear_gain",
     "load_captures",
     "load_clean",
     "load_eval",
@@ -101,6 +106,7 @@ __all__ = [
     "make_net",
     "make_pairs",
     "networks_trained",
+    "noise_rms",
     "mosaic",
     "normalise",
     "pack_raw",

@@ -68,6 +68,20 @@ def parser() -> argparse.ArgumentParser:
         help="the network's layers see its input (normalised to the range) times this, and their correction is divided "
         "by it: for noise that is a small fraction of the range, e.g. dim frames [default: %(default)s]",
     )
+    p.add_argument(
+        "--loss",
+        choices=("l1", "mse"),
+        default="l1",
+        help="training loss: l1, or mse (the squared error PSNR scores) [default: %(default)s]",
+    )
+    p.add_argument(
+        "--highpass",
+        action="store_true",
+        help="the layers see the input's high-pass (less its 5×5 local mean) in units of the evaluation noise's RMS at the "
+        "ISO and correct in those units, the same for every model: for noise far below the scene's edges, e.g. 8-bit "
+        "frames (docs/bench.md, \"Why nothing learnt on EMVA set 002\"; with --lr 0.01 it diverged on a simulated phone "
+        "at ISO 1600, at 0.003 it kept the controls); not with --input-scale",
+    )
     p.add_argument("--lr", type=float, default=3e-3, help="Adam learning rate, cosine-decayed to 2 %% of it [default: %(default)s]")
     p.add_argument("--device", default="cpu", help="torch device: cpu, cuda, cuda:1, mps …")
     p.add_argument(
@@ -92,6 +106,8 @@ def main(argv: list[str] | None = None) -> int:
             raise BenchError(f"--crop {args.crop}: use a multiple of 8, at least 16")
         if not args.input_scale > 0 or not math.isfinite(args.input_scale):
             raise BenchError(f"--input-scale {args.input_scale}: give a positive number (1 leaves the network as it is)")
+        if args.highpass and args.input_scale != 1.0:
+            raise BenchError("--highpass sets the network's input unit itself: drop --input-scale")
         if args.seeds < 1 or args.steps < 1 or args.batch < 1:
             raise BenchError("--seeds, --steps and --batch must be at least 1")
         if not 0 <= args.data_seed < 2**64 or args.seed < 0:

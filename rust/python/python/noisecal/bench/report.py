@@ -45,6 +45,29 @@ def gain_table(out: dict) -> str:
     return "\n".join(lines)
 
 
+# Below this gain of the best linear filter, a network starting from the identity has no first
+# step to take (docs/bench.md, "Why nothing learnt on EMVA set 002").
+LINEAR_FLOOR_DB = 0.05
+
+
+def headroom_lines(out: dict) -> list[str]:
+    """Per ISO, the evaluation set's headroom (:mod:`.headroom`), and a warning where only an
+    edge-aware filter can remove its noise."""
+    lines = []
+    for iso, h in out.get("headroom", {}).items():
+        lin, guided = h.get("linear_db"), h.get("guided_db")
+        if lin is None or guided is None:
+            continue
+        line = f"headroom at ISO {iso}: best linear 5×5 filter {lin:+.2f} dB, clean-guided flat filter {guided:+.2f} dB over the noisy input"
+        if lin < LINEAR_FLOOR_DB and guided > 1.0:
+            line += (
+                ": only an edge-aware filter removes this noise; a row at the noisy input's PSNR did not learn it "
+                "and ranks nothing (--highpass --loss mse may help: docs/bench.md)"
+            )
+        lines.append(line)
+    return lines
+
+
 def table(out: dict) -> str:
     lines = []
     bands = [b[0] for b in BANDS]
@@ -78,6 +101,7 @@ def table(out: dict) -> str:
             parts.append(f"loud (2× HG variance) below HG: {verdict} (by {c['loud_margin_db']:.2f} dB)")
         if parts:
             lines.append(f"controls at ISO {iso}: " + "; ".join(parts))
+    lines += headroom_lines(out)
     lines += [f"note: {n}" for n in out.get("notes", [])]
     n = len(out["networks"])
     lines.append(

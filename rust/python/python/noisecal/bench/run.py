@@ -16,11 +16,12 @@ import noisecal
 from .data import eval_pairs, load_captures, load_clean, load_eval
 from .errors import BenchError
 from .estimate import DEFAULT_ESTIMATE, estimates_for, parse_estimates
+from .headroom import headroom
 from .layout import normalise
 from .models import RENOISE_METHODS, ModelSpec, Pairs, interpolation_notes, make_pairs, parse_model
 from .network import _torch
 from .scenes import generate_clean, parse_levels
-from .scoring import controls, evaluate, score_input, summary
+from .scoring import controls, evaluate, noise_rms, score_input, summary
 from .training import batch_plan, train_one
 
 
@@ -158,6 +159,11 @@ def run(args: argparse.Namespace) -> dict:
     }
     if args.input_scale != 1.0:  # absent at 1, so the keys (and --state files) of earlier runs stay valid
         cfg["input_scale"] = args.input_scale
+    loss, highpass = getattr(args, "loss", "l1"), getattr(args, "highpass", False)
+    if loss != "l1":  # absent at the defaults, as input_scale
+        cfg["loss"] = loss
+    if highpass:
+        cfg["highpass"] = "eval-rms"
     # The parametric baselines' pairs carry the gain shift (models.at_target_brightness): rows
     # stored before it are not resumed.
     cfg["baselines_at_target_brightness"] = True
@@ -173,6 +179,11 @@ def run(args: argparse.Namespace) -> dict:
             prepared[iso] = eval_pairs(scenes, iso, layout)
         return prepared[iso]
 
+    def sigma_at(iso: int) -> float | None:
+        """--highpass: the network's noise unit at ``iso``, the RMS of the real evaluation noise
+        there (normalised): one scale for every model, none of them its own."""
+        return noise_rms(eval_at(iso)) if highpass else None
+
     denoiser: dict = {}
 
     def train_denoiser():
@@ -187,7 +198,8 @@ def run(args: argparse.Namespace) -> dict:
             p = make_pairs(spec, a, cleans, realizations, pack, captures, args.data_seed, packs)
             seed = args.data_seed
             plan = batch_plan(seed, steps, args.batch, len(cleans), realizations, cleans[0].shape, args.crop)
-            denoiser["net"] = train_one(p, cleans_norm, layout, plan, args.crop, args.width, seed, device, args.lr, None, args.input_scale)
+            # The same loss; no --highpass (its unit is the evaluation noise at a target ISO, not at A).
+            denoiser["net"] = train_one(p, cleans_norm, layout, plan, args.crop, args.width, seed, device, args.lr, None, args.input_scale, loss)
         return denoiser["net"]
 
     estimates: dict = {}
@@ -227,8 +239,9 @@ def run(args: argparse.Namespace) -> dict:
                     print(f"{tag}: step {s}/{n} loss {loss:.4f} {time.time() - ts:.0f} s", end=end, file=sys.stderr, flush=True)
 
             net = train_one(
-                pairs, cleans_norm, layout, plan, args.crop, args.width, seed, device, args.lr, progress, args.input_scale
-            )
+                pairs, cleans_norm, layout, plan, args.crop, args.width, seed, device, args.lr, progress, args.input_scale,
+                loss, sigma_at(iso),
+            )  # fmt: skip
             r = {"model": spec.label, "kind": spec.kind, "iso": iso, "seed": seed, **evaluate(net, eval_at(iso), device)}
             r["train_seconds"] = time.time() - ts
             results.append(r)
@@ -246,5 +259,8 @@ def run(args: argparse.Namespace) -> dict:
         "wall_seconds": time.time() - t0,
     }
     out["controls"] = controls(out["summary"])
+    # How much of the evaluation noise a filter removes (no network; half a DN the flat test).
+    tol = 0.5 / (float(layout["white"]) - max(float(b) for b in layout["black"]))
+    out["headroom"] = {iso: headroom(eval_at(iso), tol) for iso in inputs}
     out["notes"] = interpolation_notes(specs, isos, pack, packs)
     return out

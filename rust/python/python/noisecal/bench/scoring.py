@@ -14,6 +14,12 @@ def score_input(pairs: list[tuple[np.ndarray, np.ndarray]]) -> dict:
     return score([n for n, _ in pairs], [c for _, c in pairs])
 
 
+def noise_rms(pairs: list[tuple[np.ndarray, np.ndarray]]) -> float:
+    """The RMS of noisy − clean over the evaluation pairs (normalised units)."""
+    sq = sum(float(np.sum((np.asarray(n, np.float64) - c) ** 2)) for n, c in pairs)
+    return float(np.sqrt(sq / sum(n.size for n, _ in pairs)))
+
+
 def evaluate(net, pairs: list[tuple[np.ndarray, np.ndarray]], device) -> dict:
     """``net``'s output on every evaluation pair (:func:`eval_pairs`), scored."""
     torch = _torch()

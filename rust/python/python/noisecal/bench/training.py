@@ -1,5 +1,5 @@
 """Training one network on a model's pairs: the data order every model shares (``batch_plan``)
-and the seeded training loop (L1, Adam, cosine decay)."""
+and the seeded training loop (L1 or MSE, Adam, cosine decay)."""
 
 from __future__ import annotations
 
@@ -26,11 +26,20 @@ def batch_plan(seed: int, steps: int, batch: int, images: int, realizations: int
     return plan
 
 
-def train_one(pairs, cleans_norm, layout, plan, crop, width, seed, device, lr, progress=None, input_scale=1.0):
-    """Trains one network on ``pairs`` in the order ``plan``; returns it (eval mode)."""
+LOSSES = ("l1", "mse")
+
+
+def train_one(
+    pairs, cleans_norm, layout, plan, crop, width, seed, device, lr, progress=None, input_scale=1.0, loss="l1", highpass_sigma=None
+):
+    """Trains one network on ``pairs`` in the order ``plan``; returns it (eval mode). ``loss``:
+    ``l1`` or ``mse`` (the squared error PSNR scores); ``highpass_sigma``: :func:`make_net`'s."""
+    if loss not in LOSSES:
+        raise BenchError(f"loss {loss!r}: use one of {', '.join(LOSSES)}")
     torch = _torch()
     torch.manual_seed(seed)
-    net = make_net(width, input_scale).to(device)
+    net = make_net(width, input_scale, highpass_sigma).to(device)
+    loss_fn = torch.nn.functional.l1_loss if loss == "l1" else torch.nn.functional.mse_loss
     opt = torch.optim.Adam(net.parameters(), lr=lr)
     steps = len(plan)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, max(steps, 1), eta_min=lr * 0.02)
@@ -50,12 +59,12 @@ def train_one(pairs, cleans_norm, layout, plan, crop, width, seed, device, lr, p
         j, k = r[:, 0][:, None, None, None], r[:, 1][:, None, None, None]
         x = noisy[j, k, ch, iy, ix].to(device)
         y = clean[j, ch, iy, ix].to(device)
-        loss = torch.nn.functional.l1_loss(net(x), y)
+        err = loss_fn(net(x), y)
         opt.zero_grad()
-        loss.backward()
+        err.backward()
         opt.step()
         sched.step()
         if progress is not None:
-            progress(s + 1, steps, loss.item())
+            progress(s + 1, steps, err.item())
     net.eval()
     return net
