@@ -25,6 +25,7 @@ pub mod estimate;
 pub mod event;
 pub mod flat;
 mod flat_levels;
+mod flicker;
 pub mod frame;
 mod line_base;
 pub mod meta;
