@@ -125,25 +125,26 @@ def read_descriptor(text: str) -> list[Block]:
 
 
 class Source:
-    """The data set's files, from a git repository (bare or not: ``git show HEAD:path``) or a folder."""
+    """A data set's files (``name``, set 001 unless told), from a git repository (bare or not:
+    ``git show HEAD:path``) or a folder."""
 
-    def __init__(self, repo: Path):
-        self.repo = Path(repo)
-        self.folder = self.repo / SET if (self.repo / SET).is_dir() else None
+    def __init__(self, repo: Path, name: str = SET):
+        self.repo, self.name = Path(repo), name
+        self.folder = self.repo / name if (self.repo / name).is_dir() else None
         if self.folder is None:
             probe = subprocess.run(["git", "-C", str(self.repo), "rev-parse", "--git-dir"], capture_output=True)
             if probe.returncode != 0:
                 raise ConvertError(
-                    f"--repo {self.repo}: neither a clone of EMVA1288/datasets nor a folder holding {SET}/: clone it "
+                    f"--repo {self.repo}: neither a clone of EMVA1288/datasets nor a folder holding {name}/: clone it "
                     "with git clone --bare https://github.com/EMVA1288/datasets target/emva/datasets.git"
                 )
 
     def read(self, path: str) -> bytes:
         if self.folder is not None:
             return (self.folder / path).read_bytes()
-        r = subprocess.run(["git", "-C", str(self.repo), "show", f"HEAD:{SET}/{path}"], capture_output=True)
+        r = subprocess.run(["git", "-C", str(self.repo), "show", f"HEAD:{self.name}/{path}"], capture_output=True)
         if r.returncode != 0:
-            raise ConvertError(f"{SET}/{path}: not in {self.repo} ({r.stderr.decode(errors='replace').strip()})")
+            raise ConvertError(f"{self.name}/{path}: not in {self.repo} ({r.stderr.decode(errors='replace').strip()})")
         return r.stdout
 
     def frames(self, block: Block) -> list[np.ndarray]:

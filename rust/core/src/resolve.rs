@@ -18,13 +18,13 @@ use ndarray::{Array2, ArrayView2};
 
 use crate::ModelPack;
 use crate::derive::baselines::{self, BaselineKind};
-use crate::derive::fine_levels::target_fine_levels;
+use crate::derive::fine_levels::{target_fine_levels, variance_at_black};
 use crate::derive::interp;
 use crate::derive::interp::{CalibratedLaw, InterpOptions};
 use crate::derive::structure::{derived_structure_sources, structure_at};
-use crate::error::{Error, ModelError};
+use crate::error::{CodecError, Error, ModelError};
 use crate::format::lazy_pack::LazyPack;
-use crate::model::layout::{BlackAlignment, SensorLayout};
+use crate::model::layout::{BlackAlignment, POSITIONS, SensorLayout};
 use crate::model::pack::{IsoModel, ModelOrigin};
 use crate::model::structure::Components;
 use crate::synth::CleanAt;
@@ -150,7 +150,7 @@ pub fn sampler_for(
 ) -> Result<IsoSampler, ModelError> {
     let sampler = IsoSampler::with_components(pack, model, which);
     if clean_at == CleanAt::Reference {
-        return Ok(sampler);
+        return baseline_levels(pack, model, kind, sampler, [1.0; POSITIONS], extrapolate);
     }
     let (gains, carried) = match kind {
         ModelKind::Noisecal => (model.gain_ratio, Some(carried_gain_ratio(pack, model))),
@@ -158,7 +158,7 @@ pub fn sampler_for(
     };
     let sampler = sampler.clean_at(clean_at, pack.layout.black, gains, carried).map_err(ModelError::Unsupported)?;
     if kind != ModelKind::Noisecal {
-        return Ok(sampler);
+        return baseline_levels(pack, model, kind, sampler, gains, extrapolate);
     }
     // Near black, the levels of a bin too wide for the noise there at their own reference level.
     let fine = std::array::from_fn(|p| {
@@ -167,6 +167,24 @@ pub fn sampler_for(
         target_fine_levels(pack, model, p, bins, gains[p])
     });
     Ok(sampler.with_target_fine_levels(fine))
+}
+
+/// A parametric baseline's sampler drawing at each clean level from its law at that level (its
+/// reference level `black + (c − black)/gain`), not from the bin's average
+/// ([`baselines::Baseline::level_tables`]); the non-parametric model's sampler as it is.
+fn baseline_levels(
+    pack: &ModelPack,
+    model: &IsoModel,
+    kind: ModelKind,
+    sampler: IsoSampler,
+    gains: [f64; POSITIONS],
+    extrapolate: bool,
+) -> Result<IsoSampler, ModelError> {
+    let Some(b) = kind.baseline() else { return Ok(sampler) };
+    let baseline = baselines::baseline(pack, model.iso, b, extrapolate)?;
+    let binning = pack.binning();
+    let tables = std::array::from_fn(|p| baseline.level_tables(&binning, p, gains[p]));
+    Ok(sampler.with_level_tables(tables))
 }
 
 impl IsoSampler {
@@ -220,8 +238,21 @@ pub fn resolve_on_demand<B: std::ops::Deref<Target = [u8]>>(
     let plan = match stored {
         Some(_) => None,
         None => {
-            let laws: Vec<CalibratedLaw> =
-                index.isos.iter().filter(|e| e.is_calibrated()).map(|e| (e.iso, e.noise_law())).collect();
+            // The laws from the index; a dark step's variance at black from the ISO's
+            // structured components (read without its weights): the whole pack's plan.
+            let laws = index
+                .isos
+                .iter()
+                .filter(|e| e.is_calibrated())
+                .map(|e| {
+                    let st = lazy.structure_of(e.iso)?;
+                    Ok(CalibratedLaw {
+                        iso: e.iso,
+                        law: e.noise_law(),
+                        at_black: std::array::from_fn(|p| variance_at_black(st.as_ref(), p)),
+                    })
+                })
+                .collect::<Result<Vec<CalibratedLaw>, CodecError>>()?;
             Some(interp::plan_among(&laws, index.isos.is_empty(), iso, extrapolate, &InterpOptions::default())?)
         }
     };

@@ -183,6 +183,7 @@ fn fuzz(target: Target, o: &Options) -> bool {
     }
 
     let (mut execs, mut failures, mut slowest) = (0u64, 0u64, Duration::ZERO);
+    let mut mutator_panics = 0u64;
     let mut i = 0usize;
     while Instant::now() < deadline || execs < seeds.len() as u64 {
         // The seeds themselves first, then mutations of the pool.
@@ -191,7 +192,27 @@ fn fuzz(target: Target, o: &Options) -> bool {
         } else {
             let a = &pool[rng.below(pool.len())];
             let b = &pool[rng.below(pool.len())];
-            mutate::mutate(&mut rng, a, b, target.framing(), target.max_len())
+            // The mutator is the harness's own code, outside the input's `catch_unwind`: a panic
+            // there would end the process silently (the hook keeps messages for the report), so it
+            // is caught, named and counted, and the round moves on.
+            match panic::catch_unwind(AssertUnwindSafe(|| {
+                mutate::mutate(&mut rng, a, b, target.framing(), target.max_len())
+            })) {
+                Ok(m) => m,
+                Err(_) => {
+                    mutator_panics += 1;
+                    if mutator_panics == 1 {
+                        let msg = LAST_PANIC.with(|p| p.borrow().clone());
+                        eprintln!(
+                            "fuzz {}: the mutator panicked ({msg}) on inputs of {} and {} bytes (a harness bug)",
+                            target.name(),
+                            a.len(),
+                            b.len()
+                        );
+                    }
+                    continue;
+                }
+            }
         };
         i += 1;
         if let Ok(mut g) = current.lock() {
@@ -233,6 +254,12 @@ fn fuzz(target: Target, o: &Options) -> bool {
         outcomes.len(),
         slowest.as_secs_f64() * 1e3
     );
+    if mutator_panics > 0 {
+        println!(
+            "fuzz {}: {mutator_panics} mutations panicked in the harness (not counted as failures)",
+            target.name()
+        );
+    }
     failures == 0
 }
 

@@ -296,7 +296,10 @@ impl DngStream {
                 self.begun = false;
                 continue;
             }
-            let end = (self.next + (rayon::current_num_threads() * 2).max(2)).min(in_step);
+            // A frame per thread: each frame read ahead holds a buffer of the file's size (kept
+            // for the next files), whose pages are faulted in once; more frames ahead only
+            // fault in more of them.
+            let end = (self.next + rayon::current_num_threads().max(2)).min(in_step);
             let group: Vec<&DngFrame> =
                 step.reference.iter().chain(&step.targets).skip(self.next).take(end - self.next).collect();
             let imgs: Vec<Result<DngFile, dng::DngError>> =
@@ -317,7 +320,7 @@ impl DngStream {
             return Ok(Some(Record::BeginDark));
         }
         if self.read.is_empty() && self.next < self.dark.len() {
-            let end = (self.next + (rayon::current_num_threads() * 2).max(2)).min(self.dark.len());
+            let end = (self.next + rayon::current_num_threads().max(2)).min(self.dark.len());
             let group = &self.dark[self.next..end];
             let imgs: Vec<Result<DngFile, dng::DngError>> =
                 group.par_iter().map(|fr| dng::read_dng_source(&fr.path)).collect();

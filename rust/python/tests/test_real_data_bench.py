@@ -1,4 +1,4 @@
-"""The pieces of the real-data benchmark (tests/bench/emva1288.py, docs/bench.md "Real data"):
+"""The pieces of the real-data benchmark (tests/bench/emva1288.py and emva1288_ladder.py, docs/bench.md "Real data"):
 ``noisecal.write_raw_dng`` (a DNG from arrays and settings alone), evaluation scenes that give
 their clean image (``clean.npy``), grey and band-limited generated scenes, and the converter's PNG
 reader, descriptor parser and derived clean images, each against a known truth."""
@@ -18,6 +18,7 @@ from noisecal import bench as B
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "tests" / "bench"))
 import emva1288 as E  # noqa: E402  (a script under tests/bench, not a package)
+import emva1288_ladder as L  # noqa: E402
 
 BLACK = [14.75, 14.5, 15.25, 15.0]
 
@@ -184,3 +185,45 @@ def test_real_noise_mosaics_use_every_real_pixel_once(tmp_path: Path):
     labels = E.mosaic_labels((h, w), k, 7)
     edges = (np.diff(labels, axis=1) != 0).mean()
     assert 0.01 < edges < 0.5  # regions, not noise: a label map with edges, not a random field
+
+
+def _png8(img: np.ndarray) -> bytes:
+    raw = b"".join(b"\0" + row.astype(np.uint8).tobytes() for row in img)
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    head = struct.pack(">IIBBBBB", img.shape[1], img.shape[0], 8, 0, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", head) + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b"")
+
+
+def test_png_reader_reads_set_002s_8_bit_frames():
+    img = np.random.default_rng(6).integers(0, 256, (5, 9)).astype(np.uint16)
+    got = L.read_png_grey(_png8(img), "x.png", depths=(8,))
+    assert got.dtype == np.uint16 and np.array_equal(got, img)
+    with pytest.raises(E.ConvertError, match="a 8-bit PNG of colour type 0, interlace 0: want 16-bit grey"):
+        E.read_png16(_png8(img), "x.png")  # set 001's reader still refuses anything but 16 bits
+
+
+def test_ladder_flat_shape_and_clean_images():
+    # Known truth: a flat field's shape (PRNU and shading, mean 1) seen through noisy pairs at 40
+    # levels from 0 to 200 DN; the shape pooled from them predicts a pair's clean image within a
+    # small fraction of its noise, where one pair's own mean errs by the noise / √2.
+    rng = np.random.default_rng(8)
+    h, w = 64, 96
+    shape = (1 + 0.01 * rng.normal(size=(h, w))) * np.linspace(0.97, 1.03, w)[None]
+    shape /= shape.mean()
+    dark = 3 + rng.normal(0, 0.2, (h, w))
+    levels = np.linspace(0, 200, 40)
+    signals = [np.mean([s * shape + rng.normal(0, 0.5 + 0.1 * np.sqrt(s), (h, w)) for _ in range(2)], axis=0) for s in levels]
+    got = L.flat_shape([sig for s, sig in zip(levels, signals) if s > 5])
+    assert abs(got.mean() - 1) < 1e-12
+    err = 150 * (got - shape)  # the clean image's error at 150 DN
+    noise = 0.5 + 0.1 * np.sqrt(150)
+    assert err.std() < 0.2 * noise, err.std()
+    one_pair = signals[30] / levels[30] * 150 - 150 * shape  # what one pair's own mean gives
+    assert one_pair.std() > 0.5 * noise
+    # Every pair in the dark and shadow bands, every 4th above, none past EVAL_MAX.
+    lv = [i / 100 for i in range(0, 60, 2)]  # 0, 0.02, … 0.58 of the range
+    pick = L.ladder(lv)
+    assert [lv[i] for i in pick] == [0.0, 0.02, 0.04, 0.06, 0.08, 0.16, 0.24, 0.32, 0.40]

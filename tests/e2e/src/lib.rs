@@ -1,5 +1,6 @@
 //! Shared helpers of the end-to-end tests: small simulated sessions pushed through a session.
 
+pub mod dark_levels;
 pub mod moments;
 
 use ndarray::Array2;

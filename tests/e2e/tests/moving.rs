@@ -61,7 +61,7 @@ fn run(seed: u64) -> Outcome {
     let hplan = spec.heldout_plan(&plan).expect("held-out plan");
     let off = spec.heldout.index_offset;
     let mut lplan = hplan.clone();
-    lplan.frames_per_burst = LINE_FRAMES;
+    lplan.frames_per_burst = line_frames();
     // The line study's held-out captures do not shake ([`still_heldout_for_lines`]).
     let mut still_sensor = sensor.model.clone();
     still_heldout_for_lines(&mut still_sensor);
@@ -94,9 +94,19 @@ fn still_heldout_for_lines(model: &mut noisecal_sim::SensorModel) {
 
 /// Held-out frames per burst for the row- and column-mean variances. The fidelity held-out set
 /// (2–8 frames of 72–128 rows) gives the ratio of two such variances a sampling SD of about 0.17
-/// in log, so ×1.2 (0.18) cannot be judged there. With 24 frames (≥ 35 × 23 degrees of freedom
-/// per row parity on most pairs) the SD is about 0.05.
-const LINE_FRAMES: u32 = 24;
+/// in log, so ×1.2 (0.18) cannot be judged there. With 24 frames the SD was about 0.05 at most
+/// pairs, but 0.13 (rows) and 0.19 (columns) on seed 4 at EV +4, where the saturation rule
+/// leaves few rows and columns with 16 flat pixels of a parity on its 64 × 48 held-out image:
+/// there rows 1.358 at ISO 250 and columns 0.689 at ISO 3200 were sampling (2.3 and 2.0 SD),
+/// not the model or the score. With 192 frames the same pairs read 0.933 and 0.991 (SD 0.051
+/// and 0.065) and the SD elsewhere is about 0.02.
+const LINE_FRAMES: u32 = 192;
+
+/// [`LINE_FRAMES`], or `NOISECAL_LINE_FRAMES` where set (to see a line ratio converge: a
+/// ratio beyond ×1.2 that is sampling shrinks toward 1 as the frames grow).
+fn line_frames() -> u32 {
+    std::env::var("NOISECAL_LINE_FRAMES").ok().and_then(|s| s.trim().parse().ok()).unwrap_or(LINE_FRAMES).max(2)
+}
 
 /// Sampling slack on the line ratios, in standard deviations of their logarithm (each pair's
 /// own, from its degrees of freedom: `Moments::line_log_sd`).
@@ -208,19 +218,19 @@ fn motion_between_frames_is_not_measured_as_noise() {
     let mut line_stats = [[0usize; 2]; 2];
     let mut line_logs: [Vec<f64>; 2] = [Vec::new(), Vec::new()];
     for o in &outcomes {
-        println!("{:>4} rows/cols on {LINE_FRAMES} frames per burst: still | moving", o.seed);
+        println!("{:>4} rows/cols on {} frames per burst: still | moving", o.seed, line_frames());
         for (s, m) in o.still_lines.iter().zip(&o.moving_lines) {
             let (sr, sc) = s.line_ratios();
             let (mr, mc) = m.line_ratios();
             let (rsr, rsc) = s.raw_line_ratios();
             let (rmr, rmc) = m.raw_line_ratios();
+            let (srs, scs) = s.line_log_sd();
+            let (mrs, mcs) = m.line_log_sd();
             println!(
-                "     {:>5} {:>4} | {sr:.3} {sc:.3} | {mr:.3} {mc:.3}  (as measured {rsr:.3} {rsc:.3} | {rmr:.3} {rmc:.3}; real row var {:.4} of which pixels {:.4}, col var {:.4} of which pixels {:.4})",
+                "     {:>5} {:>4} | {sr:.3} {sc:.3} | {mr:.3} {mc:.3}  (log SD {srs:.3} {scs:.3}; as measured {rsr:.3} {rsc:.3} | {rmr:.3} {rmc:.3}; real row var {:.4} of which pixels {:.4}, col var {:.4} of which pixels {:.4})",
                 s.iso, s.step, s.row_var.0, s.row_pixel.0, s.col_var.0, s.col_pixel.0
             );
             // Both sessions, at every pair: ×1.2, plus each ratio's own sampling slack.
-            let (srs, scs) = s.line_log_sd();
-            let (mrs, mcs) = m.line_log_sd();
             for (session, what, r, sd) in [
                 ("still", "row", sr, srs),
                 ("still", "column", sc, scs),

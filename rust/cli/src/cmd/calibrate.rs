@@ -73,6 +73,11 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
     for w in report.warnings.iter().chain(&pack.warnings) {
         eprintln!("warning: {}", escape_terminal(w));
     }
+    // What one more capture would settle about the conversion gain between the ISOs taken.
+    use noisecal_core::derive::gain_switch::{calibrated_laws, capture_advice};
+    for a in capture_advice(&calibrated_laws(&pack)) {
+        eprintln!("note: {a}");
+    }
     if !report.rejected.is_empty() {
         eprintln!("{} of {} frames rejected, by reason:", report.rejected.len(), report.frames);
         for r in &report.rejection_reasons {

@@ -64,6 +64,13 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
                 s.below_iso, s.above_iso
             )?;
         }
+        for (lo, hi) in &plan.unpinned {
+            let what = if (*lo..=*hi).contains(&iso) { "stands on these two only" } else { "did not reach across it" };
+            writeln!(
+                stdout,
+                "  {what}: between ISO {lo} and {hi} the read noise at black is not pinned, so a conversion-gain switch there can be neither shown nor ruled out"
+            )?;
+        }
         // The pack keeps this warning (materialize added it); say it too.
         if let Some(msg) = plan.gap_warning()
             && !quiet

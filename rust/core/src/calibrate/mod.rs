@@ -9,7 +9,7 @@
 //!   clean levels its flat pixels have.
 //! - [`step`]: which EV step a frame belongs to (the step tolerance).
 //! - [`flat`], [`drift`], [`deselect`]: the flat test, frame brightness, and the clean image's
-//!   own error.
+//!   own error; [`flat_neighbours`]: the flat test's neighbour comparison on the burst's sums.
 //! - [`motion`]: each target frame registered on its clean image; the flat pixels its motion
 //!   changes are left out of that frame.
 //! - [`estimate`]: histograms → per-bin PMFs; [`codes`]: the codes a sensor writes.
@@ -25,6 +25,7 @@ pub mod estimate;
 pub mod event;
 pub mod flat;
 mod flat_levels;
+mod flat_neighbours;
 mod flicker;
 pub mod frame;
 mod line_base;

@@ -147,6 +147,9 @@ impl ReferenceBurst {
         let groups = Groups { black: self.layout.black, white };
         let clip = clip_level(&self.layout);
         let ident = Transform::of(&self.layout, meta, 1.0);
+        if self.first.len() != self.sum.len() {
+            return Err(SessionError::ReferenceClosed);
+        }
         if self.frames >= MAX_REFERENCE_FRAMES {
             return Err(SessionError::Metadata(format!("reference burst exceeds {MAX_REFERENCE_FRAMES} frames")));
         }
@@ -281,6 +284,33 @@ impl ReferenceBurst {
     /// the selection sums per bin of `binning`. Errors when the burst is empty or nothing is
     /// flat.
     pub fn close(&self, binning: &Binning, roi: Option<Roi>, flat_k: f64) -> Result<CleanImage, SessionError> {
+        self.close_parts(binning, roi, flat_k).map(|parts| self.finish(parts, Vec::with_capacity(self.sum.len())))
+    }
+
+    /// [`ReferenceBurst::close`] for a burst that is dropped once closed (a calibration
+    /// session's): the clean image's rounded mean is written over the burst's first frame, which
+    /// it takes, instead of into a buffer of its own (at 12 MP, 24 MB of fresh pages the kernel
+    /// would fault in and zero). On an error the burst is unchanged; after success it has no
+    /// first frame, and refuses more frames and a second close ([`SessionError::ReferenceClosed`]).
+    pub fn close_spending(
+        &mut self,
+        binning: &Binning,
+        roi: Option<Roi>,
+        flat_k: f64,
+    ) -> Result<CleanImage, SessionError> {
+        if self.first.len() != self.sum.len() {
+            return Err(SessionError::ReferenceClosed);
+        }
+        // The flat test reads the first frame: it is taken only once the test has passed.
+        self.close_parts(binning, roi, flat_k).map(|parts| {
+            let mean = std::mem::take(&mut self.first);
+            self.finish(parts, mean)
+        })
+    }
+
+    /// What a clean image holds besides the mean and what is made of it: the flat levels, the
+    /// flat test's report and the selection sums.
+    fn close_parts(&self, binning: &Binning, roi: Option<Roi>, flat_k: f64) -> Result<ClosedParts, SessionError> {
         let (w, h) = (self.layout.width as usize, self.layout.height as usize);
         if self.frames == 0 {
             return Err(SessionError::NoReference { iso: 0, exposure_ns: self.exposure_ns, reference: 0 });
@@ -305,12 +335,22 @@ impl ReferenceBurst {
         let groups = Groups { black: self.layout.black, white: self.layout.white };
         let (selection, level_selection) =
             deselect::bin_sums(&levels, w, NOT_FLAT, |pos, c| flat.mean_noise_at(&groups, pos, c), &luts);
+        Ok(ClosedParts { levels, flat, selection, level_selection })
+    }
+
+    /// The clean image of `parts`, its rounded mean written into `mean` (whose contents are
+    /// replaced; its capacity is reused).
+    fn finish(&self, parts: ClosedParts, mut mean: Vec<u16>) -> CleanImage {
+        let ClosedParts { levels, flat, selection, level_selection } = parts;
+        let (w, h) = (self.layout.width as usize, self.layout.height as usize);
+        let groups = Groups { black: self.layout.black, white: self.layout.white };
         // `round(sum / frames)`, exactly as the division rounds, without one per pixel.
         let mean_of = RoundedQuotient::new(self.frames);
         let white = self.layout.white as i64;
-        let mean: Vec<u16> = self.sum.iter().map(|&s| mean_of.of(s).clamp(0, white) as u16).collect();
+        mean.clear();
+        mean.extend(self.sum.iter().map(|&s| mean_of.of(s).clamp(0, white) as u16));
         let probe = MotionProbe::new(mean, &levels, w, h, self.frames, &flat, &groups, clip_level(&self.layout));
-        Ok(CleanImage {
+        CleanImage {
             levels,
             width: w,
             height: h,
@@ -321,6 +361,69 @@ impl ReferenceBurst {
             probe,
             line_base: LineBaseCache::default(),
             flat_levels: FlatLevelsCache::default(),
-        })
+        }
+    }
+}
+
+/// A closing burst's clean levels, flat report and selection sums ([`ReferenceBurst::close`]).
+struct ClosedParts {
+    levels: Vec<u16>,
+    flat: FlatReport,
+    selection: [Vec<[f64; 3]>; POSITIONS],
+    level_selection: [Vec<[f64; 2]>; POSITIONS],
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::layout::CfaPattern;
+    use rand::{RngExt, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// A session's default drift policy (`SessionConfig::new`), written out: the session's file
+    /// uses this one, so this one does not use it (`tests/layers.rs`, no circles between files).
+    fn policy() -> DriftPolicy {
+        DriftPolicy { z: 5.0, floor: 0.002, max: 0.05, normalise: true }
+    }
+
+    /// A burst of 4 frames of a chart (flat patches, noise of a few DN).
+    fn burst() -> (ReferenceBurst, SensorLayout) {
+        let layout = SensorLayout { width: 48, height: 32, cfa: CfaPattern::Rggb, black: [64.0; 4], white: 1023 };
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        let mut b = ReferenceBurst::new(&layout, 1_000_000);
+        let policy = policy();
+        for _ in 0..4 {
+            let f = ndarray::Array2::from_shape_fn((32, 48), |(y, x)| {
+                100 + 200 * ((y / 8) * 6 + x / 8) as u16 % 900 + rng.random_range(0..5)
+            });
+            b.push(&FrameView::from_array(&f).expect("view"), &FrameMeta::new(100, 1_000_000), &policy).expect("frame");
+        }
+        (b, layout)
+    }
+
+    /// Closing a burst that is dropped afterwards gives the clean image `close` gives (the
+    /// mean written over the first frame instead of a buffer of its own); the spent burst then
+    /// refuses frames and a second close, and a close that fails leaves the burst as it was.
+    #[test]
+    fn close_spending_is_close() {
+        let (mut b, layout) = burst();
+        let binning = Binning::new(&layout, 4);
+        let want = b.close(&binning, None, 4.5).expect("close");
+        assert!(want.flat.total_flat() > 500, "{:?}", want.flat.flat);
+        // Nothing inside the region of interest: no flat pixel, the burst unchanged.
+        let nothing = Some(Roi { x0: 0, y0: 0, x1: 0, y1: 0 });
+        let before = b.clone();
+        assert!(matches!(b.close_spending(&binning, nothing, 4.5), Err(SessionError::NoFlatPixels)));
+        assert_eq!(b, before);
+        let got = b.close_spending(&binning, None, 4.5).expect("close");
+        // NaN marks level groups without differences: compared as printed, NaN as NaN.
+        assert!(format!("{got:?}") == format!("{want:?}"), "close_spending differs from close");
+        assert_eq!(got.probe.mean, want.probe.mean);
+        assert_eq!(got.levels, want.levels);
+        assert!(matches!(b.close_spending(&binning, None, 4.5), Err(SessionError::ReferenceClosed)));
+        let f = ndarray::Array2::<u16>::from_elem((32, 48), 500);
+        let policy = policy();
+        let pushed = b.push(&FrameView::from_array(&f).expect("view"), &FrameMeta::new(100, 1_000_000), &policy);
+        assert!(matches!(pushed, Err(SessionError::ReferenceClosed)));
     }
 }

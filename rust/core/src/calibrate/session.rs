@@ -444,10 +444,10 @@ impl CalibrationSession {
 
     /// Ends the reference burst of the current step: clean image and flat mask.
     fn close_reference(&mut self) -> Result<(), SessionError> {
-        let Some(step) = self.step.as_ref() else {
+        let Some(step) = self.step.as_mut() else {
             return Err(SessionError::NoStep);
         };
-        let Phase::Reference(burst) = &step.phase else {
+        let Phase::Reference(burst) = &mut step.phase else {
             return Ok(());
         };
         if burst.frames() == 0 {
@@ -457,7 +457,8 @@ impl CalibrationSession {
                 reference: self.config.reference_iso,
             });
         }
-        let image = burst.close(&self.binning, self.config.roi, self.config.flat_k)?;
+        // The burst is replaced by the image below: closing may take its buffers.
+        let image = burst.close_spending(&self.binning, self.config.roi, self.config.flat_k)?;
         let (frames, index) = (image.frames, step.index);
         let considered: u64 = image.flat.considered.iter().sum();
         let unsteady: u64 = image.flat.unsteady.iter().sum();

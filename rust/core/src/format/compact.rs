@@ -166,24 +166,33 @@ fn encode_section(m: &IsoModel, structure: Option<&IsoStructure>) -> Result<Vec<
 /// Bytes of a section's lengths (fields, deflated fields, weights).
 const SECTION_LENGTHS: usize = 24;
 
-/// The fields and the weights of a section, inflated; a damaged envelope is refused.
-fn inflate_section(section: &[u8]) -> Result<(Vec<u8>, Vec<u8>), CodecError> {
+/// The fields of `entry`'s section (model without weights, structured components), checked
+/// against the index (CRC, ISO, origin, components), and the section's still deflated weights
+/// with their inflated length.
+fn section_fields<'a>(entry: &IsoEntry, section: &'a [u8]) -> Result<(IsoSection, &'a [u8], u64), CodecError> {
+    let iso = entry.iso;
+    let damaged = |what: String| CodecError::Invalid { what: WHAT, detail: format!("{what}: the file is damaged") };
+    codec::check_crc(WHAT, crc32fast::hash(section), entry.crc)?;
     let Some((lens, rest)) = section.split_first_chunk::<SECTION_LENGTHS>() else {
         return Err(CodecError::Truncated { what: WHAT, len: section.len(), expected: SECTION_LENGTHS });
     };
     let len = |i: usize| u64::from_le_bytes(lens[8 * i..8 * i + 8].try_into().expect("8 bytes"));
     let (fields_len, deflated_len, weights_len) = (len(0), len(1), len(2));
     if deflated_len > rest.len() as u64 {
-        return Err(CodecError::Invalid {
-            what: WHAT,
-            detail: format!(
-                "an ISO section claims {deflated_len} bytes of fields, more than its {} bytes: the file is damaged",
-                rest.len()
-            ),
-        });
+        return Err(damaged(format!(
+            "an ISO section claims {deflated_len} bytes of fields, more than its {} bytes",
+            rest.len()
+        )));
     }
     let (f, w) = rest.split_at(deflated_len as usize);
-    Ok((codec::inflate_exact(WHAT, fields_len, f)?, codec::inflate_exact(WHAT, weights_len, w)?))
+    let (m, structure): IsoSection = codec::decode_payload(WHAT, &codec::inflate_exact(WHAT, fields_len, f)?)?;
+    if m.iso != iso || m.origin != entry.origin {
+        return Err(damaged(format!("the section of ISO {iso} holds the model of ISO {} ({:?})", m.iso, m.origin)));
+    }
+    if structure.is_some() != entry.structured || structure.as_ref().is_some_and(|s| s.iso != iso) {
+        return Err(damaged(format!("the structured components of ISO {iso} do not match the index")));
+    }
+    Ok(((m, structure), w, weights_len))
 }
 
 /// The index of a version 9 file whose framing (magic, version) was checked: `head` is its
@@ -235,21 +244,20 @@ pub fn read_index(head: &[u8], rest: &[u8]) -> Result<(PackIndex, Vec<std::ops::
 /// section with a clear error. `cells` counts the weights decoded so far from this file (a
 /// limit for the whole file: [`super::weight_stream::MAX_CELLS`]).
 pub fn decode_section(entry: &IsoEntry, section: &[u8], cells: &mut u64) -> Result<IsoSection, CodecError> {
-    let iso = entry.iso;
-    let damaged = |what: String| CodecError::Invalid { what: WHAT, detail: format!("{what}: the file is damaged") };
-    codec::check_crc(WHAT, crc32fast::hash(section), entry.crc)?;
-    let (fields, weights) = inflate_section(section)?;
-    let (mut m, structure): IsoSection = codec::decode_payload(WHAT, &fields)?;
-    if m.iso != iso || m.origin != entry.origin {
-        return Err(damaged(format!("the section of ISO {iso} holds the model of ISO {} ({:?})", m.iso, m.origin)));
-    }
-    if structure.is_some() != entry.structured || structure.as_ref().is_some_and(|s| s.iso != iso) {
-        return Err(damaged(format!("the structured components of ISO {iso} do not match the index")));
-    }
+    let ((mut m, structure), deflated_weights, weights_len) = section_fields(entry, section)?;
+    let weights = codec::inflate_exact(WHAT, weights_len, deflated_weights)?;
     let mut at = 0;
-    decode_iso(&mut m, &format!("ISO {iso}"), &weights, &mut at, cells)?;
+    decode_iso(&mut m, &format!("ISO {}", entry.iso), &weights, &mut at, cells)?;
     check_used(&weights, at)?;
     Ok((m, structure))
+}
+
+/// The structured components of `entry` from its section's bytes, without inflating or
+/// expanding the model's weights (the section checked as [`decode_section`] checks it): what an
+/// interpolation's plan reads of a calibrated ISO it will not stand on (its dark step's variance
+/// at black).
+pub fn decode_section_structure(entry: &IsoEntry, section: &[u8]) -> Result<Option<IsoStructure>, CodecError> {
+    Ok(section_fields(entry, section)?.0.1)
 }
 
 /// Every ISO of a version 9 file (`head` its sealed index, `rest` the bytes after it), as one

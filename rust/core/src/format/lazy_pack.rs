@@ -23,6 +23,7 @@ use crate::format::codec;
 use crate::format::compact::{self, IsoSection, PackIndex};
 use crate::format::pack_version::{PACK_MAGIC, PACK_MAGIC_TEXT, PACK_VERSION, PACK_VERSION_MIN};
 use crate::model::pack::ModelPack;
+use crate::model::structure::IsoStructure;
 
 const WHAT: &str = "model pack";
 
@@ -115,6 +116,25 @@ impl<B: std::ops::Deref<Target = [u8]>> LazyPack<B> {
             Some(whole) => Ok(whole.clone()),
             None => self.pack_with(&self.index.isos.iter().map(|e| e.iso).collect::<Vec<_>>()),
         }
+    }
+
+    /// The structured components of `iso` (`None` when the file has no such ISO or it has
+    /// none), read without decoding its model's weights unless the ISO is decoded already; not
+    /// kept, and not counted as decoded ([`Self::decoded_isos`]).
+    pub fn structure_of(&self, iso: u32) -> Result<Option<IsoStructure>, CodecError> {
+        if let Some(whole) = &self.whole {
+            return Ok(whole.structure_of(iso).cloned());
+        }
+        let Some(i) = self.index.isos.iter().position(|e| e.iso == iso) else {
+            return Ok(None);
+        };
+        if !self.index.isos[i].structured {
+            return Ok(None);
+        }
+        if let Some(s) = self.decoded.lock().unwrap_or_else(|p| p.into_inner()).0[i].clone() {
+            return Ok(s.1.clone());
+        }
+        compact::decode_section_structure(&self.index.isos[i], &self.bytes[self.sections[i].clone()])
     }
 
     /// The ISOs decoded so far (all of them for a file of an older version).

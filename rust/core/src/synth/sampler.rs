@@ -358,15 +358,32 @@ impl IsoSampler {
     /// reference level rather than of that level rounded (`derive::fine_levels::target_fine_levels`; its `lut` is
     /// indexed by the target's levels, its tables after the bins). Unchanged for a sampler at
     /// the reference brightness, and at a position whose tables would pass 16-bit indices.
-    pub fn with_target_fine_levels(mut self, fine: [Option<FineLevels>; POSITIONS]) -> Self {
-        let Some(t) = self.target.as_mut() else { return self };
+    pub fn with_target_fine_levels(self, fine: [Option<FineLevels>; POSITIONS]) -> Self {
+        if self.target.is_none() {
+            return self;
+        }
+        self.with_level_tables(fine)
+    }
+
+    /// The levels `fine` maps to tables of their own (indices at or past the position's bins)
+    /// draw from those tables: added after the position's tables, in the map of the clean
+    /// levels this sampler takes (the target's when it takes them at the target brightness, its
+    /// `lut` then indexed by the target's levels). Used for the fine levels near black and for
+    /// a parametric baseline's law at each level (`derive::baselines::Baseline::level_tables`).
+    /// A position whose tables would pass 16-bit indices, or whose map has another length, is
+    /// left as it is.
+    pub fn with_level_tables(mut self, fine: [Option<FineLevels>; POSITIONS]) -> Self {
         for (p, f) in fine.into_iter().enumerate() {
             let Some(f) = f else { continue };
             let (bins, base) = (self.binning.bins(p), self.tables[p].len());
-            if base + f.extra.len() > u16::MAX as usize + 1 || f.lut.len() != t.luts[p].len() {
+            let luts = match self.target.as_mut() {
+                Some(t) => &mut t.luts[p],
+                None => &mut self.luts[p],
+            };
+            if base + f.extra.len() > u16::MAX as usize + 1 || f.lut.len() != luts.len() {
                 continue;
             }
-            for (to, &k) in t.luts[p].iter_mut().zip(&f.lut) {
+            for (to, &k) in luts.iter_mut().zip(&f.lut) {
                 if k as usize >= bins {
                     *to = (base + k as usize - bins) as u16;
                 }

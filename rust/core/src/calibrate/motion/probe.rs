@@ -116,11 +116,21 @@ impl ProbeRow<'_> {
     /// order. Interior pixels take the Sobel without border clamping, the same sums in the same
     /// order; the rounding and the edge test are `f64::round` and `hypot` exactly, without
     /// their libm calls.
-    fn fill(&self, grad_row: &mut [[i8; 2]], row_step: usize, edges: &mut Vec<u32>, anchors: &mut Vec<(u32, f32)>) {
+    fn fill(
+        &self,
+        grad_row: &mut [[i8; 2]],
+        row_step: usize,
+        edges: &mut Vec<u32>,
+        anchors: &mut Vec<(u32, f32)>,
+        inner: &mut Vec<[i32; 2]>,
+    ) {
         let Self { mean, levels, w, h, y, frames, clip, tolerance, units_per_dn } = *self;
         let margin = 4;
         let sampled = (y / 2) % row_step == 0 && y >= margin && y + margin < h;
         let inner_row = y >= 2 && y + 2 < h;
+        if inner_row {
+            sobel_row(mean, w, y, inner);
+        }
         for (x, gradient) in grad_row.iter_mut().enumerate() {
             let i = y * w + x;
             let pos = position(y, x);
@@ -130,7 +140,13 @@ impl ProbeRow<'_> {
                 continue;
             }
             let m = mean[i] as f64;
-            let g = if inner_row && x >= 2 && x + 2 < w { sobel_inner(mean, w, x, y) } else { sobel(mean, w, h, x, y) };
+            let g = if inner_row && x >= 2 && x + 2 < w {
+                // Sums of integers below 2¹⁹, over 16: the f64 sums and division exactly.
+                let [gx, gy] = inner[x - 2];
+                [gx as f64 / 16.0, gy as f64 / 16.0]
+            } else {
+                sobel(mean, w, h, x, y)
+            };
             let sd = tolerance[pos][mean[i] as usize] as f64 / MOTION_TOLERANCE;
             if c != NOT_FLAT {
                 let tol = MOTION_TOLERANCE * sd;
@@ -201,14 +217,28 @@ fn hypot_above(g: [f64; 2], t: f64) -> bool {
     }
 }
 
-/// [`sobel`] for a pixel at least 2 px from every border: no clamping, divisor 16.
-#[inline]
-fn sobel_inner(mean: &[u16], w: usize, x: usize, y: usize) -> [f64; 2] {
-    let v = |yy: usize, xx: usize| mean[yy * w + xx] as f64;
-    let (xm, xp, ym, yp) = (x - 2, x + 2, y - 2, y + 2);
-    let gx = (v(ym, xp) - v(ym, xm) + 2.0 * (v(y, xp) - v(y, xm)) + v(yp, xp) - v(yp, xm)) / 16.0;
-    let gy = (v(yp, xm) - v(ym, xm) + 2.0 * (v(yp, x) - v(ym, x)) + v(yp, xp) - v(ym, xp)) / 16.0;
-    [gx, gy]
+/// The numerators of [`sobel`] away from the borders (its divisor is 16 there: sixteenths of a
+/// DN per pixel) for row `y` (2 ≤ y < h − 2) from column 2 to `w − 3`: `out[x − 2]`. Integer
+/// sums over whole rows, which the compiler vectorises; each is the exact integer the f64 sums
+/// of [`sobel`] make (every term is an integer of magnitude below 2¹⁸, exact in both types),
+/// so `out / 16.0` is [`sobel`] bit for bit.
+fn sobel_row(mean: &[u16], w: usize, y: usize, out: &mut Vec<[i32; 2]>) {
+    out.clear();
+    if w < 5 {
+        return;
+    }
+    let n = w - 4;
+    let row = |yy: usize| &mean[yy * w..yy * w + w];
+    let (up, mid, down) = (row(y - 2), row(y), row(y + 2));
+    let (up_m, up_c, up_p) = (&up[..n], &up[2..2 + n], &up[4..4 + n]);
+    let (mid_m, mid_p) = (&mid[..n], &mid[4..4 + n]);
+    let (down_m, down_c, down_p) = (&down[..n], &down[2..2 + n], &down[4..4 + n]);
+    out.extend((0..n).map(|k| {
+        let v = |r: &[u16]| r[k] as i32;
+        let gx = v(up_p) - v(up_m) + 2 * (v(mid_p) - v(mid_m)) + v(down_p) - v(down_m);
+        let gy = v(down_m) - v(up_m) + 2 * (v(down_c) - v(up_c)) + v(down_p) - v(up_p);
+        [gx, gy]
+    }));
 }
 
 impl MotionProbe {
@@ -249,6 +279,7 @@ impl MotionProbe {
             .map(|(b, rows)| {
                 let mut edges: Vec<u32> = Vec::new();
                 let mut anchors: Vec<(u32, f32)> = Vec::new();
+                let mut inner = Vec::with_capacity(w);
                 for (dy, grad_row) in rows.chunks_mut(w.max(1)).enumerate() {
                     let y = b * band_rows + dy;
                     let probe = ProbeRow {
@@ -262,7 +293,7 @@ impl MotionProbe {
                         tolerance: &tolerance,
                         units_per_dn: &units_per_dn,
                     };
-                    probe.fill(grad_row, row_step, &mut edges, &mut anchors);
+                    probe.fill(grad_row, row_step, &mut edges, &mut anchors, &mut inner);
                 }
                 (edges, anchors)
             })
@@ -301,6 +332,39 @@ mod tests {
         } else {
             [round_half_away(q[0]) as i8, round_half_away(q[1]) as i8]
         }
+    }
+
+    /// The whole-row integer Sobel over 16 is `sobel` bit for bit at every pixel 2 px from the
+    /// borders: on random 16-bit means, on means of only 0 and 65 535 (the largest sums either
+    /// sign), and on a smooth ramp. A wrong tap (a swapped sign, the centre column's weight 1
+    /// instead of 2, an off-by-one column) differs on most pixels of the random image.
+    #[test]
+    fn sobel_row_is_sobel() {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let (w, h) = (37, 11);
+        let images: [Vec<u16>; 3] = [
+            (0..w * h).map(|_| rng.random::<u16>()).collect(),
+            (0..w * h).map(|_| if rng.random::<bool>() { u16::MAX } else { 0 }).collect(),
+            (0..w * h).map(|i| ((i % w) * 1000 + (i / w) * 37) as u16).collect(),
+        ];
+        let mut row = Vec::new();
+        let mut checked = 0;
+        for mean in &images {
+            for y in 2..h - 2 {
+                sobel_row(mean, w, y, &mut row);
+                assert_eq!(row.len(), w - 4);
+                for x in 2..w - 2 {
+                    let [gx, gy] = row[x - 2];
+                    let want = sobel(mean, w, h, x, y);
+                    assert_eq!([(gx as f64 / 16.0).to_bits(), (gy as f64 / 16.0).to_bits()], want.map(f64::to_bits));
+                    checked += 1;
+                }
+            }
+        }
+        assert_eq!(checked, 3 * (h - 4) * (w - 4));
+        // Too narrow for an inner column: nothing.
+        sobel_row(&images[0][..4 * h], 4, 2, &mut row);
+        assert!(row.is_empty());
     }
 
     /// `quantised` is the division exactly: on every Sobel value (sixteenths of a DN) up to

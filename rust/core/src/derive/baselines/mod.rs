@@ -22,16 +22,20 @@
 //! A baseline becomes an ordinary [`IsoModel`] with [`Baseline::to_model`] (one PMF per
 //! position and bin, averaged over up to [`LEVELS_PER_BIN`] levels of the bin), so it reuses
 //! the sampler (`IsoSampler`), synthesis and every metric: that is what
-//! `synth --model hg|pg|noiseprofile` runs.
+//! `synth --model hg|pg|noiseprofile` runs. Its sampler does not draw from those bins, though:
+//! each clean level draws from the law at that level ([`Baseline::level_tables`], through
+//! `resolve::sampler_for`); the bins stay what metrics compare.
 //!
 //! Across ISO the baselines are interpolated "the usual parametric way" (paper §4.1, after
 //! \[34\]): `a` linear in ISO and `b = c + d·a²` (read noise before and after the gain), both
 //! non-negative fits over the calibrated ISOs on the same side of any conversion-gain switch
 //! ([`interpolate`]).
 //!
-//! Files: this module (kinds, fits, interpolation, the model a baseline becomes) and [`pmf`]
-//! (the integer-grid PMFs of each kind, clipping included).
+//! Files: this module (kinds, fits, interpolation, the model a baseline becomes), [`pmf`] (the
+//! integer-grid PMFs of each kind, clipping included) and [`levels`] (the per-level tables
+//! synthesis draws from).
 
+mod levels;
 mod pmf;
 
 use rayon::prelude::*;
@@ -44,6 +48,7 @@ use crate::math::fit::{nn_poly_fit, poly_eval};
 use crate::model::layout::{Binning, POSITIONS};
 use crate::model::pack::{BinModel, IsoModel, ModelOrigin, ModelPack, NoiseProfile, PositionModel};
 use crate::model::pmf::Pmf;
+pub use levels::{LATTICE_SHOWS, LEVEL_STEP};
 pub use pmf::{LEVELS_PER_BIN, PG_EXACT_MAX_LAMBDA};
 use pmf::{average, clip, gaussian_cells, pg_cells};
 
@@ -242,16 +247,22 @@ impl Baseline {
 
     /// PMF of `noisy − level` at one integer clean level (clipping at 0 and white included).
     pub fn level_pmf(&self, binning: &Binning, pos: usize, level: i32) -> Pmf {
-        let p = self.params[pos];
         let above = (level as f64 - binning.black[pos] as f64).max(0.0);
-        let raw = match self.kind {
+        clip(&self.noise_above(pos, above), level, binning.white as i32)
+    }
+
+    /// PMF of the integer noise at a level `above` DN over black (black clamped to 0), before
+    /// any clipping.
+    fn noise_above(&self, pos: usize, above: f64) -> Pmf {
+        let p = self.params[pos];
+        let above = above.max(0.0);
+        match self.kind {
             BaselineKind::Hg | BaselineKind::NoiseProfile => {
                 let var = (p.variance(above) - 1.0 / 12.0).max(1e-8);
                 gaussian_cells(0.0, var.sqrt())
             }
             BaselineKind::Pg => pg_cells(p.a, (p.b - 1.0 / 12.0).max(0.0), above),
-        };
-        clip(&raw, level, binning.white as i32)
+        }
     }
 
     /// PMF of one bin: the mean of [`Self::level_pmf`] over up to [`LEVELS_PER_BIN`] levels

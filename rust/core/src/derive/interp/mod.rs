@@ -3,9 +3,10 @@
 //!
 //! For an uncalibrated ISO `j`, per CFA position and bin:
 //! 1. **Neighbours**: the calibrated ISOs on `j`'s side of every conversion-gain switch
-//!    ([`detect_gain_switches`](crate::derive::gain_switch::detect_gain_switches)) — the *segment* — and within it the two that bracket `j` plus
-//!    one more on each side when there is one (2–4 ISOs, [`InterpOptions::max_neighbours`]).
-//!    Fits are local so they follow real curves, and never straddle a switch.
+//!    ([`gaps`](crate::derive::gain_switch::gaps)), up to the nearest gaps whose read terms the
+//!    data does not pin — the *segment* — and within it the two that bracket `j` plus one more on
+//!    each side when there is one (2–4 ISOs, [`InterpOptions::max_neighbours`]). Fits are local
+//!    so they follow real curves, and never straddle a switch or a gap that may hide one.
 //! 2. **Variance** vs ISO: non-negative `c₀ + c₁·ISO + c₂·ISO²` (quantisation and post-gain read
 //!    noise, shot noise, gained read noise), weighted by `samples / σ⁴`; degree 1 with two
 //!    neighbours. Where the calibrated variances do *not* grow with ISO (clipping near white
@@ -210,12 +211,21 @@ pub enum Materialized {
 }
 
 impl InterpPlan {
-    /// The warning to keep with the pack when the ISO lies inside a conversion-gain switch.
+    /// The warning to keep with the pack when the ISO lies inside a conversion-gain switch:
+    /// which gain the camera uses anywhere strictly between the switch's two calibrated ISOs is
+    /// unknown, so the warning names that range, the side used, and the calibration that
+    /// settles it (the ISO itself; and the one halving the range when that is another).
     pub fn gap_warning(&self) -> Option<String> {
         let s = self.in_switch_gap.as_ref()?;
         let list = self.neighbours.iter().map(u32::to_string).collect::<Vec<_>>().join(", ");
+        let half = s.bisecting_iso();
+        let narrow = if half != self.iso {
+            format!(" (or ISO {half}, halfway in log ISO, to halve the range where the gain is unknown)")
+        } else {
+            String::new()
+        };
         Some(format!(
-            "ISO {iso} lies between ISO {} and {}, where the sensor switches conversion gain; which gain the camera uses at ISO {iso} is unknown, so it was modelled from the nearer side (ISO {list}). Calibrate ISO {iso} to be sure.",
+            "ISO {iso} lies between ISO {} and {}, where the sensor switches conversion gain; which gain the camera uses at any ISO strictly between them is unknown from these calibrations, so ISO {iso} was modelled from the nearer side in log ISO (ISO {list}; the upper side on a tie). Calibrate ISO {iso} to be sure{narrow}.",
             s.below_iso,
             s.above_iso,
             iso = self.iso,

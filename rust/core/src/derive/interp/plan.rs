@@ -1,10 +1,9 @@
 //! Which calibrated ISOs an interpolation stands on: the segment between conversion-gain
 //! switches, the bracketing neighbours, the shape sources.
 
-use crate::derive::gain_switch::{GainSwitch, detect_laws};
-use crate::derive::noise_law::{NoiseParams, fit_params};
+pub use crate::derive::gain_switch::{CalibratedLaw, calibrated_laws};
+use crate::derive::gain_switch::{GainSwitch, Gap, GapCall, gaps};
 use crate::error::ModelError;
-use crate::model::layout::POSITIONS;
 use crate::model::pack::ModelPack;
 
 /// Where the normalised shape of an interpolated PMF comes from.
@@ -40,7 +39,9 @@ pub struct InterpPlan {
     pub iso: u32,
     /// Outside the calibrated range (only when extrapolation was allowed).
     pub extrapolated: bool,
-    /// Every calibrated ISO on the target's side of all conversion-gain switches.
+    /// The calibrated ISOs the target's model may stand on: those on its side of every
+    /// conversion-gain switch, up to the nearest gaps whose read terms are not pinned (see
+    /// `unpinned`).
     pub segment: Vec<u32>,
     /// The calibrated ISOs the mean and variance fits use (sorted).
     pub neighbours: Vec<u32>,
@@ -49,25 +50,16 @@ pub struct InterpPlan {
     pub shape_from: Vec<u32>,
     /// Switches next to the segment: calibrated ISOs beyond them were not used.
     pub avoided: Vec<GainSwitch>,
+    /// Gaps next to the segment whose read terms the data does not pin
+    /// ([`GapCall::Undetermined`]: a switch there can be neither shown nor ruled out), as
+    /// (below, above) ISO: calibrated ISOs beyond them were not used either. When the target
+    /// lies inside such a gap, the segment is the two ISOs around it.
+    pub unpinned: Vec<(u32, u32)>,
     /// Set when the target lies strictly between the two ISOs of a switch: which conversion
     /// gain the camera uses there is unknown, and the nearer side (in log ISO; the upper side on
     /// a tie) was used. Calibrate that ISO to be sure.
     pub in_switch_gap: Option<GainSwitch>,
     pub shape: ShapeSource,
-}
-
-/// A calibrated ISO as a plan reads it: its noise law per CFA position, as
-/// [`fit_params`] gives it (which conversion-gain switches lie between calibrated ISOs).
-pub type CalibratedLaw = (u32, [Option<NoiseParams>; POSITIONS]);
-
-/// The noise laws of the pack's calibrated ISOs, sorted by ISO.
-pub fn calibrated_laws(pack: &ModelPack) -> Vec<CalibratedLaw> {
-    let binning = pack.binning();
-    pack.isos
-        .iter()
-        .filter(|m| m.is_calibrated())
-        .map(|m| (m.iso, std::array::from_fn(|pos| fit_params(&binning, m, pos))))
-        .collect()
 }
 
 /// Plans the interpolation of `iso` with the default options.
@@ -98,14 +90,14 @@ pub fn plan_among(
     opts: &InterpOptions,
 ) -> Result<InterpPlan, ModelError> {
     // Every calibrated ISO except the target may be stood on.
-    let models: Vec<CalibratedLaw> = laws.iter().filter(|(k, _)| *k != iso).copied().collect();
+    let models: Vec<CalibratedLaw> = laws.iter().filter(|l| l.iso != iso).copied().collect();
     if models.is_empty() {
         return Err(ModelError::IsoMissing {
             iso,
             available: if no_isos { "none".into() } else { format!("none calibrated besides ISO {iso}") },
         });
     }
-    let isos: Vec<u32> = models.iter().map(|(k, _)| *k).collect();
+    let isos: Vec<u32> = models.iter().map(|l| l.iso).collect();
     let (min, max) = (isos[0], isos[isos.len() - 1]);
     let outside = iso < min || iso > max;
     if outside && !extrapolate {
@@ -119,37 +111,50 @@ pub fn plan_among(
             (max as u64 * MAX_EXTRAPOLATION).min(u32::MAX as u64)
         )));
     }
-    let switches = detect_laws(&models);
-    // Segments: index ranges of `isos` between switches.
+    let gaps = gaps(&models);
+    // Runs: index ranges of `isos` between gaps that are switches or undetermined.
     let mut bounds = vec![0usize];
-    for s in &switches {
-        if let Some(i) = isos.iter().position(|&k| k == s.above_iso) {
-            bounds.push(i);
-        }
-    }
+    bounds.extend(gaps.iter().enumerate().filter(|(_, g)| g.call != GapCall::NoSwitch).map(|(i, _)| i + 1));
     bounds.push(isos.len());
-    let segments: Vec<(usize, usize)> = bounds.windows(2).map(|w| (w[0], w[1])).collect();
+    let runs: Vec<(usize, usize)> = bounds.windows(2).map(|w| (w[0], w[1])).collect();
     let mut in_switch_gap = None;
-    let seg_idx = if iso < min {
-        0
+    let (s0, s1) = if iso < min {
+        runs[0]
     } else if iso > max {
-        segments.len() - 1
-    } else if let Some(si) = segments.iter().position(|&(a, b)| isos[a] <= iso && iso <= isos[b - 1]) {
-        si
+        runs[runs.len() - 1]
+    } else if let Some(&run) = runs.iter().find(|&&(a, b)| isos[a] <= iso && iso <= isos[b - 1]) {
+        run
     } else {
-        // In the gap of a switch: the nearer side in log ISO.
-        let si = segments.iter().position(|&(a, _)| isos[a] > iso).unwrap_or(segments.len() - 1);
-        let below = isos[segments[si - 1].1 - 1] as f64;
-        let above = isos[segments[si].0] as f64;
-        in_switch_gap = switches.get(si - 1).cloned();
-        if (iso as f64 / below).ln() < (above / iso as f64).ln() { si - 1 } else { si }
+        // In a gap between two runs: index `a` of the run above.
+        let ri = runs.iter().position(|&(a, _)| isos[a] > iso).unwrap_or(runs.len() - 1);
+        let (below_run, above_run) = (runs[ri - 1], runs[ri]);
+        match &gaps[above_run.0 - 1].call {
+            GapCall::Switch(s) => {
+                // Which gain the camera uses here is unknown: the nearer side in log ISO.
+                in_switch_gap = Some(s.clone());
+                let below = isos[below_run.1 - 1] as f64;
+                let above = isos[above_run.0] as f64;
+                if (iso as f64 / below).ln() < (above / iso as f64).ln() { below_run } else { above_run }
+            }
+            // Not pinned: the two ISOs around the target, no further.
+            _ => (above_run.0 - 1, above_run.0 + 1),
+        }
     };
-    let (s0, s1) = segments[seg_idx];
     let segment: Vec<u32> = isos[s0..s1].to_vec();
-    let avoided: Vec<GainSwitch> = switches
+    let next_to = |g: &Gap| g.above_iso == segment[0] || g.below_iso == segment[segment.len() - 1];
+    let avoided: Vec<GainSwitch> = gaps
         .iter()
-        .filter(|s| s.above_iso == segment[0] || s.below_iso == segment[segment.len() - 1])
-        .cloned()
+        .filter(|g| next_to(g))
+        .filter_map(|g| match &g.call {
+            GapCall::Switch(s) => Some(s.clone()),
+            _ => None,
+        })
+        .collect();
+    let within = |g: &Gap| g.below_iso >= segment[0] && g.above_iso <= segment[segment.len() - 1];
+    let unpinned: Vec<(u32, u32)> = gaps
+        .iter()
+        .filter(|g| (next_to(g) || within(g)) && g.call == GapCall::Undetermined)
+        .map(|g| (g.below_iso, g.above_iso))
         .collect();
     let k = opts.max_neighbours.clamp(2, 4);
     let at = segment.partition_point(|&x| x < iso);
@@ -202,6 +207,7 @@ pub fn plan_among(
         neighbours,
         shape_from,
         avoided,
+        unpinned,
         in_switch_gap,
         shape: opts.shape,
     })

@@ -1,0 +1,288 @@
+//! Tests of [`super`]: the offsets' kernel, the fixed pattern's row paths, and the deconvolution of
+//! clipped bins against known truth.
+
+use super::*;
+use crate::model::structure::QUANTILES;
+
+fn gaussian_dist(sd: f64) -> OffsetDistribution {
+    let quantiles = (0..QUANTILES)
+        .map(|i| {
+            let u = (i as f64 + 0.5) / QUANTILES as f64;
+            // Bisection on Φ(z) = 1 − erfc(z/√2)/2.
+            let (mut lo, mut hi) = (-8.0f64, 8.0f64);
+            for _ in 0..60 {
+                let mid = 0.5 * (lo + hi);
+                if 1.0 - 0.5 * crate::math::special::erfc(mid / std::f64::consts::SQRT_2) < u {
+                    lo = mid;
+                } else {
+                    hi = mid;
+                }
+            }
+            (sd * 0.5 * (lo + hi)) as f32
+        })
+        .collect();
+    OffsetDistribution { quantiles, count: 1000, measured_var: sd * sd, sampling_var: 0.0, significant: true }
+}
+
+/// The sampler of Gaussian row offsets of SD `sd` at both parities, nothing else.
+fn rows_only(sd: f64) -> StructureSampler {
+    let st = IsoStructure {
+        iso: 100,
+        rows: [Some(gaussian_dist(sd)), Some(gaussian_dist(sd))],
+        columns: [None, None],
+        frames: None,
+        frames_used: 10,
+        fpn: None,
+    };
+    StructureSampler::new(&st, Components::ALL).expect("significant rows")
+}
+
+/// The sampler of a 40 × 60 fixed pattern alone: `residual` at every position, shaded by
+/// `shading` on a `grid` (no shading where the grid does not match its length).
+fn pattern_sampler(residual: OffsetDistribution, grid: [u32; 2], shading: [Vec<f32>; POSITIONS]) -> StructureSampler {
+    let fp = FixedPattern {
+        pixels: std::array::from_fn(|_| residual.clone()),
+        shading,
+        grid,
+        size: [40, 60],
+        frames: 8,
+        temporal_var: [1.0; POSITIONS],
+        in_pixel_noise: std::array::from_fn(|_| gaussian_dist(0.5)),
+        significant: true,
+    };
+    let st = IsoStructure { fpn: Some(fp), ..IsoStructure::empty(100) };
+    StructureSampler::new(&st, Components::ALL).expect("a pattern")
+}
+
+/// The row path of the fixed pattern gives `pattern_at`'s values (to the last 2⁻³² DN), on a
+/// shaded pattern and a crop at an odd origin.
+#[test]
+fn pattern_rows_match_pattern_at() {
+    let shading = std::array::from_fn(|p| (0..12).map(|i| (i as f32 * 0.37 + p as f32).sin() * 2.0).collect());
+    let s = pattern_sampler(gaussian_dist(1.5), [3, 4], shading);
+    for (y, x0) in [(0usize, 0usize), (17, 3), (39, 1)] {
+        let mut row = vec![0i64; 50];
+        s.add_pattern_row(y, x0, &mut row);
+        for (i, v) in row.iter().enumerate() {
+            let want = (s.pattern_at(y, x0 + i) * 4294967296.0).round() as i64;
+            assert!((v - want).abs() <= 1, "({y}, {}): {v} vs {want}", x0 + i);
+        }
+    }
+    // Kept from a region's second request on, with the values of the rows computed one by
+    // one; another region is not served the kept one.
+    for (origin, h, w) in [((0usize, 0usize), 40usize, 60usize), ((17, 3), 9, 31)] {
+        assert!(s.kept_pattern(origin, h, w).is_none(), "first request");
+        let kept = s.kept_pattern(origin, h, w).expect("second request");
+        for y in 0..h {
+            let mut row = vec![0i64; w];
+            s.add_pattern_row(origin.0 + y, origin.1, &mut row);
+            assert_eq!(kept.row(y), &row[..], "{origin:?} row {y}");
+        }
+        let again = s.kept_pattern(origin, h, w).expect("kept");
+        assert!(Arc::ptr_eq(&kept, &again));
+        assert!(s.kept_pattern((origin.0 + 1, origin.1), h, w).is_none(), "another origin");
+    }
+    // The limit: a region over it is never kept, one at it is; lowering it lets a kept
+    // region go; 0 keeps nothing.
+    let (origin, h, w) = ((2usize, 1usize), 10usize, 20usize);
+    for (limit, keeps) in [(h * w * 8 - 1, false), (h * w * 8, true), (0, false)] {
+        s.set_pattern_cache_bytes(limit);
+        assert_eq!(s.pattern_cache_bytes(), limit);
+        let _ = s.kept_pattern(origin, h, w);
+        assert_eq!(s.kept_pattern(origin, h, w).is_some(), keeps, "limit {limit}");
+    }
+    s.set_pattern_cache_bytes(1 << 20);
+    let _ = s.kept_pattern(origin, h, w);
+    let kept = s.kept_pattern(origin, h, w).expect("kept under 1 MiB");
+    s.set_pattern_cache_bytes(h * w * 8 - 8);
+    assert!(s.kept_pattern(origin, h, w).is_none(), "let go when the limit falls below it");
+    drop(kept);
+    s.set_pattern_cache_bytes(crate::synth::DEFAULT_PATTERN_CACHE_BYTES);
+    // The pattern is the sensor's: the same at a pixel whatever the seed; its spread is the
+    // residual's and the shading's.
+    let vals: Vec<f64> = (0..40).flat_map(|y| (0..60).map(move |x| (y, x))).map(|(y, x)| s.pattern_at(y, x)).collect();
+    let m = vals.iter().sum::<f64>() / vals.len() as f64;
+    let sd = (vals.iter().map(|v| (v - m).powi(2)).sum::<f64>() / vals.len() as f64).sqrt();
+    assert!(sd > 1.5 && sd < 2.6, "pattern sd {sd}");
+}
+
+/// The pattern computed where the synthesis pass adds it ([`RowPattern`]) is the row path's
+/// ([`StructureSampler::add_pattern_row_at`]) bit for bit: with and without shading (a
+/// position whose grid does not match its size has none), with a residual of one quantile,
+/// at even and odd origins and widths.
+#[test]
+fn row_pattern_is_the_row_path_bit_for_bit() {
+    let mut one = gaussian_dist(0.0);
+    one.quantiles = vec![0.75];
+    for (grid, shading_len, residual) in
+        [([3u32, 4u32], 12usize, gaussian_dist(1.5)), ([0, 0], 0, gaussian_dist(2.5)), ([2, 2], 3, one)]
+    {
+        let shading =
+            std::array::from_fn(|p| (0..shading_len).map(|i| (i as f32 * 0.61 - p as f32).cos() * 3.0).collect());
+        let s = pattern_sampler(residual, grid, shading);
+        let mut nonzero = 0;
+        for (y, x0, w) in [(0usize, 0usize, 60usize), (17, 3, 31), (39, 1, 2), (5, 2, 1)] {
+            let columns = s.pattern_columns(x0, w);
+            let mut want = vec![0i64; w];
+            s.add_pattern_row_at(&columns, y, &mut want);
+            let rp = s.row_pattern(&columns, y).expect("a pattern");
+            let got: Vec<i64> = (0..w).map(|i| rp.at(i)).collect();
+            assert_eq!(got, want, "grid {grid:?}, row {y}, columns {x0}..");
+            for i in (0..w.saturating_sub(1)).step_by(2) {
+                assert_eq!(rp.pair(i), (want[i], want[i + 1]));
+            }
+            nonzero += want.iter().filter(|&&v| v != 0).count();
+        }
+        assert!(nonzero > 50, "grid {grid:?}: {nonzero} pixels with a pattern");
+    }
+}
+
+#[test]
+fn kernel_has_the_offsets_variance_plus_the_dither() {
+    let s = rows_only(0.7);
+    let (first, k) = s.kernel(0);
+    let mean: f64 = k.iter().enumerate().map(|(i, p)| (first + i as i32) as f64 * p).sum();
+    let var: f64 = k.iter().enumerate().map(|(i, p)| ((first + i as i32) as f64 - mean).powi(2) * p).sum();
+    assert!(mean.abs() < 0.01, "mean {mean}");
+    // Var = 0.49 + E[f(1 − f)] with f the fractional part (≈ 1/6 for a wide offset).
+    assert!(var > 0.49 + 0.12 && var < 0.49 + 0.2, "var {var}");
+}
+
+/// A bin clipped at white whose measured PMF is `fold(Q ∗ K)`, `Q` a discretised Gaussian
+/// of SD `sd` and `K` the kernel of row offsets of SD 0.7: its deconvolution must give back
+/// `Q`'s variance and a `fold(Q' ∗ K)` close to the measured PMF, far closer than the
+/// measured PMF kept as it is (the offsets counted twice). Returns the JSDs (kept, after).
+fn clipped_bin_case(sd: f64, iterations: usize) -> (f64, f64, f64) {
+    use crate::model::pack::BinSource;
+    use crate::model::pmf::Pmf;
+    let (k0, k) = rows_only(0.7).kernel(0);
+    let half = (7.0 * sd).ceil() as i32;
+    let q: Vec<f64> = (-half..=half).map(|n| (-(n as f64).powi(2) / (2.0 * sd * sd)).exp()).collect();
+    let qs: f64 = q.iter().sum();
+    let q: Vec<f64> = q.iter().map(|x| x / qs).collect();
+    // Q ∗ K over -half + k0 ..; white (the clamp) at +sd.
+    let conv = |q: &[f64], q0: i32| -> (i32, Vec<f64>) {
+        let mut y = vec![0.0; q.len() + k.len() - 1];
+        crate::math::deconv::convolve(&k, q, &mut y);
+        (q0 + k0, y)
+    };
+    let clip = sd.round() as i32;
+    let fold = |(first, y): (i32, Vec<f64>)| -> Pmf {
+        let mut out: Vec<f64> = Vec::new();
+        for (i, &v) in y.iter().enumerate() {
+            let n = first + i as i32;
+            if n <= clip {
+                out.push(v);
+            } else {
+                *out.last_mut().expect("mass below the clip") += v;
+            }
+        }
+        Pmf { first, p: out }
+    };
+    let measured = fold(conv(&q, -half));
+    let bin = BinModel::estimated(&measured, 100_000, BinSource::Measured, None, true);
+    let d = deconvolve_bin_within(&bin, k0, &k, iterations, true);
+    let dp = d.pmf();
+    let back = fold(conv(&dp.p, dp.first));
+    let kept = fold(conv(&measured.p, measured.first));
+    let grid = |p: &Pmf| -> Vec<f64> { (-half - 10..=clip).map(|n| p.at(n)).collect() };
+    let jsd_after = crate::metrics::jsd(&grid(&back), &grid(&measured.clone()));
+    let jsd_kept = crate::metrics::jsd(&grid(&kept), &grid(&measured));
+    // Q's variance below the clip: compare the deconvolved PMF's left half-width with Q's.
+    let below = |p: &Pmf| -> f64 {
+        let (mut m, mut w) = (0.0, 0.0);
+        for n in -half..=-1 {
+            m += p.at(n) * (n as f64).powi(2);
+            w += p.at(n);
+        }
+        (m / w).sqrt()
+    };
+    let truth = Pmf { first: -half, p: q };
+    (jsd_kept, jsd_after, below(&dp) / below(&truth))
+}
+
+/// A bin of saturated pixels, narrower than the kernel (nothing to narrow): its pile must
+/// still move past the clip, or the offsets smear it onto the code below white. Known truth:
+/// 0.9995 of the mass at the clip, a thin tail below; synthesis adds the offsets and clamps.
+#[test]
+fn a_pile_narrower_than_the_kernel_stays_at_the_clip() {
+    use crate::model::pack::BinSource;
+    use crate::model::pmf::Pmf;
+    let (k0, k) = rows_only(0.25).kernel(0);
+    let (_, kv) = kernel_moments(k0, &k);
+    let below = k0.unsigned_abs() as f64;
+    assert!(below >= 1.0 && k[0] > 0.01, "the kernel reaches below zero: {k0} {k:?}");
+    let mut p = vec![1e-4; 6];
+    p.push(1.0 - 6e-4);
+    let measured = Pmf { first: -6, p };
+    assert!(measured.moments().1 <= kv + 1.0 / 12.0, "the case is the narrow one");
+    let bin = BinModel::estimated(&measured, 100_000, BinSource::Measured, None, true);
+    // fold(Q ∗ K) at the clip 0: what synthesis draws for a pixel at white.
+    let synth_at = |q: &Pmf, n: i32| -> f64 {
+        let mut y = vec![0.0; q.p.len() + k.len() - 1];
+        crate::math::deconv::convolve(&k, &q.p, &mut y);
+        let first = q.first + k0;
+        let v = |i: usize| first + i as i32;
+        match n {
+            0 => y.iter().enumerate().filter(|&(i, _)| v(i) >= 0).map(|(_, x)| x).sum(),
+            _ => y.iter().enumerate().filter(|&(i, _)| v(i) == n).map(|(_, x)| x).sum(),
+        }
+    };
+    let kept = synth_at(&measured, -1);
+    let d = deconvolve_bin(&bin, k0, &k, true).pmf();
+    let after = synth_at(&d, -1);
+    // The truth puts 1e-4 one below white; kept as measured, the offsets put k[0] ≈ 0.05 there.
+    assert!(kept > 0.01, "the case smears when kept: {kept}");
+    assert!(after < 3e-4, "1 DN below white: {after} (kept as measured: {kept})");
+    assert!(synth_at(&d, 0) > 0.999 - 6e-4, "at white: {}", synth_at(&d, 0));
+    // A bin whose every sample sat at white (one cell): the same, the clip by its half.
+    let all = BinModel::estimated(&Pmf { first: 0, p: vec![1.0] }, 1000, BinSource::Measured, None, true);
+    assert!(synth_at(&all.pmf(), -1) > 0.01, "one cell kept smears too");
+    let d = deconvolve_bin(&all, k0, &k, true).pmf();
+    assert!(synth_at(&d, -1) < 1e-9 && synth_at(&d, 0) > 1.0 - 1e-9, "one cell: {d:?}");
+    // At black (the lower half) it moves the other way.
+    let d = deconvolve_bin(&all, k0, &k, false).pmf();
+    assert!(d.last() < 0, "one cell at black moves below it: {d:?}");
+}
+
+/// A bin flagged clipped whose PMF has no pile at either end (its tails are floor counts
+/// past the clip, as pooling leaves them) has nothing to fold: it is deconvolved exactly as
+/// the same bin unflagged, and a pile at an end is still found and folded.
+#[test]
+fn a_clipped_bin_without_a_pile_at_an_end_is_deconvolved_as_unclipped() {
+    use crate::model::pack::BinSource;
+    use crate::model::pmf::Pmf;
+    let (k0, k) = rows_only(0.7).kernel(0);
+    let sd = 20.0;
+    // A Gaussian whose clip (+1 SD) holds the pile inside the PMF, with floor tails beyond.
+    let clip = 20;
+    // Floor tails of about 3 counts in 2³⁰ (the Gaussian's sum is 50).
+    let floor = 1.5e-7;
+    let mut p: Vec<f64> = (-200..=200).map(|n: i32| (-(n as f64).powi(2) / (2.0 * sd * sd)).exp() + floor).collect();
+    let beyond: f64 = p[(200 + clip + 1) as usize..].iter().sum();
+    p[(200 + clip) as usize] += beyond;
+    p[(200 + clip + 1) as usize..].iter_mut().for_each(|x| *x = floor);
+    let s: f64 = p.iter().sum();
+    let pmf = Pmf { first: -200, p: p.iter().map(|x| x / s).collect() };
+    let flagged = BinModel::estimated(&pmf, 100_000, BinSource::Measured, None, true);
+    let plain = BinModel { clipped: false, ..flagged.clone() };
+    let (a, b) = (deconvolve_bin(&flagged, k0, &k, true), deconvolve_bin(&plain, k0, &k, true));
+    assert_eq!((a.first, &a.counts), (b.first, &b.counts));
+    // The same PMF cut at the clip has its pile at the end: folded, so not the unclipped result.
+    let cut = Pmf { first: -200, p: pmf.p[..=(200 + clip) as usize].to_vec() };
+    let piled = BinModel::estimated(&cut, 100_000, BinSource::Measured, None, true);
+    let unflagged = BinModel { clipped: false, ..piled.clone() };
+    let (c, d) = (deconvolve_bin(&piled, k0, &k, true), deconvolve_bin(&unflagged, k0, &k, true));
+    assert_ne!((c.first, &c.counts), (d.first, &d.counts));
+}
+
+#[test]
+fn clipped_bins_are_deconvolved_not_kept() {
+    for sd in [1.5, 3.0, 6.0, 12.0] {
+        let (kept, after, width) = clipped_bin_case(sd, RL_ITERATIONS);
+        // With the whole PMF narrowed as the start (the pile carried inward), 200 iterations
+        // left 0.22× at sd 6 (and took ten times the iterations).
+        assert!(after < 0.05 * kept, "sd {sd}: JSD after {after:.2e}, kept as measured {kept:.2e}");
+        assert!((width - 1.0).abs() < 0.03, "sd {sd}: half-width ratio {width:.4}");
+    }
+}
