@@ -175,6 +175,10 @@ impl CalibrationSession {
         if isos.is_empty() {
             return Err(SessionError::NothingCalibrated);
         }
+        if !self.config.plain {
+            // What the bursts showed of the light (taken out of the frame offsets, not noise).
+            warnings.extend(isos.iter().filter_map(|m| self.isos[&m.iso].structure.flicker_note(m.iso)));
+        }
         let mut pack = ModelPack {
             layout: self.layout.clone(),
             make: self.config.make.clone(),

@@ -10,6 +10,8 @@
 //! - [`step`]: which EV step a frame belongs to (the step tolerance).
 //! - [`flat`], [`drift`], [`deselect`]: the flat test, frame brightness, and the clean image's
 //!   own error; [`flat_neighbours`]: the flat test's neighbour comparison on the burst's sums.
+//! - [`structure`]: row, column and frame offsets from the target bursts; [`flicker`]: a frame's
+//!   brightness (the lamp) parted from its black-level offset there.
 //! - [`motion`]: each target frame registered on its clean image; the flat pixels its motion
 //!   changes are left out of that frame.
 //! - [`estimate`]: histograms → per-bin PMFs; [`codes`]: the codes a sensor writes.
@@ -26,6 +28,7 @@ pub mod event;
 pub mod flat;
 mod flat_levels;
 mod flat_neighbours;
+mod flicker;
 pub mod frame;
 mod line_base;
 pub mod meta;

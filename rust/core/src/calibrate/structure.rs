@@ -21,7 +21,8 @@
 //!   sandwich variance, clustered by line. Where a burst's levels are too narrow to resolve its
 //!   frames' brightness changes (a flat field), extrapolating to black would multiply the slope's
 //!   noise by the level: the frames' mean deviations per position are taken instead
-//!   ([`use_slope`]).
+//!   ([`use_slope`]), and the frames' brightness is taken out of them where the data allows
+//!   (`flicker.rs`: the lamp's flicker is reported, not synthesized).
 //! - Row offsets (per row parity): the residual of the fit, rescaled the same way. Its variance
 //!   is the row component's plus the sampling noise of a mean of `m` pixels. The two halves of a
 //!   line (columns `x` with `⌊x/2⌋` even, and odd) share the row's offset but not their pixels'
@@ -42,6 +43,7 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
+use crate::calibrate::flicker::{BurstFlicker, FrameDeviation, SlopeSpread, note, separate};
 use crate::model::layout::POSITIONS;
 use crate::model::structure::{FrameOffsets, IsoStructure, OffsetDistribution, QUANTILES};
 
@@ -298,6 +300,8 @@ pub(crate) struct StructureAccumulator {
     frames_used: u64,
     /// Frames alone at their ISO in their burst (no deviation to measure).
     frames_alone: u64,
+    /// Per burst, what its frames showed of the light (`flicker.rs`).
+    flicker: Vec<BurstFlicker>,
 }
 
 /// Cell means of one frame's lines, and the cells' counts and levels above black
@@ -354,15 +358,26 @@ impl StructureAccumulator {
         }
         self.frames_used += k as u64;
         let rescale = (k as f64 / (k as f64 - 1.0)).sqrt();
-        let rows = fold_lines(&frames, &cells.rows, |f| &f.rows, row_position, rescale, &mut self.rows);
+        let (rows, slopes, level) =
+            fold_lines(&frames, &cells.rows, |f| &f.rows, row_position, rescale, &mut self.rows);
         fold_lines(&frames, &cells.cols, |f| &f.cols, col_position, rescale, &mut self.cols);
-        // Frame offsets: the rows' intercepts (each position is in the rows of one parity).
-        for (offsets, sampling) in rows {
-            if offsets.iter().all(|v| v.is_finite()) && sampling.iter().all(|v| v.is_finite()) {
-                self.frames.push(offsets.map(|v| (v * rescale) as f32));
-                self.frame_sampling.push(sampling.map(|v| (v * rescale * rescale) as f32));
-            }
+        // Frame offsets: the rows' intercepts or means (each position is in the rows of one
+        // parity), the frames' brightness taken out where it can be (`flicker.rs`).
+        let mut fitted: Vec<FrameDeviation> =
+            rows.into_iter().filter(|r| r.value.iter().chain(&r.var).all(|v| v.is_finite())).collect();
+        self.flicker.extend(separate(&mut fitted, &slopes, level));
+        for r in fitted {
+            self.frames.push(r.value.map(|v| (v * rescale) as f32));
+            self.frame_sampling.push(r.var.map(|v| (v * rescale * rescale) as f32));
         }
+    }
+
+    /// A note on the flicker this ISO's bursts showed (the burst in progress included), for the
+    /// pack's warnings.
+    pub(crate) fn flicker_note(&self, iso: u32) -> Option<String> {
+        let mut acc = self.clone();
+        acc.close_group();
+        note(iso, &acc.flicker)
     }
 
     /// The measured components (the burst in progress included); `pixel_var` is the ISO's
@@ -412,7 +427,9 @@ fn col_position(x: usize, j: usize) -> usize {
 /// Folds one burst's cell means into the per-parity histograms (module docs): per frame and
 /// line parity, the deviations from the burst means are fitted by one intercept per position and
 /// one slope on the level; each line's residual goes in with its halves' residuals. Returns per
-/// frame the intercepts at black per position and their sampling variances.
+/// frame the deviations per position (at black, or the frames' means at their level:
+/// [`use_slope`]) with their sampling variances; the spread of the slopes of the parities that
+/// took them at black; and the burst's mean level above black.
 fn fold_lines(
     frames: &[FrameMeans],
     cells: &[[(u32, f32); CELLS]],
@@ -420,7 +437,7 @@ fn fold_lines(
     position: impl Fn(usize, usize) -> usize,
     rescale: f64,
     out: &mut [OffsetHistogram; 2],
-) -> Vec<([f64; POSITIONS], [f64; POSITIONS])> {
+) -> (Vec<FrameDeviation>, Vec<SlopeSpread>, f64) {
     let kf = frames.len() as f64;
     // Lines with enough pixels in each half, and their cells' burst means.
     let usable: Vec<usize> = (0..cells.len())
@@ -433,7 +450,10 @@ fn fold_lines(
         .iter()
         .map(|&i| std::array::from_fn(|j| frames.iter().map(|f| lines(f)[i][j] as f64).sum::<f64>() / kf))
         .collect();
-    let mut intercepts = vec![([f64::NAN; POSITIONS], [f64::NAN; POSITIONS]); frames.len()];
+    let nan = [f64::NAN; POSITIONS];
+    let mut intercepts = vec![FrameDeviation { value: nan, var: nan, level: nan }; frames.len()];
+    let mut slopes = Vec::new();
+    let (mut level_sum, mut level_weight) = (0.0, 0.0);
     for parity in 0..2 {
         let mut burst = BurstOffsets::default();
         let of_parity: Vec<(usize, usize)> =
@@ -446,6 +466,7 @@ fn fold_lines(
             .flat_map(|&(_, i)| cells[i].iter())
             .fold((0.0, 0.0), |a, &(m, level)| (a.0 + m as f64, a.1 + m as f64 * level as f64));
         burst.level = l / lw.max(1.0);
+        (level_sum, level_weight) = (level_sum + l, level_weight + lw);
         let mut fits: Vec<(usize, LevelFit)> = Vec::with_capacity(frames.len());
         // Per line: `(Σq, frames)` ([`BurstOffsets::close`]).
         let mut per_line = vec![(0.0, 0u32); of_parity.len()];
@@ -504,17 +525,19 @@ fn fold_lines(
         burst.close(&per_line);
         // The frame offsets: at black with the slope where the burst's levels tell brightness
         // from offset, else the frames' means at the burst's level (`use_slope`).
-        let with_slope = use_slope(&fits.iter().map(|(_, f)| f).collect::<Vec<_>>());
+        let (with_slope, spread) = use_slope(&fits.iter().map(|(_, f)| f).collect::<Vec<_>>());
+        slopes.extend(spread);
         for (fi, fit) in &fits {
-            let (icpt, var) = &mut intercepts[*fi];
+            let d = &mut intercepts[*fi];
             for c in 0..2 {
                 let p = position(parity, c);
-                (icpt[p], var[p]) = if with_slope { (fit.coef[c], fit.cov[c][c]) } else { fit.mean[c] };
+                (d.value[p], d.var[p]) = if with_slope { (fit.coef[c], fit.cov[c][c]) } else { fit.mean[c] };
+                d.level[p] = if with_slope { f64::NAN } else { fit.level[c] };
             }
         }
         out[parity].push(burst);
     }
-    intercepts
+    (intercepts, slopes, level_sum / level_weight.max(1.0))
 }
 
 /// Whether a burst's frame offsets are taken at black with the fitted slope (`true`) or as the
@@ -530,10 +553,12 @@ fn fold_lines(
 /// lower bound. On 30 simulated flat fields with 0.04 % flicker (25 frames, both row parities) the
 /// fitted slopes' spread came out 0.5–2.1× their sandwich variance, so the plain difference chose
 /// the slope once and reported 90 DN offsets; the bound needs 2.9× (25 frames).
-fn use_slope(fits: &[&LevelFit]) -> bool {
+///
+/// Also the slopes' spread, where every frame fitted one.
+fn use_slope(fits: &[&LevelFit]) -> (bool, Option<SlopeSpread>) {
     let sloped: Vec<&&LevelFit> = fits.iter().filter(|f| f.with_slope).collect();
     if sloped.len() < 2 || sloped.len() < fits.len() {
-        return false;
+        return (false, None);
     }
     let k = sloped.len() as f64;
     let spread = sloped.iter().map(|f| f.coef[2] * f.coef[2]).sum::<f64>() / (k - 1.0);
@@ -548,7 +573,7 @@ fn use_slope(fits: &[&LevelFit]) -> bool {
             at_level += f.mean[c].1 + tau2 * f.level[c] * f.level[c];
         }
     }
-    at_black < at_level
+    (at_black < at_level, Some(SlopeSpread { spread, sampling, frames: sloped.len() }))
 }
 
 fn add3(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {

@@ -11,7 +11,10 @@ pub const CHECKPOINT_MAGIC: &[u8; 8] = b"NCALCKPT";
 /// finished burst's line sums holding the spread of its line components over lines (their standard
 /// error), not over line-frames: a version-5 session would resume with too small an error on the
 /// bursts it had finished, so it is refused by name rather than resumed into different bytes.
-pub const CHECKPOINT_VERSION: u16 = 6;
+/// Version 7 keeps, per finished burst, the flicker its frames showed (taken out of the frame
+/// offsets; `calibrate/flicker.rs`); a version-6 session's finished bursts hold offsets with the
+/// flicker in, so it is refused by name the same way.
+pub const CHECKPOINT_VERSION: u16 = 7;
 
 impl CalibrationSession {
     /// The session as bytes, to resume after an interruption.
