@@ -260,6 +260,13 @@ pub fn decode_section_structure(entry: &IsoEntry, section: &[u8]) -> Result<Opti
     Ok(section_fields(entry, section)?.0.1)
 }
 
+/// The model's fields (its bins' weights not inflated nor expanded) and the structured
+/// components of `entry` from its section's bytes, the section checked as [`decode_section`]
+/// checks it.
+pub fn decode_section_fields(entry: &IsoEntry, section: &[u8]) -> Result<IsoSection, CodecError> {
+    Ok(section_fields(entry, section)?.0)
+}
+
 /// Every ISO of a version 9 file (`head` its sealed index, `rest` the bytes after it), as one
 /// pack (checked by the caller).
 pub fn decode(head: &[u8], rest: &[u8]) -> Result<ModelPack, CodecError> {

@@ -32,7 +32,7 @@ open class Suite(val name: String) {
 
 /** Runs every suite; prints one line per test and `N passed, M failed` last; exits 1 on any failure. */
 fun main(args: Array<String>) {
-    val suites = listOf(PlanTests(), ControllerTests(), SweepTests(), UiStateTests(), SessionRepositoryTests(), DarkStepTests())
+    val suites = listOf(PlanTests(), ControllerTests(), SweepTests(), UiStateTests(), SessionRepositoryTests(), DarkStepTests(), GainGapTests())
     val filter = args.firstOrNull()
     var passed = 0
     var failed = 0

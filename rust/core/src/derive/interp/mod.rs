@@ -225,7 +225,7 @@ impl InterpPlan {
             String::new()
         };
         Some(format!(
-            "ISO {iso} lies between ISO {} and {}, where the sensor switches conversion gain; which gain the camera uses at any ISO strictly between them is unknown from these calibrations, so ISO {iso} was modelled from the nearer side in log ISO (ISO {list}; the upper side on a tie). Calibrate ISO {iso} to be sure{narrow}.",
+            "ISO {iso} lies between ISO {} and {}, where the sensor switches conversion gain; which gain the camera uses at any ISO strictly between them is unknown from these calibrations, so ISO {iso} was modelled from the nearer side in log ISO (ISO {list}; the lower side on a tie). Calibrate ISO {iso} to be sure{narrow}.",
             s.below_iso,
             s.above_iso,
             iso = self.iso,

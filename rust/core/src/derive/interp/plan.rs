@@ -56,7 +56,7 @@ pub struct InterpPlan {
     /// lies inside such a gap, the segment is the two ISOs around it.
     pub unpinned: Vec<(u32, u32)>,
     /// Set when the target lies strictly between the two ISOs of a switch: which conversion
-    /// gain the camera uses there is unknown, and the nearer side (in log ISO; the upper side on
+    /// gain the camera uses there is unknown, and the nearer side (in log ISO; the lower side on
     /// a tie) was used. Calibrate that ISO to be sure.
     pub in_switch_gap: Option<GainSwitch>,
     pub shape: ShapeSource,
@@ -130,11 +130,13 @@ pub fn plan_among(
         let (below_run, above_run) = (runs[ri - 1], runs[ri]);
         match &gaps[above_run.0 - 1].call {
             GapCall::Switch(s) => {
-                // Which gain the camera uses here is unknown: the nearer side in log ISO.
+                // Which gain the camera uses here is unknown: the nearer side in log ISO, the
+                // lower (low-gain, larger read noise) one on a tie, compared exactly:
+                // iso/below ≤ above/iso.
                 in_switch_gap = Some(s.clone());
-                let below = isos[below_run.1 - 1] as f64;
-                let above = isos[above_run.0] as f64;
-                if (iso as f64 / below).ln() < (above / iso as f64).ln() { below_run } else { above_run }
+                let below = isos[below_run.1 - 1] as u64;
+                let above = isos[above_run.0] as u64;
+                if (iso as u64) * (iso as u64) <= below * above { below_run } else { above_run }
             }
             // Not pinned: the two ISOs around the target, no further.
             _ => (above_run.0 - 1, above_run.0 + 1),
