@@ -45,11 +45,16 @@ pub struct Groups {
 }
 
 impl Groups {
+    /// `⌊(level − black) / span · GROUPS⌋` within `0..GROUPS` (NaN to 0). The conversion to
+    /// `usize` truncates toward zero and saturates negative values to 0, which is the floor's
+    /// group for every value (a fraction below 1 is group 0 either way), without the call to
+    /// libm's `floorf` that `f32::floor` is on x86-64 without SSE4.1 (once per pixel of the
+    /// flat test's samples).
     #[inline]
     pub fn group(&self, pos: usize, level: f32) -> usize {
         let span = (self.white as f32 - self.black[pos]).max(1.0);
-        let g = ((level - self.black[pos]) / span * GROUPS as f32).floor();
-        if g <= 0.0 { 0 } else { (g as usize).min(GROUPS - 1) }
+        let g = (level - self.black[pos]) / span * GROUPS as f32;
+        (g as usize).min(GROUPS - 1)
     }
 
     pub fn center(&self, pos: usize, g: usize) -> f64 {
@@ -537,6 +542,42 @@ mod tests {
             }
         }
         over as f64 / pixels as f64
+    }
+
+    /// `Groups::group` is the floor's group for every f32 level: random levels over and beyond
+    /// the range, every integer level, the group boundaries and their neighbouring f32 values,
+    /// and the specials. A truncation that went toward zero without the clamp below (or a
+    /// rounding instead of a floor) misplaces the levels within one group of black or of each
+    /// boundary; the test counts every level it compared.
+    #[test]
+    fn group_is_the_floor_group() {
+        let floor_group = |g: &Groups, pos: usize, level: f32| {
+            let span = (g.white as f32 - g.black[pos]).max(1.0);
+            let v = ((level - g.black[pos]) / span * GROUPS as f32).floor();
+            if v <= 0.0 { 0 } else { (v as usize).min(GROUPS - 1) }
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let mut compared = 0usize;
+        for (black, white) in
+            [([64.0f32, 64.5, 63.0, 0.0], 1023u16), ([512.0; 4], 16383), ([0.0; 4], 0), ([800.0; 4], 700)]
+        {
+            let g = Groups { black, white };
+            for pos in 0..POSITIONS {
+                let span = (white as f32 - black[pos]).max(1.0);
+                let mut levels: Vec<f32> = (0..=white as u32 + 2).map(|l| l as f32).collect();
+                for k in -2..=(GROUPS as i32 + 2) {
+                    let edge = black[pos] + k as f32 * span / GROUPS as f32;
+                    levels.extend([edge.next_down(), edge, edge.next_up()]);
+                }
+                levels.extend((0..20_000).map(|_| rand::RngExt::random_range(&mut rng, -2000.0f32..70_000.0)));
+                levels.extend([f32::NAN, f32::INFINITY, f32::NEG_INFINITY, -0.0, 0.0, f32::MAX, f32::MIN]);
+                for &l in &levels {
+                    assert_eq!(g.group(pos, l), floor_group(&g, pos, l), "level {l} at {pos}, black {black:?}");
+                    compared += 1;
+                }
+            }
+        }
+        assert!(compared > 100_000, "{compared}");
     }
 
     #[test]

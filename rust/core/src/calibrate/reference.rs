@@ -176,6 +176,7 @@ impl ReferenceBurst {
         let scale = if verdict.drifted && policy.normalise { verdict.scale } else { 1.0 };
         let tf = Transform { scale: scale as f32, ..ident };
         let first_frame = self.frames == 0;
+        let second_frame = self.frames == 1;
         let stats_rows = if h > 512 { 4 } else { 1 };
         let mut rows: [Vec<RowPair<'_>>; 2] = [Vec::new(), Vec::new()];
         for (y, ((s, f), q)) in
@@ -226,17 +227,32 @@ impl ReferenceBurst {
                     }
                     &codes
                 };
-                for (s, &v) in sum_row.iter_mut().zip(values) {
-                    *s += v as u32;
-                }
+                // The first frame's sums and the second's squares are written, not added to the
+                // zeros they would read: a fresh buffer's page read before it is written is
+                // faulted twice (the shared zero page, then a page of its own), 120 MB of
+                // buffers at 12 MP.
                 if first_frame {
+                    for (s, &v) in sum_row.iter_mut().zip(values) {
+                        *s = v as u32;
+                    }
                     first_row.copy_from_slice(&values[..first_row.len()]);
                     continue;
                 }
+                for (s, &v) in sum_row.iter_mut().zip(values) {
+                    *s += v as u32;
+                }
                 // (v − f0)² of two u16 is below 2³², so the u32 square is exact (no clamp).
-                for ((q, &v), &f0) in square_row.iter_mut().zip(values).zip(first_row.iter()) {
-                    let d = v.abs_diff(f0) as u32;
-                    *q = q.saturating_add(d * d);
+                let squares = square_row.iter_mut().zip(values).zip(first_row.iter());
+                if second_frame {
+                    for ((q, &v), &f0) in squares {
+                        let d = v.abs_diff(f0) as u32;
+                        *q = d * d;
+                    }
+                } else {
+                    for ((q, &v), &f0) in squares {
+                        let d = v.abs_diff(f0) as u32;
+                        *q = q.saturating_add(d * d);
+                    }
                 }
                 if (y / 2) % stats_rows == 0 {
                     for (x, (&v, &f0)) in values.iter().zip(first_row.iter()).enumerate() {
@@ -399,6 +415,42 @@ mod tests {
             b.push(&FrameView::from_array(&f).expect("view"), &FrameMeta::new(100, 1_000_000), &policy).expect("frame");
         }
         (b, layout)
+    }
+
+    /// The sums, first frame and squares of a burst are the per-pixel sums of its frames
+    /// written out, for bursts of 1, 2 and 3 frames of codes over the whole 16-bit range (the
+    /// first frame's sums and the second's squares are stored, not added): a burst that kept
+    /// a previous frame's sums, or stored every frame's squares, is off at every pixel.
+    #[test]
+    fn sums_and_squares_are_the_frames_sums() {
+        let layout = SensorLayout { width: 20, height: 12, cfa: CfaPattern::Rggb, black: [0.0; 4], white: 65535 };
+        let mut rng = ChaCha8Rng::seed_from_u64(4);
+        let frames: Vec<ndarray::Array2<u16>> =
+            (0..3).map(|_| ndarray::Array2::from_shape_fn((12, 20), |_| rng.random_range(0..=u16::MAX))).collect();
+        // No drift normalisation, so the codes are the frames' values.
+        let policy = DriftPolicy { z: 5.0, floor: 0.002, max: 1e9, normalise: false };
+        for n in 1..=3 {
+            let mut b = ReferenceBurst::new(&layout, 1_000_000);
+            for f in &frames[..n] {
+                b.push(&FrameView::from_array(f).expect("view"), &FrameMeta::new(100, 1_000_000), &policy)
+                    .expect("frame");
+            }
+            let first: Vec<u16> = frames[0].iter().copied().collect();
+            let sum: Vec<u32> = (0..first.len())
+                .map(|i| frames[..n].iter().map(|f| f.as_slice().expect("contiguous")[i] as u32).sum())
+                .collect();
+            let squares: Vec<u32> = (0..first.len())
+                .map(|i| {
+                    frames[1..n].iter().fold(0u32, |q, f| {
+                        let d = f.as_slice().expect("contiguous")[i].abs_diff(first[i]) as u32;
+                        q.saturating_add(d * d)
+                    })
+                })
+                .collect();
+            assert_eq!(b.first, first, "{n} frames: first frame");
+            assert_eq!(b.sum, sum, "{n} frames: sums");
+            assert_eq!(b.squares, squares, "{n} frames: squares");
+        }
     }
 
     /// Closing a burst that is dropped afterwards gives the clean image `close` gives (the

@@ -52,15 +52,25 @@ pub fn expand(masses: &[u64], k: usize) -> Vec<u64> {
         };
         let total: u128 = (0..k).map(shape).sum();
         let (mut cum, mut given) = (0u128, 0u64);
+        let whole = if total == 0 { k as u128 } else { total };
         for i in 0..k {
             cum += if total == 0 { 1 } else { shape(i) };
-            let whole = if total == 0 { k as u128 } else { total };
-            let upto = ((m as u128) * cum / whole) as u64;
+            let upto = quotient(m as u128 * cum, whole);
             out.push(upto - given);
             given = upto;
         }
     }
     out
+}
+
+/// `⌊n / d⌋` (`d > 0`, the quotient within u64), in u64 where both fit (a 64-bit division
+/// where the u128 one is a call to the runtime's routine), exactly as the u128 division.
+#[inline]
+fn quotient(n: u128, d: u128) -> u64 {
+    match (u64::try_from(n), u64::try_from(d)) {
+        (Ok(n), Ok(d)) => n / d,
+        _ => (n / d) as u64,
+    }
 }
 
 /// Whether `w` is already a re-expansion at `k` (its length a multiple of `k` and [`expand`] of
@@ -177,6 +187,39 @@ fn moments(first: i32, w: &[u64]) -> (f64, f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `quotient` is the u128 division on both sides of u64's range: numerators and divisors
+    /// just below, at and above 2⁶⁴, and random ones of every width (a quotient taken on the
+    /// numerator's low 64 bits alone, or on a truncated divisor, is off wherever they exceed
+    /// u64; the test asserts such pairs were compared).
+    #[test]
+    fn quotient_is_the_u128_division() {
+        let mut s = 0x9E37_79B9_7F4A_7C15u64;
+        let mut next = || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            s
+        };
+        let big = 1u128 << 64;
+        let mut wide = 0;
+        let mut pairs: Vec<(u128, u128)> =
+            vec![(big - 1, 1), (big - 1, big - 1), (big, 2), (big + 1, 3), (big * 5, big), (7, 8), (0, 1)];
+        for _ in 0..100_000 {
+            let (a, b) = (next() as u128, next() as u128);
+            let n = (a << (next() % 64)) | b >> (next() % 64);
+            let d = ((next() as u128) >> (next() % 64)).max(1);
+            pairs.push((n, d));
+        }
+        for (n, d) in pairs {
+            if n / d > u64::MAX as u128 {
+                continue;
+            }
+            wide += usize::from(n >= big);
+            assert_eq!(quotient(n, d) as u128, n / d, "{n} / {d}");
+        }
+        assert!(wide > 1000, "{wide}");
+    }
 
     /// Weights of a continuous density over unit cells, × 2³⁰.
     fn discretised(n: usize, density: impl Fn(f64) -> f64) -> Vec<u64> {

@@ -278,7 +278,11 @@ impl MotionProbe {
             .enumerate()
             .map(|(b, rows)| {
                 let mut edges: Vec<u32> = Vec::new();
-                let mut anchors: Vec<(u32, f32)> = Vec::new();
+                // At most every pixel of the band's sampled rows is an anchor: room for them
+                // all at once (pages are touched only as they fill), not regrown as they come.
+                let sampled_rows =
+                    (b * band_rows..((b + 1) * band_rows).min(h)).filter(|&y| (y / 2) % row_step == 0).count();
+                let mut anchors: Vec<(u32, f32)> = Vec::with_capacity(sampled_rows * w);
                 let mut inner = Vec::with_capacity(w);
                 for (dy, grad_row) in rows.chunks_mut(w.max(1)).enumerate() {
                     let y = b * band_rows + dy;
@@ -298,24 +302,32 @@ impl MotionProbe {
                 (edges, anchors)
             })
             .collect();
-        let edges: Vec<u32> = bands.iter().flat_map(|b| b.0.iter().copied()).collect();
-        let anchors: Vec<(u32, f32)> = bands.into_iter().flat_map(|b| b.1).collect();
-        let mut samples: Vec<u32> = thin(edges, MAX_EDGE_SAMPLES);
+        // Thinned across the bands in row order, without joining them first (the anchors are
+        // every flat pixel of the sampled rows: megabytes for the thousand kept).
+        let mut samples: Vec<u32> = thin_parts(bands.iter().map(|b| b.0.as_slice()), MAX_EDGE_SAMPLES);
         let anchors_from = samples.len();
-        let anchors = thin(anchors, MAX_ANCHOR_SAMPLES);
+        let anchors = thin_parts(bands.iter().map(|b| b.1.as_slice()), MAX_ANCHOR_SAMPLES);
         samples.extend(anchors.iter().map(|a| a.0));
         let anchor_sd: Vec<f32> = anchors.iter().map(|a| a.1).collect();
         Self { mean, samples, anchors_from, anchor_sd, gradient, tolerance }
     }
 }
 
-/// Every k-th of `v` so that at most `max` remain.
-fn thin<T>(v: Vec<T>, max: usize) -> Vec<T> {
-    if v.len() <= max {
-        return v;
+/// Every k-th of the parts' elements joined in order (counted across the parts, from the first),
+/// so that at most `max` remain, without joining them.
+fn thin_parts<'a, T: Copy + 'a>(parts: impl Iterator<Item = &'a [T]> + Clone, max: usize) -> Vec<T> {
+    let total: usize = parts.clone().map(<[T]>::len).sum();
+    let k = if total <= max { 1 } else { total.div_ceil(max) };
+    let mut out = Vec::with_capacity(total.div_ceil(k));
+    // The global index of each part's first element; its first kept element is the next
+    // multiple of k from there.
+    let mut start = 0usize;
+    for p in parts {
+        let skip = (k - start % k) % k;
+        out.extend(p.iter().skip(skip).step_by(k).copied());
+        start += p.len();
     }
-    let k = v.len().div_ceil(max);
-    v.into_iter().step_by(k).collect()
+    out
 }
 
 #[cfg(test)]
@@ -323,6 +335,49 @@ mod tests {
     use super::*;
     use rand::{RngExt, SeedableRng};
     use rand_chacha::ChaCha8Rng;
+
+    /// Every k-th of `v` so that at most `max` remain: the thinning of the joined bands that
+    /// `thin_parts` stands for.
+    fn thin<T>(v: Vec<T>, max: usize) -> Vec<T> {
+        if v.len() <= max {
+            return v;
+        }
+        let k = v.len().div_ceil(max);
+        v.into_iter().step_by(k).collect()
+    }
+
+    /// Thinning the bands in place of their join keeps exactly what thinning the join keeps,
+    /// whatever the parts' lengths (empty ones among them) and `max`. Thinning each part on
+    /// its own (the same k, restarting at every part's first element) keeps other elements
+    /// wherever a part's length is not a multiple of k, and the test asserts such cases occur.
+    #[test]
+    fn thinning_parts_is_thinning_their_join() {
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let mut restart_differs = 0;
+        for _ in 0..2000 {
+            let n = rng.random_range(0..12);
+            let mut next = 0u32;
+            let parts: Vec<Vec<u32>> = (0..n)
+                .map(|_| {
+                    let len = if rng.random_bool(0.2) { 0 } else { rng.random_range(0..300) };
+                    (0..len)
+                        .map(|_| {
+                            next += 1;
+                            next
+                        })
+                        .collect()
+                })
+                .collect();
+            let joined: Vec<u32> = parts.iter().flatten().copied().collect();
+            let max = rng.random_range(1..400);
+            let got = thin_parts(parts.iter().map(Vec::as_slice), max);
+            assert_eq!(got, thin(joined.clone(), max), "{} parts, {} elements, max {max}", parts.len(), joined.len());
+            let k = if joined.len() <= max { 1 } else { joined.len().div_ceil(max) };
+            let restarted: Vec<u32> = parts.iter().flat_map(|p| p.iter().step_by(k).copied()).collect();
+            restart_differs += usize::from(restarted != got);
+        }
+        assert!(restart_differs > 100, "{restart_differs}");
+    }
 
     /// The division `quantised` stands for.
     fn divided(g: [f64; 2], tol: f64) -> [i8; 2] {
