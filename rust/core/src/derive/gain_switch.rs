@@ -508,18 +508,6 @@ mod tests {
         assert_eq!(calls(&mild)[0], "none");
     }
 
-    #[test]
-    fn a_tie_in_a_switch_gap_takes_the_low_gain_side() {
-        // Random 22 (switch between 256 and 1024, at 1024 in truth): ISO 512 is halfway.
-        let l = laws(&[128, 256, 1024, 2048], Some(1024), true);
-        let opts = crate::derive::interp::InterpOptions::default();
-        let plan = |iso| crate::derive::interp::plan_among(&l, false, iso, false, &opts).expect("inside");
-        assert!(plan(512).in_switch_gap.is_some());
-        assert!(plan(512).neighbours.iter().all(|&k| k <= 256), "{:?}", plan(512));
-        assert!(plan(513).neighbours.iter().all(|&k| k >= 1024), "{:?}", plan(513));
-        assert!(plan(511).neighbours.iter().all(|&k| k <= 256), "{:?}", plan(511));
-    }
-
     fn chart(l: &[CalibratedLaw]) -> Vec<CalibratedLaw> {
         l.iter().map(|c| CalibratedLaw { at_black: [None; POSITIONS], ..*c }).collect()
     }

@@ -214,3 +214,37 @@ pub fn plan_among(
         shape: opts.shape,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::derive::gain_switch::CalibratedLaw;
+    use crate::derive::noise_law::NoiseParams;
+    use crate::model::layout::POSITIONS;
+
+    /// A sensor's laws at `isos` (gain ∝ ISO, 2 e⁻ read noise before the gain and 1 DN after
+    /// it, 0.8 e⁻ from `switch_at` on), each with a dark step (here, rather than in
+    /// `gain_switch.rs`'s tests: `gain_switch.rs` must not use this file, which uses it).
+    fn laws(isos: &[u32], switch_at: u32) -> Vec<CalibratedLaw> {
+        isos.iter()
+            .map(|&iso| {
+                let a = iso as f64 / 400.0;
+                let pre = if iso >= switch_at { 0.8 } else { 2.0 };
+                let b = pre * pre * a * a + 1.0;
+                CalibratedLaw::new(iso, [Some(NoiseParams { a, b }); POSITIONS], [Some(b); POSITIONS])
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_tie_in_a_switch_gap_takes_the_low_gain_side() {
+        // Random 22 (switch between 256 and 1024, at 1024 in truth): ISO 512 is halfway.
+        let l = laws(&[128, 256, 1024, 2048], 1024);
+        let opts = InterpOptions::default();
+        let plan = |iso| plan_among(&l, false, iso, false, &opts).expect("inside");
+        assert!(plan(512).in_switch_gap.is_some());
+        assert!(plan(512).neighbours.iter().all(|&k| k <= 256), "{:?}", plan(512));
+        assert!(plan(513).neighbours.iter().all(|&k| k >= 1024), "{:?}", plan(513));
+        assert!(plan(511).neighbours.iter().all(|&k| k <= 256), "{:?}", plan(511));
+    }
+}
