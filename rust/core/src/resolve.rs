@@ -246,8 +246,8 @@ pub fn resolve_on_demand<B: std::ops::Deref<Target = [u8]>>(
                 .iter()
                 .filter(|e| e.is_calibrated())
                 .map(|e| {
-                    let st = lazy.structure_of(e.iso)?;
-                    let fields = lazy.fields_of(e.iso)?;
+                    // One read of the section for its fields and its components.
+                    let (fields, st) = lazy.fields_of(e.iso)?.map_or((None, None), |(m, st)| (Some(m), st));
                     Ok(CalibratedLaw {
                         iso: e.iso,
                         law: e.noise_law(),

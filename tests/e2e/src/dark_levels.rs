@@ -57,9 +57,17 @@ pub fn output_pmf(s: &IsoSampler, pos: usize, c: u16) -> Codes {
     table_pmf(s, table, pos, c, shift)
 }
 
-/// [`output_pmf`] for a given table and offset (2⁻³² DN).
+/// [`output_pmf`] for a given table and offset (2⁻³² DN): the offset's integer part and its
+/// dither's two taps ([`kernel_pmf`]).
 pub fn table_pmf(s: &IsoSampler, t: &BinTable, pos: usize, c: u16, shift: i64) -> Codes {
-    let (k, frac) = (shift >> 32, (shift & 0xFFFF_FFFF) as f64 / 4_294_967_296.0);
+    let frac = (shift & 0xFFFF_FFFF) as f64 / 4_294_967_296.0;
+    kernel_pmf(s, t, pos, c, (shift >> 32) as i32, &[1.0 - frac, frac])
+}
+
+/// The exact distribution of the code written for clean code `c` at `pos` when the table's noise
+/// `n` is added to an integer offset drawn from `kernel` (`kernel[j]` the probability of
+/// `k0 + j`), clamped and put on the lattice as synthesis does.
+pub fn kernel_pmf(s: &IsoSampler, t: &BinTable, pos: usize, c: u16, k0: i32, kernel: &[f64]) -> Codes {
     let mut out = Codes::new();
     for i in 0..t.len() {
         let n = t.first() + i as i32;
@@ -67,9 +75,9 @@ pub fn table_pmf(s: &IsoSampler, t: &BinTable, pos: usize, c: u16, shift: i64) -
         if p == 0.0 {
             continue;
         }
-        for (off, w) in [(k, 1.0 - frac), (k + 1, frac)] {
+        for (j, &w) in kernel.iter().enumerate() {
             if w > 0.0 {
-                *out.entry(s.finish(pos, c as i32 + n + off as i32, false) as i32).or_default() += p * w;
+                *out.entry(s.finish(pos, c as i32 + n + k0 + j as i32, false) as i32).or_default() += p * w;
             }
         }
     }

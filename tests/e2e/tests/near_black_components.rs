@@ -16,7 +16,7 @@ use noisecal_core::model::structure::Components;
 use noisecal_core::resolve::{ModelKind, resolve_model};
 use noisecal_core::synth::CleanAt;
 use noisecal_core::synth::sampler::IsoSampler;
-use noisecal_e2e::dark_levels::{Codes, jsd, moments, output_pmf, real_codes};
+use noisecal_e2e::dark_levels::{Codes, jsd, kernel_pmf, moments, output_pmf, real_codes};
 use noisecal_e2e::{calibrate_lenient, setup};
 use noisecal_sim::SensorModel;
 use rand::SeedableRng;
@@ -27,20 +27,7 @@ use rand_chacha::ChaCha8Rng;
 fn with_offsets(s: &IsoSampler, pos: usize, c: u16) -> Codes {
     let st = s.structure().expect("the demo's sensor has row noise");
     let (k0, kernel) = st.kernel(pos);
-    let t = s.table(pos, c);
-    let mut out = Codes::new();
-    for i in 0..t.len() {
-        let n = t.first() + i as i32;
-        let p = t.prob(n);
-        if p == 0.0 {
-            continue;
-        }
-        for (j, &w) in kernel.iter().enumerate() {
-            let code = s.finish(pos, c as i32 + n + k0 + j as i32, false) as i32;
-            *out.entry(code).or_default() += p * w;
-        }
-    }
-    out
+    kernel_pmf(s, s.table(pos, c), pos, c, k0, &kernel)
 }
 
 /// Pooled over the darkest level group: per model, the mean variance ratio against a reference,

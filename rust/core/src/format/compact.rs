@@ -252,14 +252,6 @@ pub fn decode_section(entry: &IsoEntry, section: &[u8], cells: &mut u64) -> Resu
     Ok((m, structure))
 }
 
-/// The structured components of `entry` from its section's bytes, without inflating or
-/// expanding the model's weights (the section checked as [`decode_section`] checks it): what an
-/// interpolation's plan reads of a calibrated ISO it will not stand on (its dark step's variance
-/// at black).
-pub fn decode_section_structure(entry: &IsoEntry, section: &[u8]) -> Result<Option<IsoStructure>, CodecError> {
-    Ok(section_fields(entry, section)?.0.1)
-}
-
 /// The model's fields (its bins' weights not inflated nor expanded) and the structured
 /// components of `entry` from its section's bytes, the section checked as [`decode_section`]
 /// checks it.

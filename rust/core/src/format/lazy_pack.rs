@@ -23,7 +23,6 @@ use crate::format::codec;
 use crate::format::compact::{self, IsoSection, PackIndex};
 use crate::format::pack_version::{PACK_MAGIC, PACK_MAGIC_TEXT, PACK_VERSION, PACK_VERSION_MIN};
 use crate::model::pack::{IsoModel, ModelPack};
-use crate::model::structure::IsoStructure;
 
 const WHAT: &str = "model pack";
 
@@ -118,42 +117,28 @@ impl<B: std::ops::Deref<Target = [u8]>> LazyPack<B> {
         }
     }
 
-    /// The structured components of `iso` (`None` when the file has no such ISO or it has
-    /// none), read without decoding its model's weights unless the ISO is decoded already; not
-    /// kept, and not counted as decoded ([`Self::decoded_isos`]).
-    pub fn structure_of(&self, iso: u32) -> Result<Option<IsoStructure>, CodecError> {
-        if let Some(whole) = &self.whole {
-            return Ok(whole.structure_of(iso).cloned());
-        }
-        let Some(i) = self.index.isos.iter().position(|e| e.iso == iso) else {
-            return Ok(None);
-        };
-        if !self.index.isos[i].structured {
-            return Ok(None);
-        }
-        if let Some(s) = self.decoded.lock().unwrap_or_else(|p| p.into_inner()).0[i].clone() {
-            return Ok(s.1.clone());
-        }
-        compact::decode_section_structure(&self.index.isos[i], &self.bytes[self.sections[i].clone()])
-    }
-
     /// The fields of `iso`'s model with no bins (gain ratios, code lattice, output range: what
-    /// an interpolation's plan reads of a calibrated ISO besides its law), read without decoding
-    /// its weights unless the ISO is decoded already; `None` when the file has no such ISO. Not
-    /// kept, and not counted as decoded ([`Self::decoded_isos`]).
-    pub fn fields_of(&self, iso: u32) -> Result<Option<IsoModel>, CodecError> {
+    /// an interpolation's plan reads of a calibrated ISO besides its law) and its structured
+    /// components, from one read of its section without decoding its weights unless the ISO is
+    /// decoded already; `None` when the file has no such ISO. Not kept, and not counted as
+    /// decoded ([`Self::decoded_isos`]).
+    pub fn fields_of(&self, iso: u32) -> Result<Option<IsoSection>, CodecError> {
         let without_bins = |m: &IsoModel| IsoModel { positions: Vec::new(), ..m.clone() };
         if let Some(whole) = &self.whole {
-            return Ok(whole.isos.iter().find(|m| m.iso == iso).map(without_bins));
+            return Ok(whole
+                .isos
+                .iter()
+                .find(|m| m.iso == iso)
+                .map(|m| (without_bins(m), whole.structure_of(iso).cloned())));
         }
         let Some(i) = self.index.isos.iter().position(|e| e.iso == iso) else {
             return Ok(None);
         };
         if let Some(s) = self.decoded.lock().unwrap_or_else(|p| p.into_inner()).0[i].clone() {
-            return Ok(Some(without_bins(&s.0)));
+            return Ok(Some((without_bins(&s.0), s.1.clone())));
         }
-        let m = compact::decode_section_fields(&self.index.isos[i], &self.bytes[self.sections[i].clone()])?.0;
-        Ok(Some(IsoModel { positions: Vec::new(), ..m }))
+        let (m, st) = compact::decode_section_fields(&self.index.isos[i], &self.bytes[self.sections[i].clone()])?;
+        Ok(Some((IsoModel { positions: Vec::new(), ..m }, st)))
     }
 
     /// The ISOs decoded so far (all of them for a file of an older version).
