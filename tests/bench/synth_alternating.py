@@ -6,7 +6,8 @@ the two are compared byte for byte.
 
 Cases: a structured pack with a fixed pattern (a simulated `--structured --dark` session, ISO
 1600) and the demo's pack (rows only, no fixed pattern, ISO 3200), each with the default
-components and with `--components pixel`.
+components and with `--components pixel`; and `fpn-target` (not run unless named in `--cases`):
+the structured pack with `--clean-at target`.
 
     python3 tests/bench/synth_alternating.py --old /tmp/noisecal-old --new target/release/noisecal
 
@@ -80,6 +81,7 @@ def main() -> None:
     cases = {
         "fpn": ["--pack", str(work / "fpn.pack"), "--iso", "1600"],
         "fpn-pixel": ["--pack", str(work / "fpn.pack"), "--iso", "1600", "--components", "pixel"],
+        "fpn-target": ["--pack", str(work / "fpn.pack"), "--iso", "1600", "--clean-at", "target"],
         "demo": ["--pack", demo_pack, "--iso", "3200"],
         "demo-pixel": ["--pack", demo_pack, "--iso", "3200", "--components", "pixel"],
     }

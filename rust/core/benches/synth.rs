@@ -13,7 +13,8 @@
 //! "pattern not kept" keeps no fixed pattern between calls (`with_pattern_cache_bytes(0)`): each
 //! frame computes it in its offsets pass, as a single image does (`noisecal synth` of one file).
 //!
-//! "sampler build" times building the sampler (default components and pixel-only) on its own.
+//! "sampler build" times building the sampler (default components and pixel-only, and the
+//! default components for clean images at the target brightness) on its own.
 //!
 //! With `NOISECAL_BENCH_LOOP=n` it instead times n frames in a plain loop and prints the wall and
 //! the process CPU time per frame (for `rust/python/benches/interleaved.py --cpu`).
@@ -28,8 +29,9 @@ use ndarray::Array2;
 use noisecal_core::ModelPack;
 use noisecal_core::derive::interp::model_for;
 use noisecal_core::model::structure::Components;
+use noisecal_core::resolve::{ModelKind, sampler_for};
 use noisecal_core::synth::sampler::IsoSampler;
-use noisecal_core::synth::synthesize_at;
+use noisecal_core::synth::{CleanAt, synthesize_at};
 
 /// 12 MP, as `test_bench.py`.
 const H: usize = 3000;
@@ -92,6 +94,14 @@ fn benches(c: &mut Criterion) {
     });
     g.bench_function(format!("components=pixel, global pool ({threads} threads)"), |b| {
         b.iter(|| IsoSampler::with_components(black_box(&pack), black_box(&model), Components::PIXEL))
+    });
+    // `--clean-at target` (`Pack.synth(clean_at="target")`): the fine levels near black read the
+    // deconvolved bins again.
+    g.bench_function(format!("default components, clean at target, global pool ({threads} threads)"), |b| {
+        b.iter(|| {
+            let (pack, model) = (black_box(&pack), black_box(&model));
+            sampler_for(pack, model, ModelKind::Noisecal, Components::ALL, CleanAt::Target, false).expect("sampler")
+        })
     });
     g.finish();
 

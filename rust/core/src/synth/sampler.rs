@@ -310,6 +310,20 @@ impl IsoSampler {
         structure: Option<&IsoStructure>,
         which: Components,
     ) -> Self {
+        Self::with_structure_kept(pack, model, structure, which).0
+    }
+
+    /// [`Self::with_structure`], and, when it adds structured components, each position's bins
+    /// with their offsets taken out ([`StructureSampler::deconvolved`]) as its tables were built
+    /// from: for a caller that needs those bins again (the fine levels at the target
+    /// brightness), which would otherwise deconvolve every bin a second time. `None` when the
+    /// tables were built from the model's own bins.
+    pub(crate) fn with_structure_kept(
+        pack: &ModelPack,
+        model: &IsoModel,
+        structure: Option<&IsoStructure>,
+        which: Components,
+    ) -> (Self, Option<[Vec<BinModel>; POSITIONS]>) {
         let structure = structure.filter(|_| which.structured()).and_then(|st| StructureSampler::new(st, which));
         let binning = pack.binning();
         let mut luts: [Vec<u16>; POSITIONS] = std::array::from_fn(|p| binning.lut(p));
@@ -352,7 +366,8 @@ impl IsoSampler {
             let c = c.min(white);
             [f.min(c) as i32, c as i32]
         });
-        Self { iso: model.iso, white, binning, luts, tables, snaps, range, structure, target: None }
+        let kept = structure.is_some().then(|| sources.map(|(bins, _)| bins.into_owned()));
+        (Self { iso: model.iso, white, binning, luts, tables, snaps, range, structure, target: None }, kept)
     }
 
     /// The same sampler for clean images at the brightness `clean_at` says

@@ -638,7 +638,7 @@ fn on_grid(pts: &[(f64, f64)]) -> (i64, Vec<f64>) {
 
 fn convolve(a: &(i64, Vec<f64>), b: &(i64, Vec<f64>)) -> (i64, Vec<f64>) {
     let mut out = vec![0.0; a.1.len() + b.1.len() - 1];
-    crate::math::deconv::convolve(&a.1, &b.1, &mut out);
+    crate::math::deconv::convolve_wide(&a.1, &b.1, &mut out);
     (a.0 + b.0, out)
 }
 
