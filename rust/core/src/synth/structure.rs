@@ -153,6 +153,18 @@ impl StructureSampler {
     /// [`Self::add_pattern_row_at`], bit for bit (tested), without a row of them written first
     /// and read back. `None` without a fixed pattern.
     pub(crate) fn row_pattern<'a>(&'a self, columns: &'a PatternColumns, y: usize) -> Option<RowPattern<'a>> {
+        self.row_pattern_in(columns, y, Default::default())
+    }
+
+    /// [`Self::row_pattern`], the row's values computed into `scratch` (one vector per column
+    /// parity, of any length: resized, every value written), which [`RowPattern::into_scratch`]
+    /// hands back for the next row: a band's rows then allocate and zero no buffer of their own.
+    pub(crate) fn row_pattern_in<'a>(
+        &'a self,
+        columns: &'a PatternColumns,
+        y: usize,
+        mut scratch: [Vec<i64>; 2],
+    ) -> Option<RowPattern<'a>> {
         let fp = self.fpn.as_ref()?;
         let parity = std::array::from_fn(|px| {
             let pos = position(y, columns.x0 + px);
@@ -163,12 +175,14 @@ impl StructureSampler {
         });
         // The whole row at once where the vectorised loop applies, per parity.
         let computed = self.lanes.then(|| {
-            std::array::from_fn(|px: usize| {
+            for (px, out) in scratch.iter_mut().enumerate() {
                 let cols = &columns.parity[px];
-                let mut out = vec![0i64; cols.len()];
-                parity_row(y as u64, (columns.x0 + px) as u64, cols, &parity[px].line, parity[px].q, &mut out);
-                out
-            })
+                // Every value is written: the lanes apply, so the quantile function has two
+                // points or more ([`lanes_apply`]).
+                out.resize(cols.len(), 0);
+                parity_row(y as u64, (columns.x0 + px) as u64, cols, &parity[px].line, parity[px].q, out);
+            }
+            scratch
         });
         Some(RowPattern { y, columns, parity, computed })
     }
@@ -675,6 +689,12 @@ impl RowPattern<'_> {
     /// where the vectorised loop applies; else [`Self::pair`] computes them pixel by pixel.
     pub(crate) fn computed(&self) -> Option<&[Vec<i64>; 2]> {
         self.computed.as_ref()
+    }
+
+    /// The buffers the row was computed into, for the next row's
+    /// ([`StructureSampler::row_pattern_in`]; empty where the row was not computed at once).
+    pub(crate) fn into_scratch(self) -> [Vec<i64>; 2] {
+        self.computed.unwrap_or_default()
     }
 
     /// The pattern (2⁻³² DN) of the image's columns `i` and `i + 1`, `i` even and `i + 1` within

@@ -121,6 +121,8 @@ fn row_pattern_is_the_row_path_bit_for_bit() {
             std::array::from_fn(|p| (0..shading_len).map(|i| (i as f32 * 0.61 - p as f32).cos() * 3.0).collect());
         let s = pattern_sampler(residual, grid, shading);
         let mut nonzero = 0;
+        // Buffers carried from row to row (`row_pattern_in`), first of other lengths and values.
+        let mut scratch = [vec![7i64; 100], vec![-3i64; 1]];
         for (y, x0, w) in [(0usize, 0usize, 60usize), (17, 3, 31), (39, 1, 2), (5, 2, 1)] {
             let columns = s.pattern_columns(x0, w);
             let mut want = vec![0i64; w];
@@ -128,6 +130,10 @@ fn row_pattern_is_the_row_path_bit_for_bit() {
             let rp = s.row_pattern(&columns, y).expect("a pattern");
             let got: Vec<i64> = (0..w).map(|i| rp.at(i)).collect();
             assert_eq!(got, want, "grid {grid:?}, row {y}, columns {x0}..");
+            let reused = s.row_pattern_in(&columns, y, std::mem::take(&mut scratch)).expect("a pattern");
+            let got: Vec<i64> = (0..w).map(|i| reused.at(i)).collect();
+            assert_eq!(got, want, "grid {grid:?}, row {y}, columns {x0}.., buffers reused");
+            scratch = reused.into_scratch();
             for i in (0..w.saturating_sub(1)).step_by(2) {
                 assert_eq!(rp.pair(i), (want[i], want[i + 1]));
             }
