@@ -1,0 +1,100 @@
+"""Noise near black on EMVA 1288 reference set 002, level by level: the real held-out frames
+against what a pack synthesizes, and what the dark burst says the variance at black is.
+
+    python tests/bench/emva1288_black.py --repo DATASETS [--out target/emva002] [--seeds 2]
+
+The cache ``--out`` is ``tests/bench/emva1288_ladder.py``'s (converted and calibrated the same
+way; made here when missing). For every whole clean code from 1 DN up to 16 DN that at least
+1 000 held-out pixels round to:
+
+- **real**: the held-out frames' ``frame − round(clean)`` (the pack's convention: a clean code
+  stands for the clean levels that round to it) and ``frame − clean`` (the float clean image);
+- **synthetic**: the pack's synthesis onto a flat image at that code, default components and
+  ``pixel`` (the pixel PMFs alone), ``--seeds`` images of the evaluated width.
+
+Then, per half of the dark burst (the calibration's ISO 100 and ISO 200 dark steps): ``T`` (half
+the median variance of consecutive frame differences, ``calibrate/dark.rs``), ``T + 1/12`` (what
+``derive/fine_levels.rs::variance_at_black`` assumes: the clean image's rounding independent of
+the sensor's), ``T + Var(r)`` with ``r`` each pixel's burst mean less its rounding, and the
+variance of a frame less its rounded leave-one-out burst mean (what a sample at black holds). The
+last two agree; the second does not when the noise at black is well below 1 DN, because then
+the reference's rounding and the frame's are of the same pixel mean (docs/bench.md, "Noise at
+black on set 002").
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+import noisecal
+import emva1288_ladder as ladder
+from emva1288 import Source, read_descriptor
+from png16 import read_png_grey
+
+MIN_PIXELS = 1000
+
+
+def dark_terms(frames: np.ndarray) -> dict:
+    """The variance at black of a dark burst ``frames`` (n, h, w), four ways (module docstring)."""
+    n = len(frames)
+    t = float(np.median([d.var() for d in np.diff(frames, axis=0)]) / 2)
+    mean = frames.mean(axis=0)
+    r = mean - np.rint(mean)
+    total = frames.sum(axis=0)
+    loo = np.stack([f - np.rint((total - f) / (n - 1)) for f in frames])
+    return {"T": t, "T+1/12": t + 1 / 12, "T+Var(r)": t + float(r.var()), "frame-round(loo)": float(loo.var())}
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--repo", type=Path, required=True, help="a clone of EMVA1288/datasets (bare or not)")
+    p.add_argument("--out", type=Path, default=Path("target/emva002"), help="the ladder's cache [default: %(default)s]")
+    p.add_argument("--seeds", type=int, default=2, help="synthetic images per code and model [default: %(default)s]")
+    args = p.parse_args(argv)
+
+    def say(*a):
+        print(*a, file=sys.stderr, flush=True)
+
+    try:
+        src = Source(args.repo, ladder.SET)
+        got = ladder.convert(src, args.out, say)
+        if not (args.out / "ladder.pack").exists():
+            noisecal.calibrate(args.out / "cal").save(args.out / "ladder.pack")
+        pack = noisecal.Pack.load(args.out / "ladder.pack")
+        scenes = sorted(d for d in (args.out / "eval-mosaic").iterdir() if d.is_dir())
+        frame = np.stack([noisecal.read_dng(d / "frame.dng")[0].astype(np.float64) for d in scenes])
+        clean = np.stack([np.load(d / "clean.npy") for d in scenes])
+        blocks = read_descriptor(src.read("EMVA1288_Data.txt").decode("utf-8", "replace"))
+        burst = max((b for b in blocks if b.kind == "d"), key=lambda b: len(b.images))
+        dark = np.stack([ladder.centre(read_png_grey(src.read(q), q, depths=(8,)), ladder.CAL_W) for q in burst.images]).astype(np.float64)
+    except (ladder.ConvertError, noisecal.NoisecalError, OSError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    black = float(np.mean(got["black"]))
+    code = np.rint(clean)
+    print(f"black {black:.3f} DN; variance of noisy − clean (DN²), synthetic / real (−round) in brackets")
+    print(f"{'code':>4} {'above':>6} {'pixels':>8} {'real −round':>12} {'real −float':>12} {'default':>16} {'pixel':>16}")
+    for c in range(1, 17):
+        at = code == c
+        if at.sum() < MIN_PIXELS:
+            continue
+        real = float((frame[at] - c).var())
+        flat = np.full(frame.shape[1:], c, np.uint16)
+        row = []
+        for comp in (None, "pixel"):
+            s = np.concatenate([pack.synth(flat, 200, k, components=comp).ravel().astype(np.float64) - c for k in range(args.seeds)])
+            row.append(f"{s.var():.4f} ({s.var() / real:.2f}×)")
+        print(f"{c:4d} {c - black:6.2f} {int(at.sum()):8d} {real:12.4f} {float((frame[at] - clean[at]).var()):12.4f} {row[0]:>16} {row[1]:>16}")
+    half = len(dark) // 2
+    for name, part in (("ISO 100 (dark frames 1–50)", dark[:half]), ("ISO 200 (dark frames 51–100)", dark[half:])):
+        terms = dark_terms(part)
+        print(f"dark burst, {name}: " + ", ".join(f"{k} {v:.4f}" for k, v in terms.items()))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
