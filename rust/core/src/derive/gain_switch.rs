@@ -125,7 +125,7 @@ impl CalibratedLaw {
     }
 }
 
-/// The laws of the pack's calibrated ISOs, sorted by ISO, each with its dark step's variance at
+/// The laws of the pack's calibrated ISOs, sorted by ISO, each with its dark step's read term at
 /// black where it has one, its gain ratios and its digital gain.
 pub fn calibrated_laws(pack: &ModelPack) -> Vec<CalibratedLaw> {
     let binning = pack.binning();
@@ -543,7 +543,7 @@ mod tests {
         l.iter().map(|c| CalibratedLaw { at_black: [None; POSITIONS], ..*c }).collect()
     }
 
-    /// One ISO's dark step as [`crate::calibrate::dark`] stores it: temporal variance
+    /// One ISO's dark step as the dark burst stores it: temporal variance
     /// `temporal`, a pattern change from the reference of variance `in_pixel`.
     fn dark_step(iso: u32, temporal: f64, in_pixel: f64) -> IsoStructure {
         use crate::model::structure::{FixedPattern, OffsetDistribution};
