@@ -18,8 +18,8 @@ use ndarray::{Array2, ArrayView2};
 
 use crate::ModelPack;
 use crate::derive::baselines::{self, BaselineKind};
-use crate::derive::fine_levels::{target_fine_levels, variance_at_black};
-use crate::derive::gain_switch::digital_gain;
+use crate::derive::fine_levels::target_fine_levels;
+use crate::derive::gain_switch::{digital_gain, headroom, read_at_black};
 use crate::derive::interp;
 use crate::derive::interp::{CalibratedLaw, InterpOptions};
 use crate::derive::structure::{derived_structure_sources, structure_at};
@@ -263,7 +263,10 @@ pub fn resolve_on_demand<B: std::ops::Deref<Target = [u8]>>(
                     Ok(CalibratedLaw {
                         iso: e.iso,
                         law: e.noise_law(),
-                        at_black: std::array::from_fn(|p| variance_at_black(st.as_ref(), p)),
+                        at_black: {
+                            let room = headroom(&index.layout, fields.as_ref());
+                            std::array::from_fn(|p| read_at_black(st.as_ref(), p, room[p]))
+                        },
                         gain_ratio: fields.as_ref().map_or([1.0; POSITIONS], |m| m.gain_ratio),
                         digital_gain: fields.as_ref().map_or(1.0, |m| digital_gain(&m.lattice)),
                     })

@@ -17,7 +17,8 @@
 //! JVM, and nothing on this path unwraps.
 //!
 //! A pushed frame's verdict crosses as `NoisecalSession.FrameVerdict` (drift, motion, samples
-//! left out, re-take), built the same way. Progress crosses as a Kotlin object, `NoisecalSession.Progress` with its
+//! left out, re-take), and a finished session's summary with its gap calls as
+//! `NoisecalSession.Finished` ([`crate::gap_calls`]), built the same way. Progress crosses as a Kotlin object, `NoisecalSession.Progress` with its
 //! `NoisecalSession.IsoProgress` list, constructed here through bindings of their constructors
 //! (`bind_java_type!`): the Kotlin classes are the one definition of the type, and a constructor
 //! that no longer matches fails loudly at the first call (a `NoisecalException` naming it), never
@@ -145,6 +146,7 @@ macro_rules! session_method {
             type_map = {
                 JProgress => "org.noisecal.jni.NoisecalSession$Progress",
                 JFrameVerdict => "org.noisecal.jni.NoisecalSession$FrameVerdict",
+                JFinished => "org.noisecal.jni.NoisecalSession$Finished",
             },
             error_policy = ThrowNoisecal,
             $($spec)*
@@ -175,7 +177,7 @@ pub const NATIVE_METHODS: &[NativeMethod<'_>] = &[
     session_method! { static extern fn native_default_bin_width(white_level: jint, black_levels: jfloat[]) -> jint },
     session_method! { static extern fn native_checkpoint(handle: jlong, path: JString) },
     session_method! { static extern fn native_start_recording(handle: jlong, path: JString) },
-    session_method! { static extern fn native_finish(handle: jlong, pack_path: JString) -> JString },
+    session_method! { static extern fn native_finish(handle: jlong, pack_path: JString) -> JFinished },
     session_method! { static extern fn native_close(handle: jlong) },
 ];
 
@@ -214,6 +216,15 @@ mod bindings {
     }
 
     bind_java_type! {
+        rust_type = JFinished,
+        rust_type_vis = pub(super),
+        java_type = "org.noisecal.jni.NoisecalSession$Finished",
+        constructors {
+            fn new(summary: JString, gap_calls: JString),
+        },
+    }
+
+    bind_java_type! {
         rust_type = JArrayList,
         rust_type_vis = pub(super),
         java_type = java.util.ArrayList,
@@ -224,7 +235,7 @@ mod bindings {
     }
 }
 
-use bindings::{JArrayList, JFrameVerdict, JIsoProgress, JProgress};
+use bindings::{JArrayList, JFinished, JFrameVerdict, JIsoProgress, JProgress};
 
 fn string(env: &Env<'_>, s: &JString<'_>, name: &'static str) -> Result<String> {
     if s.is_null() {
@@ -437,16 +448,20 @@ fn native_start_recording<'local>(
     registry::with(handle, |s| s.start_recording(&path))
 }
 
+/// Builds and writes the pack; returns a `NoisecalSession.Finished`: the one-line summary and
+/// the pack's conversion-gain call per gap between calibrated ISOs ([`crate::gap_calls`]).
 fn native_finish<'local>(
     env: &mut Env<'local>,
     _class: JClass<'local>,
     handle: jlong,
     pack_path: JString<'local>,
-) -> Result<JString<'local>> {
+) -> Result<JFinished<'local>> {
     let path = checked_path(&string(env, &pack_path, "packPath")?)?;
-    let summary = registry::with(handle, |s| s.finish_to(&path))?;
-    log::info!("session {handle}: {summary}");
-    Ok(JString::from_str(env, summary)?)
+    let done = registry::with(handle, |s| s.finish_with_gaps(&path))?;
+    log::info!("session {handle}: {}", done.summary);
+    let summary = JString::from_str(env, &done.summary)?;
+    let gap_calls = JString::from_str(env, &done.gap_calls)?;
+    Ok(JFinished::new(env, &summary, &gap_calls)?)
 }
 
 fn native_close<'local>(_env: &mut Env<'local>, _class: JClass<'local>, handle: jlong) -> Result<()> {

@@ -7,6 +7,8 @@
 //! - [`registry`]: handles are ids into a map of live sessions, so a closed handle is an exception,
 //!   never a dangling pointer.
 //! - [`session`]: the session behind a handle (core session + recording tee), JNI-free.
+//! - [`gap_calls`]: a finished pack's conversion-gain call per gap between calibrated ISOs, as
+//!   the text that crosses with the summary.
 //! - [`recording`]: the tee into a recording file, resumable from a checkpoint.
 //! - [`replay`]: a recording back into a pack, as `noisecal calibrate session.rec` does.
 //! - `testkit` (feature `testkit`, host builds only): synthetic captures for tests and the JVM
@@ -24,6 +26,7 @@
 
 pub mod error;
 pub mod files;
+pub mod gap_calls;
 pub mod jni_api;
 pub mod recording;
 pub mod registry;

@@ -9,6 +9,7 @@ use noisecal_core::{CalibrationSession, CfaPattern, FrameMeta, FrameView, Sensor
 
 use crate::error::{BoundaryError, Result};
 use crate::files::write_atomically;
+use crate::gap_calls::gap_calls_text;
 use crate::recording::RecordingTee;
 
 /// Magic of the core's own checkpoint (also accepted by [`NativeSession::restore_file`]).
@@ -73,6 +74,14 @@ fn black4(name: &'static str, b: &[f32]) -> Result<[f32; 4]> {
 }
 
 /// The session state behind a handle.
+/// What [`NativeSession::finish_with_gaps`] built: the one-line summary and the pack's gap calls
+/// ([`crate::gap_calls`]'s text).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Finished {
+    pub summary: String,
+    pub gap_calls: String,
+}
+
 #[derive(Debug)]
 pub struct NativeSession {
     session: CalibrationSession,
@@ -293,7 +302,14 @@ impl NativeSession {
     /// recording (it stays open: more frames may follow; [`close`](Self::close) ends it) and
     /// returns a one-line summary. The session stays usable.
     pub fn finish_to(&mut self, path: &Path) -> Result<String> {
+        Ok(self.finish_with_gaps(path)?.summary)
+    }
+
+    /// [`Self::finish_to`], with the pack's conversion-gain call per gap between neighbouring
+    /// calibrated ISOs ([`gap_calls_text`]).
+    pub fn finish_with_gaps(&mut self, path: &Path) -> Result<Finished> {
         let pack = self.session.finish()?;
+        let gap_calls = gap_calls_text(&pack);
         let bytes = pack.to_bytes()?;
         write_atomically("cannot write the model pack", path, &bytes)?;
         let mut summary = format!(
@@ -315,7 +331,7 @@ impl NativeSession {
                 }
             }
         }
-        Ok(summary)
+        Ok(Finished { summary, gap_calls })
     }
 
     /// Ends the session: writes the recording's End record, if recording.

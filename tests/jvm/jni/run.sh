@@ -5,8 +5,8 @@
 #   Takes the cdylib and its helper with the harness's hooks (feature testkit: the Android library is
 #   built without them) from the workspace's test build in target/debug (`cargo test --workspace
 #   --no-run`, nothing to build after `cargo test --workspace`; tests/jvm/kotlin.sh), installs the Kotlin
-#   compiler (npm kotlin-compiler, pinned) into .tools/ if missing, compiles NoisecalSession.kt with
-#   the harness in tests/jvm/jni/src, and runs it against a recording: by default a synthetic one
+#   compiler (npm kotlin-compiler, pinned) into .tools/ if missing, compiles NoisecalSession.kt and
+#   the capture library's plan package with the harness in tests/jvm/jni/src, and runs it against a recording: by default a synthetic one
 #   written by `noisecal-jni-tool write-recording` (pass --rec to use e.g. one from
 #   `noisecal simulate --rec`). The reference pack is the Rust replay of the same recording (what
 #   `noisecal calibrate session.rec` does). Last line: "N passed, M failed"; non-zero exit on failure.
@@ -25,8 +25,10 @@ TOOL="$TEST_BUILD_DIR/noisecal-jni-tool"
 
 ensure_kotlinc
 
+# The capture library's plan package too: the gap calls finish returns are read by its own
+# parser (GainGap.parseCalls) and fed to GainGapFollowUp.propose.
 SOURCES=("$ROOT/android/capture/src/main/kotlin/org/noisecal/jni/NoisecalSession.kt")
-mapfile -t -O 1 SOURCES < <(find "$ROOT/tests/jvm/jni/src" -name '*.kt' | sort)
+mapfile -t -O 1 SOURCES < <(find "$ROOT/android/capture/src/main/kotlin/org/noisecal/capture/plan" "$ROOT/tests/jvm/jni/src" -name '*.kt' | sort)
 compile_kotlin "$OUT/classes" "${SOURCES[@]}"
 
 rm -rf "$WORK"

@@ -3,13 +3,14 @@
 //! fit predicts across it. Interpolation never fits across a switch, and stretches no fit across
 //! a gap whose read terms the data does not pin ([`GapCall::Undetermined`]).
 
-use crate::derive::fine_levels::variance_at_black;
 use crate::derive::noise_law::{NoiseParams, fit_params};
+use crate::math::censored::unclamped_variance;
 use crate::math::fit::{nn_poly_fit, poly_eval};
 use crate::math::stats::median;
 use crate::model::codes::CodeLattice;
-use crate::model::layout::POSITIONS;
-use crate::model::pack::ModelPack;
+use crate::model::layout::{POSITIONS, SensorLayout};
+use crate::model::pack::{IsoModel, ModelPack};
+use crate::model::structure::IsoStructure;
 
 /// Observed/predicted read-noise ratio below which a gap between two calibrated ISOs is a
 /// conversion-gain switch.
@@ -29,11 +30,38 @@ pub const PIN_SPREAD: f64 = 1.0 / SWITCH_RATIO;
 /// frames measure `b` to about 1 % (16 frames), and the pattern terms they carry move it by a
 /// few %. Random sensor 13 (high gain from ISO 192) reads 0.69 from ISO 160 to 200, while the
 /// high-gain line through ISO 200 and 320 predicts ISO 160 at 0.59–0.61 × its `b` (at the
-/// simulator's true gains too): beside [`SWITCH_RATIO`] a call by rounding. Open: on the
-/// family's random sensor 19 (10 bits, single gain) the dark frames' `b` falls below this from
-/// ISO 500 to 1600, a false switch this rule made (cause not found; clipping at black, which
-/// narrows a dark frame's spread, is the first suspect).
+/// simulator's true gains too): beside [`SWITCH_RATIO`] a call by rounding. The dark frames'
+/// `b` must be the spread before the output's clamp at its floor ([`read_at_black`]): random
+/// sensor 19 (10 bits, black 13.5 DN, single gain) clamps 26 % of its dark pixels at ISO 500
+/// and 41 % at ISO 1600, which measured 0.64 and 0.43 of the truth and read as a drop to 0.66.
 pub const DROP_RATIO: f64 = 0.8;
+
+/// The read term at black a dark step measured at position `pos`, as the detector compares it:
+/// the temporal variance with the output's clamp at its floor undone
+/// ([`unclamped_variance`]; `headroom` is the black level's distance above the floor, DN) plus
+/// the frame offsets' variance and the codes' rounding (as
+/// [`crate::derive::fine_levels::variance_at_black`]). The pattern's change from the reference
+/// (`in_pixel_noise`, which the pixel PMFs hold and synthesis needs) is not read noise: a
+/// dark-signal non-uniformity grows as `(a − a_ref)²`, not as `q + p·a²`. `None` without dark
+/// frames, or when the black level is not above the floor (half the dark pixels or more on
+/// it: the spread's width is then not in the data).
+pub fn read_at_black(structure: Option<&IsoStructure>, pos: usize, headroom: f64) -> Option<f64> {
+    let st = structure?;
+    let fpn = st.fpn.as_ref()?;
+    let temporal = fpn.temporal_var[pos];
+    if !(temporal.is_finite() && temporal > 0.0) {
+        return None;
+    }
+    let frames = st.frames.as_ref().map_or(0.0, |f| f.variance(pos));
+    let v = unclamped_variance(temporal, headroom)? + frames + 1.0 / 12.0;
+    v.is_finite().then_some(v)
+}
+
+/// Per position, the black level's distance above the lowest code the ISO's output writes
+/// (its clamp: [`IsoModel::range`]'s floor), DN.
+pub fn headroom(layout: &SensorLayout, model: Option<&IsoModel>) -> [f64; POSITIONS] {
+    std::array::from_fn(|p| layout.black[p] as f64 - model.map_or(0.0, |m| m.range[p][0] as f64))
+}
 
 /// A calibrated ISO as the switch detector and the interpolation plan read it.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -42,8 +70,8 @@ pub struct CalibratedLaw {
     /// The noise law per CFA position, as [`fit_params`] gives it (what a pack file's index
     /// stores).
     pub law: [Option<NoiseParams>; POSITIONS],
-    /// The variance at black the ISO's dark step measured per position
-    /// ([`variance_at_black`]), `None` without one.
+    /// The read variance at black the ISO's dark step measured per position
+    /// ([`read_at_black`]), `None` without one.
     pub at_black: [Option<f64>; POSITIONS],
     /// The ISO's measured brightness over nominal per position ([`crate::model::pack::IsoModel::gain_ratio`]): the
     /// law's `a` is per DN of the reference's level scaled by the ISO ratio, so the conversion
@@ -97,7 +125,7 @@ impl CalibratedLaw {
     }
 }
 
-/// The laws of the pack's calibrated ISOs, sorted by ISO, each with its dark step's variance at
+/// The laws of the pack's calibrated ISOs, sorted by ISO, each with its dark step's read term at
 /// black where it has one, its gain ratios and its digital gain.
 pub fn calibrated_laws(pack: &ModelPack) -> Vec<CalibratedLaw> {
     let binning = pack.binning();
@@ -107,7 +135,10 @@ pub fn calibrated_laws(pack: &ModelPack) -> Vec<CalibratedLaw> {
         .map(|m| CalibratedLaw {
             iso: m.iso,
             law: std::array::from_fn(|pos| fit_params(&binning, m, pos)),
-            at_black: std::array::from_fn(|pos| variance_at_black(pack.structure_of(m.iso), pos)),
+            at_black: {
+                let room = headroom(&pack.layout, Some(m));
+                std::array::from_fn(|pos| read_at_black(pack.structure_of(m.iso), pos, room[pos]))
+            },
             gain_ratio: m.gain_ratio,
             digital_gain: digital_gain(&m.lattice),
         })
@@ -510,5 +541,73 @@ mod tests {
 
     fn chart(l: &[CalibratedLaw]) -> Vec<CalibratedLaw> {
         l.iter().map(|c| CalibratedLaw { at_black: [None; POSITIONS], ..*c }).collect()
+    }
+
+    /// One ISO's dark step as the dark burst stores it: temporal variance
+    /// `temporal`, a pattern change from the reference of variance `in_pixel`.
+    fn dark_step(iso: u32, temporal: f64, in_pixel: f64) -> IsoStructure {
+        use crate::model::structure::{FixedPattern, OffsetDistribution};
+        let dist = |var: f64| OffsetDistribution {
+            quantiles: vec![0.0; 2],
+            count: 1000,
+            measured_var: var,
+            sampling_var: 0.0,
+            significant: var > 0.0,
+        };
+        IsoStructure {
+            fpn: Some(FixedPattern {
+                pixels: std::array::from_fn(|_| dist(0.0)),
+                shading: std::array::from_fn(|_| Vec::new()),
+                grid: [0, 0],
+                size: [0, 0],
+                frames: 16,
+                temporal_var: [temporal; POSITIONS],
+                in_pixel_noise: std::array::from_fn(|_| dist(in_pixel)),
+                significant: false,
+            }),
+            ..IsoStructure::empty(iso)
+        }
+    }
+
+    #[test]
+    fn a_clamp_at_black_is_no_switch() {
+        use crate::math::censored::clamped_variance_ratio;
+        // Random sensor 19's chain (10 bits, black 13.5 DN above the floor at 0, one conversion
+        // gain, analog gain capped at ISO 400, digital gain 1.25 at ISO 500 and 4 at ISO 1600):
+        // its output-referred read variance and slope per ISO, from the simulator's truth.
+        let chain = [
+            (125, 15.567, 0.9384, 1.0),
+            (250, 78.411, 2.1946, 1.0),
+            (500, 381.92, 4.8755, 1.25),
+            (1600, 3871.4, 15.522, 4.0),
+        ];
+        let headroom = 13.5;
+        // The dark frames' spread with the clamp at the floor: 0.64 × the truth at ISO 500,
+        // 0.43 × at ISO 1600 (the e2e pack measured 242 and 1646 DN² against 382 and 3871).
+        let clamped = |b: f64| b * clamped_variance_ratio(headroom / b.sqrt());
+        let l = |at_black: &dyn Fn(f64) -> Option<f64>| -> Vec<CalibratedLaw> {
+            chain
+                .iter()
+                .map(|&(iso, b, a, d)| CalibratedLaw {
+                    digital_gain: d,
+                    ..CalibratedLaw::new(iso, [Some(NoiseParams { a, b }); POSITIONS], [at_black(b); POSITIONS])
+                })
+                .collect()
+        };
+        // The clamped spread taken as the read term (the rule before): a drop to 0.66 at ISO
+        // 500 → 1600, the false switch.
+        assert_eq!(calls(&l(&|b| Some(clamped(b)))), ["none", "none", "switch"]);
+        // Through the dark step's read term with the clamp undone: no switch.
+        let read = |b: f64| read_at_black(Some(&dark_step(0, clamped(b), 0.0)), 0, headroom);
+        assert_eq!(calls(&l(&read)), ["none", "none", "none"]);
+        for &(_, b, _, _) in &chain {
+            let got = read(b).expect("headroom above the floor");
+            assert!((got / (b + 1.0 / 12.0) - 1.0).abs() < 1e-6, "{got} against {b}");
+        }
+        // The pattern's change from the reference is not read noise; no dark step, or black on
+        // the floor, gives no read term.
+        assert_eq!(read_at_black(Some(&dark_step(0, 50.0, 30.0)), 0, 1e9), Some(50.0 + 1.0 / 12.0));
+        assert_eq!(read_at_black(Some(&IsoStructure::empty(0)), 0, 13.5), None);
+        assert_eq!(read_at_black(Some(&dark_step(0, 50.0, 0.0)), 0, 0.0), None);
     }
 }

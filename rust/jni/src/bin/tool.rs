@@ -6,6 +6,7 @@
 //! noisecal-jni-tool replay IN.rec OUT.pack          # the replay `noisecal calibrate` does
 //! noisecal-jni-tool bench [--size WxH] [--targets N] # core-only push timings, no JNI
 //! noisecal-jni-tool frame-hash W H ISO EXPOSURE_NS INDEX SEED   # cross-check of the Kotlin synth
+//! noisecal-jni-tool gap-calls IN.pack               # the pack's gap calls, as finish returns them
 //! ```
 
 use std::path::PathBuf;
@@ -14,6 +15,7 @@ use std::time::Instant;
 
 use noisecal_core::format::recording::RecordingReader;
 use noisecal_core::{CalibrationSession, FrameMeta, FrameView};
+use noisecal_jni::gap_calls::gap_calls_text;
 use noisecal_jni::replay::session_for;
 use noisecal_jni::testkit::{Plan, Synth, to_plane, write_recording};
 use noisecal_jni::{BoundaryError, files, replay_recording};
@@ -64,6 +66,16 @@ fn replay(args: &[String]) -> Fallible<()> {
     files::write_atomically("cannot write the model pack", &PathBuf::from(output), &bytes)
         .map_err(|e| e.to_string())?;
     println!("{output}: ISO {} ({} bytes)", pack.iso_summary(), bytes.len());
+    Ok(())
+}
+
+/// Prints a pack file's gap calls ([`gap_calls_text`]): what `NoisecalSession.finish` returns
+/// with the summary, for the JVM harness to compare.
+fn gap_calls(args: &[String]) -> Fallible<()> {
+    let [input, ..] = args else { return Err("gap-calls needs IN.pack".into()) };
+    let bytes = std::fs::read(input).map_err(|e| format!("cannot read {input}: {e}"))?;
+    let pack = noisecal_core::ModelPack::from_bytes(&bytes).map_err(|e| format!("{input}: {e}"))?;
+    print!("{}", gap_calls_text(&pack));
     Ok(())
 }
 
@@ -149,8 +161,9 @@ fn main() -> ExitCode {
         Some("replay") => replay(&args[1..]),
         Some("bench") => bench(&args[1..]),
         Some("frame-hash") => frame_hash(&args[1..]),
+        Some("gap-calls") => gap_calls(&args[1..]),
         _ => {
-            Err("usage: noisecal-jni-tool write-recording|replay|bench|frame-hash … (see the source's doc comment)"
+            Err("usage: noisecal-jni-tool write-recording|replay|bench|frame-hash|gap-calls … (see the source's doc comment)"
                 .into())
         }
     };

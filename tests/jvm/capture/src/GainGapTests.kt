@@ -50,6 +50,35 @@ class GainGapTests : Suite("gain gaps") {
             eq(true, again.options.darkFrames, "dark step kept")
         }
 
+        test("gap calls as finish returns them: parsed, 'none' left out, bad text refused with the line named") {
+            val text = "noisecal-gap-calls 1\n125 250 none\n250 500 switch\n500 1600 undetermined\n"
+            eq(
+                listOf(GainGap(250, 500, GainGap.Call.SWITCH), GainGap(500, 1600, GainGap.Call.UNDETERMINED)),
+                GainGap.parseCalls(text),
+                "parsed",
+            )
+            eq(emptyList<GainGap>(), GainGap.parseCalls("noisecal-gap-calls 1\n"), "one calibrated ISO: no gap")
+            // Fed to the follow-up: the dark step for the undetermined gap, the bisecting ISO of the switch.
+            val c = caps(range = 50..3200, maxAnalog = 800)
+            val o = PlanOptions(Metering(100, 10_000_000L), targetIsos = listOf(125, 250, 500, 1600))
+            val f = GainGapFollowUp.propose(c, o, listOf(125, 250, 500, 1600), GainGap.parseCalls(text))
+                ?: throw Failure("open gaps ask for a follow-up")
+            eq(true, f.darkFrames, "dark step for the undetermined gap")
+            eq(listOf(354), f.addedIsos, "√(250·500) = 353.6")
+            for ((bad, part) in listOf(
+                "" to "must start with",
+                "noisecal-gap-calls 2\n100 200 none" to "different versions",
+                "noisecal-gap-calls 1\n100 200" to "line 2",
+                "noisecal-gap-calls 1\n100 200 maybe" to "unknown call \"maybe\"",
+                "noisecal-gap-calls 1\n100 x none" to "is not a number",
+                "noisecal-gap-calls 1\n200 100 none" to "lower ISO to a higher one",
+                "noisecal-gap-calls 1\n200 400 none\n100 200 none" to "line 3",
+            )) {
+                val m = throws<IllegalArgumentException>("\"$bad\"") { GainGap.parseCalls(bad) }.message ?: ""
+                check(m.contains(part)) { "\"$bad\": message \"$m\" does not say \"$part\"" }
+            }
+        }
+
         test("nothing to settle: no follow-up") {
             val c = caps(range = 50..3200, maxAnalog = 800)
             val o = PlanOptions(Metering(100, 10_000_000L), targetIsos = listOf(100, 101))

@@ -1,5 +1,10 @@
 package org.noisecal.jni.test
 
+import org.noisecal.capture.plan.CameraCapabilities
+import org.noisecal.capture.plan.GainGap
+import org.noisecal.capture.plan.GainGapFollowUp
+import org.noisecal.capture.plan.Metering
+import org.noisecal.capture.plan.PlanOptions
 import org.noisecal.jni.NoisecalException
 import org.noisecal.jni.NoisecalNotDarkException
 import org.noisecal.jni.NoisecalSession
@@ -149,8 +154,56 @@ class Suite(private val cfg: Config) {
         "noise profiles are checked" to ::noiseProfiles,
         "dark step: beginDark + dark frames accepted, a lit frame refused as not dark, the pack replays" to ::darkFrames,
         "motion verdicts cross JNI with every push: target frames registered, re-take as the core judges it" to ::motionVerdicts,
+        "gap calls cross JNI with the summary and feed the capture plan's follow-up" to ::gapCallsFollowUp,
         "12 MP frame through JNI vs the core alone" to ::bench,
     )
+
+    /**
+     * The pack's conversion-gain call per gap crosses JNI with the summary
+     * (NoisecalSession.Finished.gapCalls): the same text the Rust side gives for the pack file
+     * (`noisecal-jni-tool gap-calls`), one line per gap between the calibrated ISOs, which the
+     * capture library's own parser (GainGap.parseCalls) reads and GainGapFollowUp.propose turns
+     * into the next capture: without dark frames, an undetermined gap turns the dark step on; a
+     * switch adds its bisecting ISO. The dark-step session's calls (darkFrames, run before) parse
+     * too.
+     */
+    private fun gapCallsFollowUp() {
+        val calls = jniGapCalls ?: fail("needs the padded-push test's finish")
+        val pack = jniPack ?: fail("needs the padded-push test's pack")
+        check(calls == tool(cfg, "gap-calls", pack.path)) { "gap calls through JNI \"$calls\" differ from the pack's" }
+        val lines = calls.lines().filter { it.isNotBlank() }
+        check(lines.first() == GainGap.CALLS_HEADER) { "gap calls start with \"${lines.first()}\"" }
+        // Calibrated: the ISOs the session's progress listed (those with target frames).
+        val targets = jniIsos
+        check(targets.size >= 2) { "the recording must calibrate two ISOs or more: $targets" }
+        val expected = targets.zipWithNext().map { (a, b) -> "$a $b" }
+        check(lines.drop(1).map { it.substringBeforeLast(' ') } == expected) { "gaps $lines, expected $expected" }
+        println("    gap calls: ${lines.drop(1).joinToString("; ")}")
+        val gaps = GainGap.parseCalls(calls)
+        check(gaps.size == lines.drop(1).count { !it.endsWith(" none") }) { "parsed $gaps from $lines" }
+        val range = rec.header.referenceIso..(4 * targets.last())
+        val caps = CameraCapabilities(
+            "0", rec.header.make, rec.header.model, range, targets.last(), 1_000L..1_000_000_000L, 1_000_000_000L,
+            33_333_333L, rec.header.width, rec.header.height, rec.header.white, rec.header.black.map { it.toInt() },
+            0, manualSensor = true, raw = true, lensShadingAppliedToRaw = false,
+        )
+        val options = PlanOptions(Metering(rec.header.referenceIso, 10_000_000L), targetIsos = targets)
+        val f = GainGapFollowUp.propose(caps, options, targets, gaps)
+        if (gaps.isEmpty()) {
+            check(f == null) { "no open gap, yet a follow-up: $f" }
+        } else {
+            val follow = f ?: fail("open gaps $gaps, no follow-up")
+            check(follow.darkFrames == gaps.any { it.call == GainGap.Call.UNDETERMINED }) { "dark step in $follow for $gaps" }
+            for (g in gaps.filter { it.call == GainGap.Call.SWITCH }) {
+                val half = g.bisectingIso
+                if (half > g.belowIso && half < g.aboveIso) check(half in follow.addedIsos) { "switch $g: $follow" }
+            }
+            println("    follow-up: ${follow.reasons.joinToString("; ")}")
+        }
+        val dark = darkGapCalls ?: fail("needs the dark-step test's finish")
+        GainGap.parseCalls(dark)
+        println("    with dark frames: ${dark.lines().drop(1).filter { it.isNotBlank() }.joinToString("; ")}")
+    }
 
     /**
      * The motion verdict crosses JNI with each pushed frame (NoisecalSession.FrameVerdict):
@@ -205,6 +258,9 @@ class Suite(private val cfg: Config) {
 
     private var jniRecording: File? = null
     private var jniPack: File? = null
+    private var jniGapCalls: String? = null
+    private var darkGapCalls: String? = null
+    private var jniIsos: List<Int> = emptyList()
 
     private fun paddedPushGivesReplayedPack() {
         val pack = File(cfg.work, "jni.pack")
@@ -223,9 +279,12 @@ class Suite(private val cfg: Config) {
             check(p.isos.map { it.iso } == p.isos.map { it.iso }.sorted().distinct()) { "ISOs not ascending in $p" }
             check(p.isos.all { it.samples > 0 && it.totalBins > 0 && it.underSampledBins in 0..it.totalBins }) { "ISO progress out of range: $p" }
             check(s.binWidth == NoisecalSession.defaultBinWidth(rec.header.white, rec.header.black)) { "bin width ${s.binWidth}" }
-            val summary = s.finish(pack.path)
+            val done = s.finish(pack.path)
+            val summary = done.summary
             check(summary.contains(pack.path)) { "summary \"$summary\" does not name the pack" }
             println("    finish: $summary")
+            jniGapCalls = done.gapCalls
+            jniIsos = p.isos.map { it.iso }
         }
         samePack("padded JNI session", pack)
         jniRecording = recording
@@ -304,8 +363,12 @@ class Suite(private val cfg: Config) {
             }
             // The lens covered again: dark frames go on being accepted, and the session finishes.
             s.pushFrame(darkPlane(h, isos.last(), index++, stride), h.width, h.height, stride, 2, isos.last(), exposure, null)
-            val summary = s.finish(pack.path)
-            println("    finish: $summary")
+            val done = s.finish(pack.path)
+            println("    finish: ${done.summary}")
+            darkGapCalls = done.gapCalls
+            check(done.gapCalls == tool(cfg, "gap-calls", pack.path)) {
+                "dark session: gap calls through JNI \"${done.gapCalls}\" differ from the pack's"
+            }
         }
         val bytes = pack.readBytes()
         check(bytes.isNotEmpty()) { "no pack" }

@@ -90,9 +90,10 @@ class NoisecalSession private constructor(@Volatile private var handle: Long) : 
 
     /**
      * Builds the model pack and writes it to [packPath] (temporary file, then rename). Returns a
-     * one-line summary. The session stays usable; the recording is flushed and stays open.
+     * one-line summary and the pack's conversion-gain call per gap ([Finished]). The session
+     * stays usable; the recording is flushed and stays open.
      */
-    fun finish(packPath: String): String = nativeFinish(live(), packPath)
+    fun finish(packPath: String): Finished = nativeFinish(live(), packPath)
 
     /** Frees the native session; ends the recording (its End record). Safe to call twice. */
     override fun close() {
@@ -125,6 +126,19 @@ class NoisecalSession private constructor(@Volatile private var handle: Long) : 
         val leftOut: Long,
         val retake: Boolean,
     )
+
+    /**
+     * What [finish] built: [summary] one line (ISOs, frames, warnings, bytes, path); [gapCalls]
+     * what the pack says about each gap between neighbouring calibrated ISOs, as text in a stable
+     * form (rust/jni/src/gap_calls.rs): a header line `noisecal-gap-calls 1`, then one line per gap
+     * in ISO order, `BELOW ABOVE CALL` with CALL `switch` (a conversion-gain switch), `none` or
+     * `undetermined` (the read noise at black of a side is not pinned). The capture library's
+     * `GainGap.parseCalls` reads it for `GainGapFollowUp.propose`.
+     *
+     * Built by the native library through this constructor (rust/jni/src/jni_api.rs binds it),
+     * like [Progress].
+     */
+    data class Finished(val summary: String, val gapCalls: String)
 
     /**
      * Per-ISO progress: target frames folded in, samples, bins still under-sampled of all bins.
@@ -196,7 +210,7 @@ class NoisecalSession private constructor(@Volatile private var handle: Long) : 
         @JvmStatic private external fun nativeDefaultBinWidth(whiteLevel: Int, blackLevels: FloatArray): Int
         @JvmStatic private external fun nativeCheckpoint(handle: Long, path: String)
         @JvmStatic private external fun nativeStartRecording(handle: Long, path: String)
-        @JvmStatic private external fun nativeFinish(handle: Long, packPath: String): String
+        @JvmStatic private external fun nativeFinish(handle: Long, packPath: String): Finished
         @JvmStatic private external fun nativeClose(handle: Long)
     }
 }

@@ -23,6 +23,46 @@ data class GainGap(val belowIso: Int, val aboveIso: Int, val call: Call) {
         UNDETERMINED,
     }
 
+    companion object {
+        /** The header line of the gap calls' text form, with its version. */
+        const val CALLS_HEADER = "noisecal-gap-calls 1"
+
+        /**
+         * The gaps a finished calibration leaves open, read from its gap calls
+         * (`NoisecalSession.Finished.gapCalls`; the form is documented in rust/jni/src/gap_calls.rs:
+         * the header [CALLS_HEADER], then `BELOW ABOVE CALL` per gap, CALL `switch`, `none` or
+         * `undetermined`). Gaps called `none` need nothing and are left out. Throws
+         * [IllegalArgumentException] naming the line when the text is not in that form (another
+         * version, a missing field, an unknown call, ISOs out of order).
+         */
+        fun parseCalls(text: String): List<GainGap> {
+            val lines = text.lines().filter { it.isNotBlank() }
+            require(lines.firstOrNull() == CALLS_HEADER) {
+                "gap calls must start with \"$CALLS_HEADER\", got \"${lines.firstOrNull() ?: ""}\": " +
+                    "the native library and the app are of different versions"
+            }
+            val out = mutableListOf<GainGap>()
+            var previousAbove = 0
+            for ((i, line) in lines.drop(1).withIndex()) {
+                val f = line.split(' ')
+                val where = "gap calls line ${i + 2} \"$line\""
+                require(f.size == 3) { "$where: expected BELOW ABOVE CALL" }
+                val below = requireNotNull(f[0].toIntOrNull()) { "$where: ISO \"${f[0]}\" is not a number" }
+                val above = requireNotNull(f[1].toIntOrNull()) { "$where: ISO \"${f[1]}\" is not a number" }
+                require(below in 1 until above) { "$where: a gap runs from a lower ISO to a higher one" }
+                require(below >= previousAbove) { "$where: gaps must come in ISO order" }
+                previousAbove = above
+                when (f[2]) {
+                    "switch" -> out += GainGap(below, above, Call.SWITCH)
+                    "undetermined" -> out += GainGap(below, above, Call.UNDETERMINED)
+                    "none" -> {}
+                    else -> throw IllegalArgumentException("$where: unknown call \"${f[2]}\" (switch, none or undetermined)")
+                }
+            }
+            return out
+        }
+    }
+
     /**
      * The ISO halfway between the two in log ISO, rounded to a whole ISO and kept inside the gap:
      * the one calibration that halves the range where the conversion gain is unknown (the core's

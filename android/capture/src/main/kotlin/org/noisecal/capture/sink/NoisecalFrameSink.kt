@@ -9,6 +9,7 @@ import org.noisecal.capture.controller.LensNotCoveredException
 import org.noisecal.capture.controller.PushedFrame
 import org.noisecal.capture.controller.RawFrame
 import org.noisecal.capture.controller.SinkProgress
+import org.noisecal.capture.plan.GainGap
 import org.noisecal.capture.plan.SensorSpec
 import org.noisecal.jni.NoisecalMovedException
 import org.noisecal.jni.NoisecalNotDarkException
@@ -43,7 +44,19 @@ class NoisecalFrameSink(val session: NoisecalSession) : FrameSink {
 
     override fun checkpoint(path: String) = session.checkpoint(path)
 
-    override fun finish(packPath: String): String = session.finish(packPath)
+    /**
+     * The gaps the last [finish] left open (switches and undetermined gaps, parsed by
+     * [GainGap.parseCalls] from the session's gap calls): what `GainGapFollowUp.propose` turns
+     * into the next capture. Empty before [finish].
+     */
+    var gainGaps: List<GainGap> = emptyList()
+        private set
+
+    override fun finish(packPath: String): String {
+        val done = session.finish(packPath)
+        gainGaps = GainGap.parseCalls(done.gapCalls)
+        return done.summary
+    }
 
     override fun close() = session.close()
 }
