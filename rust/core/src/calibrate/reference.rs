@@ -475,7 +475,9 @@ mod tests {
         }
         let image = b.close(&Binning::new(&layout, 4), None, 4.5).expect("close");
         let want: Vec<u16> = sums.iter().map(|&s| (s as f64 / 4.0).round().clamp(0.0, 1023.0) as u16).collect();
-        assert_eq!(image.probe.mean, want);
+        assert_eq!(image.probe.mean.len(), want.len());
+        let wrong = image.probe.mean.iter().zip(&want).filter(|(a, b)| a != b).count();
+        assert_eq!(wrong, 0, "{wrong} of {} pixels' means differ", want.len());
         assert!(want.iter().filter(|&&v| v == 1023).count() > 10, "some means clamped at white");
         assert!(sums.iter().filter(|&&s| s % 4 == 2).count() > 100, "some means on halves");
         assert!(image.flat.total_flat() > 1000, "{:?}", image.flat.flat);
