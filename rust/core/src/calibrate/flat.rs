@@ -11,6 +11,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::calibrate::flat_neighbours::NeighbourLimit;
+use crate::calibrate::flat_spread::{SpreadLimit, burst_variance};
 use crate::calibrate::saturated::{self, BurstView};
 use crate::math::fit::{nn_poly_fit, poly_eval};
 use crate::math::round::RoundedQuotient;
@@ -250,7 +251,6 @@ pub struct CleanInputs<'a> {
     pub k: f64,
 }
 
-/// Computes the rounded clean image with [`NOT_FLAT`] where a pixel is not on a flat region.
 /// Values per (position, level group) that `fill` gathers row by row over `rows`: the rows in
 /// parallel, a run of them per task, each group's values then joined in row order, so that
 /// every group holds the same values in the same order as one pass over the rows would give.
@@ -276,7 +276,18 @@ fn grouped_by_rows(rows: &[usize], fill: impl Fn(usize, &mut Vec<Vec<f32>>) + Sy
     out
 }
 
-pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
+/// What the flat test gives ([`clean_and_mask`]).
+#[derive(Debug)]
+pub struct FlatImage {
+    /// The rounded clean image, [`NOT_FLAT`] where a pixel is not on a flat region.
+    pub clean: Vec<u16>,
+    /// The burst's mean at every pixel, `clamp(round(sum / frames), 0, white)`.
+    pub mean: Vec<u16>,
+    pub report: FlatReport,
+}
+
+/// The flat test of a burst: its clean image, rounded mean and report.
+pub fn clean_and_mask(inp: &CleanInputs<'_>) -> FlatImage {
     let (w, h) = (inp.width, inp.height);
     let m = inp.frames.max(1) as f64;
     let mean = |i: usize| inp.sum[i] as f64 / m;
@@ -374,15 +385,7 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
     let k = inp.frames.saturating_sub(1).max(1) as f64;
     let median_factor = (1.0 - 2.0 / (9.0 * k)).powi(3);
     let limit = unsteady_limit(inp.frames);
-    let pixel_var = |i: usize| -> f64 {
-        let mf = inp.frames as i64;
-        let sum_d = inp.sum[i] as i64 - mf * inp.first[i] as i64;
-        let sq = inp.squares[i];
-        if sq == u32::MAX {
-            return f64::INFINITY;
-        }
-        (sq as f64 - (sum_d as f64).powi(2) / mf as f64) / (mf - 1) as f64
-    };
+    let pixel_var = |i: usize| -> f64 { burst_variance(inp.sum[i], inp.first[i], inp.squares[i], inp.frames) };
     let mut group_medians = vec![f64::NAN; POSITIONS * GROUPS];
     let mut group_pixels = vec![0usize; POSITIONS * GROUPS];
     if inp.frames >= 2 {
@@ -403,7 +406,7 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
         }
     }
     // As a lookup over integer levels per position, like the thresholds.
-    let spread_limits: Vec<Vec<f32>> = (0..POSITIONS)
+    let spread_limits: Vec<Vec<SpreadLimit>> = (0..POSITIONS)
         .map(|pos| {
             (0..=inp.white as u32)
                 .map(|l| {
@@ -412,7 +415,7 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
                         v if v.is_finite() => v,
                         _ => report.mean_noise_at(&groups, pos, level) * m,
                     };
-                    (limit * var.max(0.0625)) as f32
+                    SpreadLimit::new((limit * var.max(0.0625)) as f32, inp.frames)
                 })
                 .collect()
         })
@@ -420,18 +423,28 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
 
     // Blocks of rows in parallel, each counting its own pixels (considered, unsteady, flat per
     // position); the counts are summed in block order afterwards, so the report is the same on
-    // any thread count. A block first takes the levels `clamp(round(mean), 0, white)` of its
-    // rows and of the two rows either side once: a neighbour test reads the level of the larger
-    // mean of a pair, which is the larger of their levels (rounding and clamping never reverse
-    // an order). Blocks of 32 rows take 36 rows' levels (8 took 12).
+    // any thread count. The levels `clamp(round(mean), 0, white)` of every pixel are taken
+    // once, beforehand: a neighbour test reads the level of the larger mean of a pair, which is
+    // the larger of their levels (rounding and clamping never reverse an order), and they are
+    // the burst's rounded mean, which the clean image keeps (`mean`, returned).
     const BLOCK_ROWS: usize = 32;
     let top = inp.white as usize;
-    // The levels `clamp(round(mean), 0, white)` from the sums without a division each, and the
-    // neighbour test on the sums' difference where that decides it (as the means would).
+    // The levels from the sums without a division each, and the neighbour test on the sums'
+    // difference where that decides it (as the means would).
     let level_of = RoundedQuotient::new(inp.frames.max(1));
+    let mut mean = vec![0u16; w * h];
+    mean.par_chunks_mut((w * BLOCK_ROWS).max(1)).zip(inp.sum.par_chunks((w * BLOCK_ROWS).max(1))).for_each(
+        |(levels, sums)| {
+            for (l, &s) in levels.iter_mut().zip(sums) {
+                *l = (level_of.of(s).max(0) as usize).min(top) as u16;
+            }
+        },
+    );
     let neighbour_limits: Vec<Vec<NeighbourLimit>> =
         thresholds.iter().map(|t| t.iter().map(|&t| NeighbourLimit::new(t, inp.frames.max(1))).collect()).collect();
-    let mut clean = vec![NOT_FLAT; w * h];
+    // Every pixel is written below (a fresh zeroed buffer's pages are first touched there, not
+    // filled beforehand).
+    let mut clean = vec![0u16; w * h];
     let row_counts: Vec<[[u64; POSITIONS]; 3]> = clean
         .par_chunks_mut((w * BLOCK_ROWS).max(1))
         .enumerate()
@@ -439,7 +452,7 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
             let y0 = block * BLOCK_ROWS;
             let (lo, hi) = (y0.saturating_sub(2), (y0 + clean_rows.len() / w.max(1) + 2).min(h));
             let sums = &inp.sum[lo * w..hi * w];
-            let levels: Vec<u16> = sums.iter().map(|&s| (level_of.of(s).max(0) as usize).min(top) as u16).collect();
+            let levels = &mean[lo * w..hi * w];
             let mut counts = [[0u64; POSITIONS]; 3];
             let [considered, unsteady, flat_count] = &mut counts;
             for (r, clean_row) in clean_rows.chunks_mut(w.max(1)).enumerate() {
@@ -448,6 +461,7 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
                     let i = y * w + x;
                     let pos = position(y, x);
                     if inp.roi.is_some_and(|r| !r.contains(x, y)) {
+                        clean_row[x] = NOT_FLAT;
                         continue;
                     }
                     considered[pos] += 1;
@@ -480,15 +494,19 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
                     if flat
                         && neighbours >= 2
                         && inp.frames >= 2
-                        && pixel_var(i) > spread_limits[pos][level as usize] as f64
+                        && spread_limits[pos][level as usize].beyond(
+                            inp.sum[i],
+                            inp.first[i],
+                            inp.squares[i],
+                            inp.frames,
+                        )
                     {
                         flat = false;
                         unsteady[pos] += 1;
                     }
-                    if flat && neighbours >= 2 {
-                        clean_row[x] = level;
-                        flat_count[pos] += 1;
-                    }
+                    let flat = flat && neighbours >= 2;
+                    clean_row[x] = if flat { level } else { NOT_FLAT };
+                    flat_count[pos] += flat as u64;
                 }
             }
             counts
@@ -517,7 +535,7 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> (Vec<u16>, FlatReport) {
         report.saturated[pos] = sat.left_out[pos];
     }
     report.saturation_cut = sat.cut;
-    (clean, report)
+    FlatImage { clean, mean, report }
 }
 
 #[cfg(test)]

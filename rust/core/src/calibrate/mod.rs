@@ -9,7 +9,8 @@
 //!   clean levels its flat pixels have.
 //! - [`step`]: which EV step a frame belongs to (the step tolerance).
 //! - [`flat`], [`drift`], [`deselect`]: the flat test, frame brightness, and the clean image's
-//!   own error; [`flat_neighbours`]: the flat test's neighbour comparison on the burst's sums.
+//!   own error; [`flat_neighbours`]: the flat test's neighbour comparison on the burst's sums;
+//!   [`flat_spread`]: its check of a pixel's own spread over the burst, on the integers.
 //! - [`structure`]: row, column and frame offsets from the target bursts; [`flicker`]: a frame's
 //!   brightness (the lamp) parted from its black-level offset there.
 //! - [`motion`]: each target frame registered on its clean image; the flat pixels its motion
@@ -28,6 +29,7 @@ pub mod event;
 pub mod flat;
 mod flat_levels;
 mod flat_neighbours;
+mod flat_spread;
 mod flicker;
 pub mod frame;
 mod line_base;

@@ -14,14 +14,15 @@ use crate::calibrate::deselect;
 use crate::calibrate::drift::{
     DriftPolicy, DriftTracker, DriftVerdict, FrameBrightness, Transform, brightness_sums, clip_level,
 };
-use crate::calibrate::flat::{CleanInputs, FlatReport, GROUPS, Groups, NOT_FLAT, Roi, TemporalStats, clean_and_mask};
+use crate::calibrate::flat::{
+    CleanInputs, FlatImage, FlatReport, GROUPS, Groups, NOT_FLAT, Roi, TemporalStats, clean_and_mask,
+};
 use crate::calibrate::flat_levels::FlatLevelsCache;
 use crate::calibrate::frame::FrameView;
 use crate::calibrate::line_base::LineBaseCache;
 use crate::calibrate::meta::FrameMeta;
 use crate::calibrate::motion::MotionProbe;
 use crate::error::SessionError;
-use crate::math::round::RoundedQuotient;
 use crate::model::layout::{Binning, POSITIONS, SensorLayout};
 
 /// The most frames one burst takes (its sums are u32).
@@ -300,14 +301,13 @@ impl ReferenceBurst {
     /// the selection sums per bin of `binning`. Errors when the burst is empty or nothing is
     /// flat.
     pub fn close(&self, binning: &Binning, roi: Option<Roi>, flat_k: f64) -> Result<CleanImage, SessionError> {
-        self.close_parts(binning, roi, flat_k).map(|parts| self.finish(parts, Vec::with_capacity(self.sum.len())))
+        self.close_parts(binning, roi, flat_k).map(|parts| self.finish(parts))
     }
 
     /// [`ReferenceBurst::close`] for a burst that is dropped once closed (a calibration
-    /// session's): the clean image's rounded mean is written over the burst's first frame, which
-    /// it takes, instead of into a buffer of its own (at 12 MP, 24 MB of fresh pages the kernel
-    /// would fault in and zero). On an error the burst is unchanged; after success it has no
-    /// first frame, and refuses more frames and a second close ([`SessionError::ReferenceClosed`]).
+    /// session's): its first frame is freed as it closes. On an error the burst is unchanged;
+    /// after success it has no first frame, and refuses more frames and a second close
+    /// ([`SessionError::ReferenceClosed`]).
     pub fn close_spending(
         &mut self,
         binning: &Binning,
@@ -319,8 +319,8 @@ impl ReferenceBurst {
         }
         // The flat test reads the first frame: it is taken only once the test has passed.
         self.close_parts(binning, roi, flat_k).map(|parts| {
-            let mean = std::mem::take(&mut self.first);
-            self.finish(parts, mean)
+            self.first = Vec::new();
+            self.finish(parts)
         })
     }
 
@@ -331,7 +331,7 @@ impl ReferenceBurst {
         if self.frames == 0 {
             return Err(SessionError::NoReference { iso: 0, exposure_ns: self.exposure_ns, reference: 0 });
         }
-        let (levels, flat) = clean_and_mask(&CleanInputs {
+        let FlatImage { clean: levels, mean, report: flat } = clean_and_mask(&CleanInputs {
             sum: &self.sum,
             first: &self.first,
             squares: &self.squares,
@@ -351,20 +351,14 @@ impl ReferenceBurst {
         let groups = Groups { black: self.layout.black, white: self.layout.white };
         let (selection, level_selection) =
             deselect::bin_sums(&levels, w, NOT_FLAT, |pos, c| flat.mean_noise_at(&groups, pos, c), &luts);
-        Ok(ClosedParts { levels, flat, selection, level_selection })
+        Ok(ClosedParts { levels, mean, flat, selection, level_selection })
     }
 
-    /// The clean image of `parts`, its rounded mean written into `mean` (whose contents are
-    /// replaced; its capacity is reused).
-    fn finish(&self, parts: ClosedParts, mut mean: Vec<u16>) -> CleanImage {
-        let ClosedParts { levels, flat, selection, level_selection } = parts;
+    /// The clean image of `parts` (the rounded mean is the flat test's, not taken again).
+    fn finish(&self, parts: ClosedParts) -> CleanImage {
+        let ClosedParts { levels, mean, flat, selection, level_selection } = parts;
         let (w, h) = (self.layout.width as usize, self.layout.height as usize);
         let groups = Groups { black: self.layout.black, white: self.layout.white };
-        // `round(sum / frames)`, exactly as the division rounds, without one per pixel.
-        let mean_of = RoundedQuotient::new(self.frames);
-        let white = self.layout.white as i64;
-        mean.clear();
-        mean.extend(self.sum.iter().map(|&s| mean_of.of(s).clamp(0, white) as u16));
         let probe = MotionProbe::new(mean, &levels, w, h, self.frames, &flat, &groups, clip_level(&self.layout));
         CleanImage {
             levels,
@@ -384,6 +378,8 @@ impl ReferenceBurst {
 /// A closing burst's clean levels, flat report and selection sums ([`ReferenceBurst::close`]).
 struct ClosedParts {
     levels: Vec<u16>,
+    /// The burst's rounded mean, `clamp(round(sum / frames), 0, white)`.
+    mean: Vec<u16>,
     flat: FlatReport,
     selection: [Vec<[f64; 3]>; POSITIONS],
     level_selection: [Vec<[f64; 2]>; POSITIONS],
@@ -451,6 +447,47 @@ mod tests {
             assert_eq!(b.sum, sum, "{n} frames: sums");
             assert_eq!(b.squares, squares, "{n} frames: squares");
         }
+    }
+
+    /// The clean image's rounded mean (taken once, by the flat test) is
+    /// `clamp(round(sum / frames), 0, white)` at every pixel, on a chart burst of 70 rows (two
+    /// blocks of the flat test and a part block) whose values partly lie above white and
+    /// whose means fall on halves: a mean truncated, not clamped, or taken for the wrong rows
+    /// of a block differs at thousands of pixels.
+    #[test]
+    fn the_mean_is_the_rounded_mean_everywhere() {
+        let (w, h) = (48, 70);
+        let layout =
+            SensorLayout { width: w as u32, height: h as u32, cfa: CfaPattern::Rggb, black: [64.0; 4], white: 1023 };
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let mut b = ReferenceBurst::new(&layout, 1_000_000);
+        let policy = DriftPolicy { z: 5.0, floor: 0.002, max: 1e9, normalise: false };
+        let mut sums = vec![0u32; w * h];
+        for _ in 0..4 {
+            let f = ndarray::Array2::from_shape_fn((h, w), |(y, x)| {
+                let v = 100 + 150 * ((y / 8) * 6 + x / 8) as u16 % 1000 + rng.random_range(0..4);
+                if rng.random_bool(0.05) { rng.random_range(0..1400) } else { v }
+            });
+            for (s, &v) in sums.iter_mut().zip(f.iter()) {
+                *s += v as u32;
+            }
+            b.push(&FrameView::from_array(&f).expect("view"), &FrameMeta::new(100, 1_000_000), &policy).expect("frame");
+        }
+        let image = b.close(&Binning::new(&layout, 4), None, 4.5).expect("close");
+        let want: Vec<u16> = sums.iter().map(|&s| (s as f64 / 4.0).round().clamp(0.0, 1023.0) as u16).collect();
+        assert_eq!(image.probe.mean.len(), want.len());
+        let wrong = image.probe.mean.iter().zip(&want).filter(|(a, b)| a != b).count();
+        assert_eq!(wrong, 0, "{wrong} of {} pixels' means differ", want.len());
+        assert!(want.iter().filter(|&&v| v == 1023).count() > 10, "some means clamped at white");
+        assert!(sums.iter().filter(|&&s| s % 4 == 2).count() > 100, "some means on halves");
+        assert!(image.flat.total_flat() > 1000, "{:?}", image.flat.flat);
+        // Every pixel of the clean image is written: outside a region of interest, not flat.
+        let roi = Roi { x0: 5, y0: 9, x1: 40, y1: 50 };
+        let inside = b.close(&Binning::new(&layout, 4), Some(roi), 4.5).expect("close");
+        let outside = (0..w * h).filter(|&i| !roi.contains(i % w, i / w));
+        assert!(outside.clone().all(|i| inside.levels[i] == NOT_FLAT));
+        assert!(outside.count() > 1000);
+        assert_eq!(inside.levels.iter().filter(|&&l| l != NOT_FLAT).count() as u64, inside.flat.total_flat());
     }
 
     /// Closing a burst that is dropped afterwards gives the clean image `close` gives (the
