@@ -97,8 +97,11 @@ fn score(got: &Pmf, want: &Pmf) -> Score {
     }
 }
 
-/// Every case: shape, the source's and the target's (mean, variance).
-fn cases() -> Vec<(&'static str, Shape, (f64, f64), (f64, f64))> {
+/// A case: its name, the shape, the source's and the target's (mean, variance).
+type Case = (&'static str, Shape, (f64, f64), (f64, f64));
+
+/// Every case.
+fn cases() -> Vec<Case> {
     let t = || Shape { density: student6, lo: -400.0, hi: 400.0, clip: None };
     let g = || Shape { density: gaussian, lo: -9.0, hi: 9.0, clip: None };
     let gam = || Shape { density: gamma3, lo: 0.0, hi: 40.0, clip: None };
