@@ -14,6 +14,7 @@ pub mod layout;
 pub mod pack;
 pub mod pmf;
 pub mod precision;
+pub mod rebin;
 pub mod structure;
 
 pub use pack::{BinModel, BinSource, IsoModel, ModelOrigin, ModelPack, NoiseProfile, PositionModel};

@@ -301,11 +301,14 @@ fn clipped_bins_are_deconvolved_not_kept() {
 /// [`Pmf::rescaled`] alone re-bins a PMF 21 cells wide onto cells 0.89 wide and loses variance:
 /// `Q' ∗ K` came out with 0.968 of the measured variance and a JSD of 5.3·10⁻⁵ (measured), and
 /// near black the default components lost to pixel-only (the demo's darkest level group at ISO
-/// 100: 0.00041 against 0.00029). With the variance met: 0.999 and 3.4·10⁻⁵. Its shape is still
-/// the re-binned one: the 0.1 % / 99.9 % quantiles stay at −4 / +4 DN against the measured −5 /
-/// +5 (printed, not asserted; Richardson–Lucy meets them, commit 2d0eee2), while the mass at or
-/// beyond them grows back with the scale: 0.718 of the measured re-binned as it comes, 0.817
-/// now (asserted no less than the re-binning's).
+/// 100: 0.00041 against 0.00029). Last session's patch (the variance asked of `rescaled` moved
+/// until met to 0.1 %) gave 0.9989, a JSD of 3.4·10⁻⁵ and 0.817 of the measured tail mass; the
+/// exact re-binning ([`Pmf::rescaled_exact`], a smooth reading of the cells) gives 0.9998,
+/// 3.8·10⁻⁵ and 0.832 (asserted: within 0.001 of the variance, at least 0.825 of the tail mass, a
+/// JSD below 0.8 of the re-binning's as it comes). The integer 0.1 % / 99.9 % quantiles stay at
+/// −4 / +4 DN against the measured −5 / +5 (printed, not asserted): narrowing `P` keeps `P`'s
+/// excess kurtosis in `Q`, so `Q ∗ K` has `(1 − share)²` of it; only a deconvolution gives the
+/// tails back (Richardson–Lucy meets them, commit 2d0eee2).
 #[test]
 fn a_narrow_bin_near_black_keeps_its_variance_when_narrowed() {
     use crate::model::pack::BinSource;
@@ -369,7 +372,7 @@ fn a_narrow_bin_near_black_keeps_its_variance_when_narrowed() {
         "narrowed: JSD {jsd:.2e}, variance ratio {var_ratio:.4}, quantiles {q:?}, tail mass ratio {tail:.3}; re-binned as it comes: {old_jsd:.2e}, {old_var:.4}, {old_q:?}, {old_tail:.3}; measured quantiles {real_q:?}"
     );
     assert!(old_var < 0.98, "re-binned as it comes: variance ratio {old_var:.4}: not the case");
-    assert!((var_ratio - 1.0).abs() < 0.005, "variance ratio {var_ratio:.4} (re-binned as it comes {old_var:.4})");
+    assert!((var_ratio - 1.0).abs() < 0.001, "variance ratio {var_ratio:.4} (re-binned as it comes {old_var:.4})");
     assert!(jsd < 0.8 * old_jsd, "JSD {jsd:.2e} (re-binned as it comes {old_jsd:.2e})");
-    assert!(tail >= old_tail, "tail mass ratio {tail:.3} (re-binned as it comes {old_tail:.3})");
+    assert!(tail >= 0.825 && tail >= old_tail, "tail mass ratio {tail:.3} (re-binned as it comes {old_tail:.3})");
 }
