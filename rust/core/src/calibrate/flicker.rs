@@ -39,6 +39,9 @@ pub(crate) struct FrameDeviation {
     pub(crate) value: [f64; POSITIONS],
     /// Its sampling variance (DN²).
     pub(crate) var: [f64; POSITIONS],
+    /// The same with each line's leverage corrected for (`structure.rs`, `LevelFit`): what the
+    /// frame component's significance test compares with.
+    pub(crate) test_var: [f64; POSITIONS],
     /// The clean level above black it was taken at (DN); `NaN` for an intercept at black.
     pub(crate) level: [f64; POSITIONS],
 }
@@ -147,14 +150,16 @@ pub(crate) fn separate(frames: &mut [FrameDeviation], slopes: &[SlopeSpread], le
     }
     for (f, &(c, _, _)) in frames.iter_mut().zip(&common) {
         let g = c / l;
-        let var = f.var;
+        let (var, test_var) = (f.var, f.test_var);
         let sum_var: f64 = at_level.iter().map(|&p| var[p]).sum();
+        let sum_test: f64 = at_level.iter().map(|&p| test_var[p]).sum();
         for &p in &at_level {
             // `aₚ = vₚ − rₚ·c`, `rₚ = Lₚ/L̄`: its sampling variance with the positions' errors
             // independent.
             let r = f.level[p] / l;
             f.value[p] -= g * f.level[p];
             f.var[p] = var[p] * (1.0 - 2.0 * r / n) + r * r * sum_var / (n * n);
+            f.test_var[p] = test_var[p] * (1.0 - 2.0 * r / n) + r * r * sum_test / (n * n);
         }
     }
     let sd = need.sqrt();
@@ -220,7 +225,15 @@ mod tests {
                 let value = std::array::from_fn(|_| {
                     c + g * level + own * unit.sample(&mut rng) + noise * unit.sample(&mut rng)
                 });
-                (FrameDeviation { value, var: [noise * noise; POSITIONS], level: [level; POSITIONS] }, g)
+                (
+                    FrameDeviation {
+                        value,
+                        var: [noise * noise; POSITIONS],
+                        test_var: [noise * noise; POSITIONS],
+                        level: [level; POSITIONS],
+                    },
+                    g,
+                )
             })
             .unzip()
     }

@@ -41,6 +41,8 @@ pub mod session;
 pub mod step;
 pub(crate) mod structure;
 #[cfg(test)]
+mod tests_frame_offsets;
+#[cfg(test)]
 mod tests_structure;
 mod window_counts;
 

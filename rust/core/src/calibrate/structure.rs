@@ -18,7 +18,8 @@
 //!
 //! - Frame offsets: per CFA position, the intercepts, rescaled by `√(k/(k−1))` (removing a mean
 //!   of `k` frames shrinks the variance by `(k−1)/k`); their sampling variance is the fit's
-//!   sandwich variance, clustered by line. Where a burst's levels are too narrow to resolve its
+//!   sandwich variance, clustered by line (for the significance test, [`frame_test`], with each
+//!   line's leverage corrected for: `LevelFit::offset_var`). Where a burst's levels are too narrow to resolve its
 //!   frames' brightness changes (a flat field), extrapolating to black would multiply the slope's
 //!   noise by the level: the frames' mean deviations per position are taken instead
 //!   ([`use_slope`]), and the frames' brightness is taken out of them where the data allows
@@ -296,6 +297,11 @@ pub(crate) struct StructureAccumulator {
     frames: Vec<[f32; POSITIONS]>,
     /// Per frame and position, the offset's sampling variance.
     frame_sampling: Vec<[f32; POSITIONS]>,
+    /// Per frame and position, the sampling variance the significance test takes
+    /// ([`FrameDeviation::test_var`]).
+    frame_test_var: Vec<[f32; POSITIONS]>,
+    /// Per frame, the burst it belongs to (numbered from 0 in capture order).
+    frame_burst: Vec<u32>,
     /// Frames that were part of a burst of at least two.
     frames_used: u64,
     /// Frames alone at their ISO in their burst (no deviation to measure).
@@ -363,12 +369,17 @@ impl StructureAccumulator {
         fold_lines(&frames, &cells.cols, |f| &f.cols, col_position, rescale, &mut self.cols);
         // Frame offsets: the rows' intercepts or means (each position is in the rows of one
         // parity), the frames' brightness taken out where it can be (`flicker.rs`).
-        let mut fitted: Vec<FrameDeviation> =
-            rows.into_iter().filter(|r| r.value.iter().chain(&r.var).all(|v| v.is_finite())).collect();
+        let mut fitted: Vec<FrameDeviation> = rows
+            .into_iter()
+            .filter(|r| r.value.iter().chain(&r.var).chain(&r.test_var).all(|v| v.is_finite()))
+            .collect();
         self.flicker.extend(separate(&mut fitted, &slopes, level));
+        let burst = self.frame_burst.last().map_or(0, |b| b + 1);
         for r in fitted {
             self.frames.push(r.value.map(|v| (v * rescale) as f32));
             self.frame_sampling.push(r.var.map(|v| (v * rescale * rescale) as f32));
+            self.frame_test_var.push(r.test_var.map(|v| (v * rescale * rescale) as f32));
+            self.frame_burst.push(burst);
         }
     }
 
@@ -402,16 +413,65 @@ impl StructureAccumulator {
             // The intercepts' own sampling variance (pixel noise and row offsets left in the fit).
             let sampling_var: [f64; POSITIONS] =
                 std::array::from_fn(|p| kept.iter().map(|&i| acc.frame_sampling[i][p] as f64).sum::<f64>() / n);
-            let significant = (0..POSITIONS).any(|p| {
-                let own = measured_var[p] - sampling_var[p];
-                own > SIGNIFICANCE * sampling_var[p] * (2.0 / n).sqrt()
-                    && own > 1e-6
-                    && own >= FRAME_RELEVANCE * pixel_var
-            });
+            // Under no component each position's `Q` is `χ²` with `ν` degrees of freedom
+            // ([`frame_test`]); significant above its upper quantile at SIGNIFICANCE (0.13 %).
+            let (q, nu) = frame_test(&acc.frames, &acc.frame_test_var, &acc.frame_burst, &kept);
+            let critical = chi2_upper(nu, SIGNIFICANCE);
+            let significant = nu > 0.0
+                && (0..POSITIONS).any(|p| {
+                    let own = measured_var[p] - sampling_var[p];
+                    q[p] > critical && own > 1e-6 && own >= FRAME_RELEVANCE * pixel_var
+                });
             FrameOffsets { offsets, measured_var, sampling_var, significant }
         });
         IsoStructure { iso, rows, columns, frames, frames_used: acc.frames_used, fpn: None }
     }
+}
+
+/// Per position the statistic `Q = Σ o²·(k−1)/k / s̄` over the kept frames (`o` a frame's
+/// rescaled offset, `k` its burst's frames, `s̄` the burst's mean sampling variance at that
+/// position), and its degrees of freedom `Σ (k−1)/k`: `χ²` under no component.
+fn frame_test(
+    offsets: &[[f32; POSITIONS]],
+    sampling: &[[f32; POSITIONS]],
+    burst: &[u32],
+    kept: &[usize],
+) -> ([f64; POSITIONS], f64) {
+    let bursts = burst.iter().map(|&b| b as usize + 1).max().unwrap_or(0);
+    let mut size = vec![0usize; bursts];
+    for &b in burst {
+        size[b as usize] += 1;
+    }
+    let mut s_sum = vec![[0.0f64; POSITIONS]; bursts];
+    let mut s_n = vec![0usize; bursts];
+    for &i in kept {
+        let b = burst[i] as usize;
+        s_n[b] += 1;
+        for p in 0..POSITIONS {
+            s_sum[b][p] += sampling[i][p] as f64;
+        }
+    }
+    let mut q = [0.0; POSITIONS];
+    let mut nu = 0.0;
+    for &i in kept {
+        let b = burst[i] as usize;
+        let k = size[b] as f64;
+        let share = (k - 1.0) / k;
+        nu += share;
+        for p in 0..POSITIONS {
+            let s = s_sum[b][p] / s_n[b] as f64;
+            if s > 0.0 {
+                q[p] += (offsets[i][p] as f64).powi(2) * share / s;
+            }
+        }
+    }
+    (q, nu)
+}
+
+/// The upper quantile of `χ²_ν` at the normal deviate `z` (Wilson–Hilferty).
+fn chi2_upper(nu: f64, z: f64) -> f64 {
+    let a = 2.0 / (9.0 * nu);
+    nu * (1.0 - a + z * a.sqrt()).powi(3)
 }
 
 /// The CFA position of cell `j` of row `y` (cells by column parity).
@@ -451,7 +511,7 @@ fn fold_lines(
         .map(|&i| std::array::from_fn(|j| frames.iter().map(|f| lines(f)[i][j] as f64).sum::<f64>() / kf))
         .collect();
     let nan = [f64::NAN; POSITIONS];
-    let mut intercepts = vec![FrameDeviation { value: nan, var: nan, level: nan }; frames.len()];
+    let mut intercepts = vec![FrameDeviation { value: nan, var: nan, test_var: nan, level: nan }; frames.len()];
     let mut slopes = Vec::new();
     let (mut level_sum, mut level_weight) = (0.0, 0.0);
     for parity in 0..2 {
@@ -532,6 +592,7 @@ fn fold_lines(
             for c in 0..2 {
                 let p = position(parity, c);
                 (d.value[p], d.var[p]) = if with_slope { (fit.coef[c], fit.cov[c][c]) } else { fit.mean[c] };
+                d.test_var[p] = fit.offset_var[c];
                 d.level[p] = if with_slope { f64::NAN } else { fit.level[c] };
             }
         }
@@ -657,6 +718,9 @@ struct LevelFit {
     mean: [(f64, f64); 2],
     /// Per cell parity: the weighted mean level above black.
     level: [f64; 2],
+    /// Per cell parity, the frame offset's variance: the intercept's (with a slope) or the
+    /// mean's, each line's score corrected for its leverage.
+    offset_var: [f64; 2],
 }
 
 impl LevelFit {
@@ -694,22 +758,33 @@ impl LevelFit {
         let mut mean_meat = [0.0; 2];
         let mut score = [0.0; 3];
         let mut mean_score = [0.0; 2];
-        let mut flush = |score: &mut [f64; 3], mean_score: &mut [f64; 2]| {
+        // The same with each line's score scaled by `1/√(1 − h)`, `h` its leverage (`CR2`,
+        // the trace of its block of the hat matrix): the residuals are the fit's, which took
+        // most from the lines that weigh most in it (the darkest and brightest, for an
+        // intercept extrapolated to black).
+        let mut meat2 = [[0.0; 3]; 3];
+        let mut mean_meat2 = [0.0; 2];
+        let mut lev = [0.0; 3];
+        let mut flush = |score: &mut [f64; 3], mean_score: &mut [f64; 2], lev: &mut [f64; 3]| {
+            let keep = |h: f64| 1.0 / (1.0 - h.min(0.9));
             for a in 0..3 {
                 for b in 0..3 {
                     meat[a][b] += score[a] * score[b];
+                    meat2[a][b] += score[a] * score[b] * keep(lev[0]);
                 }
             }
             for c in 0..2 {
                 mean_meat[c] += mean_score[c] * mean_score[c];
+                mean_meat2[c] += mean_score[c] * mean_score[c] * keep(lev[1 + c]);
             }
             *score = [0.0; 3];
             *mean_score = [0.0; 2];
+            *lev = [0.0; 3];
         };
         let mut line = points.first().map_or(0, |p| p.4);
         for &(c, l, v, w, i) in points {
             if i != line {
-                flush(&mut score, &mut mean_score);
+                flush(&mut score, &mut mean_score, &mut lev);
                 line = i;
             }
             let x = row(c, l);
@@ -718,15 +793,24 @@ impl LevelFit {
                 score[a] += w * r * x[a];
             }
             mean_score[c] += w * (v - means[c]);
+            lev[0] += w * dot3(&x, &mul3(&inv, &x));
+            lev[1 + c] += w / xtx[c][c];
         }
-        flush(&mut score, &mut mean_score);
+        flush(&mut score, &mut mean_score, &mut lev);
         let cov: [[f64; 3]; 3] = std::array::from_fn(|a| {
             std::array::from_fn(|d| {
                 (0..3).map(|b| (0..3).map(|c| inv[a][b] * meat[b][c] * inv[c][d]).sum::<f64>()).sum::<f64>()
             })
         });
         let mean = std::array::from_fn(|c| (means[c], mean_meat[c] / (xtx[c][c] * xtx[c][c])));
-        Some(Self { coef, inv, cov, with_slope, mean, level })
+        let offset_var = std::array::from_fn(|c| {
+            if with_slope {
+                (0..3).map(|b| (0..3).map(|d| inv[c][b] * meat2[b][d] * inv[d][c]).sum::<f64>()).sum::<f64>()
+            } else {
+                mean_meat2[c] / (xtx[c][c] * xtx[c][c])
+            }
+        });
+        Some(Self { coef, inv, cov, with_slope, mean, level, offset_var })
     }
 
     fn at(&self, c: usize, level: f64) -> f64 {

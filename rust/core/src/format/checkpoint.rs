@@ -13,8 +13,10 @@ pub const CHECKPOINT_MAGIC: &[u8; 8] = b"NCALCKPT";
 /// bursts it had finished, so it is refused by name rather than resumed into different bytes.
 /// Version 7 keeps, per finished burst, the flicker its frames showed (taken out of the frame
 /// offsets; `calibrate/flicker.rs`); a version-6 session's finished bursts hold offsets with the
-/// flicker in, so it is refused by name the same way.
-pub const CHECKPOINT_VERSION: u16 = 7;
+/// flicker in, so it is refused by name the same way. Version 8 keeps per frame its burst and the
+/// sampling variance the frame component's significance test takes (`calibrate/structure.rs`,
+/// `frame_test`); a version-7 session lacks them and is refused by name.
+pub const CHECKPOINT_VERSION: u16 = 8;
 
 impl CalibrationSession {
     /// The session as bytes, to resume after an interruption.
