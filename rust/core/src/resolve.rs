@@ -19,7 +19,6 @@ use ndarray::{Array2, ArrayView2};
 use crate::ModelPack;
 use crate::derive::baselines::{self, BaselineKind};
 use crate::derive::fine_levels::target_fine_levels;
-use crate::derive::gain_switch::{digital_gain, headroom, read_at_black};
 use crate::derive::interp;
 use crate::derive::interp::{CalibratedLaw, InterpOptions};
 use crate::derive::structure::{derived_structure_sources, structure_at};
@@ -260,16 +259,7 @@ pub fn resolve_on_demand<B: std::ops::Deref<Target = [u8]>>(
                 .map(|e| {
                     // One read of the section for its fields and its components.
                     let (fields, st) = lazy.fields_of(e.iso)?.map_or((None, None), |(m, st)| (Some(m), st));
-                    Ok(CalibratedLaw {
-                        iso: e.iso,
-                        law: e.noise_law(),
-                        at_black: {
-                            let room = headroom(&index.layout, fields.as_ref());
-                            std::array::from_fn(|p| read_at_black(st.as_ref(), p, room[p]))
-                        },
-                        gain_ratio: fields.as_ref().map_or([1.0; POSITIONS], |m| m.gain_ratio),
-                        digital_gain: fields.as_ref().map_or(1.0, |m| digital_gain(&m.lattice)),
-                    })
+                    Ok(CalibratedLaw::measured(e.iso, e.noise_law(), &index.layout, fields.as_ref(), st.as_ref()))
                 })
                 .collect::<Result<Vec<CalibratedLaw>, CodecError>>()?;
             Some(interp::plan_among(&laws, index.isos.is_empty(), iso, extrapolate, &InterpOptions::default())?)

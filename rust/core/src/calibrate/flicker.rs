@@ -72,6 +72,14 @@ pub(crate) struct BurstFlicker {
 }
 
 impl BurstFlicker {
+    /// From a relative variance `tau2` (sampling variance taken out; clamped at 0) and its
+    /// standard error `se`: the SD and the SD's standard error (delta method; `√se` at 0).
+    fn from_variance(level: f64, tau2: f64, se: f64, frames: usize, from_slopes: bool) -> Self {
+        let sd = tau2.max(0.0).sqrt();
+        let se = if sd > 0.0 { se / (2.0 * sd) } else { se.sqrt() };
+        Self { level, sd, se, frames: frames as u32, from_slopes }
+    }
+
     /// Whether the spread stands clear of its standard error.
     pub(crate) fn significant(&self) -> bool {
         self.sd > 0.0 && self.sd > SIGNIFICANCE * self.se
@@ -109,9 +117,7 @@ pub(crate) fn separate(frames: &mut [FrameDeviation], slopes: &[SlopeSpread], le
     if at_level.is_empty() {
         // Every position at black: the slopes are the brightness, already apart.
         let (t2, se) = tau2?;
-        let sd = t2.max(0.0).sqrt();
-        let se = if sd > 0.0 { se / (2.0 * sd) } else { se.sqrt() };
-        return Some(BurstFlicker { level, sd, se, frames: k as u32, from_slopes: true });
+        return Some(BurstFlicker::from_variance(level, t2, se, k, true));
     }
     let n = at_level.len() as f64;
     // Per frame: the common deviation, its sampling variance, the mean level.
@@ -137,16 +143,7 @@ pub(crate) fn separate(frames: &mut [FrameDeviation], slopes: &[SlopeSpread], le
     // At or below black no lamp moves a frame (and `need` is not a number there).
     if !(l > 0.0 && need.sqrt() <= MAX_FLICKER && slopes_allow) {
         // An offset: left as it is; the slopes' brightness, where measured, reported.
-        return tau2.map(|(t2, se)| {
-            let sd = t2.max(0.0).sqrt();
-            BurstFlicker {
-                level: l,
-                sd,
-                se: if sd > 0.0 { se / (2.0 * sd) } else { se.sqrt() },
-                frames: k as u32,
-                from_slopes: true,
-            }
-        });
+        return tau2.map(|(t2, se)| BurstFlicker::from_variance(l, t2, se, k, true));
     }
     for (f, &(c, _, _)) in frames.iter_mut().zip(&common) {
         let g = c / l;
@@ -162,14 +159,7 @@ pub(crate) fn separate(frames: &mut [FrameDeviation], slopes: &[SlopeSpread], le
             f.test_var[p] = test_var[p] * (1.0 - 2.0 * r / n) + r * r * sum_test / (n * n);
         }
     }
-    let sd = need.sqrt();
-    Some(BurstFlicker {
-        level: l,
-        sd,
-        se: if sd > 0.0 { se_need / (2.0 * sd) } else { se_need.sqrt() },
-        frames: k as u32,
-        from_slopes: false,
-    })
+    Some(BurstFlicker::from_variance(l, need, se_need, k, false))
 }
 
 /// A note on the flicker an ISO's bursts showed (those where it stands clear of its standard

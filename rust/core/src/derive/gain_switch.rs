@@ -59,8 +59,8 @@ pub fn read_at_black(structure: Option<&IsoStructure>, pos: usize, headroom: f64
 
 /// Per position, the black level's distance above the lowest code the ISO's output writes
 /// (its clamp: [`IsoModel::range`]'s floor), DN.
-pub fn headroom(layout: &SensorLayout, model: Option<&IsoModel>) -> [f64; POSITIONS] {
-    std::array::from_fn(|p| layout.black[p] as f64 - model.map_or(0.0, |m| m.range[p][0] as f64))
+fn headroom(layout: &SensorLayout, model: Option<&IsoModel>, pos: usize) -> f64 {
+    layout.black[pos] as f64 - model.map_or(0.0, |m| m.range[pos][0] as f64)
 }
 
 /// A calibrated ISO as the switch detector and the interpolation plan read it.
@@ -86,6 +86,25 @@ impl CalibratedLaw {
     /// A calibrated ISO with gain exactly ∝ ISO and no digital gain (what a law alone shows).
     pub fn new(iso: u32, law: [Option<NoiseParams>; POSITIONS], at_black: [Option<f64>; POSITIONS]) -> Self {
         Self { iso, law, at_black, gain_ratio: [1.0; POSITIONS], digital_gain: 1.0 }
+    }
+
+    /// A calibrated ISO's `law` with what the rest comes from: its dark step's read terms at black
+    /// ([`read_at_black`], the clamp's headroom from `model`'s output range), its gain ratios and
+    /// its lattice's digital gain (`model` the ISO's fields, `None`: none known).
+    pub fn measured(
+        iso: u32,
+        law: [Option<NoiseParams>; POSITIONS],
+        layout: &SensorLayout,
+        model: Option<&IsoModel>,
+        structure: Option<&IsoStructure>,
+    ) -> Self {
+        Self {
+            iso,
+            law,
+            at_black: std::array::from_fn(|p| read_at_black(structure, p, headroom(layout, model, p))),
+            gain_ratio: model.map_or([1.0; POSITIONS], |m| m.gain_ratio),
+            digital_gain: model.map_or(1.0, |m| digital_gain(&m.lattice)),
+        }
     }
 
     /// The read terms the detector compares, per position, at the ADC (before the digital gain
@@ -132,15 +151,9 @@ pub fn calibrated_laws(pack: &ModelPack) -> Vec<CalibratedLaw> {
     pack.isos
         .iter()
         .filter(|m| m.is_calibrated())
-        .map(|m| CalibratedLaw {
-            iso: m.iso,
-            law: std::array::from_fn(|pos| fit_params(&binning, m, pos)),
-            at_black: {
-                let room = headroom(&pack.layout, Some(m));
-                std::array::from_fn(|pos| read_at_black(pack.structure_of(m.iso), pos, room[pos]))
-            },
-            gain_ratio: m.gain_ratio,
-            digital_gain: digital_gain(&m.lattice),
+        .map(|m| {
+            let law = std::array::from_fn(|pos| fit_params(&binning, m, pos));
+            CalibratedLaw::measured(m.iso, law, &pack.layout, Some(m), pack.structure_of(m.iso))
         })
         .collect()
 }
