@@ -170,6 +170,8 @@ impl IsoAccumulator {
         let black = tf.black.iter().cloned().fold(f32::INFINITY, f32::min);
         let line_top = (black + 0.9 * (white as f32 - black)).clamp(0.0, white as f32) as u16;
         let flat = image.flat_levels.get(clean, w);
+        // A frame that moved reads the clean image's gradients (made on the first such frame).
+        let moving = moving.map(|m| (m, image.probe.gradients(clean, w)));
         let fold_parity = |parity: usize, hists: &mut [Vec<NoiseHistogram>], codes: &mut [Vec<u64>]| {
             let target = FoldTarget { hists, codes, luts: &luts, flat, white, line_top };
             fold_rows(parity, frame, clean, w, h, target, tf, &image.probe, moving)
@@ -245,9 +247,9 @@ struct FoldTarget<'a> {
 }
 
 /// Folds the rows of one parity into that parity's two positions' histograms and code counts.
-/// With `motion` (a frame that moved), the flat pixels whose level the motion changes by more
+/// With `motion` (a frame that moved, and the clean image's gradients), the flat pixels whose level the motion changes by more
 /// than their tolerance are left out of the histograms, and the line sums take the motion's
-/// predicted change out of every pixel's `n` (`probe`: the clean image's gradients); the line
+/// predicted change out of every pixel's `n` (`probe`: the tolerances); the line
 /// sums keep every flat pixel, so that every frame of a burst sums the same pixels into each
 /// line (their clean levels and counts are the image's [`LineBase`](crate::calibrate::line_base::LineBase)).
 ///
@@ -264,7 +266,7 @@ fn fold_rows(
     target: FoldTarget<'_>,
     tf: &Transform,
     probe: &MotionProbe,
-    motion: Option<&FrameMotion>,
+    motion: Option<(&FrameMotion, &[[i8; 2]])>,
 ) -> FoldedRows {
     let FoldTarget { hists, codes, luts, flat, white, line_top } = target;
     let mut samples = 0u64;
@@ -324,9 +326,9 @@ fn fold_rows(
             }
         }
         let half = (y >> 1) & 1;
-        let line_values: &[i32] = if let Some(m) = motion {
+        let line_values: &[i32] = if let Some((m, gradient)) = motion {
             // A frame that moved: its predicted change comes out of the line sums.
-            m.row_effects(probe, y, crow, &mut keep, &mut correction);
+            m.row_effects(probe, &gradient[y * w..y * w + w], y, crow, &mut keep, &mut correction);
             for ((l, &n), &k) in line_noise.iter_mut().zip(&noise).zip(&correction) {
                 *l = n - k;
             }

@@ -112,11 +112,18 @@ impl FrameMotion {
     }
 
     /// What this motion does to the flat pixels of row `y` (`row`: the clean levels of that
-    /// row): `keep[x]` is false where it changes the level by more than the pixel's tolerance
+    /// row; `gradient`: that row of the probe's [`MotionProbe::gradients`]): `keep[x]` is false where it changes the level by more than the pixel's tolerance
     /// ([`MOTION_TOLERANCE`] SD of this frame's noise), and `correction[x]` is the change it
     /// predicts (DN, rounded; 0 where the gradient is beyond the probe's range).
-    pub fn row_effects(&self, probe: &MotionProbe, y: usize, row: &[u16], keep: &mut [bool], correction: &mut [i32]) {
-        let w = row.len();
+    pub fn row_effects(
+        &self,
+        probe: &MotionProbe,
+        gradient: &[[i8; 2]],
+        y: usize,
+        row: &[u16],
+        keep: &mut [bool],
+        correction: &mut [i32],
+    ) {
         let u0 = self.at(0.5, y as f64 + 0.5);
         let step = [self.a[0][0] / self.radius, self.a[1][0] / self.radius];
         let units = GRADIENT_UNITS as f64;
@@ -127,7 +134,7 @@ impl FrameMotion {
             if c == NOT_FLAT {
                 continue;
             }
-            let g = probe.gradient[y * w + x];
+            let g = gradient[x];
             let (ux, uy) = (u0[0] + step[0] * x as f64, u0[1] + step[1] * x as f64);
             if g[0] == i8::MIN {
                 // More than 16 tolerances per pixel: a motion of 1/16 px matters.
@@ -748,11 +755,12 @@ mod tests {
         let row: Vec<u16> = probe.mean[y * w..(y + 1) * w].to_vec();
         let (mut keep, mut correction) = (vec![true; w], vec![0i32; w]);
         let left_out = |keep: &[bool]| keep.iter().filter(|&&k| !k).count();
-        m.row_effects(&probe, y, &row, &mut keep, &mut correction);
+        let gradient = &probe.gradients(&probe.mean, w)[y * w..(y + 1) * w];
+        m.row_effects(&probe, gradient, y, &row, &mut keep, &mut correction);
         assert_eq!(left_out(&keep), 0, "a still frame leaves nothing out");
         assert!(correction.iter().all(|&c| c == 0), "and corrects nothing");
         m.t = [0.5, 0.0];
-        m.row_effects(&probe, y, &row, &mut keep, &mut correction);
+        m.row_effects(&probe, gradient, y, &row, &mut keep, &mut correction);
         let left = left_out(&keep);
         // Per-frame noise SD 1 DN, tolerance 0.25 DN: a pixel is left out when its x-gradient
         // exceeds 0.5 DN/px; the Sobel gradient of the scene decides which.

@@ -15,8 +15,11 @@ pub const CHECKPOINT_MAGIC: &[u8; 8] = b"NCALCKPT";
 /// offsets; `calibrate/flicker.rs`); a version-6 session's finished bursts hold offsets with the
 /// flicker in, so it is refused by name the same way. Version 8 keeps per frame its burst and the
 /// sampling variance the frame component's significance test takes (`calibrate/structure.rs`,
-/// `frame_test`); a version-7 session lacks them and is refused by name.
-pub const CHECKPOINT_VERSION: u16 = 8;
+/// `frame_test`); a version-7 session lacks them and is refused by name. Version 9 no longer
+/// stores the motion probe's per-pixel gradients (2 bytes a pixel; made again from the clean
+/// image when a frame that moved first needs them, `calibrate/motion/probe.rs`): a version-8
+/// session's probe holds them where version 9 expects the next field, so it is refused by name.
+pub const CHECKPOINT_VERSION: u16 = 9;
 
 impl CalibrationSession {
     /// The session as bytes, to resume after an interruption.

@@ -2,6 +2,8 @@
 //! burst closes ([`MotionProbe::new`]): each flat pixel's gradient in units of its motion
 //! tolerance, and the edge and anchor samples registration reads.
 
+use std::sync::OnceLock;
+
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -42,12 +44,9 @@ pub struct MotionProbe {
     /// Per anchor, one reference frame's noise SD at its level (DN): a target frame's anchors
     /// measure how much noisier it is.
     pub anchor_sd: Vec<f32>,
-    /// Per pixel, the clean level's gradient `[∂x, ∂y]` in units of the pixel's tolerance
-    /// ([`MOTION_TOLERANCE`] SD of one frame's noise at its level) per 8 px: a shift `u`
-    /// changes the pixel by more than its tolerance when `|g · u| > 8`. `[i8::MIN, 0]` where the
-    /// gradient is beyond the range (more than 16 tolerances per pixel); `[0, 0]` for pixels not
-    /// flat.
-    pub gradient: Vec<[i8; 2]>,
+    /// Per pixel, the clean level's gradient, computed on first use ([`MotionProbe::gradients`]).
+    #[serde(skip)]
+    gradient: GradientCache,
     /// Per position and clean level, the tolerance (DN): [`MOTION_TOLERANCE`] SD of one
     /// reference frame's noise there.
     pub tolerance: [Vec<f32>; POSITIONS],
@@ -97,73 +96,119 @@ fn lattice(i: usize, d: isize, n: usize) -> usize {
 /// One band of rows' edge samples and anchors (pixel, noise SD), as [`MotionProbe::new`] finds them.
 type BandSamples = (Vec<u32>, Vec<(u32, f32)>);
 
-/// One row of a clean image as [`MotionProbe::new`] reads it.
+/// Rows per band of the probe's parallel passes.
+const BAND_ROWS: usize = 64;
+
+/// One row of a clean image as [`MotionProbe::new`] and [`MotionProbe::gradients`] read it.
 struct ProbeRow<'a> {
     mean: &'a [u16],
     levels: &'a [u16],
     w: usize,
     h: usize,
     y: usize,
-    frames: u32,
-    clip: f32,
     tolerance: &'a [Vec<f32>; POSITIONS],
-    /// Per position and level, `GRADIENT_UNITS / tol` ([`quantised`]).
-    units_per_dn: &'a [Vec<f64>; POSITIONS],
 }
 
 impl ProbeRow<'_> {
-    /// The row's gradients (flat pixels), and on a sampled row its edges and anchors in column
-    /// order. Interior pixels take the Sobel without border clamping, the same sums in the same
-    /// order; the rounding and the edge test are `f64::round` and `hypot` exactly, without
-    /// their libm calls.
-    fn fill(
+    /// Whether `sobel_row` gives this row's interior gradients (2 px from the top and bottom).
+    fn inner_row(&self) -> bool {
+        self.y >= 2 && self.y + 2 < self.h
+    }
+
+    /// The gradient at column `x` (DN per pixel): interior pixels take the Sobel from `inner`
+    /// (this row's [`sobel_row`] when [`ProbeRow::inner_row`]), the same sums in the same order
+    /// as [`sobel`], which the border pixels take.
+    #[inline(always)]
+    fn gradient_at(&self, x: usize, inner: &[[i32; 2]]) -> [f64; 2] {
+        if self.inner_row() && x >= 2 && x + 2 < self.w {
+            // Sums of integers below 2¹⁹, over 16: the f64 sums and division exactly.
+            let [gx, gy] = inner[x - 2];
+            [gx as f64 / 16.0, gy as f64 / 16.0]
+        } else {
+            sobel(self.mean, self.w, self.h, x, self.y)
+        }
+    }
+
+    /// One frame's noise SD (DN) at pixel `i` of position `pos`, from the tolerance of its mean.
+    #[inline(always)]
+    fn sd(&self, pos: usize, i: usize) -> f64 {
+        self.tolerance[pos][self.mean[i] as usize] as f64 / MOTION_TOLERANCE
+    }
+
+    /// A sampled row's edges and anchors, in column order (`frames`: the burst's; `clip`: the
+    /// level above which values bend). The edge test is `hypot` exactly, without its libm call.
+    fn samples(
         &self,
-        grad_row: &mut [[i8; 2]],
-        row_step: usize,
+        frames: u32,
+        clip: f32,
         edges: &mut Vec<u32>,
         anchors: &mut Vec<(u32, f32)>,
         inner: &mut Vec<[i32; 2]>,
     ) {
-        let Self { mean, levels, w, h, y, frames, clip, tolerance, units_per_dn } = *self;
+        let Self { mean, levels, w, y, .. } = *self;
         let margin = 4;
-        let sampled = (y / 2) % row_step == 0 && y >= margin && y + margin < h;
-        let inner_row = y >= 2 && y + 2 < h;
-        if inner_row {
+        if y < margin || y + margin >= self.h || w <= 2 * margin {
+            return;
+        }
+        if self.inner_row() {
+            sobel_row(mean, w, y, inner);
+        }
+        for x in margin..w - margin {
+            let i = y * w + x;
+            let below_clip = (mean[i] as f64 as f32) < clip;
+            if !below_clip {
+                continue;
+            }
+            let g = self.gradient_at(x, inner);
+            let sd = self.sd(position(y, x), i);
+            // An edge: a gradient far above what the mean's own noise makes (a Sobel
+            // difference of means of `frames` frames has SD ≈ 0.22 · sd / √frames).
+            let noise = 0.22 * sd / (frames.max(1) as f64).sqrt();
+            let threshold = (8.0 * noise).max(0.5);
+            if hypot_above(g, threshold) {
+                edges.push(i as u32);
+            } else if levels[i] != NOT_FLAT {
+                anchors.push((i as u32, sd as f32));
+            }
+        }
+    }
+
+    /// The row's gradients at its flat pixels in units of their tolerance ([`quantised`];
+    /// `units_per_dn`: per position and level, `GRADIENT_UNITS / tol`); the other pixels are
+    /// left as they are. The rounding is `f64::round` exactly, without its libm call.
+    fn gradients(&self, units_per_dn: &[Vec<f64>; POSITIONS], grad_row: &mut [[i8; 2]], inner: &mut Vec<[i32; 2]>) {
+        let Self { mean, levels, w, y, .. } = *self;
+        if self.inner_row() {
             sobel_row(mean, w, y, inner);
         }
         for (x, gradient) in grad_row.iter_mut().enumerate() {
             let i = y * w + x;
-            let pos = position(y, x);
-            let c = levels[i];
-            let need_gradient = c != NOT_FLAT || sampled;
-            if !need_gradient {
+            if levels[i] == NOT_FLAT {
                 continue;
             }
-            let m = mean[i] as f64;
-            let g = if inner_row && x >= 2 && x + 2 < w {
-                // Sums of integers below 2¹⁹, over 16: the f64 sums and division exactly.
-                let [gx, gy] = inner[x - 2];
-                [gx as f64 / 16.0, gy as f64 / 16.0]
-            } else {
-                sobel(mean, w, h, x, y)
-            };
-            let sd = tolerance[pos][mean[i] as usize] as f64 / MOTION_TOLERANCE;
-            if c != NOT_FLAT {
-                let tol = MOTION_TOLERANCE * sd;
-                *gradient = quantised(g, tol, units_per_dn[pos][mean[i] as usize]);
-            }
-            if sampled && x >= margin && x + margin < w && (m as f32) < clip {
-                // An edge: a gradient far above what the mean's own noise makes (a Sobel
-                // difference of means of `frames` frames has SD ≈ 0.22 · sd / √frames).
-                let noise = 0.22 * sd / (frames.max(1) as f64).sqrt();
-                let threshold = (8.0 * noise).max(0.5);
-                if hypot_above(g, threshold) {
-                    edges.push(i as u32);
-                } else if c != NOT_FLAT {
-                    anchors.push((i as u32, sd as f32));
-                }
-            }
+            let pos = position(y, x);
+            let g = self.gradient_at(x, inner);
+            let tol = MOTION_TOLERANCE * self.sd(pos, i);
+            *gradient = quantised(g, tol, units_per_dn[pos][mean[i] as usize]);
         }
+    }
+}
+
+/// Whether registration reads row `y`: every fourth row pair of large frames (`row_step` 4),
+/// every row of small ones.
+fn sampled(y: usize, row_step: usize) -> bool {
+    (y / 2).is_multiple_of(row_step)
+}
+
+/// A clean image's per-pixel gradients ([`MotionProbe::gradients`]), computed on first use:
+/// only a frame that moved reads them. Derived data: it never takes part in a comparison or a
+/// checkpoint (two probes are equal whether or not either has computed it).
+#[derive(Debug, Clone, Default)]
+pub(crate) struct GradientCache(OnceLock<Vec<[i8; 2]>>);
+
+impl PartialEq for GradientCache {
+    fn eq(&self, _: &Self) -> bool {
+        true
     }
 }
 
@@ -244,7 +289,8 @@ fn sobel_row(mean: &[u16], w: usize, y: usize, out: &mut Vec<[i32; 2]>) {
 impl MotionProbe {
     /// The probe of a closed reference burst: `mean` is its rounded mean at every pixel,
     /// `levels` the clean image with [`NOT_FLAT`] where not flat, `flat` what the flat test
-    /// measured, `clip` the level above which values bend.
+    /// measured, `clip` the level above which values bend. Its per-pixel gradients are made
+    /// when first asked for ([`MotionProbe::gradients`]).
     pub fn new(
         mean: Vec<u16>,
         levels: &[u16],
@@ -262,42 +308,21 @@ impl MotionProbe {
                 .map(|l| (MOTION_TOLERANCE * frame_sd(flat, groups, frames, pos, l as f64)) as f32)
                 .collect()
         });
-        let units_per_dn: [Vec<f64>; POSITIONS] = std::array::from_fn(|pos| {
-            tolerance[pos]
-                .iter()
-                .map(|&t| GRADIENT_UNITS as f64 / (MOTION_TOLERANCE * (t as f64 / MOTION_TOLERANCE)))
-                .collect()
-        });
-        let mut gradient = vec![[0i8; 2]; w * h];
         // Registration reads every fourth row pair of large frames.
         let row_step = if h > 512 { 4 } else { 1 };
         // Bands of rows in parallel, their edges and anchors joined in row order.
-        let band_rows = 64;
-        let bands: Vec<BandSamples> = gradient
-            .par_chunks_mut(band_rows * w.max(1))
-            .enumerate()
-            .map(|(b, rows)| {
+        let bands: Vec<BandSamples> = (0..h.div_ceil(BAND_ROWS))
+            .into_par_iter()
+            .map(|b| {
+                let rows = (b * BAND_ROWS..((b + 1) * BAND_ROWS).min(h)).filter(|&y| sampled(y, row_step));
                 let mut edges: Vec<u32> = Vec::new();
                 // At most every pixel of the band's sampled rows is an anchor: room for them
                 // all at once (pages are touched only as they fill), not regrown as they come.
-                let sampled_rows =
-                    (b * band_rows..((b + 1) * band_rows).min(h)).filter(|&y| (y / 2) % row_step == 0).count();
-                let mut anchors: Vec<(u32, f32)> = Vec::with_capacity(sampled_rows * w);
+                let mut anchors: Vec<(u32, f32)> = Vec::with_capacity(rows.clone().count() * w);
                 let mut inner = Vec::with_capacity(w);
-                for (dy, grad_row) in rows.chunks_mut(w.max(1)).enumerate() {
-                    let y = b * band_rows + dy;
-                    let probe = ProbeRow {
-                        mean: &mean,
-                        levels,
-                        w,
-                        h,
-                        y,
-                        frames,
-                        clip,
-                        tolerance: &tolerance,
-                        units_per_dn: &units_per_dn,
-                    };
-                    probe.fill(grad_row, row_step, &mut edges, &mut anchors, &mut inner);
+                for y in rows {
+                    let row = ProbeRow { mean: &mean, levels, w, h, y, tolerance: &tolerance };
+                    row.samples(frames, clip, &mut edges, &mut anchors, &mut inner);
                 }
                 (edges, anchors)
             })
@@ -309,7 +334,35 @@ impl MotionProbe {
         let anchors = thin_parts(bands.iter().map(|b| b.1.as_slice()), MAX_ANCHOR_SAMPLES);
         samples.extend(anchors.iter().map(|a| a.0));
         let anchor_sd: Vec<f32> = anchors.iter().map(|a| a.1).collect();
-        Self { mean, samples, anchors_from, anchor_sd, gradient, tolerance }
+        Self { mean, samples, anchors_from, anchor_sd, gradient: GradientCache::default(), tolerance }
+    }
+
+    /// Per pixel, the clean level's gradient `[∂x, ∂y]` in units of the pixel's tolerance
+    /// ([`MOTION_TOLERANCE`] SD of one frame's noise at its level) per 8 px: a shift `u` changes
+    /// the pixel by more than its tolerance when `|g · u| > 8`. `[i8::MIN, 0]` where the
+    /// gradient is beyond the range (more than 16 tolerances per pixel); `[0, 0]` for pixels
+    /// not flat. `levels`: the clean image the probe was made with (`width` wide). Made on the
+    /// first call (only a frame that moved needs them: 2 bytes a pixel) and kept.
+    pub fn gradients(&self, levels: &[u16], width: usize) -> &[[i8; 2]] {
+        self.gradient.0.get_or_init(|| {
+            let (w, mean, tolerance) = (width, &self.mean, &self.tolerance);
+            let h = mean.len().checked_div(w).unwrap_or(0);
+            let units_per_dn: [Vec<f64>; POSITIONS] = std::array::from_fn(|pos| {
+                tolerance[pos]
+                    .iter()
+                    .map(|&t| GRADIENT_UNITS as f64 / (MOTION_TOLERANCE * (t as f64 / MOTION_TOLERANCE)))
+                    .collect()
+            });
+            let mut gradient = vec![[0i8; 2]; w * h];
+            gradient.par_chunks_mut(BAND_ROWS * w.max(1)).enumerate().for_each(|(b, rows)| {
+                let mut inner = Vec::with_capacity(w);
+                for (dy, grad_row) in rows.chunks_mut(w.max(1)).enumerate() {
+                    let row = ProbeRow { mean, levels, w, h, y: b * BAND_ROWS + dy, tolerance };
+                    row.gradients(&units_per_dn, grad_row, &mut inner);
+                }
+            });
+            gradient
+        })
     }
 }
 
@@ -387,6 +440,48 @@ mod tests {
         } else {
             [round_half_away(q[0]) as i8, round_half_away(q[1]) as i8]
         }
+    }
+
+    /// The gradients made on first use are, at every flat pixel, the Sobel gradient over the
+    /// pixel's tolerance rounded (`divided`, the definition), and `[0, 0]` elsewhere: on a
+    /// random image of 150 rows (three bands of the parallel pass, borders included) with a
+    /// random flat mask. A probe does not make them until asked, makes them once, and two
+    /// probes compare equal either way. A pass that filled the pixels not flat, or read a
+    /// band's rows from the image's top, differs at thousands of pixels.
+    #[test]
+    fn gradients_are_the_definition_at_every_flat_pixel() {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let (w, h) = (53usize, 150usize);
+        let mean: Vec<u16> =
+            (0..w * h).map(|i| (100 + (i % w) * 5 + (i / w) * 2) as u16 + rng.random_range(0..40)).collect();
+        let levels: Vec<u16> = mean.iter().map(|&m| if rng.random_bool(0.8) { m } else { NOT_FLAT }).collect();
+        let groups = Groups { black: [0.0; POSITIONS], white: 1023 };
+        let mut flat = FlatReport::default();
+        flat.mean_noise = [[0.5, 0.01, 0.0]; POSITIONS];
+        flat.mean_noise_groups = vec![f32::NAN; POSITIONS * crate::calibrate::flat::GROUPS];
+        let probe = MotionProbe::new(mean.clone(), &levels, w, h, 4, &flat, &groups, 1000.0);
+        assert!(probe.gradient.0.get().is_none(), "made before it was asked for");
+        let unmade = probe.clone();
+        let got = probe.gradients(&levels, w);
+        assert!(std::ptr::eq(got, probe.gradients(&levels, w)), "made twice");
+        assert_eq!(probe, unmade);
+        let (mut flat_pixels, mut nonzero) = (0, 0);
+        for y in 0..h {
+            for x in 0..w {
+                let i = y * w + x;
+                let want = if levels[i] == NOT_FLAT {
+                    [0, 0]
+                } else {
+                    flat_pixels += 1;
+                    let pos = position(y, x);
+                    let tol = MOTION_TOLERANCE * (probe.tolerance[pos][mean[i] as usize] as f64 / MOTION_TOLERANCE);
+                    divided(sobel(&mean, w, h, x, y), tol)
+                };
+                nonzero += (want != [0, 0]) as usize;
+                assert_eq!(got[i], want, "pixel ({x}, {y})");
+            }
+        }
+        assert!(flat_pixels > 5000 && nonzero > 5000, "{flat_pixels} flat, {nonzero} with a gradient");
     }
 
     /// The whole-row integer Sobel over 16 is `sobel` bit for bit at every pixel 2 px from the

@@ -149,18 +149,20 @@ fn transform(cfa: CfaPattern) -> Transform {
 fn left_out_share(probe: &MotionProbe, m: &FrameMotion) -> f64 {
     let (mut keep, mut correction) = (vec![true; W], vec![0i32; W]);
     let (mut flat, mut left) = (0usize, 0usize);
+    // The probe's mean stands for the clean levels; only flat pixels count.
+    let levels: Vec<u16> = (0..W * H)
+        .map(|i| {
+            let (ex, ey) = ((i % W) % 40, (i / W) % 40);
+            let flat = (3..=36).contains(&ex) && (3..=36).contains(&ey);
+            if flat { probe.mean[i] } else { NOT_FLAT }
+        })
+        .collect();
+    let gradient = probe.gradients(&levels, W);
     for y in 0..H {
-        // The probe's mean stands for the clean levels; only flat pixels count.
-        let row: Vec<u16> = (0..W)
-            .map(|x| {
-                let (ex, ey) = (x % 40, y % 40);
-                let flat = (3..=36).contains(&ex) && (3..=36).contains(&ey);
-                if flat { probe.mean[y * W + x] } else { NOT_FLAT }
-            })
-            .collect();
-        m.row_effects(probe, y, &row, &mut keep, &mut correction);
+        let row = &levels[y * W..(y + 1) * W];
+        m.row_effects(probe, &gradient[y * W..(y + 1) * W], y, row, &mut keep, &mut correction);
         flat += row.iter().filter(|&&c| c != NOT_FLAT).count();
-        left += keep.iter().zip(&row).filter(|&(&k, &c)| !k && c != NOT_FLAT).count();
+        left += keep.iter().zip(row).filter(|&(&k, &c)| !k && c != NOT_FLAT).count();
     }
     left as f64 / flat as f64
 }
