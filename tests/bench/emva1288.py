@@ -197,6 +197,48 @@ def write_mosaics(folder: Path, held: list, write) -> None:
         write(scene / "frame.dng", frame, 200, held[0][2])
 
 
+TILES = 24  # --scenes tiles: regions per tiled evaluation scene
+TILE_BLUR = 1.0  # --scenes tiles: the edges' Gaussian blur in raw pixels (a sharp lens's)
+
+
+def tile_plan(shape: tuple[int, int], k: int, tiles: int, seed: int) -> np.ndarray:
+    """The tiled scenes' class map (0 … k − 1): :func:`noisecal.bench.tile_labels`'s ``tiles``
+    Voronoi cells, dealt to the ``k`` classes in a random order so that each class gets
+    ``tiles // k`` or one more cells."""
+    rng = np.random.default_rng(seed)
+    cells = bench.tile_labels(shape[0], shape[1], tiles, rng)
+    return (rng.permutation(tiles) % k)[cells]
+
+
+def write_tiles(folder: Path, held: list, write, tiles: int = TILES, blur: float = TILE_BLUR, seed: int = MOSAIC_SEED) -> None:
+    """Tiled real-noise scenes (``--scenes tiles``): the mosaics of :func:`write_mosaics` with a
+    few large regions (``tiles`` Voronoi cells, :func:`tile_plan`) and edges blurred as by the
+    optics. Scene ``m`` gives each pixel the level of class ``(class + m) mod k`` (``k`` held-out
+    frames, their mean clean levels), blurred by a Gaussian of ``blur`` raw pixels; the pixel is
+    then the real noisy pixel, with its clean value, of the held-out frame whose level is nearest
+    the blurred one. In the interiors (the blur sees one class) that is the class's own frame, so
+    each interior pixel shows every frame once over the ``k`` scenes; an edge becomes a ramp of
+    real pixels from the frames between its two sides' levels. Every pixel and its noise stay
+    real, and every clean value is its frame's."""
+    k = len(held)
+    if k < 2:
+        return
+    cls = tile_plan(held[0][0].shape, k, tiles, seed)
+    levels = np.array([float(np.mean(c)) for _, c, _ in held])
+    frames = np.stack([f for f, _, _ in held])
+    cleans = np.stack([c for _, c, _ in held])
+    for m in range(k):
+        target = bench.gaussian_blur(levels[(cls + m) % k], blur)
+        pick = np.argmin(np.abs(target[None] - levels[:, None, None]), axis=0)
+        frame = np.take_along_axis(frames, pick[None], 0)[0].astype(np.uint16)
+        clean = np.take_along_axis(cleans, pick[None], 0)[0]
+        scene = folder / f"tiles_{m:02}"
+        scene.mkdir(parents=True, exist_ok=True)
+        if not (scene / "clean.npy").exists():
+            np.save(scene / "clean.npy", clean)
+        write(scene / "frame.dng", frame, 200, held[0][2])
+
+
 def convert(src: Source, out: Path, say) -> dict:
     """Writes ``out/cal`` (the calibration DNGs) and ``out/eval`` (the evaluation scenes); returns
     what it measured (black levels, the pairs kept)."""
@@ -271,6 +313,7 @@ def convert(src: Source, out: Path, say) -> dict:
         write(out / "train-flat" / f"flat_{i:02}.dng", np.full(clean.shape, round(level), np.uint16), 100, ref_ns)
     levels = (float(np.floor(np.percentile(above, 0.5))), float(np.ceil(np.percentile(above, 99.5))))
     write_mosaics(out / "eval-mosaic", held, write)
+    write_tiles(out / "eval-tiles", held, write)
     # The low pack also holds the burst's step and the dark burst (the same frames as OUT/cal).
     for f in sorted((out / "cal").glob("*.dng")):
         if not (out / "cal-low" / f.name).exists():
@@ -304,6 +347,14 @@ def main(argv: list[str] | None = None) -> int:
         help="evaluate on the held-out low-light flat fields themselves (OUT/eval-low) rather than the real-noise "
         "mosaics made of them (OUT/eval-mosaic); flat fields reward smoothing, not fidelity",
     )
+    p.add_argument(
+        "--scenes",
+        choices=("mosaic", "tiles"),
+        default="mosaic",
+        help="low light: evaluate on the dead-leaves real-noise mosaics (OUT/eval-mosaic) or on the tiled ones "
+        "(OUT/eval-tiles: a few large regions, blurred edges) and train on generated tile scenes of their kind "
+        "[default: %(default)s]",
+    )
     p.add_argument("--json", type=Path, help="noisecal-bench's results JSON [default: OUT/bench.json]")
     args, rest = p.parse_known_args(argv)
 
@@ -326,9 +377,10 @@ def main(argv: list[str] | None = None) -> int:
         [
             "--pack", str(out / full),
             "--plain-pack", str(out / plain),
-            "--eval", str(out / ("eval" if args.band else "eval-low" if args.flat_eval else "eval-mosaic")),
+            "--eval", str(out / ("eval" if args.band else "eval-low" if args.flat_eval else f"eval-{args.scenes}")),
             *(["--train", str(out / "train-flat")] if args.flat else
               ["--generate", str(args.generate), "--mono", "--generate-levels", f"{lo:g},{hi:g}"]),
+            *(["--tiles", str(TILES), "--tile-blur", f"{TILE_BLUR:g}"] if args.scenes == "tiles" and not args.band else []),
             "--models", "noisecal,hg,pg,plain,wrong,loud",
             "--json", str(args.json or out / "bench.json"),
             *rest,

@@ -51,7 +51,7 @@ import numpy as np
 
 import noisecal
 from noisecal import bench
-from emva1288 import Block, Source, read_descriptor, write_mosaics
+from emva1288 import TILE_BLUR, TILES, Block, Source, read_descriptor, write_mosaics, write_tiles
 from png16 import ConvertError, read_png_grey
 
 SET = "EMVA1288_ReferenceSet_002_CMOS_08Bit"
@@ -149,6 +149,7 @@ def convert(src: Source, out: Path, say) -> dict:
         if i in evaluated:
             held.append((centre(pair[1], EVAL_W).astype(np.uint16), centre(clean, EVAL_W), ns))
     write_mosaics(out / "eval-mosaic", held, write)
+    write_tiles(out / "eval-tiles", held, write)
     top = max(float(c.max()) for _, c, _ in held) - min(black)
     levels = sorted(round(float(c.mean()) - float(np.mean(black)), 2) for _, c, _ in held)
     say(f"black levels {[round(v, 3) for v in black]} DN; {sum(v <= CAL_MAX for v in level)} pairs calibrate; "
@@ -161,6 +162,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--repo", type=Path, required=True, help="a clone of EMVA1288/datasets (bare or not)")
     p.add_argument("--out", type=Path, default=Path("target/emva002"), help="the cache [default: %(default)s]")
     p.add_argument("--generate", type=int, default=24, help="generated training scenes [default: %(default)s]")
+    p.add_argument(
+        "--scenes",
+        choices=("mosaic", "tiles"),
+        default="mosaic",
+        help="evaluate on the dead-leaves real-noise mosaics (OUT/eval-mosaic) or on the tiled ones (OUT/eval-tiles: "
+        "a few large regions, blurred edges) and train on generated tile scenes of their kind [default: %(default)s]",
+    )
     p.add_argument("--json", type=Path, help="noisecal-bench's results JSON [default: OUT/bench.json]")
     args, rest = p.parse_known_args(argv)
 
@@ -181,8 +189,9 @@ def main(argv: list[str] | None = None) -> int:
         [
             "--pack", str(out / "ladder.pack"),
             "--plain-pack", str(out / "ladder-plain.pack"),
-            "--eval", str(out / "eval-mosaic"),
+            "--eval", str(out / f"eval-{args.scenes}"),
             "--generate", str(args.generate), "--mono", "--generate-levels", f"0,{got['top']:g}",
+            *(["--tiles", str(TILES), "--tile-blur", f"{TILE_BLUR:g}"] if args.scenes == "tiles" else []),
             "--models", "noisecal,hg,pg,plain,wrong,loud",
             "--json", str(args.json or out / "bench.json"),
             *rest,

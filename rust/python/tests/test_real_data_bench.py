@@ -227,3 +227,85 @@ def test_ladder_flat_shape_and_clean_images():
     lv = [i / 100 for i in range(0, 60, 2)]  # 0, 0.02, … 0.58 of the range
     pick = L.ladder(lv)
     assert [lv[i] for i in pick] == [0.0, 0.02, 0.04, 0.06, 0.08, 0.16, 0.24, 0.32, 0.40]
+
+
+def test_tile_scenes_have_large_flat_regions_and_lens_blurred_edges():
+    # Tile maps: exactly `tiles` cells of mean area h·w/tiles; far fewer edges than a dead-leaves
+    # map of the same size (a map of tiny regions, or noise, fails the edge bound).
+    rng = np.random.default_rng(11)
+    h, w, tiles = 96, 128, 12
+    lab = B.tile_labels(h, w, tiles, rng)
+    assert sorted(np.unique(lab)) == list(range(tiles))
+    edges = (np.diff(lab, axis=1) != 0).mean()
+    leaves = (np.diff(E.mosaic_labels((h, w), 4, 7), axis=1) != 0).mean()
+    assert edges < 0.5 * leaves and edges < 0.05, (edges, leaves)
+    # The blur keeps a constant, and blurs a step into the sampled Gaussian's ramp: at x px from
+    # the step, Φ(x/σ) of the height (an unnormalised or box kernel misses by > 0.05).
+    assert np.allclose(B.gaussian_blur(np.full((20, 30), 7.5), 1.3), 7.5)
+    step = np.zeros((20, 40))
+    step[:, 20:] = 100.0
+    got = B.gaussian_blur(step, 1.5)[10]
+    from math import erf, sqrt
+
+    for x in (-3, -1, 1, 3):
+        want = 100 * 0.5 * (1 + erf((x + 0.5) / (1.5 * sqrt(2))))
+        assert abs(got[20 + x] - want) < 1.5, (x, got[20 + x], want)
+    assert np.array_equal(B.gaussian_blur(step, 0), step)
+    # Generated tile scenes: levels inside the band, flat interiors (most 3×3 windows of a packed
+    # plane, 6×6 raw px, constant before the rounding, so within 1 DN after it; dead-leaves
+    # scenes score 0.03–0.12 here).
+    layout = {"cfa": "RGGB", "black": BLACK, "white": 4095}
+    imgs = B.generate_tiles(6, h, w, layout, seed=3, tiles=tiles, blur=1.0, levels=(10.0, 300.0))
+    for g in imgs:
+        above = g.astype(np.float64) - B.per_position(BLACK, g.shape)
+        assert above.min() >= 9.5 and above.max() <= 300.5
+        win = np.lib.stride_tricks.sliding_window_view(B.pack_raw(g.astype(np.float64)), (3, 3), axis=(1, 2))
+        flat = (win.max((-1, -2)) - win.min((-1, -2)) <= 1.0).mean()  # per CFA plane: the rounding alone
+        assert flat > 0.45, flat
+    assert not np.array_equal(imgs[0], imgs[1])
+
+
+def test_tiled_mosaics_keep_every_pixel_real_and_its_clean_value_its_frames(tmp_path: Path):
+    # k flat frames at levels 80 DN apart → k tiled scenes. Every pixel is the real pixel of one
+    # held-out frame with that frame's clean value; in interiors each frame shows once over the k
+    # scenes (a Latin square); along edges the chosen level lies between the two sides' levels (a
+    # blurred ramp), and the flat interiors are most of the image (the dead-leaves mosaics: few).
+    rng = np.random.default_rng(3)
+    h, w, k = 128, 160, 5
+    held = []
+    for i in range(k):
+        clean = 15 + 80.0 * (i + 1) + rng.uniform(0, 1, (h, w))
+        held.append((np.rint(clean + rng.normal(0, 5, (h, w))).astype(np.uint16), clean, 40000 * (i + 1)))
+    written = {}
+
+    def write(path: Path, px: np.ndarray, iso: int, exposure_ns: int):
+        written[path.parent.name] = px
+
+    E.write_tiles(tmp_path, held, write, tiles=8, blur=2.0, seed=5)
+    assert sorted(written) == [f"tiles_{m:02}" for m in range(k)]
+    frames = np.stack([written[f"tiles_{m:02}"] for m in range(k)]).astype(np.int64)
+    cleans = np.stack([np.load(tmp_path / f"tiles_{m:02}" / "clean.npy") for m in range(k)])
+    src = np.stack([f for f, _, _ in held]).astype(np.int64)
+    src_clean = np.stack([c for _, c, _ in held])
+    which = np.rint((cleans - 15 - 0.5) / 80.0).astype(np.int64) - 1
+    assert which.min() >= 0 and which.max() < k
+    assert np.array_equal(frames, np.take_along_axis(src, which, 0))
+    assert np.array_equal(cleans, np.take_along_axis(src_clean, which, 0))
+    cls = E.tile_plan((h, w), k, 8, 5)
+    assert len(np.unique(cls)) == k  # every class has cells (8 cells dealt to 5 classes)
+    win = np.lib.stride_tricks.sliding_window_view(np.pad(cls, 7, mode="edge"), (15, 15))
+    interior = win.max((-1, -2)) == win.min((-1, -2))  # no other class within 7 px (3.5 σ)
+    assert interior.mean() > 0.5, interior.mean()
+    for m in range(k):
+        assert np.array_equal(which[m][interior], ((cls + m) % k)[interior])
+    assert (np.sort(which[:, interior], axis=0) == np.arange(k)[:, None]).all()
+    for m in range(k):
+        # The picked frame's level (here its index) lies between the lowest and highest level
+        # within 7 px: a ramp, never a level from elsewhere.
+        near = np.lib.stride_tricks.sliding_window_view(np.pad((cls + m) % k, 7, mode="edge"), (15, 15))
+        assert ((which[m] >= near.min((-1, -2))) & (which[m] <= near.max((-1, -2)))).all()
+    edge = ~interior
+    assert (which[:, edge] != ((cls[None] + np.arange(k)[:, None, None]) % k)[:, edge]).any()  # edges are blurred
+    leaves = E.mosaic_labels((h, w), k, 7)
+    wl = np.lib.stride_tricks.sliding_window_view(np.pad(leaves, 7, mode="edge"), (15, 15))
+    assert (wl.max((-1, -2)) == wl.min((-1, -2))).mean() < 0.5 * interior.mean()
