@@ -309,3 +309,56 @@ def test_tiled_mosaics_keep_every_pixel_real_and_its_clean_value_its_frames(tmp_
     leaves = E.mosaic_labels((h, w), k, 7)
     wl = np.lib.stride_tricks.sliding_window_view(np.pad(leaves, 7, mode="edge"), (15, 15))
     assert (wl.max((-1, -2)) == wl.min((-1, -2))).mean() < 0.5 * interior.mean()
+
+
+def test_ladder_conversion_never_uses_a_frame_twice_across_calibration_and_evaluation(tmp_path: Path, monkeypatch):
+    # A small set 002 on disk (8-bit PNGs, its descriptor): a dark burst and photon-transfer pairs
+    # at 30 exposures, frame 0 of every pair written with even codes and frame 1 with odd ones.
+    # The converter must calibrate on frame 0 only (every target DNG even) and evaluate on frame 1
+    # only (every pixel of every mosaic and tiled scene odd), each evaluated pixel paired with its
+    # own level's clean image (noisy − clean within the noise; the neighbouring level's clean
+    # image, 3 DN away, would be 3 DN off). A converter that evaluated frame 0, or calibrated on
+    # frame 1, fails the parity; one that paired a frame with another level's clean, the RMS.
+    monkeypatch.setattr(L, "CAL_W", 48)
+    monkeypatch.setattr(L, "EVAL_W", 32)
+    rng = np.random.default_rng(9)
+    h, w = 32, 64
+    root = tmp_path / "repo" / L.SET
+    (root / "images").mkdir(parents=True)
+    shape = 1 + 0.005 * rng.normal(size=(h, w))
+    lines = ["d 140"]
+
+    def png(name: str, img: np.ndarray) -> None:
+        (root / "images" / name).write_bytes(_png8(np.clip(img, 0, 255)))
+        lines.append(f"i images\\{name}")
+
+    for i in range(20):
+        png(f"d_burst_{i:02}.png", np.rint(3 + rng.normal(0, 0.3, (h, w))))
+    for t in range(30):
+        s = 3.0 * t
+        lines.append(f"b {40 * t} {s * 10:.1f}")
+        for f in range(2):
+            v = np.floor((3 + s * shape + rng.normal(0, 0.5 + 0.1 * np.sqrt(s), (h, w))) / 2) * 2 + f
+            png(f"b_{t:03}_{f}.png", v)
+        if t < 5:
+            lines.append(f"d {40 * t}")
+            for f in range(2):
+                png(f"d_{t:03}_{f}.png", np.rint(3 + rng.normal(0, 0.3, (h, w))))
+    (root / "EMVA1288_Data.txt").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out"
+    got = L.convert(E.Source(tmp_path / "repo", L.SET), out, lambda *a: None)
+    assert len(got["levels"]) >= 8
+    targets = sorted((out / "cal").glob("target_*.dng"))
+    assert len(targets) == 30
+    for p in targets:
+        assert (noisecal.read_dng(p)[0] % 2 == 0).all(), p.name
+    for kind in ("eval-mosaic", "eval-tiles"):
+        scenes = sorted((out / kind).iterdir())
+        assert len(scenes) == len(got["levels"])
+        for d in scenes:
+            px = noisecal.read_dng(d / "frame.dng")[0]
+            clean = np.load(d / "clean.npy")
+            assert (px % 2 == 1).all(), d
+            # The odd codes add ½ DN on average and a parity step of up to 1: the rest is the noise.
+            err = px - clean - 0.5
+            assert np.sqrt(np.mean(err**2)) < 1.6, (d, np.sqrt(np.mean(err**2)))
