@@ -23,7 +23,13 @@ evaluation set is made of them as **real-noise mosaics** (``OUT/eval-mosaic``, 4
 shows at each pixel the held-out frame of exposure (label + m) mod 4, the label a dead-leaves map
 split into 4 equal areas, with that frame's clean image — every pixel and its noise real, at its
 own level and position, each used once over the 4 scenes, and edges between levels that a network
-must keep (``--flat-eval`` evaluates on the flat fields themselves). The training scenes are
+must keep (``--flat-eval`` evaluates on the flat fields themselves). ``--scenes tiles`` evaluates
+on **tiled** mosaics instead (``OUT/eval-tiles``, :func:`write_tiles`: ``TILES`` large Voronoi
+regions, edges blurred by a Gaussian of ``TILE_BLUR`` px, each edge pixel the real pixel of the
+held-out frame nearest the blurred level) and trains on generated tile scenes of the same kind
+(``noisecal-bench --tiles``): the dead-leaves mosaics are mostly edge, and a network trained on
+other scenes than it is scored on is not ranked by how right its noise is (docs/bench.md, "Tiled
+real-noise scenes"). The training scenes are
 spread over the evaluated levels (0 to the brightest evaluated clean level). ``--band`` runs the earlier configuration instead: the packs from ``OUT/cal`` alone,
 evaluated on the held-out burst frames at half scale (``OUT/eval``).
 
@@ -239,6 +245,28 @@ def write_tiles(folder: Path, held: list, write, tiles: int = TILES, blur: float
         write(scene / "frame.dng", frame, 200, held[0][2])
 
 
+def tile_training(held: list, black: list[float]) -> dict:
+    """What the tile training scenes take from the held-out frames' clean images (no noisy pixel):
+    ``ladder``, their mean levels above black, and ``texture`` (t0, t1), the least-squares line
+    through their fixed pattern's SD against the level, each SD from differences of same-colour
+    neighbours two pixels apart (/√2: white DSNU and PRNU; the smooth shading cancels)."""
+    b = float(np.mean(black))
+    lv = np.array([float(np.mean(c)) - b for _, c, _ in held])
+    sd = np.array([float(np.std(c[:, 2:] - c[:, :-2])) / np.sqrt(2) for _, c, _ in held])
+    t1, t0 = np.polyfit(lv, sd, 1) if len(held) > 1 else (0.0, float(sd[0]))
+    return {"ladder": [round(float(v), 3) for v in lv], "texture": (max(float(t0), 0.0), max(float(t1), 0.0))}
+
+
+def tile_args(got: dict) -> list[str]:
+    """noisecal-bench's options for the tile training scenes (``--scenes tiles``)."""
+    t0, t1 = got["texture"]
+    return [
+        "--tiles", str(TILES), "--tile-blur", f"{TILE_BLUR:g}",
+        "--tile-ladder", ",".join(f"{v:g}" for v in got["ladder"]),
+        "--tile-texture", f"{t0:.4f},{t1:.5f}",
+    ]  # fmt: skip
+
+
 def convert(src: Source, out: Path, say) -> dict:
     """Writes ``out/cal`` (the calibration DNGs) and ``out/eval`` (the evaluation scenes); returns
     what it measured (black levels, the pairs kept)."""
@@ -323,7 +351,10 @@ def convert(src: Source, out: Path, say) -> dict:
         f"black levels {[round(v, 3) for v in black]} DN; burst clean levels {levels} DN above black; {len(pairs)} pairs; "
         f"{len(low)} low-light exposures calibrate, {sum(x['evaluated'] for x in low)} evaluated (clean up to {low_top:.0f} DN)"
     )
-    return {"black": black, "pairs": pairs, "levels": levels, "low": low, "low_levels": (0.0, float(np.ceil(low_top)))}
+    return {
+        "black": black, "pairs": pairs, "levels": levels, "low": low, "low_levels": (0.0, float(np.ceil(low_top))),
+        **tile_training(held, black),
+    }  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -380,7 +411,7 @@ def main(argv: list[str] | None = None) -> int:
             "--eval", str(out / ("eval" if args.band else "eval-low" if args.flat_eval else f"eval-{args.scenes}")),
             *(["--train", str(out / "train-flat")] if args.flat else
               ["--generate", str(args.generate), "--mono", "--generate-levels", f"{lo:g},{hi:g}"]),
-            *(["--tiles", str(TILES), "--tile-blur", f"{TILE_BLUR:g}"] if args.scenes == "tiles" and not args.band else []),
+            *(tile_args(got) if args.scenes == "tiles" and not args.band else []),
             "--models", "noisecal,hg,pg,plain,wrong,loud",
             "--json", str(args.json or out / "bench.json"),
             *rest,

@@ -33,7 +33,9 @@ levels; options after the script's own go to ``noisecal-bench``.
   shows at each pixel the frame of level (label + m) mod k for a dead-leaves label map of k equal
   areas; tests/bench/emva1288.py's ``write_mosaics``): every pixel and its noise real. The
   evaluated pairs are every exposure below ``EVERY_BELOW`` of the range and every ``THEN_EVERY``th
-  above it up to ``EVAL_MAX``.
+  above it up to ``EVAL_MAX``. ``--scenes tiles``: the same frames as tiled mosaics
+  (``OUT/eval-tiles``, tests/bench/emva1288.py's ``write_tiles``: a few large regions, edges
+  blurred as by the optics), and training on generated tile scenes of that kind (``--tiles``).
 - **A CFA on a mono sensor**, as for set 001: the DNGs say RGGB; the four positions are four
   interleaved quarters of one sensor, modelled apart.
 - **No oracle and no noiseprofile**: nobody knows this sensor's noise and its PNGs carry no
@@ -51,7 +53,7 @@ import numpy as np
 
 import noisecal
 from noisecal import bench
-from emva1288 import TILE_BLUR, TILES, Block, Source, read_descriptor, write_mosaics, write_tiles
+from emva1288 import Block, Source, read_descriptor, tile_args, tile_training, write_mosaics, write_tiles
 from png16 import ConvertError, read_png_grey
 
 SET = "EMVA1288_ReferenceSet_002_CMOS_08Bit"
@@ -154,7 +156,7 @@ def convert(src: Source, out: Path, say) -> dict:
     levels = sorted(round(float(c.mean()) - float(np.mean(black)), 2) for _, c, _ in held)
     say(f"black levels {[round(v, 3) for v in black]} DN; {sum(v <= CAL_MAX for v in level)} pairs calibrate; "
         f"{len(held)} evaluated, clean levels {levels} DN above black")  # fmt: skip
-    return {"black": black, "levels": levels, "top": float(np.ceil(top))}
+    return {"black": black, "levels": levels, "top": float(np.ceil(top)), **tile_training(held, black)}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -191,7 +193,7 @@ def main(argv: list[str] | None = None) -> int:
             "--plain-pack", str(out / "ladder-plain.pack"),
             "--eval", str(out / f"eval-{args.scenes}"),
             "--generate", str(args.generate), "--mono", "--generate-levels", f"0,{got['top']:g}",
-            *(["--tiles", str(TILES), "--tile-blur", f"{TILE_BLUR:g}"] if args.scenes == "tiles" else []),
+            *(tile_args(got) if args.scenes == "tiles" else []),
             "--models", "noisecal,hg,pg,plain,wrong,loud",
             "--json", str(args.json or out / "bench.json"),
             *rest,

@@ -362,3 +362,34 @@ def test_ladder_conversion_never_uses_a_frame_twice_across_calibration_and_evalu
             # The odd codes add ½ DN on average and a parity step of up to 1: the rest is the noise.
             err = px - clean - 0.5
             assert np.sqrt(np.mean(err**2)) < 1.6, (d, np.sqrt(np.mean(err**2)))
+
+
+def test_tile_training_scenes_take_the_evaluation_ladder_and_fixed_pattern():
+    # Known truth: held-out flat fields at 6 levels whose clean images carry a white fixed pattern
+    # of SD 0.2 + 0.01·level over a smooth shading. tile_training recovers the ladder and the
+    # line (a fit on the raw SD, shading included, puts t1 above 0.2 here); generate_tiles with
+    # them gives only ladder levels (before the texture) and the texture's SD at each level.
+    rng = np.random.default_rng(12)
+    h, w = 128, 160
+    black = [3.0] * 4
+    shading = 40 * np.linspace(-1, 1, w)[None] * np.ones((h, 1))
+    held = []
+    for lv in (0.0, 5.0, 20.0, 40.0, 70.0, 100.0):
+        clean = 3.0 + lv + 0.01 * lv * shading + (0.2 + 0.01 * lv) * rng.standard_normal((h, w))
+        held.append((np.zeros((h, w), np.uint16), clean, 1000))
+    got = E.tile_training(held, black)
+    assert np.allclose(got["ladder"], [0, 5, 20, 40, 70, 100], atol=0.05)
+    t0, t1 = got["texture"]
+    assert abs(t0 - 0.2) < 0.02 and abs(t1 - 0.01) < 0.001, got["texture"]
+    layout = {"cfa": "RGGB", "black": black, "white": 255}
+    ladder = [0.0, 20.0, 60.0, 100.0]
+    flat = B.generate_tiles(4, h, w, layout, seed=4, tiles=6, blur=2.0, levels=(0.0, 100.0), ladder=ladder)
+    for g in flat:
+        assert set(np.unique(g.astype(np.float64) - 3.0)) <= set(ladder)
+    assert len(set(np.unique(np.concatenate([g.ravel() for g in flat])))) == len(ladder)  # ramps only of ladder levels
+    tex = B.generate_tiles(4, h, w, layout, seed=4, tiles=6, blur=2.0, levels=(0.0, 100.0), ladder=ladder, texture=(0.5, 0.02))
+    for g, f in zip(tex[:1], flat[:1]):  # the first scene: the same map (the texture's draws come after it)
+        d = g.astype(np.float64) - f
+        for lv in ladder:
+            sd = d[f == 3.0 + lv].std()
+            assert abs(sd**2 - ((0.5 + 0.02 * lv) ** 2 + 1 / 12)) < 0.15 * (0.5 + 0.02 * lv) ** 2 + 0.02, (lv, sd)

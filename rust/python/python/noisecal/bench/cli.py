@@ -39,6 +39,16 @@ def parser() -> argparse.ArgumentParser:
         "instead of dead leaves: the kind of a tiled real-data evaluation set (docs/bench.md)",
     )
     p.add_argument("--tile-blur", type=float, default=1.0, help="--tiles: the edges' Gaussian blur in raw pixels [default: %(default)s]")
+    p.add_argument(
+        "--tile-ladder",
+        help="--tiles: L1,L2,…: the evaluation set's levels (DN above black); regions take these levels and blurred "
+        "pixels the nearest of them, as tiled evaluation scenes are made",
+    )
+    p.add_argument(
+        "--tile-texture",
+        help="--tiles: T0,T1: add a white fixed pattern of SD T0 + T1·level DN to the clean scenes (the DSNU and PRNU a "
+        "real clean image, a burst mean, carries) [default: none]",
+    )
     p.add_argument("--captures", type=Path, help="real captures of the training scenes (<clean stem>_*.dng): oracle, noise on noise")
     p.add_argument("--set", type=Path, help="a folder laid out as `noisecal simulate --bench` writes it")
     p.add_argument("--models", default=DEFAULT_MODELS, help=f"comma-separated [LABEL=]MODEL[:COMPONENTS][@PACK]; MODEL in {', '.join(BASE_MODELS)} [default: %(default)s]")

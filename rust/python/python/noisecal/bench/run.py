@@ -29,6 +29,20 @@ def _config_key(cfg: dict) -> str:
     return hashlib.blake2b(json.dumps(cfg, sort_keys=True).encode(), digest_size=8).hexdigest()
 
 
+def _floats(text: str | None, flag: str, count: int) -> list[float] | None:
+    """``--flag A,B,…``: ``count`` numbers ≥ 0 (``count`` 1: one or more)."""
+    if text is None:
+        return None
+    try:
+        v = [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        v = []
+    if not v or (count > 1 and len(v) != count) or min(v) < 0:
+        want = "one or more numbers ≥ 0" if count == 1 else f"{count} numbers ≥ 0"
+        raise BenchError(f"{flag} {text!r}: give {want}, separated by commas")
+    return v
+
+
 def networks_trained(jobs: list, seeds: int) -> int:
     """The networks a run trains: one per (model, ISO) job and seed, and the denoiser that
     estimates the clean image for noise on noise (a row with the ``denoiser`` estimate): one more
@@ -78,7 +92,11 @@ def run(args: argparse.Namespace) -> dict:
         levels = parse_levels(args.generate_levels, layout)
         if getattr(args, "tiles", None):
             top = float(layout["white"]) - max(float(b) for b in layout["black"])
-            cleans = generate_tiles(n, h, w, layout, args.data_seed, args.tiles, args.tile_blur, levels or (0.0, top))
+            ladder = _floats(getattr(args, "tile_ladder", None), "--tile-ladder", 1)
+            texture = _floats(getattr(args, "tile_texture", None), "--tile-texture", 2)
+            cleans = generate_tiles(
+                n, h, w, layout, args.data_seed, args.tiles, args.tile_blur, levels or (0.0, top), ladder, tuple(texture or (0.0, 0.0))
+            )
         else:
             cleans = generate_clean(n, h, w, layout, args.data_seed, args.mono, levels)
     captures = load_captures(Path(args.captures), names, pack) if args.captures else {}
@@ -156,7 +174,9 @@ def run(args: argparse.Namespace) -> dict:
         else f"generated:{len(cleans)}"
         + (":mono" if args.mono else "")
         + (f":{args.generate_levels}" if args.generate_levels else "")
-        + (f":tiles:{args.tiles}:{args.tile_blur:g}" if getattr(args, "tiles", None) else ""),
+        + (f":tiles:{args.tiles}:{args.tile_blur:g}" if getattr(args, "tiles", None) else "")
+        + (f":ladder:{args.tile_ladder}" if getattr(args, "tile_ladder", None) else "")
+        + (f":texture:{args.tile_texture}" if getattr(args, "tile_texture", None) else ""),
         "steps": steps,
         "batch": args.batch,
         "crop": args.crop,

@@ -119,22 +119,38 @@ def generate_tiles(
     tiles: int,
     blur: float,
     levels: tuple[float, float],
+    ladder: list[float] | None = None,
+    texture: tuple[float, float] = (0.0, 0.0),
 ) -> list[np.ndarray]:
     """``n`` clean raw images (uint16 DN, black included) of grey tile scenes (``--tiles``): the
     :func:`tile_labels` map of ``tiles`` regions, each region one level uniform over ``levels``
     (lo, hi DN above black), blurred by :func:`gaussian_blur` of ``blur`` pixels, at gain 1 on
     every CFA position (a monochrome sensor read as a mosaic). The training scenes of the real-data
     benchmark's tiled evaluation mosaics: the same kind of regions and edges, other levels and
-    shapes (their own seed)."""
+    shapes (their own seed).
+
+    ``ladder`` (DN above black): the evaluation set's levels: each region takes one of them, and
+    each blurred pixel the ladder level nearest it, as the tiled evaluation scenes are made (their
+    edges are stairs of real levels, not smooth ramps). ``texture`` (t0, t1): a fixed pattern of
+    white Gaussian texture with SD ``t0 + t1·level`` DN added to the clean image, as the real clean
+    images (a burst's mean) carry the sensor's DSNU and PRNU, which a denoiser must keep."""
     rng = np.random.default_rng(seed)
     lo, hi = levels
     white = float(layout["white"])
     b = per_position(np.asarray(layout["black"], dtype=np.float64), (height, width))
+    steps = None if not ladder else np.sort(np.asarray(ladder, dtype=np.float64))
     out = []
     for _ in range(n):
         lab = tile_labels(height, width, tiles, rng)
-        level = lo + (hi - lo) * rng.random(tiles)
-        out.append(np.rint(np.clip(b + gaussian_blur(level[lab], blur), 0, white)).astype(np.uint16))
+        if steps is None:
+            v = gaussian_blur((lo + (hi - lo) * rng.random(tiles))[lab], blur)
+        else:
+            v = gaussian_blur(rng.choice(steps, tiles)[lab], blur)
+            v = steps[np.argmin(np.abs(v[..., None] - steps), axis=-1)]
+        t0, t1 = texture
+        if t0 or t1:
+            v = v + (t0 + t1 * np.clip(v, 0, None)) * rng.standard_normal(v.shape)
+        out.append(np.rint(np.clip(b + v, 0, white)).astype(np.uint16))
     return out
 
 
