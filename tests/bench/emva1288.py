@@ -23,11 +23,12 @@ evaluation set is made of them as **real-noise mosaics** (``OUT/eval-mosaic``, 4
 shows at each pixel the held-out frame of exposure (label + m) mod 4, the label a dead-leaves map
 split into 4 equal areas, with that frame's clean image — every pixel and its noise real, at its
 own level and position, each used once over the 4 scenes, and edges between levels that a network
-must keep (``--flat-eval`` evaluates on the flat fields themselves). ``--scenes tiles`` evaluates
-on **tiled** mosaics instead (``OUT/eval-tiles``, :func:`write_tiles`: ``TILES`` large Voronoi
+must keep (``--flat-eval`` evaluates on the flat fields themselves). ``--scenes tiles`` (the
+default; ``--scenes mosaic`` for the dead-leaves mosaics above) evaluates on **tiled** mosaics (``OUT/eval-tiles``, :func:`write_tiles`: ``TILES`` large Voronoi
 regions, edges blurred by a Gaussian of ``TILE_BLUR`` px, each edge pixel the real pixel of the
 held-out frame nearest the blurred level) and trains on generated tile scenes of the same kind
-(``noisecal-bench --tiles``): the dead-leaves mosaics are mostly edge, and a network trained on
+(``noisecal-bench --tiles``, with the held-out levels as ``--tile-ladder`` and the clean images'
+fixed pattern as ``--tile-texture``, :func:`tile_training`): the dead-leaves mosaics are mostly edge, and a network trained on
 other scenes than it is scored on is not ranked by how right its noise is (docs/bench.md, "Tiled
 real-noise scenes"). The training scenes are
 spread over the evaluated levels (0 to the brightest evaluated clean level). ``--band`` runs the earlier configuration instead: the packs from ``OUT/cal`` alone,
@@ -381,7 +382,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--scenes",
         choices=("mosaic", "tiles"),
-        default="mosaic",
+        default="tiles",
         help="low light: evaluate on the dead-leaves real-noise mosaics (OUT/eval-mosaic) or on the tiled ones "
         "(OUT/eval-tiles: a few large regions, blurred edges) and train on generated tile scenes of their kind "
         "[default: %(default)s]",

@@ -33,9 +33,11 @@ levels; options after the script's own go to ``noisecal-bench``.
   shows at each pixel the frame of level (label + m) mod k for a dead-leaves label map of k equal
   areas; tests/bench/emva1288.py's ``write_mosaics``): every pixel and its noise real. The
   evaluated pairs are every exposure below ``EVERY_BELOW`` of the range and every ``THEN_EVERY``th
-  above it up to ``EVAL_MAX``. ``--scenes tiles``: the same frames as tiled mosaics
+  above it up to ``EVAL_MAX``. ``--scenes tiles`` (the default; ``--scenes mosaic`` the
+  dead-leaves ones): the same frames as tiled mosaics
   (``OUT/eval-tiles``, tests/bench/emva1288.py's ``write_tiles``: a few large regions, edges
-  blurred as by the optics), and training on generated tile scenes of that kind (``--tiles``).
+  blurred as by the optics), and training on generated tile scenes of that kind (``--tiles``, the
+  held-out levels and the clean images' fixed pattern: ``tile_training``).
 - **A CFA on a mono sensor**, as for set 001: the DNGs say RGGB; the four positions are four
   interleaved quarters of one sensor, modelled apart.
 - **No oracle and no noiseprofile**: nobody knows this sensor's noise and its PNGs carry no
@@ -167,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--scenes",
         choices=("mosaic", "tiles"),
-        default="mosaic",
+        default="tiles",
         help="evaluate on the dead-leaves real-noise mosaics (OUT/eval-mosaic) or on the tiled ones (OUT/eval-tiles: "
         "a few large regions, blurred edges) and train on generated tile scenes of their kind [default: %(default)s]",
     )
