@@ -33,7 +33,11 @@ levels; options after the script's own go to ``noisecal-bench``.
   shows at each pixel the frame of level (label + m) mod k for a dead-leaves label map of k equal
   areas; tests/bench/emva1288.py's ``write_mosaics``): every pixel and its noise real. The
   evaluated pairs are every exposure below ``EVERY_BELOW`` of the range and every ``THEN_EVERY``th
-  above it up to ``EVAL_MAX``.
+  above it up to ``EVAL_MAX``. ``--scenes tiles`` (the default; ``--scenes mosaic`` the
+  dead-leaves ones): the same frames as tiled mosaics
+  (``OUT/eval-tiles``, tests/bench/emva1288.py's ``write_tiles``: a few large regions, edges
+  blurred as by the optics), and training on generated tile scenes of that kind (``--tiles``, the
+  held-out levels and the clean images' fixed pattern: ``tile_training``).
 - **A CFA on a mono sensor**, as for set 001: the DNGs say RGGB; the four positions are four
   interleaved quarters of one sensor, modelled apart.
 - **No oracle and no noiseprofile**: nobody knows this sensor's noise and its PNGs carry no
@@ -51,7 +55,7 @@ import numpy as np
 
 import noisecal
 from noisecal import bench
-from emva1288 import Block, Source, read_descriptor, write_mosaics
+from emva1288 import Block, Source, read_descriptor, tile_args, tile_training, write_mosaics, write_tiles
 from png16 import ConvertError, read_png_grey
 
 SET = "EMVA1288_ReferenceSet_002_CMOS_08Bit"
@@ -149,11 +153,12 @@ def convert(src: Source, out: Path, say) -> dict:
         if i in evaluated:
             held.append((centre(pair[1], EVAL_W).astype(np.uint16), centre(clean, EVAL_W), ns))
     write_mosaics(out / "eval-mosaic", held, write)
+    write_tiles(out / "eval-tiles", held, write)
     top = max(float(c.max()) for _, c, _ in held) - min(black)
     levels = sorted(round(float(c.mean()) - float(np.mean(black)), 2) for _, c, _ in held)
     say(f"black levels {[round(v, 3) for v in black]} DN; {sum(v <= CAL_MAX for v in level)} pairs calibrate; "
         f"{len(held)} evaluated, clean levels {levels} DN above black")  # fmt: skip
-    return {"black": black, "levels": levels, "top": float(np.ceil(top))}
+    return {"black": black, "levels": levels, "top": float(np.ceil(top)), **tile_training(held, black)}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -161,6 +166,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--repo", type=Path, required=True, help="a clone of EMVA1288/datasets (bare or not)")
     p.add_argument("--out", type=Path, default=Path("target/emva002"), help="the cache [default: %(default)s]")
     p.add_argument("--generate", type=int, default=24, help="generated training scenes [default: %(default)s]")
+    p.add_argument(
+        "--scenes",
+        choices=("mosaic", "tiles"),
+        default="tiles",
+        help="evaluate on the dead-leaves real-noise mosaics (OUT/eval-mosaic) or on the tiled ones (OUT/eval-tiles: "
+        "a few large regions, blurred edges) and train on generated tile scenes of their kind [default: %(default)s]",
+    )
     p.add_argument("--json", type=Path, help="noisecal-bench's results JSON [default: OUT/bench.json]")
     args, rest = p.parse_known_args(argv)
 
@@ -181,8 +193,9 @@ def main(argv: list[str] | None = None) -> int:
         [
             "--pack", str(out / "ladder.pack"),
             "--plain-pack", str(out / "ladder-plain.pack"),
-            "--eval", str(out / "eval-mosaic"),
+            "--eval", str(out / f"eval-{args.scenes}"),
             "--generate", str(args.generate), "--mono", "--generate-levels", f"0,{got['top']:g}",
+            *(tile_args(got) if args.scenes == "tiles" else []),
             "--models", "noisecal,hg,pg,plain,wrong,loud",
             "--json", str(args.json or out / "bench.json"),
             *rest,

@@ -45,7 +45,8 @@ const RESULTS: &str = r#"{
    "bands": {}, "delta_hg": {"mean": -1.0742, "std": 0.0864}}
  ],
  "wall_seconds": 754.0,
- "controls": {"400": {"spread_db": 0.1234, "wrong_worst": true, "wrong_margin_db": 1.0742, "wrong_clear": true}}
+ "controls": {"400": {"spread_db": 0.1234, "wrong_worst": true, "wrong_margin_db": 1.0742, "wrong_clear": true}},
+ "headroom": {"400": {"linear_db": 0.0123, "guided_db": 6.4321}}
 }"#;
 
 #[test]
@@ -73,6 +74,8 @@ fn bench_section_shows_the_json_and_leaves_the_rest_unchanged() {
         "12.6 min",
         "ISO 400: wrong worst: yes, clearly (by 1.07 dB)",
         "PSNR gain over the noisy input",
+        // The headroom line, with the warning its numbers call for (linear < 0.05, guided > 1 dB).
+        "ISO 400: best linear 5×5 filter +0.01 dB, clean-guided flat filter +6.43 dB over the noisy input: only an edge-aware filter",
     ] {
         assert!(section.contains(shown), "the bench section lacks {shown:?}:\n{section}");
     }
@@ -121,4 +124,6 @@ fn the_committed_bench_results_render() {
         assert!(html.contains(&cell), "row {} lacks {cell}", r["model"]);
     }
     assert!(html.contains("ISO 500: oracle best: within the seed spread"));
+    // A run from before the headroom was measured has none: no headroom paragraph.
+    assert!(results.get("headroom").is_none() && !html.contains("Headroom (no network)"));
 }

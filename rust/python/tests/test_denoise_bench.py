@@ -146,6 +146,34 @@ def test_score_bands_pool_the_error_by_clean_level():
     assert s["psnr"] == pytest.approx(10 * math.log10(1 / ((0.01**2 + 0.1**2) / 2)))
 
 
+def test_score_regions_split_flat_interiors_from_edge_bands():
+    # Known truth: a step between columns 15 and 16 of each packed channel. Edge band: the
+    # columns whose 5×5 window holds both sides (14 … 17: 4 of 32), flat the rest. Errors 0.01 in
+    # the band and 0.001 elsewhere → edge 40 dB, flat 60 dB. A 3×3 window (2 columns), a window
+    # over rows only (none) or errors pooled over both regions (~49 dB each) fail.
+    clean = np.full((4, 32, 32), 0.2)
+    clean[:, :, 16:] = 0.3
+    m = B.region_masks(clean, 0.01)
+    cols = np.flatnonzero(m["edge"][0].all(axis=0))
+    assert cols.tolist() == [14, 15, 16, 17] and not m["edge"][:, :, :14].any() and (m["flat"] == ~m["edge"]).all()
+    # Below the tolerance a variation is flat: a ramp of 0.001 a column, 0.004 over the window.
+    ramp = 0.2 + 0.001 * np.arange(32)[None, None, :] * np.ones((4, 32, 1))
+    assert B.region_masks(ramp, 0.005)["flat"].all() and not B.region_masks(ramp, 0.003)["flat"][:, :, 2:-2].any()
+    pred = clean + np.where(m["edge"], 0.01, 0.001)
+    s = B.score([pred], [clean], flat_tolerance=0.01)
+    assert s["regions"]["edge"]["psnr"] == pytest.approx(40.0) and s["regions"]["flat"]["psnr"] == pytest.approx(60.0)
+    assert s["regions"]["edge"]["fraction"] == pytest.approx(4 / 32)
+    assert "regions" not in B.score([pred], [clean])  # only when asked: earlier JSON keeps its keys
+    # Summary and table: the region rows, their gain over the input's regions, the shares.
+    inp = B.score([clean + 0.01], [clean], 0.01)
+    res = [{"model": "hg", "kind": "hg", "iso": 200, "seed": i, **s} for i in range(2)]
+    rows = B.summary(res)
+    assert rows[0]["regions"]["flat"]["mean"] == pytest.approx(60.0)
+    text = B.region_table({"summary": rows, "input": {200: inp}})
+    assert "+20.00" in text and "+0.00" in text and "flat 88 %, edge 12 %" in text
+    assert B.region_table({"summary": [{k: v for k, v in rows[0].items() if k != "regions"}], "input": {}}) == ""
+
+
 def test_summarise():
     s = B.summarise([1.0, 2.0, 4.0])
     assert s["mean"] == pytest.approx(7 / 3)

@@ -227,3 +227,169 @@ def test_ladder_flat_shape_and_clean_images():
     lv = [i / 100 for i in range(0, 60, 2)]  # 0, 0.02, … 0.58 of the range
     pick = L.ladder(lv)
     assert [lv[i] for i in pick] == [0.0, 0.02, 0.04, 0.06, 0.08, 0.16, 0.24, 0.32, 0.40]
+
+
+def test_tile_scenes_have_large_flat_regions_and_lens_blurred_edges():
+    # Tile maps: exactly `tiles` cells of mean area h·w/tiles; far fewer edges than a dead-leaves
+    # map of the same size (a map of tiny regions, or noise, fails the edge bound).
+    rng = np.random.default_rng(11)
+    h, w, tiles = 96, 128, 12
+    lab = B.tile_labels(h, w, tiles, rng)
+    assert sorted(np.unique(lab)) == list(range(tiles))
+    edges = (np.diff(lab, axis=1) != 0).mean()
+    leaves = (np.diff(E.mosaic_labels((h, w), 4, 7), axis=1) != 0).mean()
+    assert edges < 0.5 * leaves and edges < 0.05, (edges, leaves)
+    # The blur keeps a constant, and blurs a step into the sampled Gaussian's ramp: at x px from
+    # the step, Φ(x/σ) of the height (an unnormalised or box kernel misses by > 0.05).
+    assert np.allclose(B.gaussian_blur(np.full((20, 30), 7.5), 1.3), 7.5)
+    step = np.zeros((20, 40))
+    step[:, 20:] = 100.0
+    got = B.gaussian_blur(step, 1.5)[10]
+    from math import erf, sqrt
+
+    for x in (-3, -1, 1, 3):
+        want = 100 * 0.5 * (1 + erf((x + 0.5) / (1.5 * sqrt(2))))
+        assert abs(got[20 + x] - want) < 1.5, (x, got[20 + x], want)
+    assert np.array_equal(B.gaussian_blur(step, 0), step)
+    # Generated tile scenes: levels inside the band, flat interiors (most 3×3 windows of a packed
+    # plane, 6×6 raw px, constant before the rounding, so within 1 DN after it; dead-leaves
+    # scenes score 0.03–0.12 here).
+    layout = {"cfa": "RGGB", "black": BLACK, "white": 4095}
+    imgs = B.generate_tiles(6, h, w, layout, seed=3, tiles=tiles, blur=1.0, levels=(10.0, 300.0))
+    for g in imgs:
+        above = g.astype(np.float64) - B.per_position(BLACK, g.shape)
+        assert above.min() >= 9.5 and above.max() <= 300.5
+        win = np.lib.stride_tricks.sliding_window_view(B.pack_raw(g.astype(np.float64)), (3, 3), axis=(1, 2))
+        flat = (win.max((-1, -2)) - win.min((-1, -2)) <= 1.0).mean()  # per CFA plane: the rounding alone
+        assert flat > 0.45, flat
+    assert not np.array_equal(imgs[0], imgs[1])
+
+
+def test_tiled_mosaics_keep_every_pixel_real_and_its_clean_value_its_frames(tmp_path: Path):
+    # k flat frames at levels 80 DN apart → k tiled scenes. Every pixel is the real pixel of one
+    # held-out frame with that frame's clean value; in interiors each frame shows once over the k
+    # scenes (a Latin square); along edges the chosen level lies between the two sides' levels (a
+    # blurred ramp), and the flat interiors are most of the image (the dead-leaves mosaics: few).
+    rng = np.random.default_rng(3)
+    h, w, k = 128, 160, 5
+    held = []
+    for i in range(k):
+        clean = 15 + 80.0 * (i + 1) + rng.uniform(0, 1, (h, w))
+        held.append((np.rint(clean + rng.normal(0, 5, (h, w))).astype(np.uint16), clean, 40000 * (i + 1)))
+    written = {}
+
+    def write(path: Path, px: np.ndarray, iso: int, exposure_ns: int):
+        written[path.parent.name] = px
+
+    E.write_tiles(tmp_path, held, write, tiles=8, blur=2.0, seed=5)
+    assert sorted(written) == [f"tiles_{m:02}" for m in range(k)]
+    frames = np.stack([written[f"tiles_{m:02}"] for m in range(k)]).astype(np.int64)
+    cleans = np.stack([np.load(tmp_path / f"tiles_{m:02}" / "clean.npy") for m in range(k)])
+    src = np.stack([f for f, _, _ in held]).astype(np.int64)
+    src_clean = np.stack([c for _, c, _ in held])
+    which = np.rint((cleans - 15 - 0.5) / 80.0).astype(np.int64) - 1
+    assert which.min() >= 0 and which.max() < k
+    assert np.array_equal(frames, np.take_along_axis(src, which, 0))
+    assert np.array_equal(cleans, np.take_along_axis(src_clean, which, 0))
+    cls = E.tile_plan((h, w), k, 8, 5)
+    assert len(np.unique(cls)) == k  # every class has cells (8 cells dealt to 5 classes)
+    win = np.lib.stride_tricks.sliding_window_view(np.pad(cls, 7, mode="edge"), (15, 15))
+    interior = win.max((-1, -2)) == win.min((-1, -2))  # no other class within 7 px (3.5 σ)
+    assert interior.mean() > 0.5, interior.mean()
+    for m in range(k):
+        assert np.array_equal(which[m][interior], ((cls + m) % k)[interior])
+    assert (np.sort(which[:, interior], axis=0) == np.arange(k)[:, None]).all()
+    for m in range(k):
+        # The picked frame's level (here its index) lies between the lowest and highest level
+        # within 7 px: a ramp, never a level from elsewhere.
+        near = np.lib.stride_tricks.sliding_window_view(np.pad((cls + m) % k, 7, mode="edge"), (15, 15))
+        assert ((which[m] >= near.min((-1, -2))) & (which[m] <= near.max((-1, -2)))).all()
+    edge = ~interior
+    assert (which[:, edge] != ((cls[None] + np.arange(k)[:, None, None]) % k)[:, edge]).any()  # edges are blurred
+    leaves = E.mosaic_labels((h, w), k, 7)
+    wl = np.lib.stride_tricks.sliding_window_view(np.pad(leaves, 7, mode="edge"), (15, 15))
+    assert (wl.max((-1, -2)) == wl.min((-1, -2))).mean() < 0.5 * interior.mean()
+
+
+def test_ladder_conversion_never_uses_a_frame_twice_across_calibration_and_evaluation(tmp_path: Path, monkeypatch):
+    # A small set 002 on disk (8-bit PNGs, its descriptor): a dark burst and photon-transfer pairs
+    # at 30 exposures, frame 0 of every pair written with even codes and frame 1 with odd ones.
+    # The converter must calibrate on frame 0 only (every target DNG even) and evaluate on frame 1
+    # only (every pixel of every mosaic and tiled scene odd), each evaluated pixel paired with its
+    # own level's clean image (noisy − clean within the noise; the neighbouring level's clean
+    # image, 3 DN away, would be 3 DN off). A converter that evaluated frame 0, or calibrated on
+    # frame 1, fails the parity; one that paired a frame with another level's clean, the RMS.
+    monkeypatch.setattr(L, "CAL_W", 48)
+    monkeypatch.setattr(L, "EVAL_W", 32)
+    rng = np.random.default_rng(9)
+    h, w = 32, 64
+    root = tmp_path / "repo" / L.SET
+    (root / "images").mkdir(parents=True)
+    shape = 1 + 0.005 * rng.normal(size=(h, w))
+    lines = ["d 140"]
+
+    def png(name: str, img: np.ndarray) -> None:
+        (root / "images" / name).write_bytes(_png8(np.clip(img, 0, 255)))
+        lines.append(f"i images\\{name}")
+
+    for i in range(20):
+        png(f"d_burst_{i:02}.png", np.rint(3 + rng.normal(0, 0.3, (h, w))))
+    for t in range(30):
+        s = 3.0 * t
+        lines.append(f"b {40 * t} {s * 10:.1f}")
+        for f in range(2):
+            v = np.floor((3 + s * shape + rng.normal(0, 0.5 + 0.1 * np.sqrt(s), (h, w))) / 2) * 2 + f
+            png(f"b_{t:03}_{f}.png", v)
+        if t < 5:
+            lines.append(f"d {40 * t}")
+            for f in range(2):
+                png(f"d_{t:03}_{f}.png", np.rint(3 + rng.normal(0, 0.3, (h, w))))
+    (root / "EMVA1288_Data.txt").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out"
+    got = L.convert(E.Source(tmp_path / "repo", L.SET), out, lambda *a: None)
+    assert len(got["levels"]) >= 8
+    targets = sorted((out / "cal").glob("target_*.dng"))
+    assert len(targets) == 30
+    for p in targets:
+        assert (noisecal.read_dng(p)[0] % 2 == 0).all(), p.name
+    for kind in ("eval-mosaic", "eval-tiles"):
+        scenes = sorted((out / kind).iterdir())
+        assert len(scenes) == len(got["levels"])
+        for d in scenes:
+            px = noisecal.read_dng(d / "frame.dng")[0]
+            clean = np.load(d / "clean.npy")
+            assert (px % 2 == 1).all(), d
+            # The odd codes add ½ DN on average and a parity step of up to 1: the rest is the noise.
+            err = px - clean - 0.5
+            assert np.sqrt(np.mean(err**2)) < 1.6, (d, np.sqrt(np.mean(err**2)))
+
+
+def test_tile_training_scenes_take_the_evaluation_ladder_and_fixed_pattern():
+    # Known truth: held-out flat fields at 6 levels whose clean images carry a white fixed pattern
+    # of SD 0.2 + 0.01·level over a smooth shading. tile_training recovers the ladder and the
+    # line (a fit on the raw SD, shading included, puts t1 above 0.2 here); generate_tiles with
+    # them gives only ladder levels (before the texture) and the texture's SD at each level.
+    rng = np.random.default_rng(12)
+    h, w = 128, 160
+    black = [3.0] * 4
+    shading = 40 * np.linspace(-1, 1, w)[None] * np.ones((h, 1))
+    held = []
+    for lv in (0.0, 5.0, 20.0, 40.0, 70.0, 100.0):
+        clean = 3.0 + lv + 0.01 * lv * shading + (0.2 + 0.01 * lv) * rng.standard_normal((h, w))
+        held.append((np.zeros((h, w), np.uint16), clean, 1000))
+    got = E.tile_training(held, black)
+    assert np.allclose(got["ladder"], [0, 5, 20, 40, 70, 100], atol=0.05)
+    t0, t1 = got["texture"]
+    assert abs(t0 - 0.2) < 0.02 and abs(t1 - 0.01) < 0.001, got["texture"]
+    layout = {"cfa": "RGGB", "black": black, "white": 255}
+    ladder = [0.0, 20.0, 60.0, 100.0]
+    flat = B.generate_tiles(4, h, w, layout, seed=4, tiles=6, blur=2.0, levels=(0.0, 100.0), ladder=ladder)
+    for g in flat:
+        assert set(np.unique(g.astype(np.float64) - 3.0)) <= set(ladder)
+    assert len(set(np.unique(np.concatenate([g.ravel() for g in flat])))) == len(ladder)  # ramps only of ladder levels
+    tex = B.generate_tiles(4, h, w, layout, seed=4, tiles=6, blur=2.0, levels=(0.0, 100.0), ladder=ladder, texture=(0.5, 0.02))
+    for g, f in zip(tex[:1], flat[:1]):  # the first scene: the same map (the texture's draws come after it)
+        d = g.astype(np.float64) - f
+        for lv in ladder:
+            sd = d[f == 3.0 + lv].std()
+            assert abs(sd**2 - ((0.5 + 0.02 * lv) ** 2 + 1 / 12)) < 0.15 * (0.5 + 0.02 * lv) ** 2 + 0.02, (lv, sd)

@@ -1,7 +1,8 @@
 //! The denoiser benchmark's results (the JSON `noisecal-bench --json` writes) as a report section:
 //! per model and ISO the PSNR and SSIM mean ± spread over training seeds, the paired difference to
 //! HG and the PSNR per brightness band, the noisy input, the controls, and a chart of each model's
-//! PSNR gain over the noisy input. Only the fields shown are read; the rest of the JSON is ignored.
+//! PSNR gain over the noisy input, and the headroom (what a filter removes from the evaluation noise
+//! without a network). Only the fields shown are read; the rest of the JSON is ignored.
 
 use std::collections::BTreeMap;
 use std::fmt::Write;
@@ -65,6 +66,19 @@ pub struct Controls {
     pub wrong_margin_db: Option<f64>,
 }
 
+/// The evaluation set's headroom at an ISO (see `noisecal.bench.headroom`): the PSNR gain over the
+/// noisy input of the best linear 5×5 filter, and of a filter told where the clean image is flat
+/// (an oracle: it reads the clean image).
+#[derive(Debug, Clone, Copy, Default, Deserialize)]
+pub struct Headroom {
+    pub linear_db: Option<f64>,
+    pub guided_db: Option<f64>,
+}
+
+/// Below this gain of the best linear filter, a network starting as the identity may not learn
+/// (as `noisecal-bench` warns: `LINEAR_FLOOR_DB` in `noisecal/bench/report.py`).
+const LINEAR_FLOOR_DB: f64 = 0.05;
+
 #[derive(Debug, Clone, Deserialize)]
 pub struct BenchConfig {
     pub steps: u64,
@@ -91,6 +105,9 @@ pub struct BenchResults {
     pub networks: Vec<serde::de::IgnoredAny>,
     #[serde(default)]
     pub wall_seconds: f64,
+    /// By ISO; absent in runs before the headroom was measured.
+    #[serde(default)]
+    pub headroom: BTreeMap<String, Headroom>,
 }
 
 impl BenchResults {
@@ -190,7 +207,34 @@ pub fn bench_section(o: &mut String, b: &BenchResults, source: &str) -> anyhow::
     }
     let _ = write!(o, "</table>");
     controls(o, b);
+    headroom(o, b);
     Ok(())
+}
+
+/// Per ISO, the headroom line `noisecal-bench` prints under its controls, with its warning.
+fn headroom(o: &mut String, b: &BenchResults) {
+    let mut items = Vec::new();
+    for iso in b.isos() {
+        let Some(&Headroom { linear_db: Some(lin), guided_db: Some(guided) }) = b.headroom.get(&iso.to_string()) else {
+            continue;
+        };
+        let warn = if lin < LINEAR_FLOOR_DB && guided > 1.0 {
+            ": only an edge-aware filter removes this noise; a row at the noisy input's PSNR did not learn it and ranks nothing"
+        } else {
+            ""
+        };
+        items.push(format!(
+            "<li>ISO {iso}: best linear 5×5 filter {lin:+.2} dB, clean-guided flat filter {guided:+.2} dB over the noisy input{}</li>",
+            esc(warn)
+        ));
+    }
+    if !items.is_empty() {
+        let _ = write!(
+            o,
+            "<p>Headroom (no network): what the best linear filter, and a filter told where the clean image is flat (an oracle), gain over the noisy input on the evaluation pairs:</p><ul>{}</ul>",
+            items.concat()
+        );
+    }
 }
 
 /// The controls per ISO, as `noisecal-bench` prints them under its table.

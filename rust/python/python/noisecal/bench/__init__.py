@@ -30,7 +30,7 @@ The metric and data-layout functions here are numpy and import without torch.
 
 The package, one concern per module: ``layout`` (packed raw), ``scenes`` (generated training
 scenes), ``data`` (the evaluation set and training images from disk), ``metrics`` (PSNR, SSIM,
-bands), ``headroom`` (how much noise a filter removes), ``models`` (each model's training pairs), ``network`` (the UNet), ``training``,
+bands, flat and edge regions), ``headroom`` (how much noise a filter removes), ``models`` (each model's training pairs), ``network`` (the UNet), ``training``,
 ``estimate`` (the clean estimate noise on noise starts from), ``scoring`` (networks scored, the
 summary and the controls), ``report`` (the table), ``run``
 (a whole run) and ``cli``. The names below are its public API.
@@ -40,9 +40,9 @@ from __future__ import annotations
 
 from .errors import BenchError
 from .layout import mosaic, normalise, pack_raw, per_position, unpack_raw
-from .scenes import dead_leaves, generate_clean, parse_levels
+from .scenes import dead_leaves, gaussian_blur, generate_clean, generate_tiles, parse_levels, tile_labels
 from .data import EvalScene, eval_pairs, load_captures, load_clean, load_eval
-from .metrics import BANDS, band_masks, psnr, score, ssim, ssim_map, summarise
+from .metrics import BANDS, REGIONS, band_masks, psnr, region_masks, score, ssim, ssim_map, summarise
 from .headroom import guided_gain, headroom, linear_gain
 from .models import (
     BASE_MODELS,
@@ -64,7 +64,7 @@ from .network import make_net
 from .estimate import DEFAULT_ESTIMATE, ESTIMATES, denoise, estimates_for, parse_estimates
 from .training import batch_plan, train_one
 from .scoring import controls, evaluate, noise_rms, score_input, summary
-from .report import gain_table, gains, headroom_lines, table
+from .report import gain_table, gains, headroom_lines, region_table, table
 from .run import networks_trained, run, steps_for_minutes
 from .cli import main, parser
 
@@ -78,6 +78,7 @@ __all__ = [
     "EvalScene",
     "ModelSpec",
     "PARAMETRIC",
+    "REGIONS",
     "Pairs",
     "RENOISE_METHODS",
     "at_target_brightness",
@@ -94,7 +95,9 @@ __all__ = [
     "guided_gain",
     "headroom",
     "headroom_lines",
+    "gaussian_blur",
     "generate_clean",
+    "generate_tiles",
     "half_variance",
     "hg_mean_offset",
     "interpolation_notes",
@@ -116,6 +119,8 @@ __all__ = [
     "parser",
     "per_position",
     "psnr",
+    "region_masks",
+    "region_table",
     "run",
     "score",
     "scale_variance",
@@ -127,6 +132,7 @@ __all__ = [
     "summary",
     "synth_seed",
     "table",
+    "tile_labels",
     "train_one",
     "unpack_raw",
 ]

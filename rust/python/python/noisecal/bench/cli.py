@@ -32,6 +32,23 @@ def parser() -> argparse.ArgumentParser:
         help="LO,HI: --generate scenes spread over these DN above black (a pack calibrated on a narrow band of levels)",
     )
     p.add_argument("--mono", action="store_true", help="--generate grey scenes (gain 1 on every CFA position): a monochrome sensor")
+    p.add_argument(
+        "--tiles",
+        type=int,
+        help="--generate grey tile scenes of N flat regions (Voronoi cells, levels uniform over --generate-levels) "
+        "instead of dead leaves: the kind of a tiled real-data evaluation set (docs/bench.md)",
+    )
+    p.add_argument("--tile-blur", type=float, default=1.0, help="--tiles: the edges' Gaussian blur in raw pixels [default: %(default)s]")
+    p.add_argument(
+        "--tile-ladder",
+        help="--tiles: L1,L2,…: the evaluation set's levels (DN above black); regions take these levels and blurred "
+        "pixels the nearest of them, as tiled evaluation scenes are made",
+    )
+    p.add_argument(
+        "--tile-texture",
+        help="--tiles: T0,T1: add a white fixed pattern of SD T0 + T1·level DN to the clean scenes (the DSNU and PRNU a "
+        "real clean image, a burst mean, carries) [default: none]",
+    )
     p.add_argument("--captures", type=Path, help="real captures of the training scenes (<clean stem>_*.dng): oracle, noise on noise")
     p.add_argument("--set", type=Path, help="a folder laid out as `noisecal simulate --bench` writes it")
     p.add_argument("--models", default=DEFAULT_MODELS, help=f"comma-separated [LABEL=]MODEL[:COMPONENTS][@PACK]; MODEL in {', '.join(BASE_MODELS)} [default: %(default)s]")
@@ -108,6 +125,8 @@ def main(argv: list[str] | None = None) -> int:
             raise BenchError(f"--input-scale {args.input_scale}: give a positive number (1 leaves the network as it is)")
         if args.highpass and args.input_scale != 1.0:
             raise BenchError("--highpass sets the network's input unit itself: drop --input-scale")
+        if args.tiles is not None and (args.tiles < 1 or not 0 <= args.tile_blur <= 16):
+            raise BenchError(f"--tiles {args.tiles} --tile-blur {args.tile_blur:g}: give 1 or more tiles and a blur of 0 … 16 px")
         if args.seeds < 1 or args.steps < 1 or args.batch < 1:
             raise BenchError("--seeds, --steps and --batch must be at least 1")
         if not 0 <= args.data_seed < 2**64 or args.seed < 0:

@@ -50,12 +50,38 @@ def band_masks(clean_norm: np.ndarray) -> dict:
     return {name: (clean_norm >= lo) & (clean_norm < hi) for name, lo, hi in BANDS}
 
 
-def score(preds: list[np.ndarray], cleans: list[np.ndarray]) -> dict:
+# Region types by the clean image's local variation (``region_masks``).
+REGIONS = ("flat", "edge")
+
+
+def region_masks(clean_norm: np.ndarray, tolerance: float, radius: int = 2) -> dict:
+    """Per region type, the mask of packed pixels: ``flat`` where the clean image varies by at
+    most ``tolerance`` (normalised units) over the (2·radius + 1)² window of its packed channel
+    (edges replicated), ``edge`` the rest — the band along edges, about ``radius`` packed pixels
+    either side, and any texture. Flat interiors reward smoothing; edge bands punish it."""
+    c = np.asarray(clean_norm, np.float64)
+    r = radius
+    p = np.pad(c, ((0, 0), (r, r), (r, r)), mode="edge")
+    h, w = c.shape[1:]
+    hi, lo = c.copy(), c.copy()
+    for dy in range(2 * r + 1):
+        for dx in range(2 * r + 1):
+            v = p[:, dy : dy + h, dx : dx + w]
+            np.maximum(hi, v, out=hi)
+            np.minimum(lo, v, out=lo)
+    flat = hi - lo <= tolerance
+    return {"flat": flat, "edge": ~flat}
+
+
+def score(preds: list[np.ndarray], cleans: list[np.ndarray], flat_tolerance: float | None = None) -> dict:
     """PSNR (mean over images) and SSIM (mean) of packed normalised predictions, and per brightness
-    band the PSNR of the pooled squared error and the mean SSIM over the band's pixels."""
+    band the PSNR of the pooled squared error and the mean SSIM over the band's pixels. With
+    ``flat_tolerance``, also per region type (:func:`region_masks`: flat interior, edge band) the
+    PSNR of the pooled squared error and the region's share of the pixels (``regions``)."""
     ps, ss = [], []
     sq = {b[0]: [0.0, 0] for b in BANDS}
     sm = {b[0]: [0.0, 0] for b in BANDS}
+    rq = {name: [0.0, 0] for name in REGIONS}
     for p, c in zip(preds, cleans):
         ps.append(psnr(p, c))
         m = ssim_map(p, c)
@@ -68,6 +94,10 @@ def score(preds: list[np.ndarray], cleans: list[np.ndarray]) -> dict:
             mv = mask[..., 5:-5, 5:-5]
             sm[name][0] += float(m[mv].sum())
             sm[name][1] += int(mv.sum())
+        if flat_tolerance is not None:
+            for name, mask in region_masks(c, flat_tolerance).items():
+                rq[name][0] += float(err[mask].sum())
+                rq[name][1] += int(mask.sum())
     bands = {}
     for name, *_ in BANDS:
         if sq[name][1]:
@@ -77,7 +107,15 @@ def score(preds: list[np.ndarray], cleans: list[np.ndarray]) -> dict:
                 "ssim": sm[name][0] / sm[name][1] if sm[name][1] else None,
                 "fraction": sq[name][1] / sum(v[1] for v in sq.values()),
             }
-    return {"psnr": float(np.mean(ps)), "ssim": float(np.mean(ss)), "bands": bands}
+    out = {"psnr": float(np.mean(ps)), "ssim": float(np.mean(ss)), "bands": bands}
+    if flat_tolerance is not None:
+        total = sum(v[1] for v in rq.values())
+        out["regions"] = {
+            name: {"psnr": math.inf if v[0] == 0 else 10 * math.log10(v[1] / v[0]), "fraction": v[1] / total}
+            for name, v in rq.items()
+            if v[1]
+        }
+    return out
 
 
 def summarise(values: list[float]) -> dict:

@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from .metrics import BANDS
+from .metrics import BANDS, REGIONS
 
 
 def _fmt(m: dict, digits: int = 2) -> str:
@@ -32,6 +32,35 @@ def gains(out: dict) -> list[dict]:
                 g["bands"][b] = m["mean"] - inp["bands"][b]["psnr"]
         rows.append(g)
     return rows
+
+
+def region_table(out: dict) -> str:
+    """Per summary row, the PSNR (mean ± spread over seeds) and the gain over the noisy input in
+    the flat interiors and the edge bands (:func:`noisecal.bench.metrics.region_masks`), with the
+    regions' shares of the pixels: flat regions reward smoothing and edges punish it, so a model
+    with too little noise wins at edges and one with too much in flat regions; empty when the run
+    scored no regions."""
+    rows = [r for r in out["summary"] if r.get("regions")]
+    if not rows:
+        return ""
+    head = f"{'by region, PSNR dB':<22}{'ISO':>6}  " + "  ".join(f"{n:>12}  {'gain':>7}" for n in REGIONS)
+    lines = [head, "-" * len(head)]
+    for iso in sorted({r["iso"] for r in rows}):
+        inp = (_input_at(out, iso) or {}).get("regions", {})
+        for r in [r for r in rows if r["iso"] == iso]:
+            cells = []
+            for n in REGIONS:
+                m = r["regions"].get(n)
+                g = f"{m['mean'] - inp[n]['psnr']:>+7.2f}" if m and n in inp else f"{'':>7}"
+                cells.append(f"{_fmt(m) if m else '':>12}  {g}")
+            lines.append(f"{r['model']:<22}{iso:>6}  " + "  ".join(cells))
+        if inp:
+            cells = [f"{inp[n]['psnr']:>12.2f}  {'':>7}" if n in inp else f"{'':>12}  {'':>7}" for n in REGIONS]
+            lines.append(f"{'(noisy input)':<22}{iso:>6}  " + "  ".join(cells))
+            share = ", ".join(f"{n} {100 * inp[n]['fraction']:.0f} %" for n in REGIONS if n in inp)
+            lines.append(f"{'':<22}{iso:>6}  pixels: {share}")
+    lines.append("regions: flat where the clean image varies less than the evaluation noise's RMS over a 5×5 packed window")
+    return "\n".join(lines)
 
 
 def gain_table(out: dict) -> str:
@@ -111,4 +140,7 @@ def table(out: dict) -> str:
     lines.append("PSNR/SSIM: mean±std over training seeds; bands: PSNR of the pooled error by clean level (dark < 2 % of range)")
     if any(out.get("input", {}).values()):
         lines += ["", gain_table(out)]
+    regions = region_table(out)
+    if regions:
+        lines += ["", regions]
     return "\n".join(lines)

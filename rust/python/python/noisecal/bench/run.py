@@ -20,13 +20,27 @@ from .headroom import headroom
 from .layout import normalise
 from .models import RENOISE_METHODS, ModelSpec, Pairs, interpolation_notes, make_pairs, parse_model
 from .network import _torch
-from .scenes import generate_clean, parse_levels
+from .scenes import generate_clean, generate_tiles, parse_levels
 from .scoring import controls, evaluate, noise_rms, score_input, summary
 from .training import batch_plan, train_one
 
 
 def _config_key(cfg: dict) -> str:
     return hashlib.blake2b(json.dumps(cfg, sort_keys=True).encode(), digest_size=8).hexdigest()
+
+
+def _floats(text: str | None, flag: str, count: int) -> list[float] | None:
+    """``--flag A,B,…``: ``count`` numbers ≥ 0 (``count`` 1: one or more)."""
+    if text is None:
+        return None
+    try:
+        v = [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        v = []
+    if not v or (count > 1 and len(v) != count) or min(v) < 0:
+        want = "one or more numbers ≥ 0" if count == 1 else f"{count} numbers ≥ 0"
+        raise BenchError(f"{flag} {text!r}: give {want}, separated by commas")
+    return v
 
 
 def networks_trained(jobs: list, seeds: int) -> int:
@@ -74,7 +88,17 @@ def run(args: argparse.Namespace) -> dict:
     else:
         n = args.generate or 16
         h, w = (scenes[0].clean.shape[0] // 2) * 2, (scenes[0].clean.shape[1] // 2) * 2
-        names, cleans = [f"gen{i:03}" for i in range(n)], generate_clean(n, h, w, layout, args.data_seed, args.mono, parse_levels(args.generate_levels, layout))
+        names = [f"gen{i:03}" for i in range(n)]
+        levels = parse_levels(args.generate_levels, layout)
+        if getattr(args, "tiles", None):
+            top = float(layout["white"]) - max(float(b) for b in layout["black"])
+            ladder = _floats(getattr(args, "tile_ladder", None), "--tile-ladder", 1)
+            texture = _floats(getattr(args, "tile_texture", None), "--tile-texture", 2)
+            cleans = generate_tiles(
+                n, h, w, layout, args.data_seed, args.tiles, args.tile_blur, levels or (0.0, top), ladder, tuple(texture or (0.0, 0.0))
+            )
+        else:
+            cleans = generate_clean(n, h, w, layout, args.data_seed, args.mono, levels)
     captures = load_captures(Path(args.captures), names, pack) if args.captures else {}
     shapes = {c.shape for c in cleans}
     if len(shapes) != 1:
@@ -147,7 +171,12 @@ def run(args: argparse.Namespace) -> dict:
         "eval": str(Path(args.eval).resolve()),
         "train": str(Path(args.train).resolve())
         if args.train
-        else f"generated:{len(cleans)}" + (":mono" if args.mono else "") + (f":{args.generate_levels}" if args.generate_levels else ""),
+        else f"generated:{len(cleans)}"
+        + (":mono" if args.mono else "")
+        + (f":{args.generate_levels}" if args.generate_levels else "")
+        + (f":tiles:{args.tiles}:{args.tile_blur:g}" if getattr(args, "tiles", None) else "")
+        + (f":ladder:{args.tile_ladder}" if getattr(args, "tile_ladder", None) else "")
+        + (f":texture:{args.tile_texture}" if getattr(args, "tile_texture", None) else ""),
         "steps": steps,
         "batch": args.batch,
         "crop": args.crop,
@@ -178,6 +207,12 @@ def run(args: argparse.Namespace) -> dict:
         if iso not in prepared:
             prepared[iso] = eval_pairs(scenes, iso, layout)
         return prepared[iso]
+
+    def flat_at(iso: int) -> float:
+        """The flat-region tolerance at ``iso`` (:func:`noisecal.bench.metrics.region_masks`): the
+        RMS of the real evaluation noise there, so a flat region is one whose clean image varies
+        less than the noise over a 5×5 packed window."""
+        return noise_rms(eval_at(iso))
 
     def sigma_at(iso: int) -> float | None:
         """--highpass: the network's noise unit at ``iso``, the RMS of the real evaluation noise
@@ -242,12 +277,12 @@ def run(args: argparse.Namespace) -> dict:
                 pairs, cleans_norm, layout, plan, args.crop, args.width, seed, device, args.lr, progress, args.input_scale,
                 loss, sigma_at(iso),
             )  # fmt: skip
-            r = {"model": spec.label, "kind": spec.kind, "iso": iso, "seed": seed, **evaluate(net, eval_at(iso), device)}
+            r = {"model": spec.label, "kind": spec.kind, "iso": iso, "seed": seed, **evaluate(net, eval_at(iso), device, flat_at(iso))}
             r["train_seconds"] = time.time() - ts
             results.append(r)
             if fname:
                 fname.write_text(json.dumps(r))
-    inputs = {iso: score_input(eval_at(iso)) for iso in sorted({iso for _, iso in jobs})}
+    inputs = {iso: score_input(eval_at(iso), flat_at(iso)) for iso in sorted({iso for _, iso in jobs})}
     out: dict[str, Any] = {
         "config": cfg,
         "input": inputs,

@@ -1,5 +1,7 @@
 """The built-in clean training images: natural-statistics scenes (dead leaves) mosaiced for a
-pack's CFA, channel gains and black/white levels (``--generate``, ``--generate-levels``, ``--mono``)."""
+pack's CFA, channel gains and black/white levels (``--generate``, ``--generate-levels``, ``--mono``),
+or grey tile scenes (``--tiles``: a few large flat regions, edges blurred as by a lens), the kind of
+the real-data benchmark's tiled evaluation scenes (tests/bench/emva1288.py, ``--scenes tiles``)."""
 
 from __future__ import annotations
 
@@ -75,6 +77,80 @@ def generate_clean(
             out.append(np.rint(np.clip(b + lo + v * (hi - lo), 0, white)).astype(np.uint16))
             continue
         out.append(np.rint(np.clip(b + raw * (white - b), 0, white)).astype(np.uint16))
+    return out
+
+
+def tile_labels(height: int, width: int, tiles: int, rng: np.random.Generator) -> np.ndarray:
+    """A map of ``tiles`` large regions (int, 0 … tiles − 1): the Voronoi cells of ``tiles``
+    points uniform over the image, each pixel labelled by its nearest point. Cells average
+    height·width/tiles pixels, convex, with straight edges at every angle."""
+    pts = rng.random((tiles, 2)) * np.array([height, width])
+    yy, xx = np.mgrid[0:height, 0:width] + 0.5
+    best = np.zeros((height, width), dtype=np.int64)
+    dist = np.full((height, width), np.inf)
+    for i, (py, px) in enumerate(pts):
+        d = (yy - py) ** 2 + (xx - px) ** 2
+        closer = d < dist
+        best[closer], dist[closer] = i, d[closer]
+    return best
+
+
+def gaussian_blur(img: np.ndarray, sigma: float) -> np.ndarray:
+    """``img`` (H, W) filtered by a normalised Gaussian of ``sigma`` pixels (separable, radius
+    ⌈3σ⌉, edges reflected); ``sigma`` 0 returns it unchanged. A lens's blur of an edge: a constant
+    region stays constant, a step becomes a ramp over about ±2σ."""
+    x = np.asarray(img, np.float64)
+    if sigma <= 0:
+        return x.copy()
+    r = max(1, math.ceil(3 * sigma))
+    k = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
+    k /= k.sum()
+    p = np.pad(x, r, mode="reflect")
+    p = sum(k[i] * p[i : i + x.shape[0], :] for i in range(2 * r + 1))
+    return sum(k[i] * p[:, i : i + x.shape[1]] for i in range(2 * r + 1))
+
+
+def generate_tiles(
+    n: int,
+    height: int,
+    width: int,
+    layout: Mapping[str, Any],
+    seed: int,
+    tiles: int,
+    blur: float,
+    levels: tuple[float, float],
+    ladder: list[float] | None = None,
+    texture: tuple[float, float] = (0.0, 0.0),
+) -> list[np.ndarray]:
+    """``n`` clean raw images (uint16 DN, black included) of grey tile scenes (``--tiles``): the
+    :func:`tile_labels` map of ``tiles`` regions, each region one level uniform over ``levels``
+    (lo, hi DN above black), blurred by :func:`gaussian_blur` of ``blur`` pixels, at gain 1 on
+    every CFA position (a monochrome sensor read as a mosaic). The training scenes of the real-data
+    benchmark's tiled evaluation mosaics: the same kind of regions and edges, other levels and
+    shapes (their own seed).
+
+    ``ladder`` (DN above black): the evaluation set's levels: each region takes one of them, and
+    each blurred pixel the ladder level nearest it, as the tiled evaluation scenes are made (their
+    edges are stairs of real levels, not smooth ramps). ``texture`` (t0, t1): a fixed pattern of
+    white Gaussian texture with SD ``t0 + t1·level`` DN added to the clean image, as the real clean
+    images (a burst's mean) carry the sensor's DSNU and PRNU, which a denoiser must keep."""
+    rng = np.random.default_rng(seed)
+    lo, hi = levels
+    white = float(layout["white"])
+    b = per_position(np.asarray(layout["black"], dtype=np.float64), (height, width))
+    steps = None if not ladder else np.sort(np.asarray(ladder, dtype=np.float64))
+    out = []
+    for _ in range(n):
+        lab = tile_labels(height, width, tiles, rng)
+        if steps is None:
+            v = gaussian_blur((lo + (hi - lo) * rng.random(tiles))[lab], blur)
+        else:
+            v = gaussian_blur(rng.choice(steps, tiles)[lab], blur)
+            v = steps[np.argmin(np.abs(v[..., None] - steps), axis=-1)]
+        t0, t1 = texture
+        if t0 or t1:
+            v = v + (t0 + t1 * np.clip(v, 0, None)) * rng.standard_normal(v.shape)
+        out.append(np.rint(np.clip(b + v, 0, white)).astype(np.uint16))
     return out
 
 

@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from .metrics import BANDS, score, summarise
+from .metrics import BANDS, REGIONS, score, summarise
 from .network import _torch
 
 
-def score_input(pairs: list[tuple[np.ndarray, np.ndarray]]) -> dict:
+def score_input(pairs: list[tuple[np.ndarray, np.ndarray]], flat_tolerance: float | None = None) -> dict:
     """The noisy evaluation frames themselves scored against the clean images (no network)."""
-    return score([n for n, _ in pairs], [c for _, c in pairs])
+    return score([n for n, _ in pairs], [c for _, c in pairs], flat_tolerance)
 
 
 def noise_rms(pairs: list[tuple[np.ndarray, np.ndarray]]) -> float:
@@ -20,14 +20,15 @@ def noise_rms(pairs: list[tuple[np.ndarray, np.ndarray]]) -> float:
     return float(np.sqrt(sq / sum(n.size for n, _ in pairs)))
 
 
-def evaluate(net, pairs: list[tuple[np.ndarray, np.ndarray]], device) -> dict:
-    """``net``'s output on every evaluation pair (:func:`eval_pairs`), scored."""
+def evaluate(net, pairs: list[tuple[np.ndarray, np.ndarray]], device, flat_tolerance: float | None = None) -> dict:
+    """``net``'s output on every evaluation pair (:func:`eval_pairs`), scored (per region type
+    too, with ``flat_tolerance``: :func:`noisecal.bench.metrics.score`)."""
     torch = _torch()
     preds = []
     with torch.no_grad():
         for noisy, _ in pairs:
             preds.append(net(torch.from_numpy(noisy[None]).to(device))[0].cpu().numpy())
-    return score(preds, [c for _, c in pairs])
+    return score(preds, [c for _, c in pairs], flat_tolerance)
 
 
 def summary(results: list[dict]) -> list[dict]:
@@ -51,6 +52,10 @@ def summary(results: list[dict]) -> list[dict]:
             vals = [r["bands"][name]["psnr"] for r in per.values() if name in r["bands"]]
             if vals:
                 row["bands"][name] = summarise(vals)
+        for name in REGIONS:
+            vals = [r["regions"][name]["psnr"] for r in per.values() if name in r.get("regions", {})]
+            if vals:
+                row.setdefault("regions", {})[name] = summarise(vals)
         hg = by.get(("hg", iso))
         if hg and model != "hg":
             common = sorted(set(per) & set(hg))
