@@ -111,9 +111,9 @@ impl SmoothCdf {
 }
 
 /// `out[i]` = the cumulative mass of `cdf` up to the preimage under `map` of the edge
-/// `first + i − ½`: [`SmoothCdf::at`] of `map.origin + (y − map.centre) / map.a`, the same
-/// operations in the same order, so the same bits (tested), in a loop without branches the
-/// compiler vectorises (compiled for AVX-512 and AVX2 as well as the baseline, the CPU's best
+/// `first + i − ½`: `SmoothCdf::at` (kept for the tests) of `map.origin + (y − map.centre) /
+/// map.a`, the same operations in the same order, so the same bits (tested), in a loop without
+/// branches the compiler vectorises (compiled for AVX-512 and AVX2 as well as the baseline, the CPU's best
 /// picked at run time: `multiversion`). The re-binning runs once per bin and iteration of the
 /// exact map at every sampler build with structured components, a few cells to thousands each.
 #[multiversion(targets(
@@ -156,12 +156,14 @@ fn cdf_at_edges(cdf: &SmoothCdf, map: &AffineMap, first: i32, out: &mut [f64]) {
         } else {
             f
         };
-        *o = if !(t > 0.0) {
-            0.0
-        } else if t >= nf {
+        // Past the last edge the total, before the first edge (or for a NaN) 0: `t ≥ n ≥ 1`
+        // is above 0, as `SmoothCdf::at` reads it.
+        *o = if t >= nf {
             total
-        } else {
+        } else if t > 0.0 {
             f
+        } else {
+            0.0
         };
     }
 }
