@@ -205,7 +205,7 @@ fn fine_levels_at(
             let bin: &BinModel = &bins[b];
             let (mean, _) = bin.moments();
             let v = sum / levels.len() as f64;
-            let mut m = BinModel::from_pmf(&bin.pmf().rescaled_exact(mean, v), bin.samples, bin.filled());
+            let mut m = BinModel::from_pmf(&bin.pmf().rescaled(mean, v), bin.samples, bin.filled());
             m.source = bin.source;
             let index = (bins.len() + extra.len()) as u16;
             extra.push(m);

@@ -48,10 +48,10 @@ pub fn blend_quantiles(a: &Pmf, b: &Pmf, t: f64, mu: f64, var: f64) -> Pmf {
     let qa = standard_quantile(a);
     let qb = standard_quantile(b);
     if qa.is_empty() || qb.is_empty() || t <= 0.0 {
-        return a.rescaled_exact(mu, var);
+        return a.rescaled(mu, var);
     }
     if t >= 1.0 {
-        return b.rescaled_exact(mu, var);
+        return b.rescaled(mu, var);
     }
     // Both quantile functions' cell ends ascend: merged in one pass (what sorting them gives).
     let mut knots: Vec<f64> = Vec::with_capacity(qa.len() + qb.len() + 1);
@@ -113,5 +113,5 @@ pub fn blend_quantiles(a: &Pmf, b: &Pmf, t: f64, mu: f64, var: f64) -> Pmf {
             }
         }
     }
-    Pmf::from_weights(first, out).unwrap_or_else(|| a.rescaled_exact(mu, var))
+    Pmf::from_weights(first, out).unwrap_or_else(|| a.rescaled(mu, var))
 }

@@ -27,11 +27,8 @@
 //!    truth), mean per-bin JSD to the truth: blend 1.0·10⁻⁴, nearest 1.7·10⁻⁴, a calibration
 //!    of ISO 400 itself 1.6·10⁻⁴ (the blend averages two calibrations' sampling noise), HG
 //!    interpolated parametrically 5.4·10⁻⁴ (1.9·10⁻³ in the darkest bin).
-//! 5. **Rescale** the shape to the fitted mean and variance on the integer grid (Eq. 6): with one
-//!    shape source by
-//!    [`Pmf::rescaled_exact`](crate::model::pmf::Pmf::rescaled_exact) (the discrete moments met
-//!    exactly); the blend maps its piecewise-linear quantile function itself
-//!    ([`blend_quantiles`], Sheppard-corrected).
+//! 5. **Rescale** the shape to the fitted mean and variance on the integer grid (Eq. 6, as
+//!    [`Pmf::rescaled`](crate::model::pmf::Pmf::rescaled): piecewise-uniform cells, Sheppard-corrected).
 //!
 //! Outside the calibrated range the fit is refused ([`ModelError::IsoOutOfRange`]) unless
 //! `extrapolate`, in which case the nearest three calibrated ISOs of the end segment are used and
@@ -162,8 +159,8 @@ pub fn interpolate_planned(pack: &ModelPack, plan: &InterpPlan) -> IsoModel {
                             mean,
                             var,
                         ),
-                        [a] => a.positions[pos].bins[b].pmf().rescaled_exact(mean, var),
-                        _ => pts[0].bin.pmf().rescaled_exact(mean, var),
+                        [a] => a.positions[pos].bins[b].pmf().rescaled(mean, var),
+                        _ => pts[0].bin.pmf().rescaled(mean, var),
                     };
                     let samples = pts.iter().map(|p| p.bin.samples).min().unwrap_or(0);
                     let filled = pts.iter().any(|p| p.bin.filled());
