@@ -321,7 +321,7 @@ impl StructureSampler {
     /// `floor_noise(i)` is the noise value at or below which bin `i`'s cells lie at or past the
     /// floor for the bin's lowest clean level (`floor − lowest level`; `None` where not known).
     /// Those cells are the clamp's pile, spread over as many cells as the bin pools levels; they
-    /// are moved past the clip by the kernel's reach ([`floor_pile_start`]).
+    /// are moved past the clip by the kernel's reach (`floor_pile_start`).
     pub fn deconvolved_at_floor(
         &self,
         pos: usize,
