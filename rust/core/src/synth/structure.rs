@@ -34,12 +34,6 @@ const GRID: f64 = 32.0;
 /// 5–6): the shape error is second order in the share (the excess kurtosis of `Q ∗ K` comes out
 /// `(1 − share)²` of the measured one), while Richardson–Lucy would cost `n · K` per iteration.
 const RESCALE_ONLY: f64 = 0.1;
-/// An unclipped bin whose support (less its negligible tails) spans at most this many cells is
-/// deconvolved by Richardson–Lucy whatever the kernel's share: narrowing keeps `P`'s excess
-/// kurtosis in `Q`, so `Q ∗ K` has `(1 − share)²` of it and thinner tails (a Student-t of 6
-/// degrees of freedom, 1.1 DN², row SD 0.15: integer 0.1 %/99.9 % quantiles ∓4 DN against the
-/// measured ∓5). There the iterations cost at most `RL_ITERATIONS · 64 · |K|`.
-const RL_NARROW_CORE: usize = 64;
 /// Richardson–Lucy iterations at most, and the work (`iterations · n · K`) per bin at most, `n`
 /// the PMF's support less its negligible tails ([`TAIL_MASS`]).
 const RL_ITERATIONS: usize = 200;
@@ -409,11 +403,7 @@ fn deconvolve_bin_within(
     // A clipped bin where the kernel is a small share of the variance starts close (the pile
     // past the clip, the rest narrowed) and needs few iterations to fit the cells next to the
     // clip: 20 leave a JSD near 10⁻⁵ on clipped Gaussians, far below a bin's sampling floor.
-    // Only an unclipped bin: a clipped one with no pile read at an end could have one spread
-    // over a few cells, which the iterations, unable to place mass past `first − k0`, would pile
-    // inward.
-    let narrow = core <= RL_NARROW_CORE && !b.clipped;
-    let cap = if start_only && !narrow { max_iterations.min(CLIPPED_SMALL_SHARE_ITERATIONS) } else { max_iterations };
+    let cap = if start_only { max_iterations.min(CLIPPED_SMALL_SHARE_ITERATIONS) } else { max_iterations };
     let iterations = (RL_WORK / (core * kernel.len()) as f64).min(cap as f64) as usize;
     // A bin whose samples reached a clip can have no pile at either end of its PMF (pooled
     // neighbours, whose clips sit elsewhere, leave floor-count tails past its own): such a bin
@@ -442,7 +432,7 @@ fn deconvolve_bin_within(
         false => narrowed(&pmf, core_pmf.as_ref().unwrap_or(&pmf), pm - km, pv - kv),
         true => clipped_start(&pmf, low, k0, kernel.len(), km, kv),
     };
-    if (start_only && !clipped && !narrow) || iterations < 10 {
+    if (start_only && !clipped) || iterations < 10 {
         return from_weights(b, start.first, &start.p);
     }
     let ext = kernel.len();

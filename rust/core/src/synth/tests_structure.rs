@@ -305,11 +305,10 @@ fn clipped_bins_are_deconvolved_not_kept() {
 /// until met to 0.1 %) gave 0.9989, a JSD of 3.4·10⁻⁵ and 0.817 of the measured tail mass; the
 /// exact re-binning ([`Pmf::rescaled_exact`], a smooth reading of the cells) gives 0.9998,
 /// 3.8·10⁻⁵ and 0.832 (asserted: within 0.001 of the variance, at least 0.825 of the tail mass, a
-/// JSD below 0.8 of the re-binning's as it comes). The integer 0.1 % / 99.9 % quantiles stayed
-/// at −4 / +4 DN against the measured −5 / +5: narrowing `P` keeps `P`'s excess kurtosis in `Q`,
-/// so `Q ∗ K` has `(1 − share)²` of it. A bin this narrow is now deconvolved by Richardson–Lucy
-/// ([`RL_NARROW_CORE`]): quantiles −5 / +5, tail mass 1.000 of the measured, variance 1.0000,
-/// JSD 5·10⁻¹⁰ (asserted: the quantiles equal, the tail mass within 2 %).
+/// JSD below 0.8 of the re-binning's as it comes). The integer 0.1 % / 99.9 % quantiles stay at
+/// −4 / +4 DN against the measured −5 / +5 (printed, not asserted): narrowing `P` keeps `P`'s
+/// excess kurtosis in `Q`, so `Q ∗ K` has `(1 − share)²` of it; only a deconvolution gives the
+/// tails back (Richardson–Lucy meets them, commit 2d0eee2).
 #[test]
 fn a_narrow_bin_near_black_keeps_its_variance_when_narrowed() {
     use crate::model::pack::BinSource;
@@ -376,11 +375,6 @@ fn a_narrow_bin_near_black_keeps_its_variance_when_narrowed() {
     assert!((var_ratio - 1.0).abs() < 0.001, "variance ratio {var_ratio:.4} (re-binned as it comes {old_var:.4})");
     assert!(jsd < 0.8 * old_jsd, "JSD {jsd:.2e} (re-binned as it comes {old_jsd:.2e})");
     assert!(tail >= 0.825 && tail >= old_tail, "tail mass ratio {tail:.3} (re-binned as it comes {old_tail:.3})");
-    // The tails: Richardson–Lucy on a bin this narrow ([`RL_NARROW_CORE`]) gives `Q ∗ K` the
-    // measured quantiles and tail mass; the narrowing alone (main before it) gave −4 / +4 and
-    // 0.832 of the tail mass.
-    assert_eq!(q, real_q, "0.1 % / 99.9 % quantiles {q:?}, measured {real_q:?}");
-    assert!((tail - 1.0).abs() < 0.02, "tail mass ratio {tail:.3}");
 }
 
 /// Known truth at black's clamp, as on the demo's phone at ISO 3200 (pixel noise SD 28 DN,
