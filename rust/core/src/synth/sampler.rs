@@ -7,6 +7,7 @@ use rand::Rng;
 use rayon::prelude::*;
 
 use crate::derive::fine_levels::{FineLevels, position_fine_levels};
+use crate::math::round::floor_i32;
 use crate::model::codes::Snap;
 use crate::model::layout::{Binning, POSITIONS, lut_at_reference_levels, reference_level};
 use crate::model::pack::{BinModel, IsoModel, ModelPack};
@@ -299,6 +300,29 @@ struct TargetMap {
     gains: [f64; POSITIONS],
 }
 
+/// The noise value at or below which a sample of bin `i` at position `pos` lies at or past the
+/// sensor's floor (`floor`, the lowest code it writes) for the bin's lowest clean level:
+/// `floor − level`. Bin 0 holds every level below black too; its lowest is taken as black's
+/// whole part (a clean level below black is a dark pixel's averaging error, a DN or two).
+/// `None` for a bin wider than a quarter of its noise SD: the cells of its pile range also hold
+/// the unclipped noise of its higher levels, in proportion to the bin's width against the
+/// noise, and all of them would go to the floor. On the demo at ISO 3200 (4 DN bins, SD 28 DN)
+/// that overshot the real pile by 7 %; on random sensor 11 (16 DN bins, black 1–5 DN above the
+/// floor, SD of a few DN) it made the pack's marginal JSD 0.00062 → 0.00065.
+fn floor_noise(binning: &Binning, pos: usize, floor: u16, i: usize, bin: &BinModel) -> Option<i32> {
+    let (_, var) = bin.pmf().moments();
+    let w = f64::from(binning.bin_width);
+    if 16.0 * w * w > var {
+        return None;
+    }
+    let black = f64::from(binning.black[pos]);
+    let lowest = match i {
+        0 => floor_i32(black),
+        _ => -floor_i32(-(black + (i as f64) * f64::from(binning.bin_width))),
+    };
+    Some(i32::from(floor) - lowest)
+}
+
 impl IsoSampler {
     /// The sampler of a model with the structured components `structure` of its ISO handed in
     /// (the caller derives them: a pack's own, or derived from its calibrated ISOs, as
@@ -329,7 +353,9 @@ impl IsoSampler {
         let mut luts: [Vec<u16>; POSITIONS] = std::array::from_fn(|p| binning.lut(p));
         let sources: [(Cow<'_, [BinModel]>, Vec<BinModel>); POSITIONS] = std::array::from_fn(|p| {
             let bins = match &structure {
-                Some(st) => Cow::Owned(st.deconvolved(p, &model.positions[p].bins)),
+                Some(st) => Cow::Owned(st.deconvolved_at_floor(p, &model.positions[p].bins, |i| {
+                    floor_noise(&binning, p, model.range[p][0], i, &model.positions[p].bins[i])
+                })),
                 None => Cow::Borrowed(&model.positions[p].bins[..]),
             };
             // An estimated model's levels near black whose bin is too wide for the noise there

@@ -360,12 +360,32 @@ impl StructureSampler {
     /// too narrow to deconvolve keep their shape (the pile moved past the clip); unclipped ones
     /// are narrowed by the kernel's variance where they hold more, else kept as they are.
     pub fn deconvolved(&self, pos: usize, bins: &[BinModel]) -> Vec<BinModel> {
+        self.deconvolved_at_floor(pos, bins, |_| None)
+    }
+
+    /// [`Self::deconvolved`] where the sensor's output stops at a floor (its clamp near black):
+    /// `floor_noise(i)` is the noise value at or below which bin `i`'s cells lie at or past the
+    /// floor for the bin's lowest clean level (`floor − lowest level`; `None` where not known).
+    /// Those cells are the clamp's pile, spread over as many cells as the bin pools levels; they
+    /// are moved past the clip by the kernel's reach (`floor_pile_start`).
+    pub fn deconvolved_at_floor(
+        &self,
+        pos: usize,
+        bins: &[BinModel],
+        floor_noise: impl Fn(usize) -> Option<i32> + Sync,
+    ) -> Vec<BinModel> {
         let (k0, kernel) = self.narrowing_kernel(pos);
         if kernel.len() <= 1 {
             return bins.to_vec();
         }
         let half = bins.len() / 2;
-        bins.par_iter().enumerate().map(|(i, b)| deconvolve_bin(b, k0, &kernel, i >= half)).collect()
+        bins.par_iter()
+            .enumerate()
+            .map(|(i, b)| {
+                let floor = if i < half { floor_noise(i) } else { None };
+                deconvolve_bin_within(b, k0, &kernel, RL_ITERATIONS, i >= half, floor)
+            })
+            .collect()
     }
 }
 
@@ -373,15 +393,34 @@ impl StructureSampler {
 /// paper, [`Pmf::rescaled_exact`]) as the start, then Richardson–Lucy. In a clipped bin the sensor's
 /// clamp piled mass at one end of `P`; synthesis clamps after adding the offsets, so `Q ∗ K` is
 /// folded onto that end the same way before it is compared with `P`.
+#[cfg(test)]
 fn deconvolve_bin(b: &BinModel, k0: i32, kernel: &[f64], upper: bool) -> BinModel {
-    deconvolve_bin_within(b, k0, kernel, RL_ITERATIONS, upper)
+    deconvolve_bin_within(b, k0, kernel, RL_ITERATIONS, upper, None)
 }
 
 /// [`deconvolve_bin`] with at most `max_iterations` Richardson–Lucy iterations.
 /// `upper`: the bin lies in the upper half of the levels, so a clip it reached is white's.
-fn deconvolve_bin_within(b: &BinModel, k0: i32, kernel: &[f64], max_iterations: usize, upper: bool) -> BinModel {
+/// `floor_noise`: the noise value at or below which the bin's cells lie at or past the sensor's
+/// floor for its lowest clean level ([`StructureSampler::deconvolved_at_floor`]).
+fn deconvolve_bin_within(
+    b: &BinModel,
+    k0: i32,
+    kernel: &[f64],
+    max_iterations: usize,
+    upper: bool,
+    floor_noise: Option<i32>,
+) -> BinModel {
     let pmf = b.pmf();
     let (km, kv) = kernel_moments(k0, kernel);
+    // A clipped bin that reaches the floor: its pile is known by where the floor lies, not read
+    // from its end cells, which a pile pooled over the bin's levels (each level piles at its own
+    // `floor − level`) need not show ([`floor_pile_start`]).
+    if b.clipped
+        && let Some(t) = floor_noise
+        && let Some(start) = floor_pile_start(&pmf, t, k0, kernel.len(), km, kv)
+    {
+        return from_weights(b, start.first, &start.p);
+    }
     // Which end holds the clamp's pile, if any ([`clamp_end`]): `Some(true)` the low end.
     let pile_end = clamp_end(b, &pmf, upper);
     // Too narrow to deconvolve (support within the kernel's length, or variance within its
@@ -612,6 +651,39 @@ fn spread_pile_start(pmf: &Pmf, k0: i32, taps: usize, km: f64, kv: f64) -> Optio
     let p: Vec<f64> = (first..=last)
         .map(|v| moved.at(v) * pile_mass + narrowed.as_ref().map_or(0.0, |r| r.at(v) * (1.0 - pile_mass)))
         .collect();
+    Some(Pmf { first, p })
+}
+
+/// The start, and result, for a clipped bin whose cells at or below `t` lie at or past the
+/// sensor's floor for the bin's lowest clean level: those cells are the clamp's pile, pooled
+/// from the bin's levels (each piles at `floor − level`, so the pile covers as many cells as the
+/// bin has levels, on a digital-gain lattice every other one, with pooled tails beyond); they
+/// are moved past the clip by the kernel's reach, so every offset added leaves them at or past
+/// the floor and the clamp takes them back onto it, and the rest is narrowed by the kernel's
+/// variance (Eq. 5–6). Read from the end cells instead ([`clamp_end`]), a pile whose first
+/// cell holds less than its neighbours (its bin's lowest level has few pixels) was taken for
+/// none and kept in place, and the offsets spread it over the codes above the floor; with a
+/// floor-count tail at the other end read as the pile, Richardson–Lucy, which cannot put
+/// mass below `first − k0` there, piled it `|k0|` DN inward: the demo's ISO 3200, R, clean
+/// levels 84–87 DN, put 1.2 % of its mass 7–10 DN above black's clamp. `None` when no cell
+/// holds mass at or below `t`, or nothing is left above it.
+fn floor_pile_start(pmf: &Pmf, t: i32, k0: i32, taps: usize, km: f64, kv: f64) -> Option<Pmf> {
+    if pmf.first > t || t >= pmf.last() {
+        return None;
+    }
+    let split = (t - pmf.first + 1) as usize;
+    let total: f64 = pmf.p.iter().sum();
+    let pile_mass = pmf.p[..split].iter().sum::<f64>() / total;
+    if pile_mass < PILE_MIN {
+        return None;
+    }
+    let reach = k0 + taps as i32 - 1;
+    let moved = Pmf::from_weights(pmf.first - reach.max(0), pmf.p[..split].iter().copied())?;
+    let rest = Pmf::from_weights(pmf.first + split as i32, pmf.p[split..].iter().copied())?;
+    let (im, iv) = rest.moments();
+    let narrowed = if iv > kv + 1.0 / 12.0 { rest.rescaled_exact(im - km, iv - kv) } else { rest };
+    let (first, last) = (narrowed.first.min(moved.first), narrowed.last().max(moved.last()));
+    let p = (first..=last).map(|v| moved.at(v) * pile_mass + narrowed.at(v) * (1.0 - pile_mass)).collect();
     Some(Pmf { first, p })
 }
 
