@@ -271,16 +271,7 @@ impl StructureSampler {
     /// The PMF of the integer offset a pixel at `pos` gets: `⌊o⌋ + Bernoulli(o − ⌊o⌋)` with `o`
     /// the sum of its frame, row and column offsets. Returns `(first, pmf)`.
     pub fn kernel(&self, pos: usize) -> (i32, Vec<f64>) {
-        let mut dens = (0i64, vec![1.0]);
-        if let Some(d) = &self.rows[pos >> 1] {
-            dens = convolve(&dens, &quantile_density(d));
-        }
-        if let Some(d) = &self.columns[pos & 1] {
-            dens = convolve(&dens, &quantile_density(d));
-        }
-        if let Some(f) = &self.frame {
-            dens = convolve(&dens, &frame_density(f, pos));
-        }
+        let mut dens = self.others_density(pos);
         // Of the fixed pattern, the pixel PMFs hold its change from the reference ISO's.
         if let Some(fp) = &self.fpn {
             dens = convolve(&dens, &quantile_density(&fp.in_pixel_noise[pos]));
