@@ -93,9 +93,9 @@ def run(args: argparse.Namespace) -> dict:
         if getattr(args, "tiles", None):
             top = float(layout["white"]) - max(float(b) for b in layout["black"])
             ladder = _floats(getattr(args, "tile_ladder", None), "--tile-ladder", 1)
-            texture = _floats(getattr(args, "tile_texture", None), "--tile-texture", 2)
+            texture = _floats(getattr(args, "tile_texture", None), "--tile-texture", 2) or [0.0, 0.0]
             cleans = generate_tiles(
-                n, h, w, layout, args.data_seed, args.tiles, args.tile_blur, levels or (0.0, top), ladder, tuple(texture or (0.0, 0.0))
+                n, h, w, layout, args.data_seed, args.tiles, args.tile_blur, levels or (0.0, top), ladder, (texture[0], texture[1])
             )
         else:
             cleans = generate_clean(n, h, w, layout, args.data_seed, args.mono, levels)
