@@ -155,15 +155,22 @@ def test_dithered_burst_has_the_clean_image_as_its_mean():
     assert np.abs(np.rint(clean) - clean).max() > 0.45  # the test would catch plain rounding
 
 
+def _flat_frames(rng: np.random.Generator, h: int, w: int, k: int) -> list:
+    """``k`` held-out flat frames (noisy frame, clean image, exposure ns) at levels 80 DN apart,
+    noise SD 5 DN, each clean image with a sub-DN texture of its own."""
+    held = []
+    for i in range(k):
+        clean = 15 + 80.0 * (i + 1) + rng.uniform(0, 1, (h, w))
+        held.append((np.rint(clean + rng.normal(0, 5, (h, w))).astype(np.uint16), clean, 40000 * (i + 1)))
+    return held
+
+
 def test_real_noise_mosaics_use_every_real_pixel_once(tmp_path: Path):
     # k flat frames at k levels → k mosaics: at every pixel the k scenes show the k frames once
     # each (a Latin square), each with its own frame's clean image, in regions of about equal area.
     rng = np.random.default_rng(2)
     h, w, k = 64, 96, 4
-    held = []
-    for i in range(k):
-        clean = 15 + 80.0 * (i + 1) + rng.uniform(0, 1, (h, w))
-        held.append((np.rint(clean + rng.normal(0, 5, (h, w))).astype(np.uint16), clean, 40000 * (i + 1)))
+    held = _flat_frames(rng, h, w, k)
     written = {}
 
     def write(path: Path, px: np.ndarray, iso: int, exposure_ns: int):
@@ -272,10 +279,7 @@ def test_tiled_mosaics_keep_every_pixel_real_and_its_clean_value_its_frames(tmp_
     # blurred ramp), and the flat interiors are most of the image (the dead-leaves mosaics: few).
     rng = np.random.default_rng(3)
     h, w, k = 128, 160, 5
-    held = []
-    for i in range(k):
-        clean = 15 + 80.0 * (i + 1) + rng.uniform(0, 1, (h, w))
-        held.append((np.rint(clean + rng.normal(0, 5, (h, w))).astype(np.uint16), clean, 40000 * (i + 1)))
+    held = _flat_frames(rng, h, w, k)
     written = {}
 
     def write(path: Path, px: np.ndarray, iso: int, exposure_ns: int):

@@ -84,13 +84,7 @@ impl SmoothCdf {
             return self.total();
         }
         let j = (floor_i32(t).max(0) as usize).min(n - 1);
-        let u = t - j as f64;
-        let (u2, u3) = (u * u, u * u * u);
-        let h00 = 2.0 * u3 - 3.0 * u2 + 1.0;
-        let h10 = u3 - 2.0 * u2 + u;
-        let h01 = -2.0 * u3 + 3.0 * u2;
-        let h11 = u3 - u2;
-        let f = h00 * self.c[j] + h10 * self.d[j] + h01 * self.c[j + 1] + h11 * self.d[j + 1];
+        let f = hermite(t - j as f64, self.c[j], self.c[j + 1], self.d[j], self.d[j + 1]);
         f.clamp(self.c[j], self.c[j + 1])
     }
 
@@ -108,6 +102,18 @@ impl SmoothCdf {
         let masses = edges.windows(2).map(|e| (e[1] - e[0]).max(0.0)).collect();
         (first, masses)
     }
+}
+
+/// The cubic Hermite of one cell at `u` in `[0, 1)`: values `c0`, `c1` and slopes `d0`, `d1` at
+/// its ends. One expression for `SmoothCdf::at` and [`cdf_at_edges`], so they agree bit for bit.
+#[inline(always)]
+fn hermite(u: f64, c0: f64, c1: f64, d0: f64, d1: f64) -> f64 {
+    let (u2, u3) = (u * u, u * u * u);
+    let h00 = 2.0 * u3 - 3.0 * u2 + 1.0;
+    let h10 = u3 - 2.0 * u2 + u;
+    let h01 = -2.0 * u3 + 3.0 * u2;
+    let h11 = u3 - u2;
+    h00 * c0 + h10 * d0 + h01 * c1 + h11 * d1
 }
 
 /// `out[i]` = the cumulative mass of `cdf` up to the preimage under `map` of the edge
@@ -137,17 +143,11 @@ fn cdf_at_edges(cdf: &SmoothCdf, map: &AffineMap, first: i32, out: &mut [f64]) {
         // in range is read and its value discarded.
         let inside = t > 0.0 && t < nf;
         let j = if inside { t as u32 as usize } else { 0 };
-        let u = t - j as f64;
-        let (u2, u3) = (u * u, u * u * u);
-        let h00 = 2.0 * u3 - 3.0 * u2 + 1.0;
-        let h10 = u3 - 2.0 * u2 + u;
-        let h01 = -2.0 * u3 + 3.0 * u2;
-        let h11 = u3 - u2;
         // SAFETY: `j + 1 ≤ n` (`j` is 0 outside, and `n ≥ 1`), and `c` and `d` hold `n + 1`
         // values.
         let (c0, c1, d0, d1) =
             unsafe { (*c.get_unchecked(j), *c.get_unchecked(j + 1), *d.get_unchecked(j), *d.get_unchecked(j + 1)) };
-        let f = h00 * c0 + h10 * d0 + h01 * c1 + h11 * d1;
+        let f = hermite(t - j as f64, c0, c1, d0, d1);
         // `f.clamp(c0, c1)` (`c0 ≤ c1`: the cumulative mass rises).
         let f = if f < c0 {
             c0
