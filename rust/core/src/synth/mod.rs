@@ -3,6 +3,7 @@
 //! thread count: each band of rows has its own ChaCha stream.
 
 mod clean_at;
+mod dither_lanes;
 mod pattern_cache;
 mod pattern_lanes;
 pub mod sampler;
@@ -17,6 +18,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
+use crate::synth::dither_lanes::{DitherJumps, offsets_interleaved, offsets_split};
 use crate::synth::sampler::{BinTable, IsoSampler, fixed};
 use crate::synth::structure::ImageOffsets;
 
@@ -163,10 +165,19 @@ fn structured_filler<'a, const TARGET: bool>(
     // Kept by the sampler when this region was synthesized before; else drawn row by row.
     let kept = pattern.as_ref().and_then(|p| p.kept_pattern(origin, h, w));
     let pattern_columns = pattern.as_ref().filter(|_| kept.is_none()).map(|p| p.pattern_columns(origin.1, w));
+    // A row's dither draws: one per pair of pixels and one for the last of an odd width.
+    let draws = w.div_ceil(2);
+    let jumps = DitherJumps::new(draws);
+    // The pattern of a row without a fixed pattern.
+    let no_pattern: Vec<i64> = match &pattern {
+        Some(_) => Vec::new(),
+        None => vec![0; w],
+    };
     {
         Box::new(move |band: usize, chunk: &mut [u16]| {
             let mut rng = band_rng(seed, band);
             let mut offsets_row: Vec<i32> = vec![0; w];
+            let mut dither: Vec<u64> = Vec::new();
             // The fixed pattern's row values, per column parity, reused from row to row.
             let mut scratch: [Vec<i64>; 2] = Default::default();
             for (r, row) in chunk.chunks_mut(w).enumerate() {
@@ -193,6 +204,7 @@ fn structured_filler<'a, const TARGET: bool>(
                 // Dither draws from a xorshift64* stream seeded by the band's stream per row (a
                 // 32-bit threshold needs no cryptographic quality).
                 let state = rng.next_u64() | 1;
+                jumps.fill(state, draws, &mut dither);
                 // The row in passes, each stream drawn in its own order (a pair's pixel draw `u`
                 // from the band's stream, its dither `v` from the row's xorshift): first every
                 // pixel's integer offset `⌊o⌋ + [v < o − ⌊o⌋]` for its offset `o` and a uniform
@@ -208,24 +220,45 @@ fn structured_filler<'a, const TARGET: bool>(
                         false => 0,
                     }
                 };
-                let row_offsets = RowOffsets { src: &src, cols, ry, state, shift: &shift };
+                let row_offsets = RowOffsets { src: &src, cols, ry, dither: &dither[..draws], shift: &shift };
+                // Without the target's shift, the pairs' offsets in one vectorised loop.
+                let d = &dither[..draws];
                 match (&kept, &pattern, &pattern_columns) {
                     (Some(k), _, _) => {
                         let k = k.row(y);
-                        row_offsets.fill(&mut offsets_row, |i| (k[i], k[i + 1]), |i| k[i]);
+                        match TARGET {
+                            false => row_offsets.fill_pairs(
+                                &mut offsets_row,
+                                |o| offsets_interleaved(cols, k, ry, d, o),
+                                |i| k[i],
+                            ),
+                            true => row_offsets.fill(&mut offsets_row, |i| (k[i], k[i + 1]), |i| k[i]),
+                        }
                     }
                     (None, Some(p), Some(pc)) => {
                         let rp =
                             p.row_pattern_in(pc, origin.0 + y, std::mem::take(&mut scratch)).expect("a fixed pattern");
-                        match rp.computed() {
-                            Some([c0, c1]) => {
+                        match (rp.computed(), TARGET) {
+                            (Some([c0, c1]), false) => row_offsets.fill_pairs(
+                                &mut offsets_row,
+                                |o| offsets_split(cols, c0, c1, ry, d, o),
+                                |i| c0[i >> 1],
+                            ),
+                            (Some([c0, c1]), true) => {
                                 row_offsets.fill(&mut offsets_row, |i| (c0[i >> 1], c1[i >> 1]), |i| c0[i >> 1])
                             }
-                            None => row_offsets.fill(&mut offsets_row, |i| rp.pair(i), |i| rp.at(i)),
+                            (None, _) => row_offsets.fill(&mut offsets_row, |i| rp.pair(i), |i| rp.at(i)),
                         }
                         scratch = rp.into_scratch();
                     }
-                    _ => row_offsets.fill(&mut offsets_row, |_| (0, 0), |_| 0),
+                    _ => match TARGET {
+                        false => row_offsets.fill_pairs(
+                            &mut offsets_row,
+                            |o| offsets_interleaved(cols, &no_pattern, ry, d, o),
+                            |_| 0,
+                        ),
+                        true => row_offsets.fill(&mut offsets_row, |_| (0, 0), |_| 0),
+                    },
                 }
                 let pairs = row.chunks_exact_mut(2).zip(src.chunks_exact(2)).zip(offsets_row.chunks_exact(2));
                 if finish {
@@ -258,13 +291,13 @@ fn structured_filler<'a, const TARGET: bool>(
 }
 
 /// What one row's integer offsets are made of ([`structured_filler`]): the clean row, the
-/// columns' offsets (with the frame's, 2⁻³² DN), the row's offset, the state of the row's
-/// dither stream, and per pixel the target brightness's shift (0 otherwise).
+/// columns' offsets (with the frame's, 2⁻³² DN), the row's offset, the row's dither draws (one
+/// per pair, [`DitherJumps::fill`]), and per pixel the target brightness's shift (0 otherwise).
 struct RowOffsets<'a, S: Fn(usize, u16) -> i64> {
     src: &'a [u16],
     cols: &'a [i64],
     ry: i64,
-    state: u64,
+    dither: &'a [u64],
     shift: &'a S,
 }
 
@@ -274,27 +307,36 @@ impl<S: Fn(usize, u16) -> i64> RowOffsets<'_, S> {
     /// One dither draw per pair, its low half for the even pixel.
     #[inline(always)]
     fn fill(&self, out: &mut [i32], pair: impl Fn(usize) -> (i64, i64), one: impl Fn(usize) -> i64) {
-        let mut state = self.state;
-        let mut dither = || {
-            state ^= state >> 12;
-            state ^= state << 25;
-            state ^= state >> 27;
-            state.wrapping_mul(0x2545_F491_4F6C_DD1D)
-        };
         let (src, cols, ry) = (self.src, self.cols, self.ry);
         let w = src.len();
         let pairs = src.chunks_exact(2).zip(cols.chunks_exact(2)).zip(out[..w].chunks_exact_mut(2));
-        for (j, ((c, k), o)) in pairs.enumerate() {
+        for (j, (((c, k), o), &v)) in pairs.zip(self.dither).enumerate() {
             let i = 2 * j;
-            let v = dither();
             let (p0, p1) = pair(i);
             let k0 = k[0] + p0 + (self.shift)(i, c[0]);
             let k1 = k[1] + p1 + (self.shift)(i + 1, c[1]);
             o[0] = ((k0 + ry + (v as u32) as i64) >> 32) as i32;
             o[1] = ((k1 + ry + (v >> 32) as i64) >> 32) as i32;
         }
+        self.fill_last(out, one);
+    }
+
+    /// [`Self::fill`] where the target brightness adds no shift: the pairs' offsets written by
+    /// `pairs` (given `out` less an odd width's last pixel), that pixel's as [`Self::fill`]'s.
+    #[inline(always)]
+    fn fill_pairs(&self, out: &mut [i32], pairs: impl FnOnce(&mut [i32]), one: impl Fn(usize) -> i64) {
+        let w = self.src.len();
+        pairs(&mut out[..w - w % 2]);
+        self.fill_last(out, one);
+    }
+
+    /// The last pixel of an odd width, its fixed pattern from `one`; nothing for an even width.
+    #[inline(always)]
+    fn fill_last(&self, out: &mut [i32], one: impl Fn(usize) -> i64) {
+        let (src, cols, ry) = (self.src, self.cols, self.ry);
+        let w = src.len();
         if w % 2 == 1 {
-            let v = dither();
+            let v = self.dither[w / 2];
             let k = cols[w - 1] + one(w - 1) + (self.shift)(w - 1, src[w - 1]);
             out[w - 1] = ((k + ry + (v as u32) as i64) >> 32) as i32;
         }

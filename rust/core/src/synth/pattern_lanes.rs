@@ -9,7 +9,9 @@
 //!
 //! What differs from the pixel expression, and why each is exact:
 //! - the quantile index `x as u32` is `⌊x⌋` found by adding 1.5·2⁵² (round to nearest) and
-//!   stepping down where that went up: `x` lies in `[0, n − 1]`, far below 2³²;
+//!   stepping down where that went up: `x` lies in `[0, n − 1]`, far below 2³² (a saturating
+//!   conversion, `x as i32`, was left scalar by the compiler); and `x = u·(n − 1)` is one
+//!   product of the hash's bits and `(n − 1)·2⁻⁵³` (the same rounding);
 //! - the rounding of the sum is [`crate::math::round::round_half_away_near`]'s without its
 //!   branch: the sum is below 2⁵¹ by [`lanes_apply`];
 //! - the quantile function is read as pairs of neighbours (`q[i]`, `q[i + 1]` in one 64-bit
@@ -100,7 +102,9 @@ impl ParityColumns {
 ))]
 pub(crate) fn parity_row(y: u64, x_first: u64, cols: &ParityColumns, line: &[f64], q: &[f32], out: &mut [i64]) {
     let Some(last) = q.len().checked_sub(2) else { return };
-    let nm1 = (q.len() - 1) as f64;
+    // `u·(n − 1)` in one product: `u` is the hash's 53 bits times 2⁻⁵³, both products exact
+    // but the last, so `bits·((n − 1)·2⁻⁵³)` rounds the same real number the same way.
+    let scale = (q.len() - 1) as f64 * (1.0 / (1u64 << 53) as f64);
     let mut start = 0;
     for &(end, c0, c1) in &cols.runs {
         let (a, b) = (line[c0 as usize], line[c1 as usize]);
@@ -111,8 +115,7 @@ pub(crate) fn parity_row(y: u64, x_first: u64, cols: &ParityColumns, line: &[f64
             z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
             z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
             z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            let u = (((z ^ (z >> 31)) >> 11) as i64) as f64 * (1.0 / (1u64 << 53) as f64);
-            let x = u * nm1;
+            let x = (((z ^ (z >> 31)) >> 11) as i64) as f64 * scale;
             // ⌊x⌋ for x in [0, n − 1]: the nearest integer, one less where it lies above x.
             let m = x + SHIFT;
             let floor = (m.to_bits() - SHIFT.to_bits()) as usize - ((m - SHIFT) > x) as usize;
