@@ -204,7 +204,12 @@ fn structured_filler<'a, const TARGET: bool>(
                 // Dither draws from a xorshift64* stream seeded by the band's stream per row (a
                 // 32-bit threshold needs no cryptographic quality).
                 let state = rng.next_u64() | 1;
-                jumps.fill(state, draws, &mut dither);
+                // Drawn in lanes for the vectorised pass; the target's shift keeps the serial
+                // pass (its per-pixel lookups left the lanes no faster).
+                if !TARGET {
+                    jumps.fill(state, draws, &mut dither);
+                }
+                let d: &[u64] = if TARGET { &[] } else { &dither[..draws] };
                 // The row in passes, each stream drawn in its own order (a pair's pixel draw `u`
                 // from the band's stream, its dither `v` from the row's xorshift): first every
                 // pixel's integer offset `⌊o⌋ + [v < o − ⌊o⌋]` for its offset `o` and a uniform
@@ -220,9 +225,8 @@ fn structured_filler<'a, const TARGET: bool>(
                         false => 0,
                     }
                 };
-                let row_offsets = RowOffsets { src: &src, cols, ry, dither: &dither[..draws], shift: &shift };
+                let row_offsets = RowOffsets { src: &src, cols, ry, state, dither: d, shift: &shift };
                 // Without the target's shift, the pairs' offsets in one vectorised loop.
-                let d = &dither[..draws];
                 match (&kept, &pattern, &pattern_columns) {
                     (Some(k), _, _) => {
                         let k = k.row(y);
@@ -291,12 +295,15 @@ fn structured_filler<'a, const TARGET: bool>(
 }
 
 /// What one row's integer offsets are made of ([`structured_filler`]): the clean row, the
-/// columns' offsets (with the frame's, 2⁻³² DN), the row's offset, the row's dither draws (one
-/// per pair, [`DitherJumps::fill`]), and per pixel the target brightness's shift (0 otherwise).
+/// columns' offsets (with the frame's, 2⁻³² DN), the row's offset, the state of the row's
+/// dither stream and, where the pass is vectorised ([`Self::fill_pairs`]), the stream's draws
+/// (one per pair, [`DitherJumps::fill`]), and per pixel the target brightness's shift (0
+/// otherwise).
 struct RowOffsets<'a, S: Fn(usize, u16) -> i64> {
     src: &'a [u16],
     cols: &'a [i64],
     ry: i64,
+    state: u64,
     dither: &'a [u64],
     shift: &'a S,
 }
@@ -304,42 +311,52 @@ struct RowOffsets<'a, S: Fn(usize, u16) -> i64> {
 impl<S: Fn(usize, u16) -> i64> RowOffsets<'_, S> {
     /// Writes every pixel's integer offset into `out` (the row's length), pixel `i`'s fixed pattern from
     /// `pair(i)` (for `i` and `i + 1`, `i` even) or `one(i)` (the last pixel of an odd width).
-    /// One dither draw per pair, its low half for the even pixel.
+    /// One dither draw per pair from the serial stream, its low half for the even pixel.
     #[inline(always)]
     fn fill(&self, out: &mut [i32], pair: impl Fn(usize) -> (i64, i64), one: impl Fn(usize) -> i64) {
+        let mut state = self.state;
+        let mut dither = || {
+            state ^= state >> 12;
+            state ^= state << 25;
+            state ^= state >> 27;
+            state.wrapping_mul(0x2545_F491_4F6C_DD1D)
+        };
         let (src, cols, ry) = (self.src, self.cols, self.ry);
         let w = src.len();
         let pairs = src.chunks_exact(2).zip(cols.chunks_exact(2)).zip(out[..w].chunks_exact_mut(2));
-        for (j, (((c, k), o), &v)) in pairs.zip(self.dither).enumerate() {
+        for (j, ((c, k), o)) in pairs.enumerate() {
             let i = 2 * j;
+            let v = dither();
             let (p0, p1) = pair(i);
             let k0 = k[0] + p0 + (self.shift)(i, c[0]);
             let k1 = k[1] + p1 + (self.shift)(i + 1, c[1]);
             o[0] = ((k0 + ry + (v as u32) as i64) >> 32) as i32;
             o[1] = ((k1 + ry + (v >> 32) as i64) >> 32) as i32;
         }
-        self.fill_last(out, one);
+        if w % 2 == 1 {
+            self.fill_last(out, one, dither());
+        }
     }
 
     /// [`Self::fill`] where the target brightness adds no shift: the pairs' offsets written by
-    /// `pairs` (given `out` less an odd width's last pixel), that pixel's as [`Self::fill`]'s.
+    /// `pairs` (given `out` less an odd width's last pixel) with the lanes' draws (the serial
+    /// stream's), that pixel's as [`Self::fill`]'s.
     #[inline(always)]
     fn fill_pairs(&self, out: &mut [i32], pairs: impl FnOnce(&mut [i32]), one: impl Fn(usize) -> i64) {
         let w = self.src.len();
         pairs(&mut out[..w - w % 2]);
-        self.fill_last(out, one);
+        if w % 2 == 1 {
+            self.fill_last(out, one, self.dither[w / 2]);
+        }
     }
 
-    /// The last pixel of an odd width, its fixed pattern from `one`; nothing for an even width.
+    /// The last pixel of an odd width, its fixed pattern from `one`, its dither draw `v`.
     #[inline(always)]
-    fn fill_last(&self, out: &mut [i32], one: impl Fn(usize) -> i64) {
+    fn fill_last(&self, out: &mut [i32], one: impl Fn(usize) -> i64, v: u64) {
         let (src, cols, ry) = (self.src, self.cols, self.ry);
         let w = src.len();
-        if w % 2 == 1 {
-            let v = self.dither[w / 2];
-            let k = cols[w - 1] + one(w - 1) + (self.shift)(w - 1, src[w - 1]);
-            out[w - 1] = ((k + ry + (v as u32) as i64) >> 32) as i32;
-        }
+        let k = cols[w - 1] + one(w - 1) + (self.shift)(w - 1, src[w - 1]);
+        out[w - 1] = ((k + ry + (v as u32) as i64) >> 32) as i32;
     }
 }
 
