@@ -3,6 +3,7 @@
 //! the output code into the code counts, the clean image's selection into its sums, and the
 //! frame's brightness into the gain-ratio sums. One pass over the frame, nothing of it kept.
 
+use multiversion::multiversion;
 use serde::{Deserialize, Serialize};
 
 use crate::calibrate::drift::{BrightnessSums, Transform};
@@ -277,6 +278,9 @@ fn fold_rows(
     };
     let mut rows = Vec::with_capacity(h / 2 + 1);
     let mut cols = [vec![0i64; w], vec![0i64; w]];
+    // The columns' sums of the still rows since they were last added into `cols`.
+    let mut narrow_cols = [vec![0i32; w], vec![0i32; w]];
+    let mut narrow_rows = [0usize; 2];
     let mut buf = vec![0u16; w];
     let mut noise = vec![0i32; w];
     let (mut out0, mut out1): (Outside, Outside) = (Vec::new(), Vec::new());
@@ -326,17 +330,24 @@ fn fold_rows(
             }
         }
         let half = (y >> 1) & 1;
-        let line_values: &[i32] = if let Some((m, gradient)) = motion {
+        if let Some((m, gradient)) = motion {
             // A frame that moved: its predicted change comes out of the line sums.
             m.row_effects(probe, &gradient[y * w..y * w + w], y, crow, &mut keep, &mut correction);
             for ((l, &n), &k) in line_noise.iter_mut().zip(&noise).zip(&correction) {
                 *l = n - k;
             }
-            &line_noise
+            rows.push(line_sums(&line_noise, crow, line_top, &mut cols[half]));
         } else {
-            &noise
-        };
-        rows.push(line_sums(line_values, crow, line_top, &mut cols[half]));
+            // A still frame's noise is a difference of two values in 0 ..= 65535 (|n| < 2¹⁶):
+            // its column sums fit 32 bits over a run of rows, and are then added into the
+            // 64-bit ones.
+            rows.push(line_sums_narrow(&noise, crow, line_top, &mut narrow_cols[half]));
+            narrow_rows[half] += 1;
+            if narrow_rows[half] == NARROW_ROWS {
+                widen_into(&mut narrow_cols[half], &mut cols[half]);
+                narrow_rows[half] = 0;
+            }
+        }
         if let Some((codes0, codes1)) = apart.as_mut() {
             count_codes(crow, row, top, codes0, codes1);
         }
@@ -380,6 +391,9 @@ fn fold_rows(
         let row_samples = w as u64 / 2;
         window0.renew_if_outside(row_samples, hist0, by_level.then_some(&mut *codes_out0));
         window1.renew_if_outside(row_samples, hist1, by_level.then_some(&mut *codes_out1));
+    }
+    for (narrow, wide) in narrow_cols.iter_mut().zip(&mut cols) {
+        widen_into(narrow, wide);
     }
     window0.flush(hist0, by_level.then_some(&mut *codes_out0));
     window1.flush(hist1, by_level.then_some(&mut *codes_out1));
@@ -499,4 +513,120 @@ fn line_sums(noise: &[i32], crow: &[u16], line_top: u16, cols: &mut [i64]) -> [i
         cells[k] += m;
     }
     cells
+}
+
+/// Rows of one half whose noise [`line_sums_narrow`] sums into 32-bit columns before they are
+/// added into the 64-bit ones: `NARROW_ROWS · 2¹⁶ < 2³¹`.
+const NARROW_ROWS: usize = 1 << 14;
+
+/// Pixels of a row whose cell sums [`line_sums_narrow`] forms in 32 bits at a time (a lane
+/// holds an eighth of them: `2¹¹ · 2¹⁶ < 2³¹`).
+const NARROW_RUN: usize = 1 << 14;
+
+/// Adds `narrow` into `wide` and clears it.
+fn widen_into(narrow: &mut [i32], wide: &mut [i64]) {
+    for (n, w) in narrow.iter_mut().zip(wide) {
+        *w += std::mem::take(n) as i64;
+    }
+}
+
+/// [`line_sums`] of a row whose noise is below 2¹⁶ in magnitude (a still frame: a difference of
+/// two u16), into 32-bit column sums `cols` (the caller adds them into its 64-bit ones before
+/// [`NARROW_ROWS`] rows could overflow them). The same integer sums, so the same values; in
+/// half the width, so twice the pixels per vector instruction.
+#[inline]
+fn line_sums_narrow(noise: &[i32], crow: &[u16], line_top: u16, cols: &mut [i32]) -> [i64; CELLS] {
+    let n = noise.len().min(crow.len()).min(cols.len());
+    let mut cells = [0i64; CELLS];
+    let runs = noise[..n].chunks(NARROW_RUN).zip(crow[..n].chunks(NARROW_RUN)).zip(cols[..n].chunks_mut(NARROW_RUN));
+    for ((noise, crow), cols) in runs {
+        // A run starts at a multiple of CELLS: its lane `k` is cell `k mod CELLS`.
+        let lanes = narrow_run(noise, crow, line_top, cols);
+        for (k, l) in lanes.iter().enumerate() {
+            cells[k % CELLS] += *l as i64;
+        }
+    }
+    cells
+}
+
+/// One run of [`line_sums_narrow`] (at most [`NARROW_RUN`] pixels): the masked noise into its
+/// columns' sums, and its sums per lane `x mod 8`. Branch-free, so that the compiler vectorises
+/// it; compiled for AVX2 as well as the baseline, the CPU's best picked at run time.
+#[multiversion(targets("x86_64+avx2+avx+fma+bmi1+bmi2+lzcnt+popcnt+sse4.1+sse4.2+ssse3"))]
+fn narrow_run(noise: &[i32], crow: &[u16], line_top: u16, cols: &mut [i32]) -> [i32; 8] {
+    const LANES: usize = 8;
+    let n = noise.len().min(crow.len()).min(cols.len());
+    let (noise, crow, cols) = (&noise[..n], &crow[..n], &mut cols[..n]);
+    let mut lanes = [0i32; LANES];
+    let masked = |n: i32, c: u16| n & (in_lines(c, line_top) as i32).wrapping_neg();
+    let steps = noise.chunks_exact(LANES).zip(crow.chunks_exact(LANES)).zip(cols.chunks_exact_mut(LANES));
+    for ((qn, qc), qcols) in steps {
+        for k in 0..LANES {
+            let m = masked(qn[k], qc[k]);
+            qcols[k] += m;
+            lanes[k] += m;
+        }
+    }
+    let done = n / LANES * LANES;
+    for (k, ((&v, &c), col)) in noise[done..].iter().zip(&crow[done..]).zip(&mut cols[done..]).enumerate() {
+        let m = masked(v, c);
+        *col += m;
+        lanes[k] += m;
+    }
+    lanes
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The narrow line sums are the 64-bit ones exactly: noise up to ±65535, pixels not flat or
+    /// above the line top among them, rows shorter than the lanes, and a row of many runs with
+    /// a tail past the lanes whose cell sums pass 2³¹ (so a version that summed a whole row in
+    /// 32 bits fails, as does one that put a run's lane into the wrong cell or dropped the
+    /// tail), columns already holding sums.
+    #[test]
+    fn narrow_line_sums_are_the_wide_ones() {
+        let mut s = 0x9E37_79B9_7F4A_7C15u64;
+        let mut next = move || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            s
+        };
+        let line_top = 60_000u16;
+        for w in [7usize, 37, NARROW_RUN * 18 + 13] {
+            let mut wide_cols: Vec<i64> = (0..w).map(|_| (next() % 1000) as i64 - 500).collect();
+            let mut narrow_cols = vec![0i32; w];
+            let start = wide_cols.clone();
+            for _row in 0..3 {
+                let crow: Vec<u16> = (0..w)
+                    .map(|_| match next() % 8 {
+                        0 => NOT_FLAT,
+                        1 => 60_001 + (next() % 5000) as u16,
+                        _ => (next() % 60_001) as u16,
+                    })
+                    .collect();
+                // Mostly the top, so that the sums are large.
+                let noise: Vec<i32> = crow
+                    .iter()
+                    .map(|&c| match (c == NOT_FLAT, next() % 4) {
+                        (true, _) => 0,
+                        (false, 0) => (next() % 131_071) as i32 - 65_535,
+                        _ => 65_535,
+                    })
+                    .collect();
+                let wide = line_sums(&noise, &crow, line_top, &mut wide_cols);
+                let narrow = line_sums_narrow(&noise, &crow, line_top, &mut narrow_cols);
+                assert_eq!(wide, narrow, "width {w}");
+                if w > NARROW_RUN {
+                    assert!(narrow.iter().any(|c| c.abs() > i32::MAX as i64), "sums past 32 bits");
+                }
+            }
+            let mut from_narrow = start.clone();
+            widen_into(&mut narrow_cols, &mut from_narrow);
+            assert_eq!(from_narrow, wide_cols, "width {w}");
+            assert!(narrow_cols.iter().all(|&c| c == 0), "the narrow sums were cleared");
+        }
+    }
 }

@@ -6,6 +6,7 @@
 //! - [`DriftTracker`]: the running judgement of one burst.
 //! - [`Transform`]: how a frame's raw values map onto the session's black level and brightness.
 
+use multiversion::multiversion;
 use serde::{Deserialize, Serialize};
 
 use crate::calibrate::flat::NOT_FLAT;
@@ -185,7 +186,7 @@ fn integer_brightness_sums(
         let band = &mut bands[band];
         let parity = (y & 1) << 1;
         // Even columns are one position, odd ones the other: one pass over the column pairs.
-        let sums = row_sums(crow, row, [black[parity] as f64, black[parity | 1] as f64], top);
+        let sums = row_sums(crow, row, [black[parity], black[parity | 1]], top);
         for (pos, sums) in [(parity, sums[0]), (parity | 1, sums[1])] {
             for (o, v) in band.iter_mut().zip(sums) {
                 *o += v;
@@ -199,39 +200,53 @@ fn integer_brightness_sums(
 
 /// `[n, Σb, Σf, Σb², Σbf]` of the even columns and of the odd ones of one row (base levels
 /// `crow`, frame values `row`) over the black levels `black` (integers), the pixels compared
-/// being those whose base level is flat and at most `top`. In `f64`, whose sums of these integer
-/// terms are exact below 2⁵³ (the caller's bound), so in any order: two lanes per sum, each
-/// pixel's terms added branch-free (a pixel not compared adds zeros), which the compiler turns
-/// into vector arithmetic.
+/// being those whose base level is flat and at most `top`. Formed from the row's exact integer
+/// sums of the raw values ([`raw_row_sums`]): `Σb = Σc − nB`, `Σb² = Σc² − 2BΣc + nB²`,
+/// `Σbf = Σcv − B(Σc + Σv) + nB²`, every one an integer below 2⁵³ (the caller's bound), so the
+/// `f64` it becomes is the sum the floating-point loop forms, to the last bit.
 #[inline]
-fn row_sums(crow: &[u16], row: &[u16], black: [f64; 2], top: u16) -> [[f64; 5]; 2] {
-    const LANES: usize = 2;
-    let mut acc = [[[0.0f64; LANES]; 5]; 2];
+fn row_sums(crow: &[u16], row: &[u16], black: [i64; 2], top: u16) -> [[f64; 5]; 2] {
+    let raw = raw_row_sums(crow, row, top);
+    std::array::from_fn(|p| {
+        let [n, c, v, cc, cv] = raw[p].map(|s| s as i64);
+        let b = black[p];
+        [n, c - n * b, v - n * b, cc - 2 * b * c + n * b * b, cv - b * (c + v) + n * b * b].map(|s| s as f64)
+    })
+}
+
+/// `[n, Σc, Σv, Σc², Σcv]` over the even columns and over the odd ones of one row, of the pixels
+/// whose base level `c` is flat and at most `top` (`v`: the frame's value), as exact integers:
+/// a product of two u16 is below 2³², a row's sum of them below 2⁴⁸. Eight lanes, each pixel's
+/// terms added branch-free (a pixel not compared adds zeros), lane `k` holding the columns
+/// `x ≡ k (mod 8)`: the compiler turns it into vector arithmetic (32 × 32 → 64-bit products),
+/// compiled for AVX2 as well as the baseline, the CPU's best picked at run time.
+#[multiversion(targets("x86_64+avx2+avx+fma+bmi1+bmi2+lzcnt+popcnt+sse4.1+sse4.2+ssse3"))]
+fn raw_row_sums(crow: &[u16], row: &[u16], top: u16) -> [[u64; 5]; 2] {
+    const LANES: usize = 8;
+    let mut acc = [[0u64; LANES]; 5];
     #[inline(always)]
-    fn add(a: &mut [[f64; LANES]; 5], lane: usize, c: u16, v: u16, black: f64, top: u16) {
-        let m = (c != NOT_FLAT && c <= top) as u32 as f64;
-        let (bv, fv) = ((c as f64 - black) * m, (v as f64 - black) * m);
-        a[0][lane] += m;
-        a[1][lane] += bv;
-        a[2][lane] += fv;
-        a[3][lane] += bv * bv;
-        a[4][lane] += bv * fv;
+    fn add(acc: &mut [[u64; LANES]; 5], lane: usize, c: u16, v: u16, top: u16) {
+        let m = ((c != NOT_FLAT && c <= top) as u32).wrapping_neg();
+        let (c, v) = ((c as u32 & m) as u64, (v as u32 & m) as u64);
+        acc[0][lane] += (m & 1) as u64;
+        acc[1][lane] += c;
+        acc[2][lane] += v;
+        acc[3][lane] += c * c;
+        acc[4][lane] += c * v;
     }
     let n = crow.len().min(row.len());
     let (crow, row) = (&crow[..n], &row[..n]);
-    let steps = crow.chunks_exact(2 * LANES).zip(row.chunks_exact(2 * LANES));
-    for (c, v) in steps {
+    for (c, v) in crow.chunks_exact(LANES).zip(row.chunks_exact(LANES)) {
         for lane in 0..LANES {
-            for p in 0..2 {
-                add(&mut acc[p], lane, c[2 * lane + p], v[2 * lane + p], black[p], top);
-            }
+            add(&mut acc, lane, c[lane], v[lane], top);
         }
     }
-    let done = n / (2 * LANES) * (2 * LANES);
+    let done = n / LANES * LANES;
     for x in done..n {
-        add(&mut acc[x & 1], 0, crow[x], row[x], black[x & 1], top);
+        // Lane `x mod 8`'s parity is the column's.
+        add(&mut acc, x - done, crow[x], row[x], top);
     }
-    acc.map(|a| a.map(|l| l.iter().sum()))
+    std::array::from_fn(|p| acc.map(|s| s.iter().skip(p).step_by(2).sum()))
 }
 
 /// Brightness of one frame against a base image (the clean image, or the burst's first frame).
@@ -438,10 +453,13 @@ mod tests {
     }
 
     /// The integer sums are the floating-point ones to the last bit, on a frame whose flat,
-    /// unclipped pixels mix at random with pixels that are not flat or are above the clip.
+    /// unclipped pixels mix at random with pixels that are not flat or are above the clip: a
+    /// 10-bit frame with base levels on both sides of the black levels, and a 16-bit one whose
+    /// values reach 65535 (products near 2³², which a sum in 32 bits, or a product formed in
+    /// 16, gets wrong), each on a width that leaves a tail past the vector lanes. A sum that
+    /// took a pixel's term in the wrong column's position, or dropped the tail, fails it.
     #[test]
     fn integer_sums_are_the_floating_point_sums() {
-        let (w, h) = (37, 1030);
         let mut s = 0x2545_F491_4F6C_DD1Du64;
         let mut next = move || {
             s ^= s << 13;
@@ -449,24 +467,32 @@ mod tests {
             s ^= s << 17;
             s
         };
-        let base: Vec<u16> = (0..w * h)
-            .map(|_| match next() % 5 {
-                0 => NOT_FLAT,
-                _ => 40 + (next() % 1000) as u16,
-            })
-            .collect();
-        let frame = ndarray::Array2::from_shape_fn((h, w), |(y, x)| {
-            let c = base[y * w + x];
-            if c == NOT_FLAT { (next() % 1024) as u16 } else { (c as i64 + (next() % 41) as i64 - 20).max(0) as u16 }
-        });
-        let frame = FrameView::from_array(&frame).expect("view");
-        let tf = Transform { delta: [0.0; POSITIONS], black: [64.0, 60.0, 64.0, 48.0], scale: 1.0 };
-        let int = integer_brightness_sums(&frame, &base, &tf, 900.0, w, h).expect("integer sums");
-        let float = float_brightness_sums(&frame, &base, &tf, 900.0, w, h);
-        assert!(int.bands.iter().map(|b| b[0]).sum::<f64>() > 1000.0);
-        assert_eq!(int.bands, float.bands);
-        assert_eq!(int.frame_pos, float.frame_pos);
-        assert_eq!(int.base_pos, float.base_pos);
+        // (width, height, lowest base level, base levels' range, noise, black levels, clip)
+        let cases = [
+            (37, 1030, 40u64, 1000u64, 20i64, [64.0, 60.0, 64.0, 48.0], 900.0f32),
+            (45, 600, 0, 65535, 300, [4096.0, 4000.0, 4096.0, 3072.0], 65535.0),
+        ];
+        for (w, h, low, range, noise, black, clip) in cases {
+            let base: Vec<u16> = (0..w * h)
+                .map(|_| match next() % 5 {
+                    0 => NOT_FLAT,
+                    _ => (low + next() % range).min(65534) as u16,
+                })
+                .collect();
+            let frame = ndarray::Array2::from_shape_fn((h, w), |(y, x)| {
+                let c = base[y * w + x];
+                let n = (next() % (2 * noise as u64 + 1)) as i64 - noise;
+                if c == NOT_FLAT { (next() % 65536) as u16 } else { (c as i64 + n).clamp(0, 65535) as u16 }
+            });
+            let frame = FrameView::from_array(&frame).expect("view");
+            let tf = Transform { delta: [0.0; POSITIONS], black, scale: 1.0 };
+            let int = integer_brightness_sums(&frame, &base, &tf, clip, w, h).expect("integer sums");
+            let float = float_brightness_sums(&frame, &base, &tf, clip, w, h);
+            assert!(int.bands.iter().map(|b| b[0]).sum::<f64>() > 1000.0);
+            assert_eq!(int.bands, float.bands, "{w}×{h}");
+            assert_eq!(int.frame_pos, float.frame_pos, "{w}×{h}");
+            assert_eq!(int.base_pos, float.base_pos, "{w}×{h}");
+        }
     }
 
     #[test]

@@ -51,7 +51,7 @@ pub fn read_dng(path: &Path) -> Result<DngImage, DngError> {
 /// outside it (see `sparse.rs`).
 pub fn read_dng_meta(path: &Path) -> Result<DngImage, DngError> {
     let bytes = super::sparse::meta_bytes(path, super::sparse::END_BYTES)?;
-    parse(Src::Raw(RawSource::new_from_shared_vec(Arc::new(bytes))), path, false)
+    parse(Src::Slice(&bytes), path, false)
 }
 
 /// Decodes a DNG held in memory, as [`read_dng`] decodes a file: the entry point for fuzzing and
