@@ -10,7 +10,13 @@ way; made here when missing). For every whole clean code from 1 DN up to 16 DN t
 - **real**: the held-out frames' ``frame − round(clean)`` (the pack's convention: a clean code
   stands for the clean levels that round to it) and ``frame − clean`` (the float clean image);
 - **synthetic**: the pack's synthesis onto a flat image at that code, default components and
-  ``pixel`` (the pixel PMFs alone), ``--seeds`` images of the evaluated width.
+  ``pixel`` (the pixel PMFs alone), and the plain per-bin histogram pack of the same frames
+  (``ladder-plain.pack``, ``calibrate --plain``: the yardstick no smoothing step may lose to),
+  ``--seeds`` images of the evaluated width.
+
+For each, the variance (and its ratio to the real ``−round`` one), then a second table with the
+0.1 % / 99.9 % quantiles and the share of samples at each noise value from −2 to +2 DN: at
+sub-DN noise the PMF over three or four codes is the whole model.
 
 Then, per half of the dark burst (the calibration's ISO 100 and ISO 200 dark steps): ``T`` (half
 the median variance of consecutive frame differences, ``calibrate/dark.rs``), ``T + 1/12`` (what
@@ -62,9 +68,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         src = Source(args.repo, ladder.SET)
         got = ladder.convert(src, args.out, say)
-        if not (args.out / "ladder.pack").exists():
-            noisecal.calibrate(args.out / "cal").save(args.out / "ladder.pack")
+        for name, is_plain in (("ladder.pack", False), ("ladder-plain.pack", True)):
+            if not (args.out / name).exists():
+                noisecal.calibrate(args.out / "cal", plain=is_plain).save(args.out / name)
         pack = noisecal.Pack.load(args.out / "ladder.pack")
+        plain = noisecal.Pack.load(args.out / "ladder-plain.pack")
         scenes = sorted(d for d in (args.out / "eval-mosaic").iterdir() if d.is_dir())
         frame = np.stack([noisecal.read_dng(d / "frame.dng")[0].astype(np.float64) for d in scenes])
         clean = np.stack([np.load(d / "clean.npy") for d in scenes])
@@ -76,19 +84,30 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     black = float(np.mean(got["black"]))
     code = np.rint(clean)
+    models = (("default", pack, None), ("pixel", pack, "pixel"), ("plain", plain, None))
     print(f"black {black:.3f} DN; variance of noisy − clean (DN²), synthetic / real (−round) in brackets")
-    print(f"{'code':>4} {'above':>6} {'pixels':>8} {'real −round':>12} {'real −float':>12} {'default':>16} {'pixel':>16}")
+    print(f"{'code':>4} {'above':>6} {'pixels':>8} {'real −round':>12} {'real −float':>12}" + "".join(f" {m:>16}" for m, _, _ in models))
+    shapes = []
     for c in range(1, 17):
         at = code == c
         if at.sum() < MIN_PIXELS:
             continue
-        real = float((frame[at] - c).var())
+        real_d = frame[at] - c
+        real = float(real_d.var())
         flat = np.full(frame.shape[1:], c, np.uint16)
         row = []
-        for comp in (None, "pixel"):
-            s = np.concatenate([pack.synth(flat, 200, k, components=comp).ravel().astype(np.float64) - c for k in range(args.seeds)])
+        shapes.append((c, "real", real_d))
+        for name, pk, comp in models:
+            s = np.concatenate([pk.synth(flat, 200, k, components=comp).ravel().astype(np.float64) - c for k in range(args.seeds)])
             row.append(f"{s.var():.4f} ({s.var() / real:.2f}×)")
-        print(f"{c:4d} {c - black:6.2f} {int(at.sum()):8d} {real:12.4f} {float((frame[at] - clean[at]).var()):12.4f} {row[0]:>16} {row[1]:>16}")
+            shapes.append((c, name, s))
+        print(f"{c:4d} {c - black:6.2f} {int(at.sum()):8d} {real:12.4f} {float((frame[at] - clean[at]).var()):12.4f}" + "".join(f" {r:>16}" for r in row))
+    print("tails and shape of noisy − round(clean): 0.1 % / 99.9 % quantiles (DN), share of samples at −2 … +2 DN")
+    print(f"{'code':>4} {'model':>8} {'q0.1%':>6} {'q99.9%':>6}" + "".join(f" {v:>+7d}" for v in range(-2, 3)))
+    for c, name, d in shapes:
+        q = np.quantile(d, [0.001, 0.999], method="inverted_cdf")
+        share = [float(np.mean(d == v)) for v in range(-2, 3)]
+        print(f"{c:4d} {name:>8} {q[0]:+6.0f} {q[1]:+6.0f}" + "".join(f" {v:7.4f}" for v in share))
     half = len(dark) // 2
     for name, part in (("ISO 100 (dark frames 1–50)", dark[:half]), ("ISO 200 (dark frames 51–100)", dark[half:])):
         terms = dark_terms(part)

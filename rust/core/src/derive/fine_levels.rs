@@ -185,7 +185,14 @@ fn fine_levels_at(
     // variance at black where there is one).
     let first = dark_law(&read, w, FIRST_LAW_BINS, None)?;
     let first = at_black.map_or(first, |v| DarkLaw { intercept: v, slope: first.slope });
-    let needs = |b: usize| vars[b].is_some() && first.slope * w > SPLIT_ABOVE * first.variance((b as f64 + 0.5) * w);
+    // Bins one level wide (an 8-bit sensor's): above bin 0 a bin holds one whole level, its PMF
+    // is that level's own, and the law would only replace what the level measured (on EMVA set
+    // 002 the levels 1–12 DN above black lost 10–40 % of their variance to it). Bin 0 still
+    // pools black's level with the one above it (and the few below black).
+    let one_level = |b: usize| binning.bin_width <= 1 && b > 0;
+    let needs = |b: usize| {
+        !one_level(b) && vars[b].is_some() && first.slope * w > SPLIT_ABOVE * first.variance((b as f64 + 0.5) * w)
+    };
     let last = (0..bins.len()).rev().find(|&b| needs(b))?;
     // The law the split levels follow: fitted on every bin read up to one past the last split
     // bin (a bin's samples sit anywhere in it; over several bins their offsets average out).
@@ -331,6 +338,35 @@ mod tests {
         let fine = fine_levels(&bn, 0, &bins, &bins, None).expect("bin 1 still needs it");
         assert!((0..1088).all(|l| fine.lut[l] == 0), "bin 0 draws from itself");
         assert!(fine.lut[1088] as usize >= bins.len());
+    }
+
+    #[test]
+    fn one_level_bins_keep_their_own_variance() {
+        // An 8-bit sensor (1 DN bins, black 2.87) with sub-DN noise: what each level measured,
+        // set 002's per-code variances (they follow no line: the codes' fractions differ), and
+        // 0.20 DN² at black from dark frames. Above bin 0 every bin is one whole level, so its
+        // table is its own PMF. Main rescaled the levels near black to the law fitted through
+        // the bins, a line these variances do not follow: worst 1.449× off the level's own.
+        let layout = SensorLayout { width: 8, height: 8, cfa: CfaPattern::Rggb, black: [2.87; 4], white: 255 };
+        let bn = Binning::new(&layout, 1);
+        let measured = [0.16, 0.26, 0.22, 0.31, 0.29, 0.30, 0.37, 0.36, 0.43, 0.46, 0.45, 0.50];
+        let bins: Vec<BinModel> =
+            (0..bn.bins(0)).map(|k| gaussian(measured.get(k).copied().unwrap_or(0.5 + 0.02 * k as f64))).collect();
+        let own = |f: &Option<FineLevels>, level: usize| {
+            let k = f.as_ref().map_or(bn.lut(0)[level], |f| f.lut[level]) as usize;
+            match f {
+                Some(f) if k >= bins.len() => f.extra[k - bins.len()].moments().1,
+                _ => bins[k].moments().1,
+            }
+        };
+        let fine = fine_levels(&bn, 0, &bins, &bins, Some(0.20));
+        let mut worst: f64 = 1.0;
+        for level in 4..40usize {
+            let b = bn.lut(0)[level] as usize;
+            let (v, m) = (own(&fine, level), bins[b].moments().1);
+            worst = worst.max((v / m).max(m / v));
+        }
+        assert!(worst < 1.000_001, "a one-level bin's table is {worst}× off its own variance");
     }
 
     #[test]
