@@ -100,6 +100,15 @@ def controls(rows: list[dict]) -> dict:
                 for seed, v in ws.items()
             )
             c["wrong_clear"] = bool(others) and bool(ws) and paired and c["wrong_margin_db"] > 0.3
+            # The rows that do not clearly beat it (by 0.3 dB on the means and at every seed).
+            c["wrong_not_below"] = sorted(
+                k
+                for k, r in others.items()
+                if not (
+                    r["psnr"]["mean"] - mean[w["model"]] > 0.3
+                    and all(seed in r.get("psnr_per_seed", {}) and r["psnr_per_seed"][seed] > v for seed, v in ws.items())
+                )
+            )
         loud = [k for k, r in at.items() if r.get("kind") == "loud"]
         hg = [k for k, r in at.items() if r.get("kind") == "hg"]
         if loud and hg:
@@ -135,7 +144,8 @@ def failed_controls(c: dict) -> list[str]:
     if "oracle_best" in c and not (c["oracle_best"] or c["oracle_within_spread"]):
         out.append(CONTROL_CHECKS[0][1])
     if "wrong_worst" in c and not c["wrong_clear"]:
-        out.append(CONTROL_CHECKS[1][1])
+        rows = c.get("wrong_not_below")
+        out.append(CONTROL_CHECKS[1][1] + (f" (not clearly above it: {', '.join(rows)})" if rows else ""))
     if "loud_below_hg" in c and not c["loud_below_hg"]:
         out.append(CONTROL_CHECKS[2][1])
     return out
