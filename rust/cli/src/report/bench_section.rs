@@ -67,7 +67,7 @@ pub struct Controls {
     pub loud_below_hg: Option<bool>,
     pub loud_margin_db: Option<f64>,
     /// The controls that did not order as expected, as `noisecal-bench` names them (absent in a
-    /// JSON from before the verdict: then derived from the fields above, [`Controls::failed`]).
+    /// JSON from before the verdict: then derived from the fields above, `Controls::failed`).
     #[serde(default)]
     pub failed: Option<Vec<String>>,
 }
