@@ -73,6 +73,7 @@ fn bench_section_shows_the_json_and_leaves_the_rest_unchanged() {
         "6 networks, 321 steps each, batch 12, crop 40, width 14", // the run
         "12.6 min",
         "ISO 400: wrong worst: yes, clearly (by 1.07 dB)",
+        "ISO 400, verdict: the controls ordered as expected",
         "PSNR gain over the noisy input",
         // The headroom line, with the warning its numbers call for (linear < 0.05, guided > 1 dB).
         "ISO 400: best linear 5×5 filter +0.01 dB, clean-guided flat filter +6.43 dB over the noisy input: only an edge-aware filter",
@@ -126,4 +127,14 @@ fn the_committed_bench_results_render() {
     assert!(html.contains("ISO 500: oracle best: within the seed spread"));
     // A run from before the headroom was measured has none: no headroom paragraph.
     assert!(results.get("headroom").is_none() && !html.contains("Headroom (no network)"));
+    assert!(html.contains("ISO 500, verdict: the controls ordered as expected"), "random3's controls held");
+    // Set 002's run whose controls did not order (a JSON from before `failed`: derived from its
+    // fields): the verdict says so and names both.
+    let json = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/bench-results/emva002-tiles-controls-1200.json");
+    let html = report(&pack, Some(json), &dir.path().join("s.html")).expect("report");
+    assert!(
+        html.contains("ISO 200, verdict: the controls did NOT order as expected (wrong (HG at ½ its variance) not clearly last; loud (HG at 2× its variance) not below HG at every seed)"),
+        "set 002's verdict"
+    );
+    assert!(html.contains("loud (2× HG variance) below HG: NO"));
 }

@@ -64,6 +64,38 @@ pub struct Controls {
     pub wrong_worst: Option<bool>,
     pub wrong_clear: Option<bool>,
     pub wrong_margin_db: Option<f64>,
+    pub loud_below_hg: Option<bool>,
+    pub loud_margin_db: Option<f64>,
+    /// The controls that did not order as expected, as `noisecal-bench` names them (absent in a
+    /// JSON from before the verdict: then derived from the fields above, `Controls::failed`).
+    #[serde(default)]
+    pub failed: Option<Vec<String>>,
+}
+
+impl Controls {
+    /// Whether the run had any control row at the ISO.
+    fn any(&self) -> bool {
+        self.oracle_best.is_some() || self.wrong_worst.is_some() || self.loud_below_hg.is_some()
+    }
+
+    /// The controls that did not order: the JSON's list, or the same rule on its fields
+    /// (`noisecal.bench.scoring.failed_controls`).
+    fn failed(&self) -> Vec<String> {
+        if let Some(f) = &self.failed {
+            return f.clone();
+        }
+        let mut out = Vec::new();
+        if self.oracle_best == Some(false) && self.oracle_within_spread != Some(true) {
+            out.push("oracle not best within the seed spread".to_string());
+        }
+        if self.wrong_worst.is_some() && self.wrong_clear != Some(true) {
+            out.push("wrong (HG at ½ its variance) not clearly last".to_string());
+        }
+        if self.loud_below_hg == Some(false) {
+            out.push("loud (HG at 2× its variance) not below HG at every seed".to_string());
+        }
+        out
+    }
 }
 
 /// The evaluation set's headroom at an ISO (see `noisecal.bench.headroom`): the PSNR gain over the
@@ -262,8 +294,25 @@ fn controls(o: &mut String, b: &BenchResults) {
             let margin = c.wrong_margin_db.map(|m| format!(" (by {m:.2} dB)")).unwrap_or_default();
             parts.push(format!("wrong worst: {verdict}{margin}"));
         }
+        if let Some(below) = c.loud_below_hg {
+            let verdict = if below { "yes" } else { "NO: the evaluation rewards smoothing, not fidelity" };
+            let margin = c.loud_margin_db.map(|m| format!(" (by {m:.2} dB)")).unwrap_or_default();
+            parts.push(format!("loud (2× HG variance) below HG: {verdict}{margin}"));
+        }
         if !parts.is_empty() {
             items.push(format!("<li>ISO {iso}: {}</li>", esc(&parts.join("; "))));
+        }
+        if c.any() {
+            let failed = c.failed();
+            let verdict = if failed.is_empty() {
+                "the controls ordered as expected: the benchmark tells models apart on this data".to_string()
+            } else {
+                format!(
+                    "the controls did NOT order as expected ({}): the ranking of the other rows is not established on this data",
+                    failed.join("; ")
+                )
+            };
+            items.push(format!("<li>ISO {iso}, verdict: {}</li>", esc(&verdict)));
         }
     }
     if !items.is_empty() {

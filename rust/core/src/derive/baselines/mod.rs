@@ -15,7 +15,11 @@
 //!   `a = S·(white − black)` and `b = O·(white − black)²`. Noise is `round(N(0, σ²))`.
 //!
 //! The variance of every baseline is the variance of the **integer** noise (as measured), so the
-//! continuous Gaussian behind the rounding gets `σ² − 1/12`. Every baseline PMF includes the
+//! continuous Gaussian behind the rounding gets `σ² − 1/12` (Sheppard) for HG and NoiseProfile
+//! from 1.3 DN² up, and below that the SD whose rounding has `σ²` exactly
+//! (`rounded_gaussian_sd` in `pmf.rs`): `σ² − 1/12` there drew less, 0.88× at 0.25 DN² and 0.36× at
+//! 0.15, nothing below 1/12 (HG near black on an 8-bit sensor, EMVA 1288 set 002). PG keeps its
+//! read variance `b − 1/12` (a physical read noise, its Poisson part added). Every baseline PMF includes the
 //! clipping at 0 and white for the levels of its bin, so PMFs can be compared with calibrated
 //! ones directly; synthesis clamps the same way (the sampler's `IsoSampler::noisy`).
 //!
@@ -50,7 +54,7 @@ use crate::model::pack::{BinModel, IsoModel, ModelOrigin, ModelPack, NoiseProfil
 use crate::model::pmf::Pmf;
 pub use levels::{LATTICE_SHOWS, LEVEL_STEP};
 pub use pmf::{LEVELS_PER_BIN, PG_EXACT_MAX_LAMBDA};
-use pmf::{average, clip, gaussian_cells, pg_cells};
+use pmf::{average, clip, gaussian_cells, pg_cells, rounded_gaussian_sd};
 
 /// Which parametric baseline.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -257,9 +261,10 @@ impl Baseline {
         let p = self.params[pos];
         let above = above.max(0.0);
         match self.kind {
+            // The law is the integer noise's variance: the Gaussian behind the rounding gets the
+            // SD whose rounding has it (`var − 1/12` from 1.3 DN² up, as before).
             BaselineKind::Hg | BaselineKind::NoiseProfile => {
-                let var = (p.variance(above) - 1.0 / 12.0).max(1e-8);
-                gaussian_cells(0.0, var.sqrt())
+                gaussian_cells(0.0, rounded_gaussian_sd(p.variance(above)).max(1e-4))
             }
             BaselineKind::Pg => pg_cells(p.a, (p.b - 1.0 / 12.0).max(0.0), above),
         }

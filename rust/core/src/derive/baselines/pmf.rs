@@ -60,6 +60,41 @@ pub(super) fn clip(p: &Pmf, level: i32, white: i32) -> Pmf {
     Pmf::from_weights(first, out).unwrap_or(Pmf { first, p: vec![1.0] })
 }
 
+/// Above this integer variance (DN²) a rounded Gaussian about an integer has the variance
+/// `s² + 1/12` to within 10⁻⁸ DN² (Sheppard's correction: the error falls as `exp(−2π²s²)`, and
+/// `s ≥ 1.1` here), so [`rounded_gaussian_sd`] takes `√(var − 1/12)` there.
+pub const SHEPPARD_FROM: f64 = 1.3;
+
+/// Variance of `round(N(0, sd²))` on the integers (the cells' exact sum).
+pub fn rounded_variance(sd: f64) -> f64 {
+    let sd = sd.max(1e-12);
+    let top = (8.0 * sd + 2.0).ceil() as i32;
+    (1..=top).map(|k| 2.0 * (k * k) as f64 * normal_mass((k as f64 - 0.5) / sd, (k as f64 + 0.5) / sd)).sum()
+}
+
+/// The SD `s` of the Gaussian whose rounding about an integer level has the integer variance
+/// `var` (DN²): `√(var − 1/12)` from [`SHEPPARD_FROM`] up, below it bisection on
+/// [`rounded_variance`] (which rises from 0 with `s`). `var − 1/12` alone undershoots there: at
+/// 0.15 DN² it gives `s` = 0.26, whose rounding has 0.054 DN² (0.36×), and below 1/12 no noise.
+pub fn rounded_gaussian_sd(var: f64) -> f64 {
+    if var.is_nan() || var <= 0.0 {
+        return 0.0;
+    }
+    if var >= SHEPPARD_FROM {
+        return (var - 1.0 / 12.0).sqrt();
+    }
+    let (mut lo, mut hi) = (0.0f64, SHEPPARD_FROM.sqrt() + 0.5);
+    for _ in 0..60 {
+        let mid = 0.5 * (lo + hi);
+        if rounded_variance(mid) < var {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
 /// `round(N(mu, sd²))` on the integer grid.
 pub(super) fn gaussian_cells(mu: f64, sd: f64) -> Pmf {
     let mut acc = Vec::new();
@@ -139,5 +174,23 @@ mod tests {
         // Large gain, no read noise: a lattice every 8 DN.
         let p = pg_cells(8.0, 0.0, 40.0);
         assert!(p.at(0) > 0.1 && p.at(4) < 1e-9 && p.at(8) > 0.1);
+    }
+
+    /// Known truth: the rounded Gaussian of `rounded_gaussian_sd(v)` has the integer variance `v`
+    /// (its PMF's moments, to 10⁻⁶), from 0.02 DN² (almost all 0 DN) to 50 DN², and the SD is
+    /// continuous where Sheppard's rule takes over. Sheppard's `√(v − 1/12)` everywhere (what HG's
+    /// tables drew before) gives 0.054 for 0.15 (0.36×) and 0 for 0.05.
+    #[test]
+    fn rounded_gaussian_has_the_integer_variance_asked() {
+        for v in [0.02, 0.05, 0.15, 0.22, 0.5, 1.0, 1.29, 1.3, 2.0, 50.0] {
+            let s = rounded_gaussian_sd(v);
+            let (m, got) = gaussian_cells(0.0, s).moments();
+            assert!(m.abs() < 1e-9 && (got - v).abs() < 1e-6 * v.max(1.0), "{v}: {got}");
+        }
+        let (_, old) = gaussian_cells(0.0, (0.15f64 - 1.0 / 12.0).sqrt()).moments();
+        assert!(old < 0.4 * 0.15, "{old}");
+        let below = rounded_gaussian_sd(SHEPPARD_FROM - 1e-9);
+        assert!((below - rounded_gaussian_sd(SHEPPARD_FROM)).abs() < 1e-7, "{below}");
+        assert_eq!(rounded_gaussian_sd(0.0), 0.0);
     }
 }

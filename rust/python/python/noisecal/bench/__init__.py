@@ -52,19 +52,17 @@ from .models import (
     ModelSpec,
     Pairs,
     at_target_brightness,
-    half_variance,
-    hg_mean_offset,
     interpolation_notes,
     make_pairs,
     parse_model,
-    scale_variance,
     synth_seed,
 )
+from .scaled_hg import ScaledHg, rounded_gaussian_sd, rounded_variance
 from .network import make_net
 from .estimate import DEFAULT_ESTIMATE, ESTIMATES, denoise, estimates_for, parse_estimates
 from .training import batch_plan, train_one
-from .scoring import controls, evaluate, noise_rms, score_input, summary
-from .report import gain_table, gains, headroom_lines, region_table, table
+from .scoring import controls, evaluate, failed_controls, noise_rms, score_input, summary
+from .report import gain_table, gains, headroom_lines, region_table, table, verdict_line
 from .run import networks_trained, run, steps_for_minutes
 from .cli import main, parser
 
@@ -81,6 +79,7 @@ __all__ = [
     "REGIONS",
     "Pairs",
     "RENOISE_METHODS",
+    "ScaledHg",
     "at_target_brightness",
     "band_masks",
     "batch_plan",
@@ -90,6 +89,7 @@ __all__ = [
     "estimates_for",
     "eval_pairs",
     "evaluate",
+    "failed_controls",
     "gain_table",
     "gains",
     "guided_gain",
@@ -98,8 +98,6 @@ __all__ = [
     "gaussian_blur",
     "generate_clean",
     "generate_tiles",
-    "half_variance",
-    "hg_mean_offset",
     "interpolation_notes",
     "linear_gain",
     "load_captures",
@@ -121,9 +119,10 @@ __all__ = [
     "psnr",
     "region_masks",
     "region_table",
+    "rounded_gaussian_sd",
+    "rounded_variance",
     "run",
     "score",
-    "scale_variance",
     "score_input",
     "ssim",
     "ssim_map",
@@ -132,6 +131,7 @@ __all__ = [
     "summary",
     "synth_seed",
     "table",
+    "verdict_line",
     "tile_labels",
     "train_one",
     "unpack_raw",

@@ -4,7 +4,6 @@ same seeds (common random numbers)."""
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -12,10 +11,13 @@ import numpy as np
 import noisecal
 
 from .errors import BenchError
+from .scaled_hg import ScaledHg
 
 BASE_MODELS = ("noisecal", "hg", "pg", "noiseprofile", "plain", "wrong", "loud", "oracle")
 RENOISE_METHODS = ("bridge", "quantile", "denoised", "naive")
 DEFAULT_MODELS = "oracle,noisecal,hg,pg,wrong"
+# The HG controls and their factor on HG's variance (scaled_hg.py).
+CONTROL_FACTORS = {"wrong": 0.5, "loud": 2.0}
 
 
 @dataclass
@@ -110,7 +112,9 @@ def make_pairs(
     p = packs[spec.pack_path] if spec.pack_path else pack
     model = {"plain": "noisecal", "wrong": "hg", "loud": "hg"}.get(spec.kind, spec.kind)
     parametric = model in PARAMETRIC
-    offset = hg_mean_offset(p, iso) if spec.kind in ("wrong", "loud") else None
+    # The controls: HG's noise at ½ (wrong) or 2 (loud) times its variance at every level, drawn
+    # whole (scaled_hg.py: scaling HG's whole-DN noise left sub-DN noise as it was).
+    scaled = ScaledHg(p, iso, CONTROL_FACTORS[spec.kind]) if spec.kind in CONTROL_FACTORS else None
     out = []
     for j, c in enumerate(cleans):
         row = []
@@ -121,16 +125,14 @@ def make_pairs(
         for k in range(realizations):
             s = synth_seed(data_seed, j, k, iso)
             try:
-                if parametric:
+                if scaled is not None:
+                    n = scaled.draw(at, s)
+                elif parametric:
                     n = p.synth(at, iso, s, model=model, components=spec.components, clean_at="target")
                 else:
                     n = p.synth(c, iso, s, model=model, components=spec.components)
             except noisecal.NoisecalError as e:
                 raise BenchError(f"model {spec.label} at ISO {iso}: {e}") from e
-            if spec.kind == "wrong":
-                n = half_variance(n, c, p, iso, offset, centre=at)
-            elif spec.kind == "loud":
-                n = scale_variance(n, c, p, iso, 2.0, offset, centre=at)
             row.append(n)
         out.append(row)
     return Pairs(out)
@@ -165,53 +167,6 @@ def at_target_brightness(clean: np.ndarray, pack, iso: int) -> np.ndarray:
 def cfa_positions(shape: tuple[int, ...]) -> np.ndarray:
     """(h, w): each pixel's CFA position, the core's ``position(row, column)`` = 2·(row % 2) + column % 2."""
     return (np.arange(shape[0])[:, None] % 2) * 2 + np.arange(shape[1])[None, :] % 2
-
-
-def hg_mean_offset(pack, iso: int) -> np.ndarray:
-    """(4, white + 1): the mean of HG's noise (output − clean level) per CFA position and clean
-    level, from the sampler tables ``pack.tables(iso, model="hg")`` (the gain shift included)."""
-    t = pack.tables(iso, model="hg")
-    cdf = t["cdf"].astype(np.float64) / 2.0**32
-    pmf = np.diff(cdf, axis=-1, prepend=0.0)
-    per_bin = (pmf * (t["first"][..., None] + np.arange(pmf.shape[-1]))).sum(-1)  # (4, bins)
-    return np.take_along_axis(per_bin, t["lut"], axis=1)
-
-
-def half_variance(
-    noisy: np.ndarray,
-    clean: np.ndarray,
-    pack,
-    iso: int,
-    offset: np.ndarray | None = None,
-    centre: np.ndarray | None = None,
-) -> np.ndarray:
-    """The deliberately wrong control: HG noise with half its variance, ``m + (x − m)/√2`` about
-    HG's own mean ``m`` (see :func:`scale_variance`)."""
-    return scale_variance(noisy, clean, pack, iso, 0.5, offset, centre)
-
-
-def scale_variance(
-    noisy: np.ndarray,
-    clean: np.ndarray,
-    pack,
-    iso: int,
-    factor: float,
-    offset: np.ndarray | None = None,
-    centre: np.ndarray | None = None,
-) -> np.ndarray:
-    """HG noise with ``factor`` times its variance, ``m + (x − m)/√(1/factor)`` about HG's own mean
-    ``m``: the level the noise was added to (``centre``; default the clean image itself, else its
-    target-brightness image, :func:`at_target_brightness`) plus :func:`hg_mean_offset` at the
-    clean level. ½ is the ``wrong`` control, 2 the ``loud`` one (too much noise: a network trained
-    on it smooths too much, which only an evaluation set with texture penalises)."""
-    offset = hg_mean_offset(pack, iso) if offset is None else offset
-    white = int(pack.layout["white"])
-    level = np.minimum(clean.astype(np.int64), white)
-    pos = cfa_positions(clean.shape)
-    base = level if centre is None else centre.astype(np.int64)
-    m = base + offset[pos, level]
-    out = m + (noisy.astype(np.float64) - m) / math.sqrt(1 / factor)  # ½: exactly the earlier (x − m)/√2
-    return np.rint(np.clip(out, 0, white)).astype(np.uint16)
 
 
 def interpolation_notes(specs: list, isos: list, pack, packs: dict) -> list[str]:

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from .metrics import BANDS, REGIONS
+from .scoring import failed_controls, has_controls
 
 
 def _fmt(m: dict, digits: int = 2) -> str:
@@ -97,6 +98,21 @@ def headroom_lines(out: dict) -> list[str]:
     return lines
 
 
+def verdict_line(iso, c: dict) -> str:
+    """The run's verdict at one ISO from its controls (``scoring.controls``): whether they ordered
+    as expected, and if not which did not — the other rows' ranking is then not established on
+    this data. Older JSONs without ``failed`` are judged from the same fields."""
+    failed = c.get("failed", failed_controls(c))
+    if not has_controls(c):
+        return f"verdict at ISO {iso}: UNCHECKED: no control row (oracle, wrong, loud with hg), so nothing shows the benchmark can tell models apart here"
+    if failed:
+        return (
+            f"verdict at ISO {iso}: the controls did NOT order as expected ({'; '.join(failed)}): the ranking of the "
+            "other rows is not established on this data (more steps, scenes or seeds, or scenes with texture)"
+        )
+    return f"verdict at ISO {iso}: the controls ordered as expected: the benchmark tells models apart on this data"
+
+
 def table(out: dict) -> str:
     lines = []
     bands = [b[0] for b in BANDS]
@@ -130,6 +146,7 @@ def table(out: dict) -> str:
             parts.append(f"loud (2× HG variance) below HG: {verdict} (by {c['loud_margin_db']:.2f} dB)")
         if parts:
             lines.append(f"controls at ISO {iso}: " + "; ".join(parts))
+        lines.append(verdict_line(iso, c))
     lines += headroom_lines(out)
     lines += [f"note: {n}" for n in out.get("notes", [])]
     n = len(out["networks"])

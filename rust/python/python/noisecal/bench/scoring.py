@@ -100,6 +100,15 @@ def controls(rows: list[dict]) -> dict:
                 for seed, v in ws.items()
             )
             c["wrong_clear"] = bool(others) and bool(ws) and paired and c["wrong_margin_db"] > 0.3
+            # The rows that do not clearly beat it (by 0.3 dB on the means and at every seed).
+            c["wrong_not_below"] = sorted(
+                k
+                for k, r in others.items()
+                if not (
+                    r["psnr"]["mean"] - mean[w["model"]] > 0.3
+                    and all(seed in r.get("psnr_per_seed", {}) and r["psnr_per_seed"][seed] > v for seed, v in ws.items())
+                )
+            )
         loud = [k for k, r in at.items() if r.get("kind") == "loud"]
         hg = [k for k, r in at.items() if r.get("kind") == "hg"]
         if loud and hg:
@@ -107,5 +116,36 @@ def controls(rows: list[dict]) -> dict:
             hs, ls = h.get("psnr_per_seed", {}), lo.get("psnr_per_seed", {})
             c["loud_margin_db"] = mean[hg[0]] - mean[loud[0]]
             c["loud_below_hg"] = bool(ls) and all(seed in hs and hs[seed] > v for seed, v in ls.items())
+        c["failed"] = failed_controls(c)
+        c["ordered"] = None if not has_controls(c) else not c["failed"]
         out[iso] = c
+    return out
+
+
+# Each control's check, its key in :func:`controls`' result and how the verdict names its failure.
+CONTROL_CHECKS = (
+    ("oracle_best", "oracle not best within the seed spread"),
+    ("wrong_worst", "wrong (HG at ½ its variance) not clearly last"),
+    ("loud_below_hg", "loud (HG at 2× its variance) not below HG at every seed"),
+)
+
+
+def has_controls(c: dict) -> bool:
+    """Whether the run had any control row at the ISO (an oracle, a wrong or a loud one with HG)."""
+    return any(key in c for key, _ in CONTROL_CHECKS)
+
+
+def failed_controls(c: dict) -> list[str]:
+    """The controls at one ISO (:func:`controls`) that did not order as expected: the oracle
+    neither best nor within the seed spread, the wrong model not *clearly* last (worst on the
+    mean by 0.3 dB or less, or above some row at some seed, counts as a failure), the loud model
+    not below HG at every seed."""
+    out = []
+    if "oracle_best" in c and not (c["oracle_best"] or c["oracle_within_spread"]):
+        out.append(CONTROL_CHECKS[0][1])
+    if "wrong_worst" in c and not c["wrong_clear"]:
+        rows = c.get("wrong_not_below")
+        out.append(CONTROL_CHECKS[1][1] + (f" (not clearly above it: {', '.join(rows)})" if rows else ""))
+    if "loud_below_hg" in c and not c["loud_below_hg"]:
+        out.append(CONTROL_CHECKS[2][1])
     return out

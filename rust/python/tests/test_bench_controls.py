@@ -1,0 +1,123 @@
+"""The benchmark's HG controls (noisecal.bench.scaled_hg): ``wrong`` is HG's noise at half its
+variance and ``loud`` at twice, at every clean level, including where HG's noise is below 1 DN
+(an 8-bit sensor's dark end). Needs numpy alone."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from noisecal import bench as B
+
+
+def test_rounded_gaussian_sd_gives_the_integer_variance_asked():
+    """Known truth: ``round(N(0, s²))`` with ``s = rounded_gaussian_sd(v)`` has the integer
+    variance ``v``, exactly by the cell sums and within 1.5 % over 10⁶ draws (about 6 standard
+    errors), from 0.05 DN² (noise that is almost all 0 DN) to 50 DN².
+
+    A wrong solver misses: Sheppard's ``s = √(v − 1/12)`` everywhere (what HG's own tables
+    assume) gives 0.18 for 0.22 (0.82×) and 0 for 0.05. The earlier control, HG's whole-DN
+    noise scaled by √½ and rounded, keeps 1.0× of 0.22 DN² (asserted below), which is why it
+    never differed from HG at set 002's dark end."""
+    rng = np.random.default_rng(5)
+    z = rng.standard_normal(1_000_000)
+    for v in (0.05, 0.11, 0.22, 0.45, 1.0, 1.29, 1.31, 2.0, 50.0):
+        s = float(B.rounded_gaussian_sd(np.array([v]))[0])
+        assert abs(float(B.rounded_variance(np.array([s]))[0]) - v) < 1e-6 * max(v, 1.0), (v, s)
+        drawn = np.rint(s * z).var()
+        assert abs(drawn / v - 1) < 0.015, (v, drawn)
+        if v < 0.3:
+            sheppard = float(B.rounded_variance(np.array([math.sqrt(max(v - 1 / 12, 0.0))]))[0])
+            assert sheppard < 0.85 * v, (v, sheppard)
+    # The earlier map on sub-DN HG noise: ±1 DN scaled by √½ rounds back to ±1.
+    hg = np.rint(float(B.rounded_gaussian_sd(np.array([0.22]))[0]) * z)
+    old = np.rint(hg / math.sqrt(2))
+    assert old.var() / hg.var() > 0.95, old.var() / hg.var()
+    assert B.rounded_gaussian_sd(np.array([0.0]))[0] == 0.0
+
+
+def test_wrong_and_loud_have_half_and_twice_hgs_variance_at_every_level(pack):
+    """On flat 512×512 images of the phone10 session, at ISO 100 from black up and at ISO 800,
+    the controls' variance per CFA position over HG's own (its table's integer variance at that
+    level, the truth) is ½ ± 0.025 and 2 ± 0.1 (about 5 standard errors at 65 536 pixels), their
+    mean HG's within 0.02 DN + 1 % of its SD, the same seed gives the same image and the bench's
+    pairs are these draws.
+
+    The earlier control (HG's drawn noise scaled about its mean and rounded) scores at black at
+    ISO 100 (HG 1.07–1.39 DN²) 0.55–0.61 (wrong) and 1.66–1.72 (loud), and on set 002's dark end
+    (0.22–0.34 DN²) 0.97–1.0× HG for both: it fails here at black."""
+    for iso, level in ((100, 64), (100, 65), (100, 70), (100, 100), (800, 64), (800, 400)):
+        clean = np.full((512, 512), level, dtype=np.uint16)
+        at = B.at_target_brightness(clean, pack, iso)
+        for label, factor, tol in (("wrong", 0.5, 0.025), ("loud", 2.0, 0.1)):
+            sc = B.ScaledHg(pack, iso, factor)
+            centre = B.pack_raw(at)[:, 0, 0].astype(np.int64)  # each position's level at the target brightness
+            truth = sc.var[np.arange(4), sc.lut[np.arange(4), centre]]
+            out = sc.draw(at, 11)
+            assert np.array_equal(out, sc.draw(at, 11))
+            for p in range(4):
+                x = B.pack_raw(out.astype(np.float64))[p] - centre[p]
+                assert abs(x.var() / truth[p] - factor) < tol, (label, iso, level, p, x.var() / truth[p])
+                assert abs(x.mean()) < 0.02 + 0.01 * math.sqrt(truth[p]), (label, iso, level, p, x.mean())
+            spec = B.parse_model(label)
+            pairs = B.make_pairs(spec, iso, [clean[:64, :64]], 1, pack, {}, 1, {})
+            seed = B.synth_seed(1, 0, 0, iso)
+            assert np.array_equal(pairs.noisy[0][0], sc.draw(at[:64, :64], seed))
+
+
+def _row(model, kind, *seeds):
+    return {
+        "model": model,
+        "kind": kind,
+        "iso": 200,
+        "psnr": B.summarise(list(seeds)),
+        "psnr_per_seed": {str(i): v for i, v in enumerate(seeds)},
+    }
+
+
+def test_the_verdict_says_when_the_controls_did_not_order():
+    """The verdict line under the controls: "ordered as expected" only when every control holds;
+    else "did NOT order" naming each failure. Set 002's 1 200-step run (noisecal 54.27 / 54.37 /
+    54.48, HG 54.01 / 54.32 / 54.00, the earlier wrong 54.10 / 54.21 / 54.22, loud 54.06 / 54.31 /
+    53.96 dB) printed "wrong worst: NO" and nothing more; it now fails two controls by name. A
+    run without control rows is UNCHECKED, not ordered. An older JSON (no ``failed``) gets the
+    same verdict."""
+    set002 = B.controls(
+        [
+            _row("noisecal", "noisecal", 54.27, 54.37, 54.48),
+            _row("hg", "hg", 54.01, 54.32, 54.00),
+            _row("wrong", "wrong", 54.10, 54.21, 54.22),
+            _row("loud", "loud", 54.06, 54.31, 53.96),
+        ]
+    )[200]
+    assert set002["ordered"] is False and len(set002["failed"]) == 2
+    line = B.verdict_line(200, set002)
+    assert "did NOT order" in line and "wrong (HG at ½ its variance) not clearly last (not clearly above it: hg, noisecal)" in line
+    assert "loud (HG at 2× its variance) not below HG" in line and "oracle" not in line
+    good = B.controls(
+        [
+            _row("oracle", "oracle", 36.3, 36.4),
+            _row("hg", "hg", 36.0, 36.2),
+            _row("loud", "loud", 35.5, 35.9),
+            _row("wrong", "wrong", 35.0, 35.1),
+        ]
+    )[200]
+    assert good["ordered"] is True and good["failed"] == []
+    assert "ordered as expected" in B.verdict_line(200, good)
+    # Wrong last on the mean and at every seed, but by 0.2 dB: not clear, so not ordered.
+    near = B.controls([_row("hg", "hg", 36.0, 36.2), _row("wrong", "wrong", 35.8, 36.0)])[200]
+    assert near["wrong_worst"] and not near["ordered"]
+    # An oracle 0.5 dB below the best (spread 0.0) fails by name.
+    low = B.controls([_row("oracle", "oracle", 35.5, 35.5), _row("hg", "hg", 36.0, 36.0)])[200]
+    assert low["failed"] == ["oracle not best within the seed spread"]
+    none = B.controls([_row("noisecal", "noisecal", 36.0, 36.1), _row("hg", "hg", 36.0, 36.2)])[200]
+    assert none["ordered"] is None and "UNCHECKED" in B.verdict_line(200, none)
+    older = {k: v for k, v in set002.items() if k not in ("failed", "ordered", "wrong_not_below")}
+    line = line.replace(" (not clearly above it: hg, noisecal)", "")  # an older JSON does not name them
+    assert B.verdict_line(200, older) == line
+    out = {
+        "summary": [], "isos": [200], "controls": {200: older}, "networks": [], "seeds": [0, 1, 2],
+        "wall_seconds": 60.0, "config": {"steps": 1200, "batch": 16, "crop": 32, "width": 16},
+    }  # fmt: skip
+    assert line in B.table(out).splitlines()

@@ -1,0 +1,117 @@
+"""A simulated tiled benchmark set where the truth is known: an 8-bit sensor like EMVA 1288 set
+002 (sub-DN noise near black, a clamp at 0), laid out as set 002's tiled run
+(tests/bench/emva1288_ladder.py) but with the sensor's own noise known, so the ``oracle`` row can
+run.
+
+    python tests/bench/sim_tiles.py --out /tmp/simtiles [noisecal-bench options]
+
+- **The sensor** (``noisy``): ``clip(round(clean + N(0, A·(clean − BLACK) + B)), 0, WHITE)``, clean
+  levels float DN; black 2.87 DN, ``A`` 0.019 DN per DN and ``B`` 0.01 DN² (set 002's slope; its
+  black is the rounding alone). Clean images carry a fixed pattern (DSNU 0.1 DN, PRNU 0.5 %).
+- **Calibration** (``OUT/cal``): a ladder of ``STEPS`` levels 3.5 DN apart from black, each one
+  target frame ("ISO 200") against 8 noiseless dithered reference frames ("ISO 100", twice the
+  exposure), and a 64-frame dark burst, as set 002's converter writes them.
+- **Evaluation** (``OUT/eval-tiles``): held-out frames at set 002's 15 evaluated levels, as tiled
+  scenes (tests/bench/emva1288.py's ``write_tiles``).
+- **Training** (``OUT/train``, ``OUT/captures``): tile scenes of the evaluation's kind
+  (``noisecal.bench.generate_tiles`` with the ladder and the fixed pattern's SD), and
+  ``CAPTURES`` captures of each by the sensor: the oracle's training data.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+import noisecal
+from noisecal import bench
+from emva1288 import tile_training, write_tiles
+
+WHITE, BLACK, CFA = 255, 2.87, "RGGB"
+A, B = 0.019, 0.01  # the sensor's variance law before rounding: A·(level above black) + B (DN²)
+DSNU, PRNU = 0.1, 0.005
+STEPS = 37  # calibration levels 0, 3.5, … 126 DN above black
+EVAL = [0.0, 0.1, 1.69, 4.7, 8.14, 11.59, 15.29, 19.02, 22.65, 36.88, 50.96, 64.12, 76.83, 89.04, 101.27]
+CAL_SHAPE, EVAL_SHAPE, TRAIN_SHAPE = (256, 512), (256, 256), (256, 256)
+TRAIN, CAPTURES = 24, 4
+MAKE, MODEL = "simulated", "8-bit sub-DN sensor (sim_tiles.py)"
+
+
+def noisy(clean: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """One frame of the sensor at the float clean image ``clean`` (DN, black included)."""
+    var = A * np.maximum(clean - BLACK, 0.0) + B
+    return np.clip(np.rint(clean + rng.standard_normal(clean.shape) * np.sqrt(var)), 0, WHITE).astype(np.uint16)
+
+
+def flat(level: float, shape: tuple[int, int], pattern: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """The clean image of a flat field ``level`` DN above black, with the sensor's fixed pattern."""
+    dsnu, prnu = pattern
+    return BLACK + dsnu[: shape[0], : shape[1]] + level * (1.0 + prnu[: shape[0], : shape[1]])
+
+
+def write(path: Path, px: np.ndarray, iso: int, exposure_ns: int) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not path.exists():
+        noisecal.write_raw_dng(path, px, cfa=CFA, black=[BLACK] * 4, white=WHITE, iso=iso, exposure_ns=exposure_ns, make=MAKE, model=MODEL)
+
+
+def convert(out: Path, say) -> dict:
+    rng = np.random.default_rng(2002)
+    h, w = CAL_SHAPE
+    pattern = (rng.standard_normal((h, w)) * DSNU, rng.standard_normal((h, w)) * PRNU)
+    for i in range(64):
+        write(out / "cal" / f"dark_{i:03}.dng", noisy(flat(0.0, CAL_SHAPE, pattern), rng), 100 if i < 32 else 200, 1000)
+    for k in range(STEPS):
+        clean = flat(3.5 * k, CAL_SHAPE, pattern)
+        ns = 40_000 * (k + 1)
+        for j in range(8):
+            ref = np.clip(np.floor(clean + (j + 0.5) / 8), 0, WHITE).astype(np.uint16)
+            write(out / "cal" / f"ref_{k:03}_{j}.dng", ref, 100, 2 * ns)
+        write(out / "cal" / f"target_{k:03}.dng", noisy(clean, rng), 200, ns)
+    held = []
+    for i, level in enumerate(EVAL):
+        clean = flat(level, EVAL_SHAPE, pattern)
+        held.append((noisy(clean, rng), clean, 40_000 * (i + 1)))
+    write_tiles(out / "eval-tiles", held, write)
+    got = tile_training(held, [BLACK] * 4)
+    layout = {"black": [BLACK] * 4, "white": WHITE}
+    cleans = bench.generate_tiles(TRAIN, *TRAIN_SHAPE, layout, 7, 24, 1.0, (0.0, 105.0), got["ladder"], got["texture"])
+    for j, c in enumerate(cleans):
+        write(out / "train" / f"tile{j:02}.dng", c, 100, 80_000)
+        for k in range(CAPTURES):
+            write(out / "captures" / f"tile{j:02}_{k}.dng", noisy(c.astype(np.float64), rng), 200, 40_000)
+    say(f"simulated set in {out}: {STEPS} calibration levels, {len(held)} evaluated, {TRAIN} training scenes × {CAPTURES} captures")
+    return got
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--out", type=Path, default=Path("target/simtiles"), help="the cache [default: %(default)s]")
+    p.add_argument("--json", type=Path, help="noisecal-bench's results JSON [default: OUT/bench.json]")
+    args, rest = p.parse_known_args(argv)
+
+    def say(*a):
+        print(*a, file=sys.stderr, flush=True)
+
+    convert(args.out, say)
+    for name, is_plain in (("sim.pack", False), ("sim-plain.pack", True)):
+        if not (args.out / name).exists():
+            say(f"calibrating {name} from cal/")
+            noisecal.calibrate(args.out / "cal", plain=is_plain).save(args.out / name)
+    out = args.out
+    return bench.main(
+        [
+            "--pack", str(out / "sim.pack"), "--plain-pack", str(out / "sim-plain.pack"),
+            "--eval", str(out / "eval-tiles"), "--train", str(out / "train"), "--captures", str(out / "captures"),
+            "--models", "oracle,noisecal,hg,pg,plain,wrong,loud",
+            "--json", str(args.json or out / "bench.json"),
+            *rest,
+        ]
+    )  # fmt: skip
+
+
+if __name__ == "__main__":
+    sys.exit(main())
