@@ -14,7 +14,7 @@ use crate::model::pack::{BinModel, IsoModel, ModelPack};
 use crate::model::structure::{Components, IsoStructure};
 use crate::synth::CleanAt;
 use crate::synth::saturated;
-use crate::synth::structure::StructureSampler;
+use crate::synth::structure::{FloorReach, StructureSampler};
 
 const ONE: u64 = 1 << 32;
 /// The bytes an ISO's tables are kept within where they fit with the sparse guide: the denser
@@ -304,23 +304,21 @@ struct TargetMap {
 /// sensor's floor (`floor`, the lowest code it writes) for the bin's lowest clean level:
 /// `floor − level`. Bin 0 holds every level below black too; its lowest is taken as black's
 /// whole part (a clean level below black is a dark pixel's averaging error, a DN or two).
-/// `None` for a bin wider than a quarter of its noise SD: the cells of its pile range also hold
-/// the unclipped noise of its higher levels, in proportion to the bin's width against the
-/// noise, and all of them would go to the floor. On the demo at ISO 3200 (4 DN bins, SD 28 DN)
-/// that overshot the real pile by 7 %; on random sensor 11 (16 DN bins, black 1–5 DN above the
-/// floor, SD of a few DN) it made the pack's marginal JSD 0.00062 → 0.00065.
-fn floor_noise(binning: &Binning, pos: usize, floor: u16, i: usize, bin: &BinModel) -> Option<i32> {
+/// The pile is not known (`pile_known` false) for a bin wider than a quarter of its noise SD:
+/// the cells of its pile range also hold the unclipped noise of its higher levels, in
+/// proportion to the bin's width against the noise, and all of them would go to the floor. On
+/// the demo at ISO 3200 (4 DN bins, SD 28 DN) that overshot the real pile by 7 %; on random
+/// sensor 11 (16 DN bins, black 1–5 DN above the floor, SD of a few DN) it made the pack's
+/// marginal JSD 0.00062 → 0.00065.
+fn floor_noise(binning: &Binning, pos: usize, floor: u16, i: usize, bin: &BinModel) -> FloorReach {
     let (_, var) = bin.pmf().moments();
     let w = f64::from(binning.bin_width);
-    if 16.0 * w * w > var {
-        return None;
-    }
     let black = f64::from(binning.black[pos]);
     let lowest = match i {
         0 => floor_i32(black),
         _ => -floor_i32(-(black + (i as f64) * f64::from(binning.bin_width))),
     };
-    Some(i32::from(floor) - lowest)
+    FloorReach { noise: i32::from(floor) - lowest, pile_known: 16.0 * w * w <= var }
 }
 
 impl IsoSampler {
@@ -354,7 +352,7 @@ impl IsoSampler {
         let sources: [(Cow<'_, [BinModel]>, Vec<BinModel>); POSITIONS] = std::array::from_fn(|p| {
             let bins = match &structure {
                 Some(st) => Cow::Owned(st.deconvolved_at_floor(p, &model.positions[p].bins, |i| {
-                    floor_noise(&binning, p, model.range[p][0], i, &model.positions[p].bins[i])
+                    Some(floor_noise(&binning, p, model.range[p][0], i, &model.positions[p].bins[i]))
                 })),
                 None => Cow::Borrowed(&model.positions[p].bins[..]),
             };

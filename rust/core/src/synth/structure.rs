@@ -358,15 +358,16 @@ impl StructureSampler {
     }
 
     /// [`Self::deconvolved`] where the sensor's output stops at a floor (its clamp near black):
-    /// `floor_noise(i)` is the noise value at or below which bin `i`'s cells lie at or past the
-    /// floor for the bin's lowest clean level (`floor − lowest level`; `None` where not known).
-    /// Those cells are the clamp's pile, spread over as many cells as the bin pools levels; they
-    /// are moved past the clip by the kernel's reach (`floor_pile_start`).
+    /// `floor_noise(i)` says where the floor lies for bin `i` ([`FloorReach`]; `None` where not
+    /// known). Where its pile is known, the cells at or below the floor for the bin's lowest level
+    /// are the clamp's pile, spread over as many cells as the bin pools levels; they are moved
+    /// past the clip by the kernel's reach (`floor_pile_start`). Everywhere it is known, a PMF of
+    /// a few cells whose low end lies above it has no pile there ([`clamp_end`]).
     pub fn deconvolved_at_floor(
         &self,
         pos: usize,
         bins: &[BinModel],
-        floor_noise: impl Fn(usize) -> Option<i32> + Sync,
+        floor_noise: impl Fn(usize) -> Option<FloorReach> + Sync,
     ) -> Vec<BinModel> {
         let (k0, kernel) = self.narrowing_kernel(pos);
         if kernel.len() <= 1 {
@@ -381,6 +382,17 @@ impl StructureSampler {
             })
             .collect()
     }
+}
+
+/// Where the sensor's floor lies for one bin ([`StructureSampler::deconvolved_at_floor`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FloorReach {
+    /// The noise value at or below which the bin's cells lie at or past the floor for its
+    /// lowest clean level (`floor − lowest level`); for its higher levels the floor lies lower.
+    pub noise: i32,
+    /// Whether the cells at or below `noise` are the clamp's pile alone: a bin narrow against
+    /// its noise, whose cells there hold no unclipped noise of its higher levels.
+    pub pile_known: bool,
 }
 
 /// `Q` with `Q ∗ K ≈ P` for one bin: `P`'s shape narrowed by `K`'s variance (Eq. 5–6 of the
@@ -402,7 +414,7 @@ fn deconvolve_bin_within(
     kernel: &[f64],
     max_iterations: usize,
     upper: bool,
-    floor_noise: Option<i32>,
+    floor_noise: Option<FloorReach>,
 ) -> BinModel {
     let pmf = b.pmf();
     let (km, kv) = kernel_moments(k0, kernel);
@@ -410,13 +422,13 @@ fn deconvolve_bin_within(
     // from its end cells, which a pile pooled over the bin's levels (each level piles at its own
     // `floor − level`) need not show ([`floor_pile_start`]).
     if b.clipped
-        && let Some(t) = floor_noise
-        && let Some(start) = floor_pile_start(&pmf, t, k0, kernel.len(), km, kv)
+        && let Some(f) = floor_noise.filter(|f| f.pile_known)
+        && let Some(start) = floor_pile_start(&pmf, f.noise, k0, kernel.len(), km, kv)
     {
         return from_weights(b, start.first, &start.p);
     }
     // Which end holds the clamp's pile, if any ([`clamp_end`]): `Some(true)` the low end.
-    let pile_end = clamp_end(b, &pmf, upper);
+    let pile_end = clamp_end(b, &pmf, upper, floor_noise.map(|f| f.noise));
     // Too narrow to deconvolve (support within the kernel's length, or variance within its
     // variance): nothing to narrow, but a clamp's pile kept where it is would be smeared onto its
     // neighbour by the offsets. The demo at ISO 100 (bins of saturated pixels, 0.9995–1 of their
@@ -528,8 +540,12 @@ fn kernel_moments(k0: i32, kernel: &[f64]) -> (f64, f64) {
 /// pile is the heavier end cell that [`is_pile`] finds. A PMF of fewer than four cells has no
 /// trend to judge by (only a bin too narrow to deconvolve has one): there the heaviest cell is
 /// the pile if it is an end cell, and a single cell lies at the clip of the half of the levels
-/// its bin lies in (`upper`: white's).
-fn clamp_end(b: &BinModel, pmf: &Pmf, upper: bool) -> Option<bool> {
+/// its bin lies in (`upper`: white's), except at a low end above `floor` (the noise value at or
+/// below which the bin's cells reach the floor, where known): no level of the bin can pile
+/// there. An 8-bit sensor whose noise at black rounds to nothing (`tests/bench/sim_tiles.py`:
+/// black 2.87 DN, 0.1 DN of noise, the floor at 0) has bin 0 all at noise 0, 2 DN above the
+/// floor; taken for a pile, it was moved to −1 and every black pixel came out 0.75 DN dark.
+fn clamp_end(b: &BinModel, pmf: &Pmf, upper: bool, floor: Option<i32>) -> Option<bool> {
     let n = pmf.p.len();
     if !b.clipped || n == 0 {
         return None;
@@ -544,11 +560,15 @@ fn clamp_end(b: &BinModel, pmf: &Pmf, upper: bool) -> Option<bool> {
         };
     }
     let heaviest = pmf.p.iter().enumerate().fold(0, |m, (i, &x)| if x > pmf.p[m] { i } else { m });
-    match (heaviest == 0, heaviest == n - 1) {
+    let end = match (heaviest == 0, heaviest == n - 1) {
         (true, true) => Some(!upper),
         (true, false) => Some(true),
         (false, true) => Some(false),
         (false, false) => None,
+    };
+    match (end, floor) {
+        (Some(true), Some(t)) if pmf.first > t => None,
+        _ => end,
     }
 }
 

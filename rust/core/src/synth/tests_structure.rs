@@ -527,8 +527,10 @@ fn a_pile_pooled_over_a_bins_levels_stays_at_the_floor() {
     let through = |q: Pmf| move |c: i32| fold(&conv(&q), -c);
     let (pixel_jsd, pixel_floor) = score(&|c| fold(&measured, -c));
     let (old_jsd, old_floor) = score(&through(deconvolve_bin_within(&bin, k0, &k, RL_ITERATIONS, false, None).pmf()));
-    let (new_jsd, new_floor) =
-        score(&through(deconvolve_bin_within(&bin, k0, &k, RL_ITERATIONS, false, Some(-c0)).pmf()));
+    let (new_jsd, new_floor) = score(&through(
+        deconvolve_bin_within(&bin, k0, &k, RL_ITERATIONS, false, Some(FloorReach { noise: -c0, pile_known: true }))
+            .pmf(),
+    ));
     let truth_floor: f64 = (0..4).map(|i| weights[i as usize] * truth[i as usize].p[0]).sum();
     eprintln!(
         "JSD to the truth: floor known {new_jsd:.2e}, read from the end cells {old_jsd:.2e}, pixel-only {pixel_jsd:.2e}; share at the floor {new_floor:.5} / {old_floor:.5} / {pixel_floor:.5}, truth {truth_floor:.5}"
@@ -539,4 +541,26 @@ fn a_pile_pooled_over_a_bins_levels_stays_at_the_floor() {
         (new_floor - truth_floor).abs() <= (pixel_floor - truth_floor).abs(),
         "share at the floor {new_floor:.5}, pixel-only {pixel_floor:.5}, truth {truth_floor:.5}"
     );
+}
+
+/// Known truth: an 8-bit sensor whose noise at black rounds to nothing (black 2.87 DN, 0.1 DN
+/// of noise, the floor at code 0, `tests/bench/sim_tiles.py`). Bin 0 is marked clipped (its
+/// levels reach down to the floor) and its PMF is one cell at noise 0, 2 DN above where the
+/// floor lies for its lowest level. With a fixed pattern added, that cell must stay at 0: it is
+/// no clamp pile. Read as one (the end cells alone, the floor unknown) it was moved to −1, and
+/// every black pixel came out 1 DN dark (0.75 DN on average with the pattern's dither).
+#[test]
+fn a_single_cell_above_the_floor_is_not_a_pile() {
+    use crate::model::pack::BinSource;
+    let (k0, k) = (-1, vec![0.0035, 0.993, 0.0035]);
+    let bin = BinModel::estimated(&Pmf { first: 0, p: vec![1.0] }, 100_000, BinSource::Measured, None, true);
+    let above = FloorReach { noise: -2, pile_known: false };
+    let kept = deconvolve_bin_within(&bin, k0, &k, RL_ITERATIONS, false, Some(above)).pmf();
+    assert_eq!((kept.first, kept.p.len()), (0, 1), "kept at noise 0: {kept:?}");
+    // The floor unknown, or a cell at the floor: the pile is moved past the clip, as before.
+    let unknown = deconvolve_bin_within(&bin, k0, &k, RL_ITERATIONS, false, None).pmf();
+    assert_eq!(unknown.moments().0, -1.0, "floor unknown: {unknown:?}");
+    let at = FloorReach { noise: 0, pile_known: false };
+    let piled = deconvolve_bin_within(&bin, k0, &k, RL_ITERATIONS, false, Some(at)).pmf();
+    assert_eq!(piled.moments().0, -1.0, "a cell at the floor is its pile: {piled:?}");
 }
