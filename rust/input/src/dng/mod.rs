@@ -92,12 +92,16 @@ pub struct DngImage {
     pub source: PathBuf,
 }
 
-/// A file's bytes, read into memory (a buffer of its own, or one reused). Never mapped: a
-/// mapped page past the end of a file truncated under it raises `SIGBUS`.
+/// A file's bytes, read into memory (a buffer of its own, or one reused, or the sparse read's
+/// anonymous mapping). Never a mapping of the file: a mapped page past the end of a file
+/// truncated under it raises `SIGBUS`.
 #[derive(Debug)]
 enum Bytes {
     Owned(Vec<u8>),
     Read(buffers::Buffer),
+    /// The file's length of zeroed memory mapped for one read alone ([`sparse::meta_bytes`]),
+    /// the bytes outside the raw image data read into it; its untouched pages cost nothing.
+    Zeroed(memmap2::MmapMut),
 }
 
 impl std::ops::Deref for Bytes {
@@ -107,6 +111,7 @@ impl std::ops::Deref for Bytes {
         match self {
             Bytes::Owned(v) => v,
             Bytes::Read(b) => b,
+            Bytes::Zeroed(m) => m,
         }
     }
 }
@@ -158,6 +163,7 @@ impl DngFile {
         match Arc::try_unwrap(self.bytes) {
             Ok(Bytes::Owned(v)) => v,
             Ok(Bytes::Read(b)) => b.into_vec(),
+            Ok(Bytes::Zeroed(m)) => m.to_vec(),
             Err(shared) => shared.to_vec(),
         }
     }

@@ -16,42 +16,23 @@ use std::path::Path;
 
 use super::ifd::{FieldType, Structure, walk};
 use super::raw_data::{DataLayout, geometry};
-use super::{DngError, MAX_DNG_BYTES};
+use super::{Bytes, DngError, MAX_DNG_BYTES};
 
 /// Bytes read from each end of a file before its directories are walked.
 pub(super) const END_BYTES: usize = 256 * 1024;
 
-/// A file's bytes for its metadata: the sparse read, or the whole file.
-pub(super) enum MetaBytes {
-    /// The file's length of zeroed memory mapped for this read alone ([`sparse`]), the bytes
-    /// outside the raw image data read into it.
-    Sparse(memmap2::MmapMut),
-    Whole(Vec<u8>),
-}
-
-impl std::ops::Deref for MetaBytes {
-    type Target = [u8];
-
-    fn deref(&self) -> &[u8] {
-        match self {
-            MetaBytes::Sparse(m) => m,
-            MetaBytes::Whole(v) => v,
-        }
-    }
-}
-
 /// The file's bytes, its raw image data left as zeros where [`sparse`] can tell what that is,
 /// else the whole file; `ends`: the bytes read from each end first ([`END_BYTES`]).
-pub(super) fn meta_bytes(path: &Path, ends: usize) -> Result<MetaBytes, DngError> {
+pub(super) fn meta_bytes(path: &Path, ends: usize) -> Result<Bytes, DngError> {
     let io = |e| DngError::io(path, e);
     let (mut file, len) = noisecal_io::open_regular(path, MAX_DNG_BYTES).map_err(io)?;
     let len = usize::try_from(len).map_err(|_| DngError::decode(path, "the file is too large"))?;
     if len > 4 * ends
         && let Some(buf) = sparse(&mut file, len, ends).map_err(io)?
     {
-        return Ok(MetaBytes::Sparse(buf));
+        return Ok(Bytes::Zeroed(buf));
     }
-    noisecal_io::read_regular(path, MAX_DNG_BYTES).map(MetaBytes::Whole).map_err(io)
+    noisecal_io::read_regular(path, MAX_DNG_BYTES).map(Bytes::Owned).map_err(io)
 }
 
 /// The sparse read of a file of `len` bytes (see the module docs), or `None` when its
@@ -161,7 +142,7 @@ mod tests {
         let ends = whole.len() / 4 - 1;
         let sparse = meta_bytes(&path, ends).expect("sparse read");
         assert_eq!(sparse.len(), whole.len());
-        assert!(matches!(sparse, MetaBytes::Sparse(_)));
+        assert!(matches!(sparse, Bytes::Zeroed(_)));
         assert_ne!(&sparse[..], &whole[..], "the sparse read was taken");
         let data = image_data(&whole).expect("strips");
         let in_data = |i: usize| data.iter().any(|r| r.contains(&i));
