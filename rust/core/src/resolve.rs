@@ -132,6 +132,26 @@ impl Resolved {
     ) -> Result<IsoSampler, ModelError> {
         sampler_for(pack, &self.model, self.kind, which, clean_at, extrapolate)
     }
+
+    /// [`Self::sampler`] for clean images whose levels are all at most `top`, at the reference
+    /// brightness ([`IsoSampler::with_structure_up_to`]: only the bins those levels reach are
+    /// deconvolved; the same bytes on such images, and only on them). At the target brightness
+    /// it is [`Self::sampler`].
+    pub fn sampler_up_to(
+        &self,
+        pack: &ModelPack,
+        which: Components,
+        clean_at: CleanAt,
+        extrapolate: bool,
+        top: u16,
+    ) -> Result<IsoSampler, ModelError> {
+        if clean_at != CleanAt::Reference {
+            return self.sampler(pack, which, clean_at, extrapolate);
+        }
+        let structure = if which.structured() { structure_at(pack, self.model.iso) } else { None };
+        let sampler = IsoSampler::with_structure_up_to(pack, &self.model, structure.as_ref(), which, top);
+        baseline_levels(pack, &self.model, self.kind, sampler, [1.0; POSITIONS], extrapolate)
+    }
 }
 
 /// The sampler of a model of `kind` ([`resolve_model`]) with the components `which`, for clean

@@ -77,3 +77,65 @@ fn target_sampler_deconvolves_once_and_is_the_earlier_one() {
     }
     assert!(wrong_differs, "fine levels from the pack's own bins give the same sampler: the check cannot fail");
 }
+
+/// A sampler built for clean levels up to `top` (`noisecal synth` of one image,
+/// [`IsoSampler::with_structure_up_to`]) is the full sampler at every level up to `top`, table
+/// for table, and synthesizes an image within `top` to the same bytes, on one thread and three;
+/// past `top` it skipped the deconvolution (its tables there differ, so the build did less). At
+/// low `top` the fine levels near black read bins past it: the full fine levels then differ from
+/// those read with the rest left as the model's bins (checked, so the route that deconvolves the
+/// rest first is exercised and a version without it would differ), and wherever the fine levels
+/// are the same with the rest read and not read, they are those of every bin deconvolved.
+#[test]
+fn a_sampler_up_to_a_level_is_the_full_one_there() {
+    use noisecal_core::derive::fine_levels::position_fine_levels;
+    use noisecal_core::resolve::resolve_model;
+    let pack = structured_pack();
+    let white = pack.layout.white;
+    let (mut skipped, mut fine_reads_past) = (0usize, 0usize);
+    for iso in [100, 400, 1600] {
+        let resolved = resolve_model(&pack, iso, ModelKind::Noisecal, false).expect("model");
+        let full = resolved.sampler(&pack, Components::ALL, CleanAt::Reference, false).expect("full sampler");
+        let model = pack.iso(iso).expect("calibrated");
+        let st = full.structure().expect("structured components").clone();
+        for top in [66u16, 70, 90, 200, 400, white] {
+            let up_to =
+                resolved.sampler_up_to(&pack, Components::ALL, CleanAt::Reference, false, top).expect("sampler");
+            for p in 0..POSITIONS {
+                for level in 0..=top {
+                    assert!(up_to.table(p, level) == full.table(p, level), "ISO {iso}, top {top}, position {p}, level {level}");
+                }
+                skipped += (top as usize + 1..=white as usize)
+                    .filter(|&l| up_to.table(p, l as u16) != full.table(p, l as u16))
+                    .count();
+                // Do the fine levels read a bin past `top`? (The deconvolution without the floor
+                // suffices to tell.)
+                let bins = &model.positions[p].bins;
+                let all = st.deconvolved(p, bins);
+                let used = pack.binning().lut(p)[..=top as usize].iter().map(|&b| b as usize + 1).max().expect("levels");
+                let mut mixed = all.clone();
+                mixed[used.min(bins.len())..].clone_from_slice(&bins[used.min(bins.len())..]);
+                let mut unread = mixed.clone();
+                unread[used.min(bins.len())..].iter_mut().for_each(|b| b.clipped = true);
+                let fine = |b: &[noisecal_core::model::pack::BinModel]| position_fine_levels(&pack, model, p, b);
+                let (read, not_read, truth) = (fine(&mixed), fine(&unread), fine(&all));
+                // Where the check passes, the fine levels are those of every bin deconvolved.
+                assert!(read != not_read || read == truth, "ISO {iso}, top {top}, position {p}: the check missed a read");
+                fine_reads_past += (read != truth) as usize;
+            }
+            let clean = ndarray::Array2::from_shape_fn((37, 53), |(y, x)| {
+                (60 + ((y * 53 + x) * 7919) % (top as usize - 59)) as u16
+            });
+            for threads in [1, 3] {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+                let (a, b) = pool.install(|| {
+                    (noisecal_core::synth::synthesize(&full, clean.view(), 5), noisecal_core::synth::synthesize(&up_to, clean.view(), 5))
+                });
+                assert!(a == b, "ISO {iso}, top {top}, {threads} threads: other bytes");
+            }
+        }
+    }
+    assert!(skipped > 1000, "{skipped} levels past top with other tables: the build skipped nothing");
+    assert!(fine_reads_past > 0, "the fine levels never read a bin past top: their check cannot fail here");
+    eprintln!("levels past top with skipped tables: {skipped}; positions where the fine levels read past top: {fine_reads_past}");
+}

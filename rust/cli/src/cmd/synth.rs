@@ -93,7 +93,24 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         {
             eprintln!("{n}");
         }
-        let sampler = resolved.sampler(&pack, which, args.clean_at, args.extrapolate)?;
+        // A single image is read before the build: the sampler then builds only the tables its
+        // levels reach ([`IsoSampler::with_structure_up_to`]). A folder's images take them all.
+        let prefetched = prefetch.map(|h| {
+            h.join().unwrap_or_else(|_| {
+                Err(dng::DngError::Io {
+                    path: args.input.clone(),
+                    source: std::io::Error::other("the reading thread panicked"),
+                })
+            })
+        });
+        let top = match &prefetched {
+            Some(Ok(f)) if f.image.layout.align_to(&pack.layout).is_identity() => highest_level(f.pixels()),
+            _ => None,
+        };
+        let sampler = match top {
+            Some(top) => resolved.sampler_up_to(&pack, which, args.clean_at, args.extrapolate, top)?,
+            None => resolved.sampler(&pack, which, args.clean_at, args.extrapolate)?,
+        };
         sampler.set_pattern_cache_bytes(args.pattern_cache_mb.saturating_mul(1 << 20));
         let model = resolved.model;
         if args.clean_at == CleanAt::Target
@@ -131,15 +148,10 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         let (write_tx, write_rx) = std::sync::mpsc::sync_channel::<Written>(1);
         let reader_jobs = jobs.clone();
         scope.spawn(move || {
-            let mut prefetch = prefetch;
+            let mut prefetched = prefetched;
             for (input, output) in &reader_jobs {
-                let file = match prefetch.take() {
-                    Some(h) => h.join().unwrap_or_else(|_| {
-                        Err(dng::DngError::Io {
-                            path: input.clone(),
-                            source: std::io::Error::other("the reading thread panicked"),
-                        })
-                    }),
+                let file = match prefetched.take() {
+                    Some(f) => f,
                     None => dng::read_dng_source(input),
                 };
                 let file = file.map_err(anyhow::Error::from).and_then(|f| {
@@ -220,6 +232,14 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
             args.input.display()
         )))
     })
+}
+
+/// The highest level of an image (`None` for an empty one).
+fn highest_level(pixels: ndarray::ArrayView2<'_, u16>) -> Option<u16> {
+    match pixels.as_slice() {
+        Some(s) => s.iter().copied().max(),
+        None => pixels.rows().into_iter().filter_map(|r| r.iter().copied().max()).max(),
+    }
 }
 
 /// A sampled file on its way to the writer.

@@ -321,6 +321,28 @@ fn floor_noise(binning: &Binning, pos: usize, floor: u16, i: usize, bin: &BinMod
     FloorReach { noise: i32::from(floor) - lowest, pile_known: 16.0 * w * w <= var }
 }
 
+/// One past the highest bin `lut` maps a level up to `top` to.
+fn bins_up_to(lut: &[u16], top: u16) -> usize {
+    lut.iter().take(top as usize + 1).map(|&b| b as usize + 1).max().unwrap_or(0)
+}
+
+/// The fine levels of position `p` ([`position_fine_levels`]) from `bins` whose first `used`
+/// are deconvolved and the rest the model's own, when they do not depend on the rest: the same
+/// with the rest read (as the model's bins) and not read (marked clipped, which no law reads).
+/// `None` where the two differ: the rest must be deconvolved first.
+fn fine_levels_without(
+    pack: &ModelPack,
+    model: &IsoModel,
+    p: usize,
+    bins: &[BinModel],
+    used: usize,
+) -> Option<Option<FineLevels>> {
+    let read = position_fine_levels(pack, model, p, bins);
+    let mut unread = bins.to_vec();
+    unread[used..].iter_mut().for_each(|b| b.clipped = true);
+    (position_fine_levels(pack, model, p, &unread) == read).then_some(read)
+}
+
 impl IsoSampler {
     /// The sampler of a model with the structured components `structure` of its ISO handed in
     /// (the caller derives them: a pack's own, or derived from its calibrated ISOs, as
@@ -346,20 +368,63 @@ impl IsoSampler {
         structure: Option<&IsoStructure>,
         which: Components,
     ) -> (Self, Option<[Vec<BinModel>; POSITIONS]>) {
+        Self::build(pack, model, structure, which, None)
+    }
+
+    /// [`Self::with_structure`] for clean images whose levels are all at most `top` (a single
+    /// image's, as `noisecal synth` of one file reads it before the build): the bins that hold
+    /// no level up to `top` are not deconvolved, and their tables draw from the model's own
+    /// bins. An image within `top` gets the same bytes as from [`Self::with_structure`]; an
+    /// image with a level above it would draw that level's noise with the structured offsets
+    /// counted twice, so such a sampler serves the images it was built for alone.
+    pub fn with_structure_up_to(
+        pack: &ModelPack,
+        model: &IsoModel,
+        structure: Option<&IsoStructure>,
+        which: Components,
+        top: u16,
+    ) -> Self {
+        Self::build(pack, model, structure, which, Some(top)).0
+    }
+
+    /// [`Self::with_structure_kept`], or [`Self::with_structure_up_to`] with `top` (then no bins
+    /// are returned).
+    fn build(
+        pack: &ModelPack,
+        model: &IsoModel,
+        structure: Option<&IsoStructure>,
+        which: Components,
+        top: Option<u16>,
+    ) -> (Self, Option<[Vec<BinModel>; POSITIONS]>) {
         let structure = structure.filter(|_| which.structured()).and_then(|st| StructureSampler::new(st, which));
         let binning = pack.binning();
         let mut luts: [Vec<u16>; POSITIONS] = std::array::from_fn(|p| binning.lut(p));
         let sources: [(Cow<'_, [BinModel]>, Vec<BinModel>); POSITIONS] = std::array::from_fn(|p| {
-            let bins = match &structure {
-                Some(st) => Cow::Owned(st.deconvolved_at_floor(p, &model.positions[p].bins, |i| {
-                    Some(floor_noise(&binning, p, model.range[p][0], i, &model.positions[p].bins[i]))
-                })),
-                None => Cow::Borrowed(&model.positions[p].bins[..]),
-            };
+            let own = &model.positions[p].bins;
             // An estimated model's levels near black whose bin is too wide for the noise there
             // draw from the bin's PMF at the law's variance for their level (tables after the
             // bins'); plain histograms and parametric models keep one PMF per bin.
-            let extra = position_fine_levels(pack, model, p, &bins).map_or_else(Vec::new, |f| {
+            let (bins, fine) = match &structure {
+                Some(st) => {
+                    let floor = |i: usize| Some(floor_noise(&binning, p, model.range[p][0], i, &own[i]));
+                    // The bins that hold a level up to `top` (all of them without it).
+                    let used = top.map_or(own.len(), |t| bins_up_to(&luts[p], t).min(own.len()));
+                    let mut bins = st.deconvolved_at_floor_in(p, own, floor, 0..used);
+                    let fine = match used < own.len() {
+                        true => fine_levels_without(pack, model, p, &bins, used),
+                        false => Some(position_fine_levels(pack, model, p, &bins)),
+                    };
+                    let fine = fine.unwrap_or_else(|| {
+                        // The fine levels read a bin past `top`: every bin deconvolved.
+                        let rest = st.deconvolved_at_floor_in(p, own, floor, used..own.len());
+                        bins[used..].clone_from_slice(&rest[used..]);
+                        position_fine_levels(pack, model, p, &bins)
+                    });
+                    (Cow::Owned(bins), fine)
+                }
+                None => (Cow::Borrowed(&own[..]), position_fine_levels(pack, model, p, own)),
+            };
+            let extra = fine.map_or_else(Vec::new, |f| {
                 luts[p] = f.lut;
                 f.extra
             });
@@ -390,7 +455,7 @@ impl IsoSampler {
             let c = c.min(white);
             [f.min(c) as i32, c as i32]
         });
-        let kept = structure.is_some().then(|| sources.map(|(bins, _)| bins.into_owned()));
+        let kept = (structure.is_some() && top.is_none()).then(|| sources.map(|(bins, _)| bins.into_owned()));
         (Self { iso: model.iso, white, binning, luts, tables, snaps, range, structure, target: None }, kept)
     }
 

@@ -369,6 +369,19 @@ impl StructureSampler {
         bins: &[BinModel],
         floor_noise: impl Fn(usize) -> Option<FloorReach> + Sync,
     ) -> Vec<BinModel> {
+        self.deconvolved_at_floor_in(pos, bins, floor_noise, 0..bins.len())
+    }
+
+    /// [`Self::deconvolved_at_floor`] for the bins of `range` alone; the others are returned as
+    /// they are (for a sampler whose images hold no level of theirs: the work is skipped, the
+    /// deconvolved bins of `range` are the same).
+    pub(crate) fn deconvolved_at_floor_in(
+        &self,
+        pos: usize,
+        bins: &[BinModel],
+        floor_noise: impl Fn(usize) -> Option<FloorReach> + Sync,
+        range: std::ops::Range<usize>,
+    ) -> Vec<BinModel> {
         let (k0, kernel) = self.narrowing_kernel(pos);
         if kernel.len() <= 1 {
             return bins.to_vec();
@@ -377,6 +390,9 @@ impl StructureSampler {
         bins.par_iter()
             .enumerate()
             .map(|(i, b)| {
+                if !range.contains(&i) {
+                    return b.clone();
+                }
                 let floor = if i < half { floor_noise(i) } else { None };
                 deconvolve_bin_within(b, k0, &kernel, RL_ITERATIONS, i >= half, floor)
             })
