@@ -103,7 +103,10 @@ fn a_sampler_up_to_a_level_is_the_full_one_there() {
                 resolved.sampler_up_to(&pack, Components::ALL, CleanAt::Reference, false, top).expect("sampler");
             for p in 0..POSITIONS {
                 for level in 0..=top {
-                    assert!(up_to.table(p, level) == full.table(p, level), "ISO {iso}, top {top}, position {p}, level {level}");
+                    assert!(
+                        up_to.table(p, level) == full.table(p, level),
+                        "ISO {iso}, top {top}, position {p}, level {level}"
+                    );
                 }
                 skipped += (top as usize + 1..=white as usize)
                     .filter(|&l| up_to.table(p, l as u16) != full.table(p, l as u16))
@@ -112,7 +115,8 @@ fn a_sampler_up_to_a_level_is_the_full_one_there() {
                 // suffices to tell.)
                 let bins = &model.positions[p].bins;
                 let all = st.deconvolved(p, bins);
-                let used = pack.binning().lut(p)[..=top as usize].iter().map(|&b| b as usize + 1).max().expect("levels");
+                let used =
+                    pack.binning().lut(p)[..=top as usize].iter().map(|&b| b as usize + 1).max().expect("levels");
                 let mut mixed = all.clone();
                 mixed[used.min(bins.len())..].clone_from_slice(&bins[used.min(bins.len())..]);
                 let mut unread = mixed.clone();
@@ -120,7 +124,10 @@ fn a_sampler_up_to_a_level_is_the_full_one_there() {
                 let fine = |b: &[noisecal_core::model::pack::BinModel]| position_fine_levels(&pack, model, p, b);
                 let (read, not_read, truth) = (fine(&mixed), fine(&unread), fine(&all));
                 // Where the check passes, the fine levels are those of every bin deconvolved.
-                assert!(read != not_read || read == truth, "ISO {iso}, top {top}, position {p}: the check missed a read");
+                assert!(
+                    read != not_read || read == truth,
+                    "ISO {iso}, top {top}, position {p}: the check missed a read"
+                );
                 fine_reads_past += (read != truth) as usize;
             }
             let clean = ndarray::Array2::from_shape_fn((37, 53), |(y, x)| {
@@ -129,7 +136,10 @@ fn a_sampler_up_to_a_level_is_the_full_one_there() {
             for threads in [1, 3] {
                 let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
                 let (a, b) = pool.install(|| {
-                    (noisecal_core::synth::synthesize(&full, clean.view(), 5), noisecal_core::synth::synthesize(&up_to, clean.view(), 5))
+                    (
+                        noisecal_core::synth::synthesize(&full, clean.view(), 5),
+                        noisecal_core::synth::synthesize(&up_to, clean.view(), 5),
+                    )
                 });
                 assert!(a == b, "ISO {iso}, top {top}, {threads} threads: other bytes");
             }
@@ -137,5 +147,7 @@ fn a_sampler_up_to_a_level_is_the_full_one_there() {
     }
     assert!(skipped > 1000, "{skipped} levels past top with other tables: the build skipped nothing");
     assert!(fine_reads_past > 0, "the fine levels never read a bin past top: their check cannot fail here");
-    eprintln!("levels past top with skipped tables: {skipped}; positions where the fine levels read past top: {fine_reads_past}");
+    eprintln!(
+        "levels past top with skipped tables: {skipped}; positions where the fine levels read past top: {fine_reads_past}"
+    );
 }
