@@ -7,6 +7,12 @@ use clap::{Parser, Subcommand};
 use noisecal_cli::cmd;
 use noisecal_cli::support::is_broken_pipe;
 
+mod huge_pages;
+
+/// Large blocks in huge pages (fewer page faults; the same bytes).
+#[global_allocator]
+static ALLOCATOR: huge_pages::HugePages = huge_pages::HugePages;
+
 #[derive(Parser, Debug)]
 #[command(name = "noisecal", version, about = "Calibrated, non-parametric camera noise models", long_about = None)]
 struct Cli {
