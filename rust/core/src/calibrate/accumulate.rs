@@ -316,11 +316,7 @@ fn fold_rows(
         // The noise of every pixel, 0 where not flat (the windows' not-flat level takes 0).
         let mut flat_pixels = 0u32;
         if identity {
-            for ((n, &v), &c) in noise.iter_mut().zip(row).zip(crow) {
-                let is_flat = c != NOT_FLAT;
-                *n = (v as i32 - c as i32) & (is_flat as i32).wrapping_neg();
-                flat_pixels += is_flat as u32;
-            }
+            flat_pixels = noise_row(row, crow, &mut noise);
         } else {
             for (x, ((n, &v), &c)) in noise.iter_mut().zip(row).zip(crow).enumerate() {
                 let t = tf.apply(parity * 2 + (x & 1), v).round().clamp(0.0, white as f32) as i32;
@@ -549,10 +545,30 @@ fn line_sums_narrow(noise: &[i32], crow: &[u16], line_top: u16, cols: &mut [i32]
     cells
 }
 
+/// The noise `v − c` of every pixel of a row (`row` raw values, `crow` clean levels) into
+/// `noise`, 0 where the pixel is not flat; returns the flat pixels. Branch-free, compiled for
+/// AVX-512 and AVX2 as well as the baseline, the CPU's best picked at run time.
+#[multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512dq+avx512vl+avx2+avx+fma+bmi1+bmi2+lzcnt+popcnt+sse4.1+sse4.2+ssse3",
+    "x86_64+avx2+avx+fma+bmi1+bmi2+lzcnt+popcnt+sse4.1+sse4.2+ssse3"
+))]
+fn noise_row(row: &[u16], crow: &[u16], noise: &mut [i32]) -> u32 {
+    let mut flat_pixels = 0u32;
+    for ((n, &v), &c) in noise.iter_mut().zip(row).zip(crow) {
+        let is_flat = c != NOT_FLAT;
+        *n = (v as i32 - c as i32) & (is_flat as i32).wrapping_neg();
+        flat_pixels += is_flat as u32;
+    }
+    flat_pixels
+}
+
 /// One run of [`line_sums_narrow`] (at most [`NARROW_RUN`] pixels): the masked noise into its
 /// columns' sums, and its sums per lane `x mod 8`. Branch-free, so that the compiler vectorises
-/// it; compiled for AVX2 as well as the baseline, the CPU's best picked at run time.
-#[multiversion(targets("x86_64+avx2+avx+fma+bmi1+bmi2+lzcnt+popcnt+sse4.1+sse4.2+ssse3"))]
+/// it; compiled for AVX-512 and AVX2 as well as the baseline, the CPU's best picked at run time.
+#[multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512dq+avx512vl+avx2+avx+fma+bmi1+bmi2+lzcnt+popcnt+sse4.1+sse4.2+ssse3",
+    "x86_64+avx2+avx+fma+bmi1+bmi2+lzcnt+popcnt+sse4.1+sse4.2+ssse3"
+))]
 fn narrow_run(noise: &[i32], crow: &[u16], line_top: u16, cols: &mut [i32]) -> [i32; 8] {
     const LANES: usize = 8;
     let n = noise.len().min(crow.len()).min(cols.len());

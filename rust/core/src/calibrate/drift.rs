@@ -219,8 +219,11 @@ fn row_sums(crow: &[u16], row: &[u16], black: [i64; 2], top: u16) -> [[f64; 5]; 
 /// a product of two u16 is below 2³², a row's sum of them below 2⁴⁸. Eight lanes, each pixel's
 /// terms added branch-free (a pixel not compared adds zeros), lane `k` holding the columns
 /// `x ≡ k (mod 8)`: the compiler turns it into vector arithmetic (32 × 32 → 64-bit products),
-/// compiled for AVX2 as well as the baseline, the CPU's best picked at run time.
-#[multiversion(targets("x86_64+avx2+avx+fma+bmi1+bmi2+lzcnt+popcnt+sse4.1+sse4.2+ssse3"))]
+/// compiled for AVX-512 and AVX2 as well as the baseline, the CPU's best picked at run time.
+#[multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512dq+avx512vl+avx2+avx+fma+bmi1+bmi2+lzcnt+popcnt+sse4.1+sse4.2+ssse3",
+    "x86_64+avx2+avx+fma+bmi1+bmi2+lzcnt+popcnt+sse4.1+sse4.2+ssse3"
+))]
 fn raw_row_sums(crow: &[u16], row: &[u16], top: u16) -> [[u64; 5]; 2] {
     const LANES: usize = 8;
     let mut acc = [[0u64; LANES]; 5];

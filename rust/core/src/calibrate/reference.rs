@@ -7,6 +7,7 @@
 //! A calibration session composes one per step; evaluation and tests use it alone to get the
 //! clean image of held-out captures.
 
+use multiversion::multiversion;
 use ndarray::Array2;
 use serde::{Deserialize, Serialize};
 
@@ -106,6 +107,33 @@ fn exact_stats(sums: &[[i64; 3]], pixels: usize) -> Option<Vec<[f64; 3]>> {
 }
 
 /// One row of the sums, of the first frame and of the squares, with its index.
+/// A row of a frame after the burst's first (`values`) into the burst's per-pixel sums and
+/// squares of the differences from the first frame (`first_row`); the second frame writes the
+/// squares rather than adding to them (see the caller). Branch-free, compiled for AVX-512 and
+/// AVX2 as well as the baseline, the CPU's best picked at run time.
+#[multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512dq+avx512vl+avx2+avx+fma+bmi1+bmi2+lzcnt+popcnt+sse4.1+sse4.2+ssse3",
+    "x86_64+avx2+avx+fma+bmi1+bmi2+lzcnt+popcnt+sse4.1+sse4.2+ssse3"
+))]
+fn add_row(sum_row: &mut [u32], square_row: &mut [u32], values: &[u16], first_row: &[u16], second_frame: bool) {
+    for (s, &v) in sum_row.iter_mut().zip(values) {
+        *s += v as u32;
+    }
+    // (v − f0)² of two u16 is below 2³², so the u32 square is exact (no clamp).
+    let squares = square_row.iter_mut().zip(values).zip(first_row);
+    if second_frame {
+        for ((q, &v), &f0) in squares {
+            let d = v.abs_diff(f0) as u32;
+            *q = d * d;
+        }
+    } else {
+        for ((q, &v), &f0) in squares {
+            let d = v.abs_diff(f0) as u32;
+            *q = q.saturating_add(d * d);
+        }
+    }
+}
+
 type RowPair<'a> = (usize, &'a mut [u32], &'a mut [u16], &'a mut [u32]);
 
 impl ReferenceBurst {
@@ -239,22 +267,7 @@ impl ReferenceBurst {
                     first_row.copy_from_slice(&values[..first_row.len()]);
                     continue;
                 }
-                for (s, &v) in sum_row.iter_mut().zip(values) {
-                    *s += v as u32;
-                }
-                // (v − f0)² of two u16 is below 2³², so the u32 square is exact (no clamp).
-                let squares = square_row.iter_mut().zip(values).zip(first_row.iter());
-                if second_frame {
-                    for ((q, &v), &f0) in squares {
-                        let d = v.abs_diff(f0) as u32;
-                        *q = d * d;
-                    }
-                } else {
-                    for ((q, &v), &f0) in squares {
-                        let d = v.abs_diff(f0) as u32;
-                        *q = q.saturating_add(d * d);
-                    }
-                }
+                add_row(sum_row, square_row, values, first_row, second_frame);
                 if (y / 2) % stats_rows == 0 {
                     for (x, (&v, &f0)) in values.iter().zip(first_row.iter()).enumerate() {
                         let pos = ((y & 1) << 1) | (x & 1);

@@ -32,14 +32,33 @@ pub(crate) const LANES: usize = 2;
 
 use crate::model::histogram::NoiseHistogram;
 
-/// A clean level's window: its bin, the bin histogram's range when the window was made
-/// (`first`, `len`), and where its counts begin.
+/// A clean level's window: the bin histogram's range when the window was made (`first`, `len`),
+/// and `at`, the index in the counts of noise 0 in lane 0 (`(start − first)·LANES`, `start`
+/// where its counts begin), so that a sample's count is at `at + n·LANES + lane` with no other
+/// arithmetic. Its bin is the level's in the lookup table.
 #[derive(Debug, Clone, Copy, Default)]
 struct LevelWindow {
     first: i32,
     len: u32,
-    start: u32,
-    bin: u32,
+    at: i64,
+}
+
+impl LevelWindow {
+    fn new(first: i32, len: u32, start: u32) -> Self {
+        Self { first, len, at: (start as i64 - first as i64) * LANES as i64 }
+    }
+
+    /// Where the window's counts begin.
+    fn start(&self) -> usize {
+        (self.at / LANES as i64 + self.first as i64) as usize
+    }
+
+    /// The index in the counts of noise `n` in lane 0 (any value when `n` is outside the
+    /// window).
+    #[inline(always)]
+    fn index(&self, n: i32) -> usize {
+        self.at.wrapping_add(n as i64 * LANES as i64) as usize
+    }
 }
 
 /// The counts of one frame, for the clean levels of one position.
@@ -92,26 +111,20 @@ impl<'a> WindowCounts<'a> {
         let range = |bin: u16| hists.get(bin as usize).map_or((0, 0), |h| (h.first, h.counts.len()));
         let top = self.lut.len();
         self.levels.clear();
-        self.levels.extend(self.lut.iter().map(|&bin| LevelWindow {
-            first: range(bin).0,
-            len: 0,
-            start: 0,
-            bin: bin as u32,
-        }));
+        self.levels.extend(self.lut.iter().map(|&bin| LevelWindow::new(range(bin).0, 0, 0)));
         let mut start = 0u32;
         if self.direct {
             // No windows: every sample to its histogram.
         } else if self.by_level {
             let mut room = self.budget;
             for &l in self.flat.iter().filter(|&&l| (l as usize) < top) {
-                let w = &mut self.levels[l as usize];
-                let len = range(self.lut[l as usize]).1;
+                let (first, len) = range(self.lut[l as usize]);
                 let Some(end) = u32::try_from(len).ok().and_then(|n| start.checked_add(n)) else { break };
                 if len > room || end == u32::MAX {
                     break;
                 }
                 room -= len;
-                (w.len, w.start) = (len as u32, start);
+                self.levels[l as usize] = LevelWindow::new(first, len as u32, start);
                 start = end;
             }
         } else {
@@ -124,13 +137,14 @@ impl<'a> WindowCounts<'a> {
                 bin_start.push(start);
                 start = end;
             }
-            for w in &mut self.levels {
-                if let Some(&s) = bin_start.get(w.bin as usize) {
-                    (w.len, w.start) = (range(w.bin as u16).1 as u32, s);
+            for (w, &bin) in self.levels.iter_mut().zip(self.lut) {
+                if let Some(&s) = bin_start.get(bin as usize) {
+                    let (first, len) = range(bin);
+                    *w = LevelWindow::new(first, len as u32, s);
                 }
             }
         }
-        self.levels.push(LevelWindow { first: 0, len: 1, start, bin: 0 });
+        self.levels.push(LevelWindow::new(0, 1, start));
         self.counts.clear();
         // A power of two, so that [`count_pairs`] can mask its indices instead of checking them.
         self.counts.resize(((start as usize + 1) * LANES).next_power_of_two(), 0);
@@ -154,18 +168,17 @@ impl<'a> WindowCounts<'a> {
     #[inline(always)]
     pub(crate) fn add(&mut self, level: usize, n: i32, lane: usize) -> bool {
         let lw = self.levels[level];
-        let i = n.wrapping_sub(lw.first) as u32;
-        if i < lw.len {
-            self.counts[(lw.start + i) as usize * LANES + (lane & (LANES - 1))] += 1;
+        if (n.wrapping_sub(lw.first) as u32) < lw.len {
+            self.counts[lw.index(n) + (lane & (LANES - 1))] += 1;
             true
         } else {
             false
         }
     }
 
-    /// The bin of a clean level.
+    /// The bin of a clean level (0 for the not-flat level, whose window takes every sample).
     pub(crate) fn bin(&self, level: usize) -> usize {
-        self.levels[level].bin as usize
+        self.lut.get(level).map_or(0, |&b| b as usize)
     }
 
     /// Counts a sample that fell outside its window.
@@ -192,17 +205,17 @@ impl<'a> WindowCounts<'a> {
 
     fn add_counts(&self, hists: &mut [NoiseHistogram], codes: Option<&mut [u64]>) {
         let top = self.not_flat();
-        let sum = |start: u32, len: u32| {
-            self.counts[start as usize * LANES..(start + len) as usize * LANES]
+        let sum = |start: usize, len: u32| {
+            self.counts[start * LANES..(start + len as usize) * LANES]
                 .chunks_exact(LANES)
                 .map(|c| c.iter().map(|&c| c as u64).sum::<u64>())
         };
         if self.by_level {
             let mut codes = codes;
             for (level, w) in self.levels[..top].iter().enumerate().filter(|(_, w)| w.len > 0) {
-                let h = &mut hists[w.bin as usize];
+                let h = &mut hists[self.lut[level] as usize];
                 let offset = (w.first - h.first) as usize;
-                let window = h.counts[offset..offset + w.len as usize].iter_mut().zip(sum(w.start, w.len));
+                let window = h.counts[offset..offset + w.len as usize].iter_mut().zip(sum(w.start(), w.len));
                 for (i, (o, c)) in window.enumerate().filter(|(_, (_, c))| *c > 0) {
                     *o += c;
                     if let Some(codes) = codes.as_deref_mut() {
@@ -214,13 +227,13 @@ impl<'a> WindowCounts<'a> {
         } else {
             // Every level of a bin has the bin's window: one flush per bin.
             let mut done = vec![false; hists.len()];
-            for w in self.levels[..top].iter().filter(|w| w.len > 0) {
-                if std::mem::replace(&mut done[w.bin as usize], true) {
+            for (w, &bin) in self.levels[..top].iter().zip(self.lut).filter(|(w, _)| w.len > 0) {
+                if std::mem::replace(&mut done[bin as usize], true) {
                     continue;
                 }
-                let h = &mut hists[w.bin as usize];
+                let h = &mut hists[bin as usize];
                 let offset = (w.first - h.first) as usize;
-                for (o, c) in h.counts[offset..offset + w.len as usize].iter_mut().zip(sum(w.start, w.len)) {
+                for (o, c) in h.counts[offset..offset + w.len as usize].iter_mut().zip(sum(w.start(), w.len)) {
                     *o += c;
                 }
             }
@@ -269,21 +282,27 @@ pub(crate) fn count_pairs(
     ) {
         let level = (c as usize).min(nf);
         let lw = levels[level];
-        let i = n.wrapping_sub(lw.first) as u32;
-        if i < lw.len {
-            counts[((lw.start + i) as usize * LANES + lane) & mask] += 1;
+        if (n.wrapping_sub(lw.first) as u32) < lw.len {
+            counts[(lw.index(n) + lane) & mask] += 1;
         } else {
             out.push((level as u32, n));
         }
     }
-    for (j, (c, v)) in crow.chunks_exact(2).zip(noise.chunks_exact(2)).enumerate() {
-        let lane = j & (LANES - 1);
-        one(levels0, counts0, mask0, nf0, c[0], v[0], lane, out0);
-        one(levels1, counts1, mask1, nf1, c[1], v[1], lane, out1);
+    // A column pair per lane, the lanes in turn: each lane is a constant within the loop's body.
+    let (whole, pairs) = (n - n % (2 * LANES), 2 * LANES);
+    for (c, v) in crow[..whole].chunks_exact(pairs).zip(noise[..whole].chunks_exact(pairs)) {
+        for lane in 0..LANES {
+            one(levels0, counts0, mask0, nf0, c[2 * lane], v[2 * lane], lane, out0);
+            one(levels1, counts1, mask1, nf1, c[2 * lane + 1], v[2 * lane + 1], lane, out1);
+        }
     }
-    if n % 2 == 1 {
-        let x = n - 1;
-        one(levels0, counts0, mask0, nf0, crow[x], noise[x], (x >> 1) & (LANES - 1), out0);
+    for x in whole..n {
+        let lane = (x >> 1) & (LANES - 1);
+        if x % 2 == 0 {
+            one(levels0, counts0, mask0, nf0, crow[x], noise[x], lane, out0);
+        } else {
+            one(levels1, counts1, mask1, nf1, crow[x], noise[x], lane, out1);
+        }
     }
 }
 
@@ -401,7 +420,7 @@ mod tests {
             s ^= s << 17;
             s
         };
-        for (width, budget) in [(101usize, usize::MAX), (64, usize::MAX), (77, 0)] {
+        for (width, budget) in [(101usize, usize::MAX), (64, usize::MAX), (98, usize::MAX), (103, 0), (77, 0)] {
             let (mut even, mut odd) = (
                 WindowCounts::new(&hists, &lut, &flat, 1000, budget),
                 WindowCounts::new(&hists, &lut, &flat, 1000, budget),
