@@ -641,10 +641,11 @@ def test_the_denoiser_estimate_maps_back_to_dn_at_any_even_size(pack):
 def test_small_run_controls_in_order(bench_set: Path, tmp_path: Path, capsys):
     """CI's small configuration: oracle, noisecal, HG, the wrong model and the loud one at ISO
     1600, 2 seeds of a few hundred steps on 32-pixel crops. Every network must beat the noisy input
-    (the machinery trains), the wrong model must be worst by a clear margin (beyond 2 seed spreads),
-    the loud model (HG at twice its variance) below HG at every seed (too much noise must lose:
-    the networks denoise enough that over-smoothing costs) and the oracle best within the seed
-    spread; the resumed run must reproduce the table."""
+    (the machinery trains), the wrong model must be clearly below HG and the loud model (HG at
+    twice its variance) too (the paired test, bench/paired.py: too much noise must lose, the
+    networks denoise enough that over-smoothing costs), and the oracle best within the seed
+    spread; the resumed run must reproduce the table. Measured at 500 steps: wrong 0.54 dB below
+    HG, paired t 9.89 against 6.31 (2 seeds); loud 0.74 dB, t 71.8."""
     pytest.importorskip("torch")
     t0 = time.time()
     steps = os.environ.get("NOISECAL_BENCH_CI_STEPS", "500")
