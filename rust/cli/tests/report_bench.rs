@@ -110,6 +110,30 @@ fn bench_section_shows_the_json_and_leaves_the_rest_unchanged() {
 }
 
 #[test]
+fn the_paired_wrong_control_renders() {
+    // A JSON with the paired test's fields: the wrong model clearly below HG (the row it is judged
+    // against) but not last on the means, a pack row below it. The control held, the verdict says
+    // so and names the row below the control; the earlier "wrong worst: yes, clearly" would
+    // misread it.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let pack = pack(dir.path());
+    let json = dir.path().join("bench.json");
+    let controls = r#""controls": {"400": {"spread_db": 0.1234, "wrong_worst": false, "wrong_margin_db": -0.25,
+        "wrong_clear": true, "wrong_judged_against": ["hg"], "wrong_not_below": ["noisecal"], "failed": []}},"#;
+    let at = RESULTS.find("\"controls\"").expect("controls");
+    let end = at + RESULTS[at..].find("\n").expect("line end");
+    std::fs::write(&json, format!("{}{controls}{}", &RESULTS[..at], &RESULTS[end..])).expect("write");
+    let html = report(&pack, Some(json), &dir.path().join("p.html")).expect("report");
+    for shown in [
+        "ISO 400: wrong below hg: yes, clearly (paired test over the seeds); wrong worst on the means: no",
+        "ISO 400, verdict: the controls ordered as expected: the benchmark tells models apart on this data; not clearly above the wrong control: noisecal",
+    ] {
+        assert!(html.contains(shown), "the report lacks {shown:?}");
+    }
+    assert!(!html.contains("wrong worst: yes"));
+}
+
+#[test]
 fn the_committed_bench_results_render() {
     // A real run's JSON (docs/bench-results/random3.json): every summary row's PSNR shows.
     let dir = tempfile::tempdir().expect("tempdir");

@@ -12,6 +12,8 @@
 //! - [`pack_source`]: a `Pack`'s models, read from its file on demand (each ISO decoded when a
 //!   sampler first needs it) or made in memory.
 //! - [`pool`]: the worker threads, one pool per process (so a forked child works).
+//! - [`rounded_gaussian`]: `rounded_gaussian_sd` and `rounded_variance`, the core's rounded
+//!   Gaussian (HG's rule below 1.3 DN²) over arrays.
 //!
 //! Arrays are read without copying, the GIL is released while the core works (`Python::detach`),
 //! and the core runs on a pool of all cores; outputs depend only on inputs and seeds.
@@ -25,6 +27,7 @@ mod io;
 mod pack;
 mod pack_source;
 mod pool;
+mod rounded_gaussian;
 
 use pyo3::prelude::*;
 
@@ -39,6 +42,8 @@ fn _noisecal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(io::read_dng, m)?)?;
     m.add_function(wrap_pyfunction!(io::write_dng, m)?)?;
     m.add_function(wrap_pyfunction!(io::write_raw_dng, m)?)?;
+    m.add_function(wrap_pyfunction!(rounded_gaussian::rounded_gaussian_sd, m)?)?;
+    m.add_function(wrap_pyfunction!(rounded_gaussian::rounded_variance, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

@@ -198,14 +198,17 @@ def test_controls_need_a_clear_margin():
     # Worst on the mean, but one seed of HG below one of the wrong model's: not clear.
     mixed = B.controls([row("oracle", "oracle", 36.0, 36.0), row("hg", "hg", 35.0, 36.4), row("wrong", "wrong", 35.2, 35.3)])[800]
     assert mixed["wrong_worst"] and not mixed["wrong_clear"]
-    # Every seed below, but by 0.1 dB: not clear either; and an oracle 0.5 dB down is not best.
-    close = B.controls([row("oracle", "oracle", 35.5, 35.5), row("hg", "hg", 36.0, 36.0), row("wrong", "wrong", 35.4, 35.4)])[800]
-    assert close["wrong_worst"] and not close["wrong_clear"] and not close["oracle_within_spread"]
-    # The loud control (2× HG's variance): below HG at every seed when the evaluation penalises
-    # over-smoothing; above it (a textureless set) it is flagged, and it is not a row the wrong
-    # model must beat.
-    ok = B.controls([row("hg", "hg", 36.0, 36.2), row("loud", "loud", 35.5, 35.9), row("wrong", "wrong", 35.0, 35.1)])[800]
-    assert ok["loud_below_hg"] and ok["loud_margin_db"] == pytest.approx(0.4) and ok["wrong_clear"]
+    # Every seed below HG, but by 0.05 dB (under MIN_GAP_DB): not clear either.
+    close = B.controls([row("hg", "hg", 36.0, 36.0), row("wrong", "wrong", 35.95, 35.95)])[800]
+    assert close["wrong_worst"] and not close["wrong_clear"]
+    # An oracle 0.5 dB down is not best.
+    down = B.controls([row("oracle", "oracle", 35.5, 35.5), row("hg", "hg", 36.0, 36.0), row("wrong", "wrong", 35.0, 35.0)])[800]
+    assert down["wrong_clear"] and not down["oracle_within_spread"]
+    # The loud control (2× HG's variance): clearly below HG (the paired test) when the evaluation
+    # penalises over-smoothing; above it (a textureless set) it is flagged, and it is not a row
+    # the wrong model must beat.
+    ok = B.controls([row("hg", "hg", 36.0, 36.2), row("loud", "loud", 35.5, 35.75), row("wrong", "wrong", 35.0, 35.1)])[800]
+    assert ok["loud_below_hg"] and ok["loud_margin_db"] == pytest.approx(0.475) and ok["wrong_clear"]
     flat = B.controls([row("hg", "hg", 36.0, 36.2), row("loud", "loud", 36.5, 36.1), row("wrong", "wrong", 35.0, 35.1)])[800]
     assert not flat["loud_below_hg"]
     low = B.controls([row("hg", "hg", 36.0, 36.2), row("loud", "loud", 34.0, 34.1), row("wrong", "wrong", 35.0, 35.1)])[800]
@@ -638,10 +641,11 @@ def test_the_denoiser_estimate_maps_back_to_dn_at_any_even_size(pack):
 def test_small_run_controls_in_order(bench_set: Path, tmp_path: Path, capsys):
     """CI's small configuration: oracle, noisecal, HG, the wrong model and the loud one at ISO
     1600, 2 seeds of a few hundred steps on 32-pixel crops. Every network must beat the noisy input
-    (the machinery trains), the wrong model must be worst by a clear margin (beyond 2 seed spreads),
-    the loud model (HG at twice its variance) below HG at every seed (too much noise must lose:
-    the networks denoise enough that over-smoothing costs) and the oracle best within the seed
-    spread; the resumed run must reproduce the table."""
+    (the machinery trains), the wrong model must be clearly below HG and the loud model (HG at
+    twice its variance) too (the paired test, bench/paired.py: too much noise must lose, the
+    networks denoise enough that over-smoothing costs), and the oracle best within the seed
+    spread; the resumed run must reproduce the table. Measured at 500 steps: wrong 0.54 dB below
+    HG, paired t 9.89 against 6.31 (2 seeds); loud 0.74 dB, t 71.8."""
     pytest.importorskip("torch")
     t0 = time.time()
     steps = os.environ.get("NOISECAL_BENCH_CI_STEPS", "500")

@@ -66,6 +66,13 @@ pub struct Controls {
     pub wrong_margin_db: Option<f64>,
     pub loud_below_hg: Option<bool>,
     pub loud_margin_db: Option<f64>,
+    /// The rows the wrong model is judged against by the paired test (HG and the oracle; absent
+    /// in a JSON from before the paired test, whose `wrong_clear` meant "below every row").
+    #[serde(default)]
+    pub wrong_judged_against: Option<Vec<String>>,
+    /// The rows the paired test does not put clearly above the wrong model.
+    #[serde(default)]
+    pub wrong_not_below: Option<Vec<String>>,
     /// The controls that did not order as expected, as `noisecal-bench` names them (absent in a
     /// JSON from before the verdict: then derived from the fields above, `Controls::failed`).
     #[serde(default)]
@@ -76,6 +83,15 @@ impl Controls {
     /// Whether the run had any control row at the ISO.
     fn any(&self) -> bool {
         self.oracle_best.is_some() || self.wrong_worst.is_some() || self.loud_below_hg.is_some()
+    }
+
+    /// The rows the paired test does not put clearly above the wrong control although it held
+    /// (`noisecal.bench.scoring.rows_below_wrong`).
+    fn rows_below_wrong(&self) -> Vec<String> {
+        match (&self.wrong_judged_against, &self.wrong_not_below, self.wrong_clear) {
+            (Some(judged), Some(rows), Some(true)) => rows.iter().filter(|r| !judged.contains(r)).cloned().collect(),
+            _ => Vec::new(),
+        }
     }
 
     /// The controls that did not order: the JSON's list, or the same rule on its fields
@@ -285,7 +301,14 @@ fn controls(o: &mut String, b: &BenchResults) {
             };
             parts.push(format!("oracle best: {verdict} (best − oracle {gap:.2} dB)"));
         }
-        if let Some(worst) = c.wrong_worst {
+        if let (Some(worst), Some(judged)) = (c.wrong_worst, &c.wrong_judged_against) {
+            let verdict = if c.wrong_clear == Some(true) { "yes, clearly" } else { "NOT clearly" };
+            let on_means = if worst { "yes" } else { "no" };
+            parts.push(format!(
+                "wrong below {}: {verdict} (paired test over the seeds); wrong worst on the means: {on_means}",
+                judged.join(" and ")
+            ));
+        } else if let Some(worst) = c.wrong_worst {
             let verdict = match (c.wrong_clear, worst) {
                 (Some(true), _) => "yes, clearly",
                 (_, true) => "yes, but not clearly",
@@ -305,7 +328,13 @@ fn controls(o: &mut String, b: &BenchResults) {
         if c.any() {
             let failed = c.failed();
             let verdict = if failed.is_empty() {
-                "the controls ordered as expected: the benchmark tells models apart on this data".to_string()
+                let below = c.rows_below_wrong();
+                let note = if below.is_empty() {
+                    String::new()
+                } else {
+                    format!("; not clearly above the wrong control: {}", below.join(", "))
+                };
+                format!("the controls ordered as expected: the benchmark tells models apart on this data{note}")
             } else {
                 format!(
                     "the controls did NOT order as expected ({}): the ranking of the other rows is not established on this data",

@@ -19,6 +19,10 @@ Seeds: a batch ``(N, H, W)`` uses ``seed + i`` for image ``i``; a folder of file
 name, ``seed_for(file name, seed)``, the rule of ``noisecal synth`` on a folder and of
 :mod:`noisecal.ray`.
 
+HG's rounded Gaussian: ``rounded_gaussian_sd(var)`` is the SD whose ``round(N(0, s²))`` has the
+integer variance ``var`` (DN², per element; the core's rule for HG's tables, exact below 1.3 DN²
+where ``var − 1/12`` undershoots), ``rounded_variance(sd)`` its inverse.
+
 Torch users: :mod:`noisecal.torch` (``NoiseSynth`` on any device). Ray Data users:
 :mod:`noisecal.ray` (``RenoiseActor`` for ``Dataset.map_batches``). Does a pack train a better
 denoiser than HG on your captures? :mod:`noisecal.bench` (``noisecal-bench``, needs torch).
@@ -33,6 +37,8 @@ from ._noisecal import (
     __version__,
     calibrate,
     read_dng,
+    rounded_gaussian_sd,
+    rounded_variance,
     write_dng,
     write_raw_dng,
 )
@@ -49,6 +55,8 @@ __all__ = [
     "write_dng",
     "write_raw_dng",
     "seed_for",
+    "rounded_gaussian_sd",
+    "rounded_variance",
     "__version__",
 ]
 

@@ -53,8 +53,8 @@ use crate::model::layout::{Binning, POSITIONS};
 use crate::model::pack::{BinModel, IsoModel, ModelOrigin, ModelPack, NoiseProfile, PositionModel};
 use crate::model::pmf::Pmf;
 pub use levels::{LATTICE_SHOWS, LEVEL_STEP};
-pub use pmf::{LEVELS_PER_BIN, PG_EXACT_MAX_LAMBDA};
-use pmf::{average, clip, gaussian_cells, pg_cells, rounded_gaussian_sd};
+pub use pmf::{LEVELS_PER_BIN, PG_EXACT_MAX_LAMBDA, SHEPPARD_FROM, rounded_gaussian_sd, rounded_variance};
+use pmf::{average, clip, gaussian_cells, pg_cells};
 
 /// Which parametric baseline.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from .metrics import BANDS, REGIONS
-from .scoring import failed_controls, has_controls
+from .scoring import failed_controls, has_controls, rows_below_wrong
 
 
 def _fmt(m: dict, digits: int = 2) -> str:
@@ -110,7 +110,16 @@ def verdict_line(iso, c: dict) -> str:
             f"verdict at ISO {iso}: the controls did NOT order as expected ({'; '.join(failed)}): the ranking of the "
             "other rows is not established on this data (more steps, scenes or seeds, or scenes with texture)"
         )
-    return f"verdict at ISO {iso}: the controls ordered as expected: the benchmark tells models apart on this data"
+    below = rows_below_wrong(c)
+    note = f"; not clearly above the wrong control: {', '.join(below)}" if below else ""
+    return f"verdict at ISO {iso}: the controls ordered as expected: the benchmark tells models apart on this data{note}"
+
+
+def _paired(t: dict | None) -> str:
+    """A paired test's figures (``paired.paired_below``), for the controls line."""
+    if not t or t.get("t") is None:
+        return ""
+    return f", paired t {t['t']:.2f} vs {t['t_critical']:.2f} over {t['n']} seeds"
 
 
 def table(out: dict) -> str:
@@ -138,12 +147,19 @@ def table(out: dict) -> str:
         if "oracle_best" in c:
             verdict = "yes" if c["oracle_best"] else ("within the seed spread" if c["oracle_within_spread"] else "NO")
             parts.append(f"oracle best: {verdict} (best − oracle {c['oracle_gap_db']:.2f} dB)")
-        if "wrong_worst" in c:
+        if "wrong_vs" in c:
+            for k in c.get("wrong_judged_against", []):
+                t = c["wrong_vs"][k]
+                verdict = "yes, clearly" if t["below"] else "NOT clearly"
+                gap = f"by {t['gap_db']:.2f} dB" if t["gap_db"] is not None else "no common seed"
+                parts.append(f"wrong below {k}: {verdict} ({gap}{_paired(t)})")
+            parts.append(f"wrong worst on the means: {'yes' if c['wrong_worst'] else 'no'}")
+        elif "wrong_worst" in c:
             verdict = "yes, clearly" if c["wrong_clear"] else ("yes, but not clearly" if c["wrong_worst"] else "NO")
             parts.append(f"wrong worst: {verdict} (by {c['wrong_margin_db']:.2f} dB)")
         if "loud_below_hg" in c:
             verdict = "yes" if c["loud_below_hg"] else "NO: the evaluation rewards smoothing, not fidelity"
-            parts.append(f"loud (2× HG variance) below HG: {verdict} (by {c['loud_margin_db']:.2f} dB)")
+            parts.append(f"loud (2× HG variance) below HG: {verdict} (by {c['loud_margin_db']:.2f} dB{_paired(c.get('loud_vs_hg'))})")
         if parts:
             lines.append(f"controls at ISO {iso}: " + "; ".join(parts))
         lines.append(verdict_line(iso, c))

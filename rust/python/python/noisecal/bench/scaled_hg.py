@@ -8,49 +8,15 @@ moves a ±1 DN draw to ±0.71 or ±1.41 DN, which round back to ±1. Where HG's 
 the earlier "half variance" kept 0.97–1.0 of HG's variance and the "twice" about 1.0, so neither
 control differed from HG there (docs/bench.md, "The controls on set 002"). Here the rounded
 Gaussian's own SD is chosen per table so that the *integer* noise has ``f`` times the variance of
-HG's table at that level (:func:`rounded_gaussian_sd`)."""
+HG's table at that level (``noisecal.rounded_gaussian_sd``, the core's rule for HG's own tables)."""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-# Above this variance (DN²) a rounded Gaussian about an integer has the variance s² + 1/12 to within
-# 2·10⁻⁸ DN² (Sheppard's correction; the error falls as exp(−2π²s²), s ≥ 1.1 here).
-SHEPPARD_FROM = 1.3
-
-
-def rounded_variance(sd: np.ndarray) -> np.ndarray:
-    """Variance of ``round(N(0, sd²))`` on the integers (exact sum over the cells)."""
-    sd = np.maximum(np.asarray(sd, dtype=np.float64), 1e-12)
-    top = int(math.ceil(8.0 * float(sd.max()) + 2.0))
-    k = np.arange(1, top + 1, dtype=np.float64)
-    erf = np.frompyfunc(math.erf, 1, 1)
-    cdf = lambda x: 0.5 * (1.0 + erf(x / math.sqrt(2.0)).astype(np.float64))  # noqa: E731
-    hi = cdf((k + 0.5) / sd[..., None])
-    lo = cdf((k - 0.5) / sd[..., None])
-    return 2.0 * ((hi - lo) * k * k).sum(axis=-1)
-
-
-def rounded_gaussian_sd(var: np.ndarray) -> np.ndarray:
-    """The SD ``s`` for which ``round(N(0, s²))`` has the integer variance ``var`` (DN², any
-    non-negative value; 0 gives 0). Above :data:`SHEPPARD_FROM` it is ``√(var − 1/12)``; below,
-    bisection on :func:`rounded_variance`, which rises from 0 with ``s``."""
-    var = np.asarray(var, dtype=np.float64)
-    out = np.sqrt(np.maximum(var - 1.0 / 12.0, 0.0))
-    small = var < SHEPPARD_FROM
-    if small.any():
-        want = var[small]
-        lo = np.zeros_like(want)
-        hi = np.full_like(want, math.sqrt(SHEPPARD_FROM) + 0.5)
-        for _ in range(60):  # 2⁻⁶⁰ of the bracket
-            mid = 0.5 * (lo + hi)
-            below = rounded_variance(mid) < want
-            lo = np.where(below, mid, lo)
-            hi = np.where(below, hi, mid)
-        out[small] = np.where(want > 0, 0.5 * (lo + hi), 0.0)
-    return out
+# The rounded Gaussian's SD for an integer variance, and that variance for an SD: the core's
+# (``derive/baselines/pmf.rs``), the rule HG's own tables are made with.
+from .. import rounded_gaussian_sd, rounded_variance
 
 
 class ScaledHg:

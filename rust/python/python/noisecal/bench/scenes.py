@@ -121,6 +121,7 @@ def generate_tiles(
     levels: tuple[float, float],
     ladder: list[float] | None = None,
     texture: tuple[float, float] = (0.0, 0.0),
+    rounded: bool = True,
 ) -> list[np.ndarray]:
     """``n`` clean raw images (uint16 DN, black included) of grey tile scenes (``--tiles``): the
     :func:`tile_labels` map of ``tiles`` regions, each region one level uniform over ``levels``
@@ -133,7 +134,10 @@ def generate_tiles(
     each blurred pixel the ladder level nearest it, as the tiled evaluation scenes are made (their
     edges are stairs of real levels, not smooth ramps). ``texture`` (t0, t1): a fixed pattern of
     white Gaussian texture with SD ``t0 + t1·level`` DN added to the clean image, as the real clean
-    images (a burst's mean) carry the sensor's DSNU and PRNU, which a denoiser must keep."""
+    images (a burst's mean) carry the sensor's DSNU and PRNU, which a denoiser must keep.
+
+    ``rounded=False``: the same scenes as float64 DN before the rounding to whole DN (a simulated
+    sensor's captures are drawn about these, as real frames are about the scene's true level)."""
     rng = np.random.default_rng(seed)
     lo, hi = levels
     white = float(layout["white"])
@@ -150,7 +154,8 @@ def generate_tiles(
         t0, t1 = texture
         if t0 or t1:
             v = v + (t0 + t1 * np.clip(v, 0, None)) * rng.standard_normal(v.shape)
-        out.append(np.rint(np.clip(b + v, 0, white)).astype(np.uint16))
+        scene = np.clip(b + v, 0, white)
+        out.append(np.rint(scene).astype(np.uint16) if rounded else scene)
     return out
 
 
