@@ -20,6 +20,22 @@ fn check_values(values: &ndarray::ArrayViewD<'_, f64>, what: &str) -> PyResult<(
     }
 }
 
+/// `f` applied to every element of `values` (checked as [`check_values`] does, `what` naming the
+/// argument), with the GIL released.
+fn map_values<'py>(
+    py: Python<'py>,
+    values: PyArrayLikeDyn<'py, f64, AllowTypeChange>,
+    what: &'static str,
+    name: &'static str,
+    f: fn(f64) -> f64,
+) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+    let v = values.as_array();
+    check_values(&v, what)?;
+    let v = v.to_owned();
+    let out = py.detach(|| guarded(name, || Ok(v.mapv(f))))?;
+    Ok(out.into_pyarray(py))
+}
+
 /// The SD `s` (DN) for which `round(N(0, s²))` has the integer variance `var` (DN²), per element:
 /// `√(var − 1/12)` from 1.3 DN² up, below it bisection on the exact cell sums; 0 gives 0.
 #[pyfunction]
@@ -27,11 +43,7 @@ pub fn rounded_gaussian_sd<'py>(
     py: Python<'py>,
     var: PyArrayLikeDyn<'py, f64, AllowTypeChange>,
 ) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
-    let v = var.as_array();
-    check_values(&v, "var")?;
-    let v = v.to_owned();
-    let out = py.detach(|| guarded("rounded_gaussian_sd", || Ok(v.mapv(baselines::rounded_gaussian_sd))))?;
-    Ok(out.into_pyarray(py))
+    map_values(py, var, "var", "rounded_gaussian_sd", baselines::rounded_gaussian_sd)
 }
 
 /// The variance (DN²) of `round(N(0, sd²))` on the integers, per element (exact cell sums).
@@ -40,9 +52,5 @@ pub fn rounded_variance<'py>(
     py: Python<'py>,
     sd: PyArrayLikeDyn<'py, f64, AllowTypeChange>,
 ) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
-    let s = sd.as_array();
-    check_values(&s, "sd")?;
-    let s = s.to_owned();
-    let out = py.detach(|| guarded("rounded_variance", || Ok(s.mapv(baselines::rounded_variance))))?;
-    Ok(out.into_pyarray(py))
+    map_values(py, sd, "sd", "rounded_variance", baselines::rounded_variance)
 }
