@@ -381,4 +381,6 @@ pub fn plain_empirical(hists: &[NoiseHistogram]) -> Vec<BinModel> {
 #[cfg(test)]
 mod tests;
 #[cfg(test)]
+mod tests_flags;
+#[cfg(test)]
 mod tests_shrink;
