@@ -4,7 +4,9 @@ against what a pack synthesizes, and what the dark burst says the variance at bl
     python tests/bench/emva1288_black.py --repo DATASETS [--out target/emva002] [--seeds 2]
 
 The cache ``--out`` is ``tests/bench/emva1288_ladder.py``'s (converted and calibrated the same
-way; made here when missing). For every whole clean code from 1 DN up to 16 DN that at least
+way; made here when missing). The packs are made by the Python extension, or with ``--cli`` by
+the ``noisecal`` command first on ``PATH`` (to measure a calibration change without rebuilding
+the extension; synthesis is the extension's either way). For every whole clean code from 1 DN up to 16 DN that at least
 1 000 held-out pixels round to:
 
 - **real**: the held-out frames' ``frame − round(clean)`` (the pack's convention: a clean code
@@ -31,6 +33,7 @@ black on set 002").
 from __future__ import annotations
 
 import argparse
+import subprocess
 import sys
 from pathlib import Path
 
@@ -60,6 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--repo", type=Path, required=True, help="a clone of EMVA1288/datasets (bare or not)")
     p.add_argument("--out", type=Path, default=Path("target/emva002"), help="the ladder's cache [default: %(default)s]")
     p.add_argument("--seeds", type=int, default=2, help="synthetic images per code and model [default: %(default)s]")
+    p.add_argument("--cli", action="store_true", help="make missing packs with the `noisecal` command on PATH")
     args = p.parse_args(argv)
 
     def say(*a):
@@ -69,7 +73,12 @@ def main(argv: list[str] | None = None) -> int:
         src = Source(args.repo, ladder.SET)
         got = ladder.convert(src, args.out, say)
         for name, is_plain in (("ladder.pack", False), ("ladder-plain.pack", True)):
-            if not (args.out / name).exists():
+            if (args.out / name).exists():
+                continue
+            if args.cli:
+                cmd = ["noisecal", "--quiet", "calibrate", str(args.out / "cal"), "-o", str(args.out / name)]
+                subprocess.run(cmd + ["--plain"] * is_plain, check=True)
+            else:
                 noisecal.calibrate(args.out / "cal", plain=is_plain).save(args.out / name)
         pack = noisecal.Pack.load(args.out / "ladder.pack")
         plain = noisecal.Pack.load(args.out / "ladder-plain.pack")
@@ -79,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
         blocks = read_descriptor(src.read("EMVA1288_Data.txt").decode("utf-8", "replace"))
         burst = max((b for b in blocks if b.kind == "d"), key=lambda b: len(b.images))
         dark = np.stack([ladder.centre(read_png_grey(src.read(q), q, depths=(8,)), ladder.CAL_W) for q in burst.images]).astype(np.float64)
-    except (ladder.ConvertError, noisecal.NoisecalError, OSError) as e:
+    except (ladder.ConvertError, noisecal.NoisecalError, OSError, subprocess.CalledProcessError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     black = float(np.mean(got["black"]))

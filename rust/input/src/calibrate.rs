@@ -7,12 +7,13 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use noisecal_core::calibrate::SessionRecord;
-use noisecal_core::calibrate::dark::{check_dark, surely_lit};
+use noisecal_core::calibrate::dark::{check_dark, frame_level, lit_by_level};
 use noisecal_core::calibrate::flat::Roi;
 use noisecal_core::error::CodecError;
 use noisecal_core::format::recording;
 use noisecal_core::{CalibrationSession, FrameMeta, FrameView, ModelPack, SensorLayout, SessionConfig};
 
+use crate::dim_steps::{Dim, DimSteps, Held};
 use crate::source::{InputKind, Record, Source};
 
 /// Options a user can set on top of what the captures imply.
@@ -146,37 +147,70 @@ pub fn calibrate_path(
     let mut reasons = Vec::new();
     let mut in_dark = false;
     let mut deferred: Vec<(PathBuf, FrameMeta, String)> = Vec::new();
+    // A DNG folder's EV-step frames that look dark: dim lit steps or a covered lens, told apart
+    // against the step's lit frames, the dark burst and the exposure law (dim_steps.rs).
+    let mut dim = DimSteps::default();
     while let Some(record) = source.next_record()? {
         match record {
             Record::BeginStep { reference_exposure_ns, .. } => {
                 session.apply(SessionRecord::BeginStep { reference_exposure_ns })?;
+                dim.begin_step(reference_exposure_ns);
                 in_dark = false;
             }
             Record::BeginDark => {
                 session.apply(SessionRecord::BeginDark)?;
+                dim.end_step();
                 in_dark = true;
                 push_deferred(&mut session, &mut deferred, &mut report, &mut reasons);
             }
             Record::Frame(frame) => {
                 report.frames += 1;
                 progress(report.frames, total_frames);
-                // A DNG folder's frame in an EV step that is dark (lens covered) is a dark frame
-                // that happened to match a step: kept for the dark step.
                 if !in_dark
                     && !is_recording
                     && let Some(path) = &frame.path
-                    && frame.view().is_ok_and(|v| {
-                        let black = frame.meta.black_or(&layout);
-                        // Most frames are lit: the quick test spares them the whole one.
-                        !surely_lit(&v, &black, &layout) && check_dark(&v, &black, &layout, frame.meta.iso).is_ok()
-                    })
+                    && let Ok(v) = frame.view()
                 {
-                    deferred.push((path.clone(), frame.meta, frame.label()));
-                    continue;
+                    let black = frame.meta.black_or(&layout);
+                    let level = frame_level(&v, &black);
+                    let d = Dim::of(&frame.meta, &level);
+                    // Most frames are lit: the quick test spares them the whole one.
+                    if lit_by_level(&level, &black, &layout) || check_dark(&v, &black, &layout, frame.meta.iso).is_err()
+                    {
+                        let range =
+                            layout.white as f64 - black.iter().map(|&b| b as f64).sum::<f64>() / black.len() as f64;
+                        let (lit, dark) = dim.lit(d, range);
+                        push_held(&mut session, lit, &mut report, &mut reasons);
+                        deferred.extend(dark.into_iter().map(|h| (h.path, h.meta, h.label)));
+                    } else {
+                        let held = Held { path: path.clone(), meta: frame.meta, label: frame.label(), dim: d };
+                        match dim.dim(held) {
+                            // Dark: kept for the dark step.
+                            Some(true) => {
+                                deferred.push((path.clone(), frame.meta, frame.label()));
+                                continue;
+                            }
+                            Some(false) => {}
+                            None => continue,
+                        }
+                    }
                 }
-                if let Some(e) = session.apply(SessionRecord::Frame { view: frame.view(), meta: &frame.meta })? {
-                    report.rejected.push(format!("{}: {e}", frame.label()));
-                    reasons.push(e.to_string());
+                let accepted = match session.apply(SessionRecord::Frame { view: frame.view(), meta: &frame.meta })? {
+                    Some(e) => {
+                        report.rejected.push(format!("{}: {e}", frame.label()));
+                        reasons.push(e.to_string());
+                        false
+                    }
+                    None => true,
+                };
+                // The dark burst's frame means, for the steps that wait for them.
+                if accepted
+                    && in_dark
+                    && dim.waiting()
+                    && let Ok(v) = frame.view()
+                {
+                    let level = frame_level(&v, &frame.meta.black_or(&layout));
+                    dim.dark_frame(&frame.meta, Dim::of(&frame.meta, &level).level);
                 }
             }
             Record::NoiseProfile { iso, profile } => {
@@ -200,12 +234,20 @@ pub fn calibrate_path(
             }
         }
     }
+    let (lit_steps, dark) = dim.finish();
+    deferred.extend(dark.into_iter().map(|h| (h.path, h.meta, h.label)));
     if !deferred.is_empty() {
         if !in_dark {
             session.begin_dark()?;
         }
         push_deferred(&mut session, &mut deferred, &mut report, &mut reasons);
     }
+    // Dim lit steps that waited for the dark burst, replayed as EV steps.
+    for step in lit_steps {
+        session.apply(SessionRecord::BeginStep { reference_exposure_ns: step.reference_exposure_ns })?;
+        push_held(&mut session, step.frames, &mut report, &mut reasons);
+    }
+    report.warnings.append(&mut dim.notes);
     if session.dark_frames() > 0 {
         report.warnings.push(format!(
             "{} dark frame(s) (lens covered, told by their content) measured the fixed pattern",
@@ -250,6 +292,27 @@ struct ReleaseReadBuffers;
 impl Drop for ReleaseReadBuffers {
     fn drop(&mut self) {
         crate::dng::release_read_buffers();
+    }
+}
+
+/// Pushes held frames found lit (re-read from their files) into the session's current step.
+fn push_held(
+    session: &mut CalibrationSession,
+    frames: Vec<Held>,
+    report: &mut CalibrateReport,
+    reasons: &mut Vec<String>,
+) {
+    for h in frames {
+        let pushed = crate::dng::read_dng(&h.path).map_err(|e| e.to_string()).and_then(|img| {
+            match session.apply(SessionRecord::Frame { view: FrameView::from_array(&img.pixels), meta: &h.meta }) {
+                Ok(None) => Ok(()),
+                Ok(Some(e)) | Err(e) => Err(e.to_string()),
+            }
+        });
+        if let Err(e) = pushed {
+            report.rejected.push(format!("{}: {e}", h.label));
+            reasons.push(e);
+        }
     }
 }
 

@@ -8,12 +8,14 @@
 //! - [`source`] turns a DNG folder or a recording into one stream of records (steps, frames with
 //!   their metadata, in capture order).
 //! - [`clean`] sums a reference burst into a clean image with the core's `ReferenceBurst`.
+//! - [`dim_steps`] tells a folder's dim lit EV steps from a covered lens.
 //! - [`calibrate`] feeds the stream to a calibration session: the one calibrate driver.
 //! - [`files`]: reading a pack file, writing any output atomically, and refusing to write over
 //!   an input.
 
 pub mod calibrate;
 pub mod clean;
+pub mod dim_steps;
 pub mod dng;
 pub mod files;
 pub mod grouping;

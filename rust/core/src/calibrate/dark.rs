@@ -27,12 +27,10 @@ const DARK_SPREAD: f64 = 0.002;
 /// Blocks per side of the darkness test.
 const TEST_BLOCKS: usize = 8;
 
-/// Whether [`check_dark`] certainly fails on a frame because of its first test alone: some
-/// position's mean above black is over the dark level, by a margin that summing exact integers
-/// here rather than `f64` differences there cannot cross (a few 10⁻⁵ DN at most on 2²⁴ pixels).
-/// One pass of integer sums: a folder's driver asks it of every lit frame before the whole test
-/// (blocks, neighbour differences), which is then left to the frames that may be dark.
-pub fn surely_lit(frame: &FrameView<'_>, black: &[f32; POSITIONS], layout: &SensorLayout) -> bool {
+/// Each CFA position's mean above black (DN) of a frame, from one pass of exact integer sums
+/// (0 for a position the frame has no pixel of). What [`surely_lit`] tests, and what a folder's
+/// driver compares a dim EV step with the dark burst by (method.md, "Dim steps and dark frames").
+pub fn frame_level(frame: &FrameView<'_>, black: &[f32; POSITIONS]) -> [f64; POSITIONS] {
     let (w, h) = (frame.width(), frame.height());
     let mut sums = [0u64; POSITIONS];
     for y in 0..h {
@@ -54,17 +52,29 @@ pub fn surely_lit(frame: &FrameView<'_>, black: &[f32; POSITIONS], layout: &Sens
             sums[position(y, 1)] += odd as u64;
         }
     }
-    (0..POSITIONS).any(|p| {
+    std::array::from_fn(|p| {
         let rows = (h + 1 - (p >> 1)) / 2;
         let cols = (w + 1 - (p & 1)) / 2;
         let n = (rows * cols) as f64;
-        if n == 0.0 {
-            return false;
-        }
-        let range = (layout.white as f64 - black[p] as f64).max(1.0);
-        let mean = sums[p] as f64 / n - black[p] as f64;
-        mean > DARK_LEVEL * range + 1e-3 + 1e-9 * range
+        if n == 0.0 { 0.0 } else { sums[p] as f64 / n - black[p] as f64 }
     })
+}
+
+/// Whether [`check_dark`] certainly fails on a frame of this [`frame_level`] because of its first
+/// test alone: some position's mean above black is over the dark level, by a margin that summing
+/// exact integers here rather than `f64` differences there cannot cross (a few 10⁻⁵ DN at most
+/// on 2²⁴ pixels). A folder's driver asks it of every lit frame before the whole test (blocks,
+/// neighbour differences), which is then left to the frames that may be dark.
+pub fn lit_by_level(level: &[f64; POSITIONS], black: &[f32; POSITIONS], layout: &SensorLayout) -> bool {
+    (0..POSITIONS).any(|p| {
+        let range = (layout.white as f64 - black[p] as f64).max(1.0);
+        level[p] > DARK_LEVEL * range + 1e-3 + 1e-9 * range
+    })
+}
+
+/// [`lit_by_level`] of the frame's [`frame_level`]: one pass of integer sums.
+pub fn surely_lit(frame: &FrameView<'_>, black: &[f32; POSITIONS], layout: &SensorLayout) -> bool {
+    lit_by_level(&frame_level(frame, black), black, layout)
 }
 
 /// Checks that a frame is dark: close to black everywhere. A scene (even a dim one) has patches

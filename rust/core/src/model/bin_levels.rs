@@ -11,6 +11,9 @@ pub struct BinLevels {
     pub hi: Vec<i32>,
     /// Centre level (DN) of each bin.
     pub center: Vec<f64>,
+    /// The position's black level (DN): bin 0's levels below it occur only where the clean
+    /// estimate falls below black ([`BinLevels::lowest_sure`]).
+    pub black: f64,
     /// The codes the sensor writes: clipped below at `floor`, above from `white` on (where its
     /// output starts to pile up, the calibration's output range).
     pub floor: i32,
@@ -40,7 +43,7 @@ impl BinLevels {
             hi.push(h.max(l.min(white)));
         }
         let center = (0..n).map(|b| binning.center(pos, b) as f64).collect();
-        Self { lo, hi, center, floor: 0, white }
+        Self { lo, hi, center, black, floor: 0, white }
     }
 
     /// The same bins for a sensor that writes only codes `range[0] ..= range[1]`.
@@ -48,6 +51,14 @@ impl BinLevels {
         self.floor = range[0] as i32;
         self.white = range[1] as i32;
         self
+    }
+
+    /// The lowest integer clean level of bin `b` that surely occurs: `lo` for every bin but
+    /// bin 0, whose levels wholly below black (`l + 0.5 ≤ black`) are there only for clean
+    /// estimates that fall below black (the low tail of the fixed pattern and of the estimate's
+    /// own noise); its levels from black up occur wherever the bin has samples.
+    pub fn lowest_sure(&self, b: usize) -> i32 {
+        if b == 0 { self.lo[0].max((self.black - 0.5).floor() as i32 + 1).min(self.hi[0]) } else { self.lo[b] }
     }
 
     pub fn len(&self) -> usize {

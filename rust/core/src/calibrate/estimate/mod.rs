@@ -58,7 +58,7 @@ pub use crate::model::estimate_report::{CandidateScore, Choice, ClipMode, Estima
 pub use clip::{CLIP_FRACTION, CLIP_SIGMAS, clip_fraction_in, clip_fraction_of};
 pub use cv::{OVERRIDE_MIN_HELDOUT, OVERRIDE_NATS, POOLING_CANDIDATES};
 pub use law::Law;
-pub use pool::{FILL_MIN_SAMPLES, MAX_RADIUS, MEAN_LIMIT_SD, MEAN_LIMIT_SE};
+pub use pool::{FILL_MIN_SAMPLES, MAX_RADIUS, MEAN_LIMIT_SD, MEAN_LIMIT_SE, MOVE_VAR_TOLERANCE};
 pub use shrink::SHRINK_CANDIDATES;
 
 use crate::model::histogram::NoiseHistogram;
@@ -192,13 +192,33 @@ pub(crate) fn estimate_position_among(
                 argmax(&masked)
             };
             let best = best_among(&cv.ll);
+            // A bin whose samples sit (almost) all in one fold (a level one frame fed: an EMVA
+            // pair's calibration frame, a one-frame dim step) is scored with its own samples (almost)
+            // out of training: its held-out likelihoods compare its neighbours, not its own
+            // histogram, so they cannot decide a pooling for it (on EMVA set 002 they chose the
+            // widest pool for black's bin, which then drew its mean +0.2 DN and its variance
+            // 1.7× off its own 130 000 samples). "Almost" is fewer than two folds' worth: the
+            // inverse Simpson count `(Σ nₖ)² / Σ nₖ²` of its fold counts below 2 (a pair's two
+            // frames give 2, a burst 4). Nothing held out says smoothing helps such a bin, so
+            // with at least `OVERRIDE_MIN_HELDOUT` samples it keeps its own histogram (the
+            // yardstick no smoothing may lose to); a sparser one takes the position's pooling.
+            let fold_count = |b: usize| {
+                let n: Vec<f64> =
+                    live_folds.iter().map(|&k| folds[k].get(b).map_or(0.0, |h| h.total() as f64)).collect();
+                let (s, s2) = n.iter().fold((0.0, 0.0), |(s, s2), &x| (s + x, s2 + x * x));
+                if s2 > 0.0 { s * s / s2 } else { 0.0 }
+            };
             per_bin = cv
                 .bin_ll
                 .iter()
                 .zip(&cv.bin_heldout)
-                .map(|(ll, &n)| {
+                .enumerate()
+                .map(|(bin, (ll, &n))| {
                     let b = best_among(ll);
-                    if n >= OVERRIDE_MIN_HELDOUT && ll[b] - ll[best] > OVERRIDE_NATS {
+                    let one_frame = fold_count(bin) < 2.0;
+                    if one_frame && total[bin].total() >= OVERRIDE_MIN_HELDOUT {
+                        (0, 0.0)
+                    } else if n >= OVERRIDE_MIN_HELDOUT && ll[b] - ll[best] > OVERRIDE_NATS && !one_frame {
                         candidate(b)
                     } else {
                         candidate(best)
@@ -380,5 +400,9 @@ pub fn plain_empirical(hists: &[NoiseHistogram]) -> Vec<BinModel> {
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_flags;
+#[cfg(test)]
+mod tests_folds;
 #[cfg(test)]
 mod tests_shrink;

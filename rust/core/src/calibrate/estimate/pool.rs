@@ -105,6 +105,11 @@ pub const MEAN_LIMIT_SE: f64 = 4.5;
 /// bins onto the law and the pack lost to the plain histogram, 0.0051 against 0.0022).
 pub const MEAN_LIMIT_SD: f64 = 0.1;
 
+/// A bin's PMF is moved onto the law's mean only if the move keeps its variance within this
+/// share (the bin means on the law, method.md "Estimation" 7): at sub-DN noise the rescale can collapse a PMF over three codes
+/// onto one (known truth: `tests_folds.rs`, variance 0.109 → 10⁻⁶).
+pub const MOVE_VAR_TOLERANCE: f64 = 0.02;
+
 /// Clipped bins with samples below the unclipped range that [`Data::means_on_law`] needs to fit
 /// a reference mean for them.
 const MIN_CLIPPED_BINS: usize = 5;
@@ -247,6 +252,14 @@ impl<'a> Data<'a> {
                     }
                     target *= s.var / got;
                     moved = p.rescaled(s.mean - d, target);
+                }
+                // Below about 1/6 DN² the unit cells of the rescale are wider than the noise
+                // (its Sheppard term leaves almost nothing to scale): a PMF over three codes
+                // may come back as one. A move that cannot keep the variance is not made.
+                let (_, got) = moved.moments();
+                let kept = (got / s.var - 1.0).abs() < MOVE_VAR_TOLERANCE;
+                if !kept {
+                    continue;
                 }
                 self.pmfs[b] = Some(moved);
                 self.stats[b].mean -= d;
