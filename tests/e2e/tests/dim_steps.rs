@@ -14,6 +14,7 @@
 use std::path::Path;
 
 use ndarray::Array2;
+use noisecal_core::math::special::erfc;
 use noisecal_core::model::layout::{CfaPattern, SensorLayout};
 use noisecal_core::model::structure::Components;
 use noisecal_core::synth::sampler::IsoSampler;
@@ -73,22 +74,6 @@ impl Sensor {
         }
         m2 - m * m
     }
-}
-
-/// erfc by Numerical Recipes' Chebyshev fit (relative error under 1.2·10⁻⁷).
-fn erfc(x: f64) -> f64 {
-    let z = x.abs();
-    let t = 1.0 / (1.0 + 0.5 * z);
-    let r = t
-        * (-z * z - 1.26551223
-            + t * (1.00002368
-                + t * (0.37409196
-                    + t * (0.09678418
-                        + t * (-0.18628806
-                            + t * (0.27886807
-                                + t * (-1.13520398 + t * (1.48851587 + t * (-0.82215223 + t * 0.17087277)))))))))
-            .exp();
-    if x >= 0.0 { r } else { 2.0 - r }
 }
 
 fn write(dir: &Path, name: &str, s: &Sensor, px: &Array2<u16>, iso: u32, exposure_ns: u64) {

@@ -44,7 +44,7 @@ fn truth_bin(levels: &BinLevels, b: usize, var: &impl Fn(f64) -> f64) -> Pmf {
     Pmf::from_weights(first, acc).expect("pmf")
 }
 
-fn draw(p: &Pmf, rng: &mut ChaCha8Rng) -> i32 {
+pub(super) fn draw(p: &Pmf, rng: &mut ChaCha8Rng) -> i32 {
     let u: f64 = rng.random();
     let mut acc = 0.0;
     for (i, &x) in p.p.iter().enumerate() {

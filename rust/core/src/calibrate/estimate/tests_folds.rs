@@ -3,9 +3,10 @@
 //! level's noise about its rounded clean level has the mean of where the level falls in its
 //! code, so neighbours are no reference for it.
 
-use rand::{RngExt, SeedableRng};
+use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
+use super::tests::draw;
 use super::*;
 use crate::math::special::normal_mass;
 use crate::model::layout::{Binning, CfaPattern, SensorLayout};
@@ -24,18 +25,6 @@ fn offset(b: usize) -> f64 {
 fn truth(f: f64) -> Pmf {
     Pmf::from_weights(-4, (-4..=4).map(|k| normal_mass((k as f64 - 0.5 - f) / SIGMA, (k as f64 + 0.5 - f) / SIGMA)))
         .expect("pmf")
-}
-
-fn draw(p: &Pmf, rng: &mut ChaCha8Rng) -> i32 {
-    let u: f64 = rng.random();
-    let mut acc = 0.0;
-    for (i, &x) in p.p.iter().enumerate() {
-        acc += x;
-        if u < acc {
-            return p.first + i as i32;
-        }
-    }
-    p.last()
 }
 
 /// Bin 0 from `n0` samples of one frame (fold 0) at `offset(0)`, bins 1 ..= `top` from `n`
