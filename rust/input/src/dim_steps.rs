@@ -74,6 +74,9 @@ pub struct Held {
 pub struct HeldStep {
     pub reference_exposure_ns: u64,
     pub frames: Vec<Held>,
+    /// The step's lit frames' median level, when it had lit frames: its held frames are those
+    /// that could not be decided alone (no dark burst at their ISO yet), decided against it.
+    pub peer: Option<f64>,
 }
 
 /// The dark burst's frame means per ISO (frames in no EV step that the session took as dark).
@@ -219,15 +222,17 @@ pub struct DimSteps {
 impl DimSteps {
     pub fn begin_step(&mut self, reference_exposure_ns: u64) {
         self.end_step();
-        self.step = Some(HeldStep { reference_exposure_ns, frames: Vec::new() });
+        self.step = Some(HeldStep { reference_exposure_ns, frames: Vec::new(), peer: None });
     }
 
     /// Ends the current step: its held frames wait for the dark burst.
     pub fn end_step(&mut self) {
+        let peer = self.peer();
         self.peers.clear();
-        if let Some(s) = self.step.take()
+        if let Some(mut s) = self.step.take()
             && !s.frames.is_empty()
         {
+            s.peer = peer;
             self.held.push(s);
         }
     }
@@ -249,7 +254,7 @@ impl DimSteps {
         self.law.push(&dim, range);
         self.peers.push(dim.level);
         match self.step.as_mut().map(|s| std::mem::take(&mut s.frames)) {
-            Some(frames) if !frames.is_empty() => self.split(frames, None),
+            Some(frames) if !frames.is_empty() => self.split(frames, None, self.peer()),
             _ => (Vec::new(), Vec::new()),
         }
     }
@@ -257,7 +262,14 @@ impl DimSteps {
     /// A frame of the current step that `check_dark` passed: `Some(true)` when it is dark,
     /// `Some(false)` when lit (push it now), `None` when held.
     pub fn dim(&mut self, held: Held) -> Option<bool> {
-        if let Some(p) = self.peer() {
+        // With a dark burst at its ISO a frame is decided alone. Without one (yet) a single
+        // frame's mean says little: the sensor's frame offsets move a covered frame by more than
+        // `NO_BURST_SLACK` (a simulated phone's covered frames at ISO 800 read −1.7 … +0.9 DN),
+        // so it is held and decided with its ISO's other held frames of the step, against the
+        // step's lit frames, once the burst is known.
+        if let Some(p) = self.peer()
+            && (self.dark.at(held.dim.iso).is_some() || held.dim.level - self.dark.mean(held.dim.iso) >= p / PEER_SHARE)
+        {
             let v = decide(&[held.dim], Some(p), &self.dark, None);
             return Some(v.dark[0]);
         }
@@ -273,9 +285,9 @@ impl DimSteps {
     }
 
     /// Decides `frames` (with the step's exposure for the note): (lit, dark).
-    fn split(&mut self, frames: Vec<Held>, exposure: Option<u64>) -> (Vec<Held>, Vec<Held>) {
+    fn split(&mut self, frames: Vec<Held>, exposure: Option<u64>, peer: Option<f64>) -> (Vec<Held>, Vec<Held>) {
         let dims: Vec<Dim> = frames.iter().map(|h| h.dim).collect();
-        let v = decide(&dims, self.peer(), &self.dark, self.law.slope());
+        let v = decide(&dims, peer, &self.dark, self.law.slope());
         let n_dark = v.dark.iter().filter(|&&d| d).count();
         let step = exposure.map_or(String::new(), |ns| format!(" (reference exposure {ns} ns)"));
         self.notes.push(format!(
@@ -298,10 +310,10 @@ impl DimSteps {
         let mut steps = Vec::new();
         let mut dark = Vec::new();
         for s in std::mem::take(&mut self.held) {
-            let (lit, d) = self.split(s.frames, Some(s.reference_exposure_ns));
+            let (lit, d) = self.split(s.frames, Some(s.reference_exposure_ns), s.peer);
             dark.extend(d);
             if !lit.is_empty() {
-                steps.push(HeldStep { reference_exposure_ns: s.reference_exposure_ns, frames: lit });
+                steps.push(HeldStep { reference_exposure_ns: s.reference_exposure_ns, frames: lit, peer: None });
             }
         }
         (steps, dark)

@@ -97,7 +97,9 @@ fn held_steps_wait_for_the_dark_burst_and_lit_frames_decide_their_step() {
     assert_eq!(s.dim(held(100, 1.0)), None);
     let (lit, dark) = s.lit(Dim { iso: 800, exposure_ns: 1000, brightness: 1.0, level: 8.0 }, 250.0);
     assert_eq!((lit.len(), dark.len()), (1, 0));
-    assert_eq!(s.dim(held(800, 0.1)), Some(true));
+    // A frame as lit as its peers is decided at once; a covered one at an ISO with no dark
+    // burst yet waits for its ISO's other covered frames (below).
+    assert_eq!(s.dim(held(800, 0.1)), None);
     assert_eq!(s.dim(held(800, 7.5)), Some(false));
     assert!(s.waiting());
     for i in 0..20 {
@@ -106,5 +108,40 @@ fn held_steps_wait_for_the_dark_burst_and_lit_frames_decide_their_step() {
     }
     let (steps, dark) = s.finish();
     assert_eq!(steps.len(), 1, "{:?}", s.notes);
-    assert_eq!((steps[0].reference_exposure_ns, steps[0].frames.len(), dark.len()), (2000, 2, 0));
+    assert_eq!((steps[0].reference_exposure_ns, steps[0].frames.len(), dark.len()), (2000, 2, 1));
+}
+
+#[test]
+fn covered_frames_in_a_lit_step_without_a_burst_are_decided_together() {
+    // `rust/cli/tests/dark_frames.rs`'s case: a lens-covered burst matching a lit step's ISO ×
+    // exposure, no separate dark burst, and frame offsets that move single covered frames by
+    // up to 0.9 DN above black (beyond `NO_BURST_SLACK`). Deciding each frame alone took 3 of 8
+    // for lit.
+    let mut s = DimSteps::default();
+    let held = |level: f64| Held {
+        path: PathBuf::from(format!("f800_{level}.dng")),
+        meta: FrameMeta::new(800, 1000),
+        label: String::new(),
+        dim: Dim { iso: 800, exposure_ns: 1000, brightness: 800e-6, level },
+    };
+    s.begin_step(1000);
+    let (lit, dark) = s.lit(Dim { iso: 800, exposure_ns: 1000, brightness: 800e-6, level: 40.0 }, 1000.0);
+    assert_eq!((lit.len(), dark.len()), (0, 0));
+    let levels = [0.7, -1.7, 0.87, 0.2, -0.3, 0.71, 0.4, -0.5];
+    for &l in &levels {
+        assert_eq!(s.dim(held(l)), None, "held until its ISO's group is known");
+    }
+    let (steps, dark) = s.finish();
+    assert!(steps.is_empty(), "{:?}", s.notes);
+    assert_eq!(dark.len(), levels.len(), "{:?}", s.notes);
+    // The same frames 4 DN brighter (a tenth of the step's light, beyond the slack as a group)
+    // are lit: the group test still tells light.
+    let mut s = DimSteps::default();
+    s.begin_step(1000);
+    s.lit(Dim { iso: 800, exposure_ns: 1000, brightness: 800e-6, level: 40.0 }, 1000.0);
+    for &l in &levels {
+        assert_eq!(s.dim(held(l + 4.0)), None);
+    }
+    let (steps, dark) = s.finish();
+    assert_eq!((steps.len(), dark.len()), (1, 0), "{:?}", s.notes);
 }
