@@ -303,16 +303,29 @@ fn push_held(
     reasons: &mut Vec<String>,
 ) {
     for h in frames {
-        let pushed = crate::dng::read_dng(&h.path).map_err(|e| e.to_string()).and_then(|img| {
-            match session.apply(SessionRecord::Frame { view: FrameView::from_array(&img.pixels), meta: &h.meta }) {
-                Ok(None) => Ok(()),
-                Ok(Some(e)) | Err(e) => Err(e.to_string()),
-            }
-        });
-        if let Err(e) = pushed {
-            report.rejected.push(format!("{}: {e}", h.label));
-            reasons.push(e);
+        push_from_file(session, &h.path, &h.meta, &h.label, report, reasons);
+    }
+}
+
+/// Re-reads the frame at `path` and pushes it into the session's current step; a file that no
+/// longer reads, or a frame the session refuses, is reported as rejected under `label`.
+fn push_from_file(
+    session: &mut CalibrationSession,
+    path: &Path,
+    meta: &FrameMeta,
+    label: &str,
+    report: &mut CalibrateReport,
+    reasons: &mut Vec<String>,
+) {
+    let pushed = crate::dng::read_dng(path).map_err(|e| e.to_string()).and_then(|img| {
+        match session.apply(SessionRecord::Frame { view: FrameView::from_array(&img.pixels), meta }) {
+            Ok(None) => Ok(()),
+            Ok(Some(e)) | Err(e) => Err(e.to_string()),
         }
+    });
+    if let Err(e) = pushed {
+        report.rejected.push(format!("{label}: {e}"));
+        reasons.push(e);
     }
 }
 
@@ -326,15 +339,6 @@ fn push_deferred(
 ) {
     deferred.sort_by(|a, b| a.1.iso.cmp(&b.1.iso).then(a.0.cmp(&b.0)));
     for (path, meta, label) in deferred.drain(..) {
-        let pushed = crate::dng::read_dng(&path).map_err(|e| e.to_string()).and_then(|img| {
-            match session.apply(SessionRecord::Frame { view: FrameView::from_array(&img.pixels), meta: &meta }) {
-                Ok(None) => Ok(()),
-                Ok(Some(e)) | Err(e) => Err(e.to_string()),
-            }
-        });
-        if let Err(e) = pushed {
-            report.rejected.push(format!("{label}: {e}"));
-            reasons.push(e);
-        }
+        push_from_file(session, &path, &meta, &label, report, reasons);
     }
 }
