@@ -313,9 +313,16 @@ fn fold_rows(
             }
         };
         let crow = &clean[y * w..y * w + w];
+        let half = (y >> 1) & 1;
         // The noise of every pixel, 0 where not flat (the windows' not-flat level takes 0).
         let mut flat_pixels = 0u32;
-        if identity {
+        // A still frame not transformed: the noise and its line sums in one pass.
+        let fused = identity && motion.is_none();
+        if fused {
+            let (flat, cells) = noise_and_line_sums(row, crow, line_top, &mut noise, &mut narrow_cols[half]);
+            flat_pixels = flat;
+            rows.push(cells);
+        } else if identity {
             flat_pixels = noise_row(row, crow, &mut noise);
         } else {
             for (x, ((n, &v), &c)) in noise.iter_mut().zip(row).zip(crow).enumerate() {
@@ -325,7 +332,6 @@ fn fold_rows(
                 flat_pixels += is_flat as u32;
             }
         }
-        let half = (y >> 1) & 1;
         if let Some((m, gradient)) = motion {
             // A frame that moved: its predicted change comes out of the line sums.
             m.row_effects(probe, &gradient[y * w..y * w + w], y, crow, &mut keep, &mut correction);
@@ -337,7 +343,9 @@ fn fold_rows(
             // A still frame's noise is a difference of two values in 0 ..= 65535 (|n| < 2¹⁶):
             // its column sums fit 32 bits over a run of rows, and are then added into the
             // 64-bit ones.
-            rows.push(line_sums_narrow(&noise, crow, line_top, &mut narrow_cols[half]));
+            if !fused {
+                rows.push(line_sums_narrow(&noise, crow, line_top, &mut narrow_cols[half]));
+            }
             narrow_rows[half] += 1;
             if narrow_rows[half] == NARROW_ROWS {
                 widen_into(&mut narrow_cols[half], &mut cols[half]);
@@ -562,6 +570,79 @@ fn noise_row(row: &[u16], crow: &[u16], noise: &mut [i32]) -> u32 {
     flat_pixels
 }
 
+/// [`noise_row`] and then [`line_sums_narrow`] of its noise, in one pass over the row: the noise
+/// `v − c` of every pixel into `noise` (0 where not flat), its line pixels' noise into the
+/// 32-bit column sums `cols`; returns the flat pixels and the row's sums per cell (`x & 3`).
+/// The same integers as the two in turn, with the row and its clean levels read once.
+#[inline]
+fn noise_and_line_sums(
+    row: &[u16],
+    crow: &[u16],
+    line_top: u16,
+    noise: &mut [i32],
+    cols: &mut [i32],
+) -> (u32, [i64; CELLS]) {
+    let n = row.len().min(crow.len()).min(noise.len()).min(cols.len());
+    let mut cells = [0i64; CELLS];
+    let mut flat = 0u32;
+    let runs = row[..n]
+        .chunks(NARROW_RUN)
+        .zip(crow[..n].chunks(NARROW_RUN))
+        .zip(noise[..n].chunks_mut(NARROW_RUN))
+        .zip(cols[..n].chunks_mut(NARROW_RUN));
+    for (((row, crow), noise), cols) in runs {
+        // A run starts at a multiple of CELLS: its lane `k` is cell `k mod CELLS`.
+        let (f, lanes) = noise_lines_run(row, crow, line_top, noise, cols);
+        flat += f;
+        for (k, l) in lanes.iter().enumerate() {
+            cells[k % CELLS] += *l as i64;
+        }
+    }
+    (flat, cells)
+}
+
+/// One run of [`noise_and_line_sums`] (at most [`NARROW_RUN`] pixels): returns its flat pixels
+/// and its line sums per lane `x mod 16` (a vector of 32-bit lanes under AVX-512). Branch-free,
+/// compiled for AVX-512 and AVX2 as well as the baseline, the CPU's best picked at run time.
+#[multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512dq+avx512vl+avx2+avx+fma+bmi1+bmi2+lzcnt+popcnt+sse4.1+sse4.2+ssse3",
+    "x86_64+avx2+avx+fma+bmi1+bmi2+lzcnt+popcnt+sse4.1+sse4.2+ssse3"
+))]
+fn noise_lines_run(row: &[u16], crow: &[u16], line_top: u16, noise: &mut [i32], cols: &mut [i32]) -> (u32, [i32; 16]) {
+    const LANES: usize = 16;
+    let n = row.len().min(crow.len()).min(noise.len()).min(cols.len());
+    let (row, crow, noise, cols) = (&row[..n], &crow[..n], &mut noise[..n], &mut cols[..n]);
+    let mut lanes = [0i32; LANES];
+    let mut flat = [0u32; LANES];
+    // The noise is 0 where not flat, so the line mask needs only the line top.
+    #[inline(always)]
+    fn one(v: u16, c: u16, line_top: u16, noise: &mut i32, col: &mut i32, lane: &mut i32, flat: &mut u32) {
+        let is_flat = c != NOT_FLAT;
+        let d = (v as i32 - c as i32) & (is_flat as i32).wrapping_neg();
+        *noise = d;
+        let m = d & ((c <= line_top) as i32).wrapping_neg();
+        *col += m;
+        *lane += m;
+        *flat += is_flat as u32;
+    }
+    let steps = row
+        .chunks_exact(LANES)
+        .zip(crow.chunks_exact(LANES))
+        .zip(noise.chunks_exact_mut(LANES))
+        .zip(cols.chunks_exact_mut(LANES));
+    for (((qv, qc), qn), qcols) in steps {
+        for k in 0..LANES {
+            one(qv[k], qc[k], line_top, &mut qn[k], &mut qcols[k], &mut lanes[k], &mut flat[k]);
+        }
+    }
+    let done = n / LANES * LANES;
+    for k in 0..n - done {
+        let x = done + k;
+        one(row[x], crow[x], line_top, &mut noise[x], &mut cols[x], &mut lanes[k], &mut flat[k]);
+    }
+    (flat.iter().sum(), lanes)
+}
+
 /// One run of [`line_sums_narrow`] (at most [`NARROW_RUN`] pixels): the masked noise into its
 /// columns' sums, and its sums per lane `x mod 8`. Branch-free, so that the compiler vectorises
 /// it; compiled for AVX-512 and AVX2 as well as the baseline, the CPU's best picked at run time.
@@ -643,6 +724,52 @@ mod tests {
             widen_into(&mut narrow_cols, &mut from_narrow);
             assert_eq!(from_narrow, wide_cols, "width {w}");
             assert!(narrow_cols.iter().all(|&c| c == 0), "the narrow sums were cleared");
+        }
+    }
+
+    /// The one-pass noise and line sums are [`noise_row`] then [`line_sums_narrow`] exactly: the
+    /// same noise, column sums, cell sums and flat count, on rows with pixels not flat and above
+    /// the line top, raw values far from their clean levels (noise up to ±65535), widths below
+    /// the lanes, off the lanes and over many runs with a tail, columns already holding sums. A
+    /// version that put lane `k` into cell `k mod 8`'s place, dropped the tail, or kept the noise
+    /// of a pixel that is not flat differs in the cell sums, the columns or the noise.
+    #[test]
+    fn noise_and_line_sums_are_noise_then_line_sums() {
+        let mut s = 0x2545_F491_4F6C_DD1Du64;
+        let mut next = move || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            s
+        };
+        let line_top = 60_000u16;
+        for w in [3usize, 16, 37, NARROW_RUN * 3 + 21] {
+            let start: Vec<i32> = (0..w).map(|_| (next() % 1000) as i32 - 500).collect();
+            let (mut two_cols, mut one_cols) = (start.clone(), start.clone());
+            for _row in 0..3 {
+                let crow: Vec<u16> = (0..w)
+                    .map(|_| match next() % 8 {
+                        0 => NOT_FLAT,
+                        1 => 60_001 + (next() % 5000) as u16,
+                        _ => (next() % 60_001) as u16,
+                    })
+                    .collect();
+                let row: Vec<u16> = crow
+                    .iter()
+                    .map(|&c| match next() % 4 {
+                        0 => (next() % 65_536) as u16,
+                        _ => c.saturating_add((next() % 25) as u16).saturating_sub(12),
+                    })
+                    .collect();
+                let (mut two_noise, mut one_noise) = (vec![7i32; w], vec![-7i32; w]);
+                let flat = noise_row(&row, &crow, &mut two_noise);
+                let cells = line_sums_narrow(&two_noise, &crow, line_top, &mut two_cols);
+                let (one_flat, one_cells) = noise_and_line_sums(&row, &crow, line_top, &mut one_noise, &mut one_cols);
+                assert_eq!(one_noise, two_noise, "width {w}");
+                assert_eq!((one_flat, one_cells), (flat, cells), "width {w}");
+                assert_eq!(one_cols, two_cols, "width {w}");
+                assert!(cells.iter().any(|&c| c != 0), "width {w}: line sums that say something");
+            }
         }
     }
 }
