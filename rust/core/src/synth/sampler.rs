@@ -374,10 +374,11 @@ impl IsoSampler {
     /// [`Self::with_structure`] for clean images whose levels are all at most `top` (a single
     /// image's, as `noisecal synth` of one file reads it before the build): the bins that hold
     /// no level up to `top` are not deconvolved, and their tables draw from the model's own
-    /// bins. An image within `top` gets the same bytes as from [`Self::with_structure`]; an
-    /// image with a level above it would draw that level's noise with the structured offsets
-    /// counted twice, so such a sampler serves the images it was built for alone.
-    pub fn with_structure_up_to(
+    /// bins. An image within `top` gets the same bytes as from [`Self::with_structure`]; a level
+    /// above it would draw its noise with the structured offsets counted twice, so this is
+    /// built only inside the type that refuses such images
+    /// ([`crate::synth::sampler_up_to::SamplerUpTo`]).
+    pub(crate) fn built_up_to(
         pack: &ModelPack,
         model: &IsoModel,
         structure: Option<&IsoStructure>,
@@ -387,7 +388,7 @@ impl IsoSampler {
         Self::build(pack, model, structure, which, Some(top)).0
     }
 
-    /// [`Self::with_structure_kept`], or [`Self::with_structure_up_to`] with `top` (then no bins
+    /// [`Self::with_structure_kept`], or [`Self::built_up_to`] with `top` (then no bins
     /// are returned).
     fn build(
         pack: &ModelPack,
