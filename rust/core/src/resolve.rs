@@ -29,6 +29,7 @@ use crate::model::pack::{BinModel, IsoModel, ModelOrigin};
 use crate::model::structure::Components;
 use crate::synth::CleanAt;
 use crate::synth::sampler::{IsoSampler, carried_gain_ratio};
+use crate::synth::sampler_up_to::SamplerUpTo;
 
 /// Which noise model to synthesize with.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
@@ -133,10 +134,10 @@ impl Resolved {
         sampler_for(pack, &self.model, self.kind, which, clean_at, extrapolate)
     }
 
-    /// [`Self::sampler`] for clean images whose levels are all at most `top`, at the reference
-    /// brightness ([`IsoSampler::with_structure_up_to`]: only the bins those levels reach are
-    /// deconvolved; the same bytes on such images, and only on them). At the target brightness
-    /// it is [`Self::sampler`].
+    /// [`Self::sampler`] for clean images whose levels are all at most `top`, which it alone
+    /// draws ([`SamplerUpTo`]: an image with a level above `top` is refused). At the reference
+    /// brightness only the bins those levels reach are deconvolved (the same bytes on such
+    /// images); at the target brightness it is [`Self::sampler`]'s.
     pub fn sampler_up_to(
         &self,
         pack: &ModelPack,
@@ -144,13 +145,13 @@ impl Resolved {
         clean_at: CleanAt,
         extrapolate: bool,
         top: u16,
-    ) -> Result<IsoSampler, ModelError> {
+    ) -> Result<SamplerUpTo, ModelError> {
         if clean_at != CleanAt::Reference {
-            return self.sampler(pack, which, clean_at, extrapolate);
+            return Ok(SamplerUpTo::full(self.sampler(pack, which, clean_at, extrapolate)?, top));
         }
         let structure = if which.structured() { structure_at(pack, self.model.iso) } else { None };
-        let sampler = IsoSampler::with_structure_up_to(pack, &self.model, structure.as_ref(), which, top);
-        baseline_levels(pack, &self.model, self.kind, sampler, [1.0; POSITIONS], extrapolate)
+        let sampler = SamplerUpTo::new(pack, &self.model, structure.as_ref(), which, top);
+        sampler.map(|s| baseline_levels(pack, &self.model, self.kind, s, [1.0; POSITIONS], extrapolate))
     }
 }
 

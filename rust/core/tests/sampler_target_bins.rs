@@ -79,7 +79,7 @@ fn target_sampler_deconvolves_once_and_is_the_earlier_one() {
 }
 
 /// A sampler built for clean levels up to `top` (`noisecal synth` of one image,
-/// [`IsoSampler::with_structure_up_to`]) is the full sampler at every level up to `top`, table
+/// [`noisecal_core::synth::sampler_up_to::SamplerUpTo`]) is the full sampler at every level up to `top`, table
 /// for table, and synthesizes an image within `top` to the same bytes, on one thread and three;
 /// past `top` it skipped the deconvolution (its tables there differ, so the build did less). At
 /// low `top` the fine levels near black read bins past it: the full fine levels then differ from
@@ -104,12 +104,13 @@ fn a_sampler_up_to_a_level_is_the_full_one_there() {
             for p in 0..POSITIONS {
                 for level in 0..=top {
                     assert!(
-                        up_to.table(p, level) == full.table(p, level),
+                        up_to.table(p, level) == Some(full.table(p, level)),
                         "ISO {iso}, top {top}, position {p}, level {level}"
                     );
                 }
+                let (lut, tables) = full.position_tables(p);
                 skipped += (top as usize + 1..=white as usize)
-                    .filter(|&l| up_to.table(p, l as u16) != full.table(p, l as u16))
+                    .filter(|&l| up_to.tables(p)[lut[l] as usize] != tables[lut[l] as usize])
                     .count();
                 // Do the fine levels read a bin past `top`? (The deconvolution without the floor
                 // suffices to tell.)
@@ -138,7 +139,7 @@ fn a_sampler_up_to_a_level_is_the_full_one_there() {
                 let (a, b) = pool.install(|| {
                     (
                         noisecal_core::synth::synthesize(&full, clean.view(), 5),
-                        noisecal_core::synth::synthesize(&up_to, clean.view(), 5),
+                        up_to.synthesize_at(clean.view(), 5, (0, 0)).expect("levels within top"),
                     )
                 });
                 assert!(a == b, "ISO {iso}, top {top}, {threads} threads: other bytes");
@@ -150,4 +151,63 @@ fn a_sampler_up_to_a_level_is_the_full_one_there() {
     eprintln!(
         "levels past top with skipped tables: {skipped}; positions where the fine levels read past top: {fine_reads_past}"
     );
+}
+
+/// A sampler built up to a level refuses an image with a level above it, naming the level, its
+/// row and the top, and draws no band holding it; an image within the top is drawn. What the
+/// refusal prevents: the tables past the top hold the model's own bins with the structured
+/// offsets still in them, so their variance exceeds the full sampler's by about the offsets'
+/// variance (an unguarded draw there adds those offsets a second time); checked here, so the
+/// guard is not one that guards nothing.
+#[test]
+fn a_sampler_up_to_a_level_refuses_levels_above_it() {
+    use noisecal_core::resolve::resolve_model;
+    use noisecal_core::synth::sampler_up_to::LevelAboveTop;
+    let pack = structured_pack();
+    let (iso, top) = (1600, 200u16);
+    let resolved = resolve_model(&pack, iso, ModelKind::Noisecal, false).expect("model");
+    let full = resolved.sampler(&pack, Components::ALL, CleanAt::Reference, false).expect("full sampler");
+    let up_to = resolved.sampler_up_to(&pack, Components::ALL, CleanAt::Reference, false, top).expect("sampler");
+    let (h, w) = (70, 53);
+    let within = ndarray::Array2::from_shape_fn((h, w), |(y, x)| (60 + (y * w + x) * 7919 % 141) as u16);
+    assert!(within.iter().all(|&l| l <= top));
+    for (row, level) in [(0usize, top + 1), (h - 1, 900), (33, pack.layout.white)] {
+        let mut clean = within.clone();
+        clean[[row, 5]] = level;
+        let want = LevelAboveTop { level, row, top };
+        assert_eq!(up_to.synthesize_at(clean.view(), 5, (0, 0)), Err(want.clone()));
+        let sunk = std::sync::Mutex::new(Vec::new());
+        let got = up_to.synthesize_bands(clean.view(), 5, (0, 0), |y0, _| sunk.lock().expect("sink").push(y0));
+        assert_eq!(got, Err(want));
+        let band = row / noisecal_core::synth::BAND_ROWS * noisecal_core::synth::BAND_ROWS;
+        assert!(!sunk.lock().expect("sink").contains(&band), "the band of row {row} was drawn");
+        assert!(up_to.table(0, level).is_none(), "a table above the top");
+    }
+    let drawn = up_to.synthesize_at(within.view(), 5, (0, 0)).expect("levels within top");
+    assert!(drawn == noisecal_core::synth::synthesize(&full, within.view(), 5), "other bytes within top");
+    let err = up_to.synthesize_at(ndarray::Array2::from_elem((2, 2), 900).view(), 5, (0, 0)).expect_err("refused");
+    assert!(err.to_string().contains("clean level 900 (row 0) is above 200"), "{err}");
+    // What an unguarded draw above the top would give: the variance of the tables past the top
+    // against the full sampler's, by exact moments of the tables.
+    let var = |t: &noisecal_core::synth::sampler::BinTable| {
+        let moment =
+            |k: i32| (0..t.len() as i32).map(|i| t.prob(t.first() + i) * f64::from(t.first() + i).powi(k)).sum::<f64>();
+        moment(2) - moment(1).powi(2)
+    };
+    // Every bin that holds a level above the top only, at each position: the variance each
+    // unguarded table adds over the full one's.
+    let mut excess = Vec::new();
+    for p in 0..POSITIONS {
+        let (lut, tables) = full.position_tables(p);
+        let first = lut[top as usize] as usize + 1;
+        let last = lut[pack.layout.white as usize - 1] as usize;
+        excess.extend((first..last).map(|b| var(&up_to.tables(p)[b]) - var(&tables[b])));
+    }
+    excess.sort_by(f64::total_cmp);
+    let (lowest, median) = (excess[excess.len() / 20], excess[excess.len() / 2]);
+    eprintln!(
+        "{} bins above the top: unguarded variance − full, 5 % {lowest:.3}, median {median:.3} DN²",
+        excess.len()
+    );
+    assert!(lowest > 4.0 && median > 4.0, "tables past the top as the full ones: nothing to guard");
 }

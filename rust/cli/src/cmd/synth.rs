@@ -4,11 +4,12 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use ndarray::Array2;
+use ndarray::{Array2, ArrayView2};
 use noisecal_core::SensorLayout;
 use noisecal_core::model::pack::{IsoModel, NoiseProfile};
 use noisecal_core::model::structure::Components;
 use noisecal_core::synth::sampler::IsoSampler;
+use noisecal_core::synth::sampler_up_to::SamplerUpTo;
 use noisecal_core::synth::{CleanAt, DEFAULT_PATTERN_CACHE_BYTES, synthesize, synthesize_bands};
 
 use noisecal_core::resolve::ModelKind;
@@ -94,7 +95,7 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
             eprintln!("{n}");
         }
         // A single image is read before the build: the sampler then builds only the tables its
-        // levels reach ([`IsoSampler::with_structure_up_to`]). A folder's images take them all.
+        // levels reach ([`SamplerUpTo`], which draws no other level). A folder's images take them all.
         let prefetched = prefetch.map(|h| {
             h.join().unwrap_or_else(|_| {
                 Err(dng::DngError::Io {
@@ -108,14 +109,17 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
             _ => None,
         };
         let sampler = match top {
-            Some(top) => resolved.sampler_up_to(&pack, which, args.clean_at, args.extrapolate, top)?,
-            None => resolved.sampler(&pack, which, args.clean_at, args.extrapolate)?,
+            Some(top) => {
+                RunSampler::UpTo(resolved.sampler_up_to(&pack, which, args.clean_at, args.extrapolate, top)?)
+            }
+            None => RunSampler::Full(resolved.sampler(&pack, which, args.clean_at, args.extrapolate)?),
         };
         sampler.set_pattern_cache_bytes(args.pattern_cache_mb.saturating_mul(1 << 20));
         let model = resolved.model;
         if args.clean_at == CleanAt::Target
             && !quiet
-            && let Some(g) = sampler.target_gains()
+            && let RunSampler::Full(s) = &sampler
+            && let Some(g) = s.target_gains()
             && g.iter().any(|g| (g - 1.0).abs() > 0.02)
         {
             eprintln!(
@@ -242,6 +246,46 @@ fn highest_level(pixels: ndarray::ArrayView2<'_, u16>) -> Option<u16> {
     }
 }
 
+/// The sampler of a run: of every level (a folder, or an image the full build serves), or built
+/// for the single image's levels, which draws no image with a higher one.
+enum RunSampler {
+    Full(IsoSampler),
+    UpTo(SamplerUpTo),
+}
+
+impl RunSampler {
+    fn set_pattern_cache_bytes(&self, bytes: usize) {
+        match self {
+            RunSampler::Full(s) => s.set_pattern_cache_bytes(bytes),
+            RunSampler::UpTo(s) => s.set_pattern_cache_bytes(bytes),
+        }
+    }
+
+    /// [`synthesize`] of a whole image.
+    fn synthesize(&self, clean: ArrayView2<'_, u16>, seed: u64) -> anyhow::Result<Array2<u16>> {
+        match self {
+            RunSampler::Full(s) => Ok(synthesize(s, clean, seed)),
+            RunSampler::UpTo(s) => Ok(s.synthesize_at(clean, seed, (0, 0))?),
+        }
+    }
+
+    /// [`synthesize_bands`] of a whole image.
+    fn synthesize_bands(
+        &self,
+        clean: ArrayView2<'_, u16>,
+        seed: u64,
+        sink: impl Fn(usize, &[u16]) + Sync,
+    ) -> anyhow::Result<()> {
+        match self {
+            RunSampler::Full(s) => {
+                synthesize_bands(s, clean, seed, (0, 0), sink);
+                Ok(())
+            }
+            RunSampler::UpTo(s) => Ok(s.synthesize_bands(clean, seed, (0, 0), sink)?),
+        }
+    }
+}
+
 /// A sampled file on its way to the writer.
 struct Written {
     input: PathBuf,
@@ -262,7 +306,7 @@ enum Output {
 /// What every file of a run shares.
 struct Job<'a> {
     pack: &'a noisecal_core::ModelPack,
-    sampler: &'a IsoSampler,
+    sampler: &'a RunSampler,
     model: &'a IsoModel,
     /// The ISO the outputs are written with.
     iso: u32,
@@ -286,18 +330,24 @@ impl Job<'_> {
             && let Some(stream) = file.streamed()
         {
             // The NoiseProfile fit is single-threaded: it runs next to the sampling.
+            let mut drawn = Ok(());
             let out = stream.write(output, self.iso, |sink| {
-                let draw = || synthesize_bands(self.sampler, file.pixels(), seed, (0, 0), sink);
-                rayon::join(draw, || self.profile(&layout)).1
-            })?;
-            return Ok(Output::Streamed(out));
+                let draw = || self.sampler.synthesize_bands(file.pixels(), seed, sink);
+                let profile;
+                (drawn, profile) = rayon::join(draw, || self.profile(&layout));
+                profile
+            });
+            // A refused image is the error, not the incomplete file it left (removed unwritten).
+            drawn.with_context(|| format!("{}", input.display()))?;
+            return Ok(Output::Streamed(out?));
         }
         let clean = file.pixels();
         // The NoiseProfile fit is single-threaded: it runs next to the sampling, not after it.
         let (noisy, profile) = rayon::join(
-            || align.around(clean, pack.layout.white, (0, 0), |c| synthesize(self.sampler, c, seed)),
+            || align.try_around(clean, pack.layout.white, (0, 0), |c| self.sampler.synthesize(c, seed)),
             || self.profile(&layout),
         );
+        let noisy = noisy.with_context(|| format!("{}", input.display()))?;
         Ok(Output::Pixels { file, noisy, profile })
     }
 

@@ -7,11 +7,14 @@ mod dither_lanes;
 mod pattern_cache;
 mod pattern_lanes;
 pub mod sampler;
+pub mod sampler_up_to;
 pub mod saturated;
 pub mod structure;
 
 pub use clean_at::CleanAt;
 pub use pattern_cache::DEFAULT_PATTERN_CACHE_BYTES;
+
+use std::convert::Infallible;
 
 use ndarray::{Array2, ArrayView2};
 use rand::{Rng, SeedableRng};
@@ -48,13 +51,32 @@ pub fn synthesize_at(
     seed: u64,
     origin: (usize, usize),
 ) -> Array2<u16> {
+    match synthesize_guarded(sampler, clean, seed, origin, |_| Ok::<(), Infallible>(())) {
+        Ok(out) => out,
+        Err(never) => match never {},
+    }
+}
+
+/// [`synthesize_at`], each band drawn only once `guard(band)` lets it: the first refusal is
+/// returned (for a sampler that draws only some images, [`SamplerUpTo`](sampler_up_to::SamplerUpTo)).
+pub(crate) fn synthesize_guarded<E: Send>(
+    sampler: &IsoSampler,
+    clean: ArrayView2<'_, u16>,
+    seed: u64,
+    origin: (usize, usize),
+    guard: impl Fn(usize) -> Result<(), E> + Sync,
+) -> Result<Array2<u16>, E> {
     let (h, w) = clean.dim();
     let mut out = vec![0u16; h * w];
     if w > 0 {
         let fill = band_filler(sampler, clean, seed, origin);
-        out.par_chunks_mut(BAND_ROWS * w).enumerate().for_each(|(band, chunk)| fill(band, chunk));
+        out.par_chunks_mut(BAND_ROWS * w).enumerate().try_for_each(|(band, chunk)| {
+            guard(band)?;
+            fill(band, chunk);
+            Ok(())
+        })?;
     }
-    Array2::from_shape_vec((h, w), out).expect("h × w samples")
+    Ok(Array2::from_shape_vec((h, w), out).expect("h × w samples"))
 }
 
 /// As [`synthesize_at`], handing each band of [`BAND_ROWS`] rows (the last may be shorter) to
@@ -65,17 +87,38 @@ pub fn synthesize_bands<F>(sampler: &IsoSampler, clean: ArrayView2<'_, u16>, see
 where
     F: Fn(usize, &[u16]) + Sync,
 {
+    match synthesize_bands_guarded(sampler, clean, seed, origin, sink, |_| Ok::<(), Infallible>(())) {
+        Ok(()) => {}
+        Err(never) => match never {},
+    }
+}
+
+/// [`synthesize_bands`], each band drawn (and sunk) only once `guard(band)` lets it: the first
+/// refusal is returned; bands drawn before it may have reached the sink.
+pub(crate) fn synthesize_bands_guarded<F, E: Send>(
+    sampler: &IsoSampler,
+    clean: ArrayView2<'_, u16>,
+    seed: u64,
+    origin: (usize, usize),
+    sink: F,
+    guard: impl Fn(usize) -> Result<(), E> + Sync,
+) -> Result<(), E>
+where
+    F: Fn(usize, &[u16]) + Sync,
+{
     let (h, w) = clean.dim();
     if w == 0 || h == 0 {
-        return;
+        return Ok(());
     }
     let fill = band_filler(sampler, clean, seed, origin);
-    (0..h.div_ceil(BAND_ROWS)).into_par_iter().for_each_init(Vec::new, |buf, band| {
+    (0..h.div_ceil(BAND_ROWS)).into_par_iter().try_for_each_init(Vec::new, |buf, band| {
+        guard(band)?;
         let rows = BAND_ROWS.min(h - band * BAND_ROWS);
         buf.resize(rows * w, 0);
         fill(band, buf);
         sink(band * BAND_ROWS, buf);
-    });
+        Ok(())
+    })
 }
 
 /// What draws band `band` of the noisy image into its `chunk` of rows.
@@ -370,7 +413,7 @@ fn draw(lut: &[u16], tab: &[BinTable], c: u16, u: u32) -> i32 {
 }
 
 /// Row `y` of the clean image as a slice (borrowed when the view is contiguous).
-fn clean_row<'a>(clean: &'a ArrayView2<'_, u16>, y: usize) -> std::borrow::Cow<'a, [u16]> {
+pub(crate) fn clean_row<'a>(clean: &'a ArrayView2<'_, u16>, y: usize) -> std::borrow::Cow<'a, [u16]> {
     let view = clean.row(y);
     match view.to_slice() {
         Some(s) => std::borrow::Cow::Borrowed(s),

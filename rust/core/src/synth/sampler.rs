@@ -326,23 +326,6 @@ fn bins_up_to(lut: &[u16], top: u16) -> usize {
     lut.iter().take(top as usize + 1).map(|&b| b as usize + 1).max().unwrap_or(0)
 }
 
-/// The fine levels of position `p` ([`position_fine_levels`]) from `bins` whose first `used`
-/// are deconvolved and the rest the model's own, when they do not depend on the rest: the same
-/// with the rest read (as the model's bins) and not read (marked clipped, which no law reads).
-/// `None` where the two differ: the rest must be deconvolved first.
-fn fine_levels_without(
-    pack: &ModelPack,
-    model: &IsoModel,
-    p: usize,
-    bins: &[BinModel],
-    used: usize,
-) -> Option<Option<FineLevels>> {
-    let read = position_fine_levels(pack, model, p, bins);
-    let mut unread = bins.to_vec();
-    unread[used..].iter_mut().for_each(|b| b.clipped = true);
-    (position_fine_levels(pack, model, p, &unread) == read).then_some(read)
-}
-
 impl IsoSampler {
     /// The sampler of a model with the structured components `structure` of its ISO handed in
     /// (the caller derives them: a pack's own, or derived from its calibrated ISOs, as
@@ -374,10 +357,11 @@ impl IsoSampler {
     /// [`Self::with_structure`] for clean images whose levels are all at most `top` (a single
     /// image's, as `noisecal synth` of one file reads it before the build): the bins that hold
     /// no level up to `top` are not deconvolved, and their tables draw from the model's own
-    /// bins. An image within `top` gets the same bytes as from [`Self::with_structure`]; an
-    /// image with a level above it would draw that level's noise with the structured offsets
-    /// counted twice, so such a sampler serves the images it was built for alone.
-    pub fn with_structure_up_to(
+    /// bins. An image within `top` gets the same bytes as from [`Self::with_structure`]; a level
+    /// above it would draw its noise with the structured offsets counted twice, so this is
+    /// built only inside the type that refuses such images
+    /// ([`crate::synth::sampler_up_to::SamplerUpTo`]).
+    pub(crate) fn built_up_to(
         pack: &ModelPack,
         model: &IsoModel,
         structure: Option<&IsoStructure>,
@@ -387,7 +371,7 @@ impl IsoSampler {
         Self::build(pack, model, structure, which, Some(top)).0
     }
 
-    /// [`Self::with_structure_kept`], or [`Self::with_structure_up_to`] with `top` (then no bins
+    /// [`Self::with_structure_kept`], or [`Self::built_up_to`] with `top` (then no bins
     /// are returned).
     fn build(
         pack: &ModelPack,
@@ -409,16 +393,16 @@ impl IsoSampler {
                     let floor = |i: usize| Some(floor_noise(&binning, p, model.range[p][0], i, &own[i]));
                     // The bins that hold a level up to `top` (all of them without it).
                     let used = top.map_or(own.len(), |t| bins_up_to(&luts[p], t).min(own.len()));
-                    let mut bins = st.deconvolved_at_floor_in(p, own, floor, 0..used);
-                    let fine = match used < own.len() {
-                        true => fine_levels_without(pack, model, p, &bins, used),
-                        false => Some(position_fine_levels(pack, model, p, &bins)),
-                    };
-                    let fine = fine.unwrap_or_else(|| {
-                        // The fine levels read a bin past `top`: every bin deconvolved.
-                        let rest = st.deconvolved_at_floor_in(p, own, floor, used..own.len());
-                        bins[used..].clone_from_slice(&rest[used..]);
-                        position_fine_levels(pack, model, p, &bins)
+                    let bins = st.deconvolved_at_floor_in(p, own, floor, 0..used);
+                    // The fine levels of the model's own bins (pixel-only's tables), each table
+                    // then deconvolved as the bin it was made from.
+                    let fine = position_fine_levels(pack, model, p, own).map(|mut f| {
+                        let lut = &luts[p];
+                        let first = |t: usize| f.lut.iter().position(|&k| k as usize == own.len() + t);
+                        let source: Vec<usize> =
+                            (0..f.extra.len()).map(|t| first(t).map_or(0, |l| lut[l] as usize)).collect();
+                        f.extra = st.deconvolved_tables(p, &f.extra, own.len(), |t| source[t], floor);
+                        f
                     });
                     (Cow::Owned(bins), fine)
                 }

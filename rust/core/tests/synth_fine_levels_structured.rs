@@ -1,0 +1,72 @@
+//! The default components near black on a real sub-DN sensor (EMVA 1288 set 002, 8 bits, noise
+//! at black about 0.3 DN, a fixed pattern of 0.12 DN, no significant row, column or frame
+//! offsets): where the sampler draws the fine levels' tables (`derive/fine_levels.rs`), the
+//! default must draw pixel-only's tables with the offsets taken out, so that at black it adds
+//! about the pattern's own variance to what pixel-only draws. The pack is
+//! `tests/data/emva002/ladder.pack` (source, licence and how it was made in its README); the
+//! real variance at black is that of the set's held-out frames there.
+
+use ndarray::Array2;
+use noisecal_core::ModelPack;
+use noisecal_core::model::structure::Components;
+use noisecal_core::synth::sampler::IsoSampler;
+use noisecal_core::synth::synthesize;
+
+/// The pack calibrated from set 002 (README beside it).
+const PACK: &[u8] = include_bytes!("../../../tests/data/emva002/ladder.pack");
+/// Black's code (black 2.83–2.92 DN by position: 0.13 DN above it).
+const BLACK_CODE: u16 = 3;
+/// Variance of `frame − round(clean)` at code 3 over the set's held-out frames (521 023 pixels;
+/// `tests/bench/emva1288_black.py`, "real −round").
+const REAL_AT_BLACK: f64 = 0.0921;
+
+/// Variance and mean of `noisy − code` over `seeds` flat images at `code`.
+fn drawn(sampler: &IsoSampler, code: u16, seeds: u64) -> (f64, f64) {
+    let mut v = Vec::new();
+    for seed in 0..seeds {
+        let clean = Array2::<u16>::from_elem((200, 512), code);
+        v.extend(synthesize(sampler, clean.view(), seed).iter().map(|&x| f64::from(x) - f64::from(code)));
+    }
+    let n = v.len() as f64;
+    let mean = v.iter().sum::<f64>() / n;
+    (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n, mean)
+}
+
+/// Measured (4 seeds of 200 × 512): default / pixel-only / real variance at black 0.1148 /
+/// 0.0857 / 0.0921 DN² (1.25× / 0.93×); the default adds 0.029 DN² to pixel-only, the
+/// pattern's own 0.0145 and 0.015 the deconvolution cannot take out of a PMF at the lattice's
+/// floor. Made from the deconvolved bins instead (the wrong order: the law anchored at the
+/// dark frames' `T + 1/12` less what the first bin read lost to its deconvolution, then held at
+/// `MIN_VARIANCE`), the default drew 0.1503 (1.63×), 0.065 DN² over pixel-only, its table at
+/// black wider (0.135 DN²) than pixel-only's (0.097) before any offset was added.
+#[test]
+fn at_black_the_default_draws_pixel_only_less_the_offsets() {
+    let pack = ModelPack::from_bytes(PACK).expect("the set 002 pack loads");
+    let iso = pack.isos[0].iso;
+    let model = pack.iso(iso).expect("its ISO");
+    let st = pack.structure_of(iso);
+    let fpn = st.and_then(|s| s.fpn.as_ref()).expect("a fixed pattern from the dark burst");
+    let pattern = (0..4).map(|p| fpn.variance(p)).sum::<f64>() / 4.0;
+    let default = IsoSampler::with_structure(&pack, model, st, Components::ALL);
+    let pixel = IsoSampler::with_structure(&pack, model, st, Components::PIXEL);
+    let (d, dm) = drawn(&default, BLACK_CODE, 4);
+    let (p, pm) = drawn(&pixel, BLACK_CODE, 4);
+    eprintln!(
+        "at black: default {d:.4} ({:.2}×, mean {dm:+.3}), pixel-only {p:.4} ({:.2}×, mean {pm:+.3}), pattern {pattern:.4} DN²",
+        d / REAL_AT_BLACK,
+        p / REAL_AT_BLACK
+    );
+    // The sampling SE of a variance of 400 000 draws of a three-point PMF near 0.1 DN² is about
+    // 0.0005 DN²: the bounds sit 0.02 DN² inside the wrong order's figures.
+    assert!(
+        d - p < pattern + 0.03,
+        "the default adds {:.4} DN² to pixel-only at black (pattern {pattern:.4}; wrong order: 0.065)",
+        d - p
+    );
+    assert!(d / REAL_AT_BLACK < 1.4, "default / real variance at black {:.3} (wrong order: 1.63)", d / REAL_AT_BLACK);
+    assert!(
+        (0.85..1.15).contains(&(p / REAL_AT_BLACK)),
+        "pixel-only / real variance at black {:.3}",
+        p / REAL_AT_BLACK
+    );
+}
