@@ -4,7 +4,8 @@
 //! - [`session`]: the session's state machine — EV steps, reference bursts, target frames,
 //!   progress, checkpoints, and the pack at the end.
 //! - [`reference`](mod@reference): one reference burst, summed into the clean image and its flat mask.
-//! - [`accumulate`]: target frames folded into the per-bin histograms.
+//! - [`accumulate`]: target frames folded into the per-bin histograms; [`line_sums`]: a target
+//!   row's noise and its line sums.
 //! - [`line_base`]: the clean image's half of the target frames' line sums; [`flat_levels`]: the
 //!   clean levels its flat pixels have.
 //! - [`step`]: which EV step a frame belongs to (the step tolerance).
@@ -33,6 +34,7 @@ mod flat_spread;
 mod flicker;
 pub mod frame;
 mod line_base;
+mod line_sums;
 pub mod meta;
 pub mod motion;
 pub mod reference;
