@@ -6,8 +6,8 @@ against what a pack synthesizes, and what the dark burst says the variance at bl
 The cache ``--out`` is ``tests/bench/emva1288_ladder.py``'s (converted and calibrated the same
 way; made here when missing). The packs are made by the Python extension, or with ``--cli`` by
 the ``noisecal`` command first on ``PATH`` (to measure a calibration change without rebuilding
-the extension; synthesis is the extension's either way). For every whole clean code from 1 DN up to 16 DN that at least
-1 000 held-out pixels round to:
+the extension; synthesis is the extension's either way). For every whole clean code from 1 DN up
+to 16 DN (and the ``--also`` codes) that at least 1 000 held-out pixels round to:
 
 - **real**: the held-out frames' ``frame − round(clean)`` (the pack's convention: a clean code
   stands for the clean levels that round to it) and ``frame − clean`` (the float clean image);
@@ -70,6 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seeds", type=int, default=2, help="synthetic images per code and model [default: %(default)s]")
     p.add_argument("--cli", action="store_true", help="make missing packs with the `noisecal` command on PATH")
     p.add_argument("--json", type=Path, help="also write the per-code variances (DN²) and tails here")
+    p.add_argument("--also", default="", help="codes above 16 to add, comma-separated (e.g. 22,54,104)")
     args = p.parse_args(argv)
 
     def say(*a):
@@ -115,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"black {black:.3f} DN; variance of noisy − clean (DN²), synthetic / real (−round) in brackets")
     print(f"{'code':>4} {'above':>6} {'pixels':>8} {'real −round':>12} {'real −float':>12}" + "".join(f" {m:>16}" for m, _, _ in models))
     shapes = []
-    for c in range(1, 17):
+    for c in list(range(1, 17)) + [int(v) for v in args.also.split(",") if v.strip()]:
         at = code == c
         if at.sum() < MIN_PIXELS:
             continue
