@@ -6,15 +6,18 @@ against what a pack synthesizes, and what the dark burst says the variance at bl
 The cache ``--out`` is ``tests/bench/emva1288_ladder.py``'s (converted and calibrated the same
 way; made here when missing). The packs are made by the Python extension, or with ``--cli`` by
 the ``noisecal`` command first on ``PATH`` (to measure a calibration change without rebuilding
-the extension; synthesis is the extension's either way). For every whole clean code from 1 DN up to 16 DN that at least
-1 000 held-out pixels round to:
+the extension; synthesis is the extension's either way). For every whole clean code from 1 DN up
+to 16 DN (and the ``--also`` codes) that at least 1 000 held-out pixels round to:
 
 - **real**: the held-out frames' ``frame − round(clean)`` (the pack's convention: a clean code
   stands for the clean levels that round to it) and ``frame − clean`` (the float clean image);
 - **synthetic**: the pack's synthesis onto a flat image at that code, default components and
   ``pixel`` (the pixel PMFs alone), and the plain per-bin histogram pack of the same frames
   (``ladder-plain.pack``, ``calibrate --plain``: the yardstick no smoothing step may lose to),
-  ``--seeds`` images of the evaluated width.
+  ``--seeds`` images of the evaluated width; and the benchmark's HG rows drawn as
+  ``noisecal-bench`` draws their training pairs (``noisecal.bench.models.make_pairs``): ``hg``,
+  ``wrong`` (½ HG's variance), ``loud`` (2×) and ``loud4`` (4×), so a rank of the benchmark's
+  rows can be read against the real noise they were taught.
 
 For each, the variance (and its ratio to the real ``−round`` one), then a second table with the
 0.1 % / 99.9 % quantiles and the share of samples at each noise value from −2 to +2 DN: at
@@ -33,6 +36,7 @@ black on set 002").
 from __future__ import annotations
 
 import argparse
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -43,6 +47,7 @@ import noisecal
 import emva1288_ladder as ladder
 from emva1288 import Source, read_descriptor
 from png16 import read_png_grey
+from noisecal.bench.models import make_pairs, parse_model
 
 MIN_PIXELS = 1000
 
@@ -64,6 +69,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, default=Path("target/emva002"), help="the ladder's cache [default: %(default)s]")
     p.add_argument("--seeds", type=int, default=2, help="synthetic images per code and model [default: %(default)s]")
     p.add_argument("--cli", action="store_true", help="make missing packs with the `noisecal` command on PATH")
+    p.add_argument("--json", type=Path, help="also write the per-code variances (DN²) and tails here")
+    p.add_argument("--also", default="", help="codes above 16 to add, comma-separated (e.g. 22,54,104)")
     args = p.parse_args(argv)
 
     def say(*a):
@@ -94,10 +101,22 @@ def main(argv: list[str] | None = None) -> int:
     black = float(np.mean(got["black"]))
     code = np.rint(clean)
     models = (("default", pack, None), ("pixel", pack, "pixel"), ("plain", plain, None))
+    # The benchmark's HG rows, drawn as its training pairs are (at the target ISO's brightness).
+    bench_rows = ("hg", "wrong", "loud", "loud4=loud:4")
+
+    def draw(name, pk, comp, flat):
+        if comp == "bench":
+            pairs = make_pairs(parse_model(name), 200, [flat], args.seeds, pk, {}, 0, {})
+            return [n.astype(np.float64) for n in pairs.noisy[0]]
+        return [pk.synth(flat, 200, k, components=comp).astype(np.float64) for k in range(args.seeds)]
+
+    models += tuple((name.split("=")[0], pack, "bench") for name in bench_rows)
+    full = {"default": None, "pixel": None, "plain": None, **{n.split("=")[0]: n for n in bench_rows}}
+    record: dict = {"black": None, "codes": []}
     print(f"black {black:.3f} DN; variance of noisy − clean (DN²), synthetic / real (−round) in brackets")
     print(f"{'code':>4} {'above':>6} {'pixels':>8} {'real −round':>12} {'real −float':>12}" + "".join(f" {m:>16}" for m, _, _ in models))
     shapes = []
-    for c in range(1, 17):
+    for c in list(range(1, 17)) + [int(v) for v in args.also.split(",") if v.strip()]:
         at = code == c
         if at.sum() < MIN_PIXELS:
             continue
@@ -106,10 +125,16 @@ def main(argv: list[str] | None = None) -> int:
         flat = np.full(frame.shape[1:], c, np.uint16)
         row = []
         shapes.append((c, "real", real_d))
+        entry = {"code": c, "above_black": c - float(np.mean(got["black"])), "pixels": int(at.sum()), "real": real, "real_float": float((frame[at] - clean[at]).var()), "models": {}}
         for name, pk, comp in models:
-            s = np.concatenate([pk.synth(flat, 200, k, components=comp).ravel().astype(np.float64) - c for k in range(args.seeds)])
+            s = np.concatenate([d.ravel() - c for d in draw(full[name] or name, pk, comp, flat)])
             row.append(f"{s.var():.4f} ({s.var() / real:.2f}×)")
             shapes.append((c, name, s))
+            q = np.quantile(s, [0.001, 0.999], method="inverted_cdf")
+            entry["models"][name] = {"var": float(s.var()), "mean": float(s.mean()), "q001": float(q[0]), "q999": float(q[1])}
+        q = np.quantile(real_d, [0.001, 0.999], method="inverted_cdf")
+        entry.update(real_mean=float(real_d.mean()), real_q001=float(q[0]), real_q999=float(q[1]))
+        record["codes"].append(entry)
         print(f"{c:4d} {c - black:6.2f} {int(at.sum()):8d} {real:12.4f} {float((frame[at] - clean[at]).var()):12.4f}" + "".join(f" {r:>16}" for r in row))
     print("tails and shape of noisy − round(clean): 0.1 % / 99.9 % quantiles (DN), share of samples at −2 … +2 DN")
     print(f"{'code':>4} {'model':>8} {'q0.1%':>6} {'q99.9%':>6}" + "".join(f" {v:>+7d}" for v in range(-2, 3)))
@@ -117,6 +142,9 @@ def main(argv: list[str] | None = None) -> int:
         q = np.quantile(d, [0.001, 0.999], method="inverted_cdf")
         share = [float(np.mean(d == v)) for v in range(-2, 3)]
         print(f"{c:4d} {name:>8} {q[0]:+6.0f} {q[1]:+6.0f}" + "".join(f" {v:7.4f}" for v in share))
+    record["black"] = black
+    if args.json:
+        args.json.write_text(json.dumps(record, indent=1) + "\n")
     half = len(dark) // 2
     for name, part in (("ISO 100 (dark frames 1–50)", dark[:half]), ("ISO 200 (dark frames 51–100)", dark[half:])):
         terms = dark_terms(part)

@@ -16,7 +16,8 @@ run.
 - **Training** (``OUT/train``, ``OUT/captures``): tile scenes of the evaluation's kind
   (``noisecal.bench.generate_tiles`` with the ladder and the fixed pattern's SD), and
   ``CAPTURES`` captures of each by the sensor, drawn about the scene before its rounding to
-  whole DN: the oracle's training data.
+  whole DN: the oracle's training data; the float scene beside each clean DNG (``.npy``) is the
+  oracle's target.
 """
 
 from __future__ import annotations
@@ -79,14 +80,18 @@ def convert(out: Path, say) -> dict:
     write_tiles(out / "eval-tiles", held, write)
     got = tile_training(held, [BLACK] * 4)
     layout = {"black": [BLACK] * 4, "white": WHITE}
-    # The scenes before rounding: the captures are drawn about them, so the oracle's pairs (capture
-    # against the whole-DN clean image) carry the clean image's rounding as the evaluation pairs
-    # (frame against the float clean image) and the calibration (target against the reference
-    # bursts' mean) do. Drawn about the rounded clean image instead (until bench8), the oracle's
-    # noise was 0–0.03 DN² from 0 to 2 DN above black, where the evaluation's is about 1/12 more.
+    # The scenes before rounding: the captures are drawn about them, as the evaluation frames are
+    # about the float clean image. Each scene is written twice: as a DNG rounded to whole DN (the
+    # clean image every synthetic model draws its noise onto, and is trained to return) and as
+    # ``.npy`` (float DN), the oracle's target (noisecal.bench.data.load_float_clean): its pairs are
+    # then a capture against the clean image it was drawn about, as the evaluation's are. With the
+    # DNG as its target (until bench9) the oracle was taught to return the rounding, which no
+    # evaluation pair asks for (docs/bench.md, "the oracle's clean image").
     scenes = bench.generate_tiles(TRAIN, *TRAIN_SHAPE, layout, 7, 24, 1.0, (0.0, 105.0), got["ladder"], got["texture"], rounded=False)
     for j, scene in enumerate(scenes):
         write(out / "train" / f"tile{j:02}.dng", np.rint(scene).astype(np.uint16), 100, 80_000)
+        if not (out / "train" / f"tile{j:02}.npy").exists():
+            np.save(out / "train" / f"tile{j:02}.npy", scene)  # the float clean image: the oracle's target
         for k in range(CAPTURES):
             write(out / "captures" / f"tile{j:02}_{k}.dng", noisy(scene, rng), 200, 40_000)
     say(f"simulated set in {out}: {STEPS} calibration levels, {len(held)} evaluated, {TRAIN} training scenes × {CAPTURES} captures")

@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from noisecal import bench as B
 
@@ -173,3 +174,53 @@ def test_wrong_control_verdict_false_alarm_and_power():
         assert false_alarm <= B.FALSE_ALARM, (seeds, false_alarm)
     power, old = rate(0.33, 8, 5_000)
     assert power >= 0.95 and old < 0.6, (power, old)
+
+
+def test_a_control_at_another_factor_draws_that_multiple_of_hgs_variance(pack):
+    """``loud:4`` and ``wrong:0.25`` (parse_model): HG's noise at 4× and ¼ its variance, per CFA
+    position within 4 ± 0.2 and 0.25 ± 0.0125 of HG's table (about 5 standard errors at 65 536
+    pixels), on the phone10 session at black and above at ISO 100. A row that ignored the factor
+    (the kind's default, 2 or ½) scores 2 and 0.5. A factor on the wrong side of 1, not a number,
+    or 0 is refused by name; a pack model's components are not a factor."""
+    for text, factor, tol in (("loud4=loud:4", 4.0, 0.2), ("wrong:0.25", 0.25, 0.0125)):
+        spec = B.parse_model(text)
+        assert spec.factor == factor and spec.components is None and spec.control_factor() == factor
+        for level in (64, 70, 100):
+            clean = np.full((512, 512), level, dtype=np.uint16)
+            at = B.at_target_brightness(clean, pack, 100)
+            sc = B.ScaledHg(pack, 100, 1.0)
+            centre = B.pack_raw(at)[:, 0, 0].astype(np.int64)
+            truth = sc.var[np.arange(4), sc.lut[np.arange(4), centre]]
+            out = B.make_pairs(spec, 100, [clean], 1, pack, {}, 7, {}).noisy[0][0]
+            for p in range(4):
+                x = B.pack_raw(out.astype(np.float64))[p] - centre[p]
+                assert abs(x.var() / truth[p] - factor) < tol, (text, level, p, x.var() / truth[p])
+    assert B.parse_model("loud").control_factor() == 2.0 and B.parse_model("wrong").control_factor() == 0.5
+    for bad, says in (("loud:0.5", "above 1"), ("wrong:2", "below 1"), ("loud:x", "a number above 0"), ("wrong:0", "a number above 0")):
+        with pytest.raises(B.BenchError, match=says):
+            B.parse_model(bad)
+    with pytest.raises(B.BenchError, match="components apply to pack models"):
+        B.parse_model("oracle:pixel")
+
+
+def test_the_loud_control_is_the_default_factor_and_every_loud_row_is_tested():
+    """With loud rows at 2× and 4× HG's variance, the verdict's loud control is the 2× row
+    whatever the rows' order, and ``loud_rows_vs_hg`` holds the paired test of each against HG:
+    here 4× is clearly below HG (0.6 dB, every seed) and 2× not (0.05 dB). Judging the first
+    loud row listed (as before this session) would pass the 2× control on the 4× row's scores."""
+    rows = [
+        {**_row("loud4", "loud", 53.4, 53.5, 53.6, 53.3), "factor": 4.0},
+        _row("hg", "hg", 54.0, 54.1, 54.2, 53.9),
+        _row("loud", "loud", 54.0, 54.0, 54.2, 53.8),
+    ]
+    c = B.controls(rows)[200]
+    assert not c["loud_below_hg"] and "loud (HG at 2× its variance) not clearly below HG" in c["failed"]
+    assert abs(c["loud_margin_db"] - 0.05) < 1e-9
+    t = c["loud_rows_vs_hg"]
+    assert list(t) == ["loud", "loud4"] and t["loud4"]["factor"] == 4.0 and t["loud"]["factor"] == 2.0
+    assert t["loud4"]["below"] and not t["loud"]["below"]
+    out = {
+        "summary": [], "isos": [200], "controls": {200: c}, "networks": [], "seeds": [0, 1, 2, 3],
+        "wall_seconds": 60.0, "config": {"steps": 600, "batch": 16, "crop": 32, "width": 16},
+    }  # fmt: skip
+    assert "loud4 (4× HG variance) below HG: yes, clearly (by 0.60 dB" in B.table(out)

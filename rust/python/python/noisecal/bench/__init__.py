@@ -41,7 +41,7 @@ from __future__ import annotations
 from .errors import BenchError
 from .layout import mosaic, normalise, pack_raw, per_position, unpack_raw
 from .scenes import dead_leaves, gaussian_blur, generate_clean, generate_tiles, parse_levels, tile_labels
-from .data import EvalScene, eval_pairs, load_captures, load_clean, load_eval
+from .data import EvalScene, eval_pairs, load_captures, load_clean, load_eval, load_float_clean
 from .metrics import BANDS, REGIONS, band_masks, psnr, region_masks, score, ssim, ssim_map, summarise
 from .headroom import guided_gain, headroom, linear_gain
 from .models import (
@@ -64,11 +64,12 @@ from .training import batch_plan, train_one
 from .paired import FALSE_ALARM, MIN_GAP_DB, paired_below, t_critical
 from .scoring import controls, evaluate, failed_controls, noise_rms, rows_below_wrong, score_input, summary
 from .report import gain_table, gains, headroom_lines, region_table, table, verdict_line
-from .run import networks_trained, run, steps_for_minutes
+from .run import CAPTURED, networks_trained, run, steps_for_minutes, training_targets
 from .cli import main, parser
 
 __all__ = [
     "BANDS",
+    "CAPTURED",
     "BASE_MODELS",
     "BenchError",
     "DEFAULT_ESTIMATE",
@@ -109,6 +110,7 @@ __all__ = [
     "load_captures",
     "load_clean",
     "load_eval",
+    "load_float_clean",
     "main",
     "make_net",
     "make_pairs",
@@ -140,5 +142,6 @@ __all__ = [
     "verdict_line",
     "tile_labels",
     "train_one",
+    "training_targets",
     "unpack_raw",
 ]

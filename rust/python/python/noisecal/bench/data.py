@@ -100,6 +100,44 @@ def load_clean(train_dir: Path, pack) -> tuple[list[str], list[np.ndarray]]:
     return [p.stem for p in paths], [noisecal.read_dng(p, pack=pack)[0] for p in paths]
 
 
+def load_float_clean(train_dir: Path, names: list[str], cleans: list[np.ndarray]) -> list[np.ndarray] | None:
+    """The clean training images before their rounding to whole DN, when the folder gives them:
+    ``<stem>.npy`` beside every ``<stem>.dng`` (float DN, black included; the DNG is its rounding).
+    ``None`` when no ``.npy`` is there. The real captures of a scene (``--captures``) are drawn
+    about this image, not about the DNG's whole DN, as a real evaluation frame is about a burst's
+    float mean: the rows trained on captures (the oracle, noise on noise) take it as their target
+    (docs/bench.md, "the oracle's clean image")."""
+    train_dir = Path(train_dir)
+    given = [train_dir / f"{n}.npy" for n in names]
+    have = [p.is_file() for p in given]
+    if not any(have):
+        return None
+    if not all(have):
+        missing = [p.name for p, h in zip(given, have) if not h]
+        raise BenchError(
+            f"--train {train_dir}: {len(missing)} clean image(s) have no .npy beside their DNG (e.g. {missing[0]}): "
+            "give the float clean image of every training DNG or of none"
+        )
+    out = []
+    for p, c in zip(given, cleans):
+        try:
+            f = np.load(p, allow_pickle=False)
+        except (OSError, ValueError) as e:
+            raise BenchError(f"--train: {p} is not a numpy array file ({e}): save it with np.save") from e
+        if f.ndim != 2 or f.shape != c.shape or not np.issubdtype(f.dtype, np.number):
+            raise BenchError(f"--train: {p} is {f.dtype} {f.shape}; its DNG is {c.shape}: give one number per pixel")
+        if not np.isfinite(f).all():
+            raise BenchError(f"--train: {p} holds NaN or infinite values")
+        f = f.astype(np.float64)
+        off = float(np.max(np.abs(f - c.astype(np.float64))))
+        if off > 1.0:
+            raise BenchError(
+                f"--train: {p} is {off:.2f} DN from its DNG somewhere: the DNG must be the .npy rounded to whole DN"
+            )
+        out.append(f)
+    return out
+
+
 def load_captures(cap_dir: Path, names: list[str], pack) -> dict:
     """``{(clean index, ISO): [uint16 frames]}`` from ``<clean stem>_*.dng`` files."""
     cap_dir = Path(cap_dir)

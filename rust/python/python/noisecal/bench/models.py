@@ -31,11 +31,19 @@ class ModelSpec:
     # Noise on noise: the clean estimate that picks the bins (estimate.ESTIMATES). Out of the repr,
     # which keys --state files: the run adds it to the key when set, so earlier runs' files stay valid.
     estimate: str | None = field(default=None, repr=False)
+    # A control's factor on HG's variance when given (``loud:4``); None: CONTROL_FACTORS'. Out of the
+    # repr as ``estimate``: the run adds it to the --state key when set.
+    factor: float | None = field(default=None, repr=False)
+
+    def control_factor(self) -> float:
+        """The factor on HG's variance of a ``wrong`` or ``loud`` row."""
+        return self.factor if self.factor is not None else CONTROL_FACTORS[self.kind]
 
 
 def parse_model(text: str, plain_pack: str | None = None) -> ModelSpec:
     """``[LABEL=]MODEL[:COMPONENTS][@PACK]``: e.g. ``hg``, ``noisecal:pixel``,
-    ``interp=noisecal@held-out-isos.pack``, ``plain@plain.pack``."""
+    ``interp=noisecal@held-out-isos.pack``, ``plain@plain.pack``; for the HG controls
+    ``[LABEL=]wrong|loud[:FACTOR]``, the factor on HG's variance (e.g. ``loud4=loud:4``)."""
     label, _, rest = text.rpartition("=")
     rest = rest.strip()
     pack_path = None
@@ -52,9 +60,23 @@ def parse_model(text: str, plain_pack: str | None = None) -> ModelSpec:
                 "--models plain needs the plain per-bin pack: --plain-pack plain.pack "
                 "(made by `noisecal calibrate captures/ -o plain.pack --plain`) or plain@plain.pack"
             )
-    if comps and kind in ("oracle", "wrong", "loud"):
+    if comps and kind == "oracle":
         raise BenchError(f"--models {text!r}: components apply to pack models, not {kind}")
-    return ModelSpec(label.strip() or text.strip(), kind, comps.strip() or None, pack_path)
+    factor = None
+    if comps and kind in CONTROL_FACTORS:
+        try:
+            factor = float(comps)
+        except ValueError:
+            factor = -1.0
+        if not (factor > 0 and np.isfinite(factor)):
+            raise BenchError(
+                f"--models {text!r}: components apply to pack models, not {kind}; after {kind}: give its factor on HG's "
+                f"variance, a number above 0 (e.g. {'wrong:0.25' if kind == 'wrong' else 'loud:4'})"
+            )
+        if (kind == "wrong") != (factor < 1):
+            raise BenchError(f"--models {text!r}: the {kind} control's factor must be {'below' if kind == 'wrong' else 'above'} 1")
+        comps = ""
+    return ModelSpec(label.strip() or text.strip(), kind, comps.strip() or None, pack_path, factor=factor)
 
 
 class Pairs:
@@ -114,7 +136,7 @@ def make_pairs(
     parametric = model in PARAMETRIC
     # The controls: HG's noise at ½ (wrong) or 2 (loud) times its variance at every level, drawn
     # whole (scaled_hg.py: scaling HG's whole-DN noise left sub-DN noise as it was).
-    scaled = ScaledHg(p, iso, CONTROL_FACTORS[spec.kind]) if spec.kind in CONTROL_FACTORS else None
+    scaled = ScaledHg(p, iso, spec.control_factor()) if spec.kind in CONTROL_FACTORS else None
     out = []
     for j, c in enumerate(cleans):
         row = []

@@ -160,6 +160,11 @@ def table(out: dict) -> str:
         if "loud_below_hg" in c:
             verdict = "yes" if c["loud_below_hg"] else "NO: the evaluation rewards smoothing, not fidelity"
             parts.append(f"loud (2× HG variance) below HG: {verdict} (by {c['loud_margin_db']:.2f} dB{_paired(c.get('loud_vs_hg'))})")
+            # Loud rows at other factors (``loud:4``): how wide a model must be before this set shows it.
+            for k, t in list(c.get("loud_rows_vs_hg", {}).items())[1:]:
+                seen = "yes, clearly" if t["below"] else "NOT clearly"
+                gap = f"by {t['gap_db']:.2f} dB" if t["gap_db"] is not None else "no common seed"
+                parts.append(f"{k} ({t['factor']:g}× HG variance) below HG: {seen} ({gap}{_paired(t)})")
         if parts:
             lines.append(f"controls at ISO {iso}: " + "; ".join(parts))
         lines.append(verdict_line(iso, c))

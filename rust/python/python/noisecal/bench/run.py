@@ -13,7 +13,7 @@ from typing import Any
 
 import noisecal
 
-from .data import eval_pairs, load_captures, load_clean, load_eval
+from .data import eval_pairs, load_captures, load_clean, load_eval, load_float_clean
 from .errors import BenchError
 from .estimate import DEFAULT_ESTIMATE, estimates_for, parse_estimates
 from .headroom import headroom
@@ -23,6 +23,19 @@ from .network import _torch
 from .scenes import generate_clean, generate_tiles, parse_levels
 from .scoring import controls, evaluate, noise_rms, score_input, summary
 from .training import batch_plan, train_one
+
+
+# The rows whose noisy training images are real captures (or made from them), drawn about the
+# scene before its rounding: with float clean training images (data.load_float_clean) that is their target.
+CAPTURED = ("oracle", "renoise")
+
+
+def training_targets(kind: str, cleans_norm: list, floats_norm: list | None) -> list:
+    """The clean images a row of ``kind`` is trained to return: the float clean images
+    (``floats_norm``, when the training folder gives them) for the rows trained on real captures
+    (:data:`CAPTURED`), whose noise is about them; the whole-DN ones (``cleans_norm``) for every
+    synthetic row, whose noise is drawn about the image it is handed."""
+    return floats_norm if floats_norm is not None and kind in CAPTURED else cleans_norm
 
 
 def _config_key(cfg: dict) -> str:
@@ -83,8 +96,10 @@ def run(args: argparse.Namespace) -> dict:
     missing = [i for i in isos if i not in eval_isos]
     if missing:
         raise BenchError(f"--isos {missing}: the evaluation set has frames at ISOs {eval_isos} only")
+    floats = None  # the clean training images before rounding (load_float_clean), when given
     if args.train:
         names, cleans = load_clean(Path(args.train), pack)
+        floats = load_float_clean(Path(args.train), names, cleans)
     else:
         n = args.generate or 16
         h, w = (scenes[0].clean.shape[0] // 2) * 2, (scenes[0].clean.shape[1] // 2) * 2
@@ -145,6 +160,13 @@ def run(args: argparse.Namespace) -> dict:
         if not any(s.kind == "oracle" for s in specs):
             jobs.append((ModelSpec(f"real {b}", "oracle"), b))
     cleans_norm = [normalise(c, layout["black"], layout["white"]) for c in cleans]
+    # The target of the rows trained on real captures (CAPTURED): the float clean image the captures
+    # were drawn about, when the training folder gives it; every other row's noise is drawn about
+    # the whole-DN image it is handed, so that is its target.
+    floats_norm = None if floats is None else [normalise(c, layout["black"], layout["white"]) for c in floats]
+
+    def target_of(spec: ModelSpec) -> list:
+        return training_targets(spec.kind, cleans_norm, floats_norm)
     seeds = list(range(args.seed, args.seed + args.seeds))
     torch = _torch()
     device = torch.device(args.device)
@@ -186,6 +208,8 @@ def run(args: argparse.Namespace) -> dict:
         "data_seed": args.data_seed,
         "device": args.device,
     }
+    if floats is not None:  # absent without .npy clean images, so earlier runs' keys stay valid
+        cfg["train_float_clean"] = True
     if args.input_scale != 1.0:  # absent at 1, so the keys (and --state files) of earlier runs stay valid
         cfg["input_scale"] = args.input_scale
     loss, highpass = getattr(args, "loss", "l1"), getattr(args, "highpass", False)
@@ -256,6 +280,7 @@ def run(args: argparse.Namespace) -> dict:
             fname = None
             if state:
                 job_id = f"{spec}|{iso}|{seed}" + (f"|estimate={spec.estimate}" if spec.estimate else "")
+                job_id += f"|factor={spec.factor!r}" if spec.factor is not None else ""
                 fname = state / f"{key}-{hashlib.blake2b(job_id.encode(), digest_size=6).hexdigest()}.json"
                 if fname.exists():
                     results.append(json.loads(fname.read_text()))
@@ -274,10 +299,12 @@ def run(args: argparse.Namespace) -> dict:
                     print(f"{tag}: step {s}/{n} loss {loss:.4f} {time.time() - ts:.0f} s", end=end, file=sys.stderr, flush=True)
 
             net = train_one(
-                pairs, cleans_norm, layout, plan, args.crop, args.width, seed, device, args.lr, progress, args.input_scale,
+                pairs, target_of(spec), layout, plan, args.crop, args.width, seed, device, args.lr, progress, args.input_scale,
                 loss, sigma_at(iso),
             )  # fmt: skip
             r = {"model": spec.label, "kind": spec.kind, "iso": iso, "seed": seed, **evaluate(net, eval_at(iso), device, flat_at(iso))}
+            if spec.factor is not None:
+                r["factor"] = spec.factor
             r["train_seconds"] = time.time() - ts
             results.append(r)
             if fname:

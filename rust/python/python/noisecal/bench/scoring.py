@@ -43,6 +43,7 @@ def summary(results: list[dict]) -> list[dict]:
         row = {
             "model": model,
             "kind": next(iter(per.values()))["kind"],
+            **({"factor": f} if (f := next(iter(per.values())).get("factor")) is not None else {}),
             "iso": iso,
             "psnr": summarise([r["psnr"] for r in per.values()]),
             "psnr_per_seed": {str(k): v["psnr"] for k, v in sorted(per.items())},
@@ -98,11 +99,12 @@ def controls(rows: list[dict]) -> dict:
             c["oracle_gap_db"] = max(mean.values()) - o
             c["oracle_within_spread"] = c["oracle_gap_db"] <= max(0.1, 2 * spread)
         hg = [k for k, r in at.items() if r.get("kind") == "hg"]
-        wrong = [k for k, r in at.items() if r.get("kind") == "wrong"]
+        wrong = sorted((k for k, r in at.items() if r.get("kind") == "wrong"), key=lambda k: "factor" in at[k])
         if wrong:
             w = at[wrong[0]]
             ws = w.get("psnr_per_seed", {})
-            others = {k: r for k, r in at.items() if k != wrong[0] and r.get("kind") != "loud"}
+            # Not the loud rows nor the wrong rows at other factors (``wrong:0.25``): controls too.
+            others = {k: r for k, r in at.items() if r.get("kind") not in ("loud", "wrong")}
             c["wrong_worst"] = all(mean[w["model"]] < r["psnr"]["mean"] for r in others.values())
             c["wrong_margin_db"] = (min(r["psnr"]["mean"] for r in others.values()) - mean[w["model"]]) if others else None
             tests = {k: paired_below(ws, r.get("psnr_per_seed", {})) for k, r in others.items()}
@@ -115,9 +117,15 @@ def controls(rows: list[dict]) -> dict:
             c["wrong_clear"] = bool(judge) and all(tests[k]["below"] for k in judge)
             # Every row the test does not put clearly above the wrong model.
             c["wrong_not_below"] = sorted(k for k, t in tests.items() if not t["below"])
-        loud = [k for k, r in at.items() if r.get("kind") == "loud"]
+        # The control is the loud row at the default factor (a row given no factor first); every
+        # loud row, at any factor, is tested against HG the same way (``loud_rows_vs_hg``).
+        loud = sorted((k for k, r in at.items() if r.get("kind") == "loud"), key=lambda k: "factor" in at[k])
         if loud and hg:
             lo, h = at[loud[0]], at[hg[0]]
+            c["loud_rows_vs_hg"] = {
+                k: {"factor": at[k].get("factor", 2.0), **paired_below(at[k].get("psnr_per_seed", {}), h.get("psnr_per_seed", {}))}
+                for k in loud
+            }
             c["loud_margin_db"] = mean[hg[0]] - mean[loud[0]]
             c["loud_vs_hg"] = paired_below(lo.get("psnr_per_seed", {}), h.get("psnr_per_seed", {}))
             c["loud_below_hg"] = c["loud_vs_hg"]["below"]
