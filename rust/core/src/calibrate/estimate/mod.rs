@@ -20,7 +20,8 @@
 //! 3. **Pools**: bin `b`'s PMF is the sum of its own histogram and of its nearest unclipped
 //!    neighbours' histograms, taken ring by ring (both sides at the same distance together)
 //!    until the pool holds at least `m` samples; each neighbour `j` is moved onto `b` by the law
-//!    (mean shifted by `μ(b) − μ(j)`, variance scaled by `v(b)/v(j)`, its own shape kept). With
+//!    (mean shifted by `μ(b) − μ(j)`, or onto `b`'s own mean where its samples alone put it off
+//!    the law, variance scaled by `v(b)/v(j)`, its own shape kept). With
 //!    `m = 0` a bin is its own histogram, and an empty bin takes its nearest measured ring: the
 //!    plain empirical estimator. To the pool is added one pseudo-sample spread as a discretised
 //!    Laplace law with the law's mean and variance (weight `1/(N+1)` of an `N`-sample pool), so
@@ -317,7 +318,7 @@ pub(crate) fn estimate_position_among(
             let (acc, cum) = out.unwrap_or_default();
             let (mu, var) = match nearest {
                 Some(j) => (data.stats[j].mean, data.stats[j].var.max(MIN_VAR)),
-                None => (data.law.mean[b], data.law.var[b]),
+                None => (data.centre[b], data.law.var[b]),
             };
             let eps = 1.0 / (cum as f64 + 1.0);
             let mut mix = Acc::default();

@@ -119,6 +119,10 @@ pub(super) struct Data<'a> {
     pub(super) pmfs: Vec<Option<Pmf>>,
     pub(super) law: Law,
     pub(super) clipped: &'a [bool],
+    /// Per bin, the mean its pool is centred on ([`Data::moved`]) and its prior takes: the law's,
+    /// or the bin's own where its samples alone put it off the law's and it keeps its mean
+    /// ([`Data::means_on_law`]).
+    pub(super) centre: Vec<f64>,
 }
 
 impl<'a> Data<'a> {
@@ -132,7 +136,8 @@ impl<'a> Data<'a> {
             })
             .collect();
         let law = Law::fit(&stats, clipped, levels);
-        Self { stats, pmfs, law, clipped }
+        let centre = law.mean.clone();
+        Self { stats, pmfs, law, clipped, centre }
     }
 
     /// The same data with the clean image's selection undone in every unclipped bin: its mean
@@ -161,6 +166,7 @@ impl<'a> Data<'a> {
         }
         if moved {
             self.law = Law::fit(&self.stats, self.clipped, levels);
+            self.centre = self.law.mean.clone();
         }
         self
     }
@@ -233,6 +239,17 @@ impl<'a> Data<'a> {
             hi
         };
         for &(b, d, se2) in &dev {
+            // An unclipped bin whose own samples put its mean off the law's by more than
+            // `MEAN_LIMIT_SE` of their own standard error keeps that mean in its pool as well
+            // (unless moved onto the law below): at sub-DN noise a level's noise about its
+            // rounded clean level has the mean of where the level falls in its code, and
+            // neighbours a code apart differ by up to ±0.5 DN, which `κ²` (inflated by that very
+            // alternation) cannot tell from burst offsets. Centred on the law's mean, a sparse
+            // bin pooled with them took their mean (EMVA set 002, position 1, 2 DN above black:
+            // +0.295 DN against its own 168 samples' −0.286).
+            if !self.clipped[b] && d.abs() > MEAN_LIMIT_SE * se2.sqrt() {
+                self.centre[b] = self.stats[b].mean;
+            }
             if d.abs() > MEAN_LIMIT_SE * (se2 + kappa2).sqrt()
                 || (!self.clipped[b] && d.abs() > MEAN_LIMIT_SD * self.stats[b].var.sqrt())
                 || d.abs() < 1e-3
@@ -241,18 +258,7 @@ impl<'a> Data<'a> {
             }
             if let Some(p) = self.pmfs[b].as_ref() {
                 let s = self.stats[b];
-                // A fractional move on the integers changes a narrow PMF's variance a little
-                // (3 % at 3.5 DN²): a few corrections of the target put it back.
-                let mut target = s.var;
-                let mut moved = p.rescaled(s.mean - d, target);
-                for _ in 0..3 {
-                    let (_, got) = moved.moments();
-                    if got.is_nan() || got <= 0.0 || (got / s.var - 1.0).abs() < 1e-3 {
-                        break;
-                    }
-                    target *= s.var / got;
-                    moved = p.rescaled(s.mean - d, target);
-                }
+                let moved = rescaled_keeping_var(p, s.mean - d, s.var, false);
                 // Below about 1/6 DN² the unit cells of the rescale are wider than the noise
                 // (its Sheppard term leaves almost nothing to scale): a PMF over three codes
                 // may come back as one. A move that cannot keep the variance is not made.
@@ -263,6 +269,7 @@ impl<'a> Data<'a> {
                 }
                 self.pmfs[b] = Some(moved);
                 self.stats[b].mean -= d;
+                self.centre[b] = self.law.mean[b];
             }
         }
         self
@@ -274,15 +281,27 @@ impl<'a> Data<'a> {
         if j == b {
             return Some(p.clone());
         }
-        // Centred on the law's mean at `b` (a sparse neighbour's own mean is mostly sampling
-        // noise, which would widen the pool), its spread scaled by the law's variance ratio.
+        // Centred on `b`'s centre, the law's mean unless `b`'s own samples say otherwise (a
+        // sparse neighbour's own mean is mostly sampling noise, which would widen the pool), its
+        // spread scaled by the law's variance ratio.
         let s = self.stats[j];
-        let target = self.law.mean[b];
+        let target = self.centre[b];
         let ratio = self.law.var[b] / self.law.var[j].max(MIN_VAR);
         if (target - s.mean).abs() < 0.01 && (ratio - 1.0).abs() < 0.002 {
             return Some(p.clone());
         }
-        Some(p.rescaled(target, (s.var * ratio).max(MIN_VAR)))
+        let var = (s.var * ratio).max(MIN_VAR);
+        // A bin keeping its own mean is often one at sub-DN noise, where a neighbour moved by
+        // a fraction of a code comes back wider (σ 0.3 DN, +0.35 → −0.25 DN: 0.217 → 0.27 DN²
+        // uncorrected): the move keeps the mean and variance as the moves onto the law do, and
+        // a neighbour whose move cannot keep the variance within `MOVE_VAR_TOLERANCE` is not
+        // pooled (σ 0.45 DN, +0.34 → −0.37 DN came back 0.34 against 0.30 DN²).
+        if target != self.law.mean[b] {
+            let moved = rescaled_keeping_var(p, target, var, true);
+            let (_, got) = moved.moments();
+            return ((got / var - 1.0).abs() < MOVE_VAR_TOLERANCE).then_some(moved);
+        }
+        Some(p.rescaled(target, var))
     }
 
     /// Rings of pooling partners of bin `b`, nearest first: unclipped bins with samples. A
@@ -314,6 +333,28 @@ impl<'a> Data<'a> {
         }
         rings
     }
+}
+
+/// `p` moved to mean `mu` with variance `var`: a fractional move on the integers changes a narrow
+/// PMF's variance a little (3 % at 3.5 DN², more at sub-DN noise), and a few corrections of the
+/// target put it back where the cells allow. With `keep_mean` the mean is corrected the same way
+/// (at sub-DN noise the cells moved a fraction of a code miss it by up to 0.05 DN).
+fn rescaled_keeping_var(p: &Pmf, mu: f64, var: f64, keep_mean: bool) -> Pmf {
+    let (mut target, mut at) = (var, mu);
+    let mut moved = p.rescaled(at, target);
+    for _ in 0..3 {
+        let (m, got) = moved.moments();
+        let mean_off = keep_mean && (m - mu).abs() >= 1e-3;
+        if got.is_nan() || got <= 0.0 || ((got / var - 1.0).abs() < 1e-3 && !mean_off) {
+            break;
+        }
+        target *= var / got;
+        if keep_mean {
+            at += mu - m;
+        }
+        moved = p.rescaled(at, target);
+    }
+    moved
 }
 
 /// Pools bin `b` ring by ring and calls `visit(k, pool, pool_samples)` once for each threshold
