@@ -25,7 +25,7 @@ use crate::derive::structure::{derived_structure_sources, structure_at};
 use crate::error::{CodecError, Error, ModelError};
 use crate::format::lazy_pack::LazyPack;
 use crate::model::layout::{BlackAlignment, POSITIONS, SensorLayout};
-use crate::model::pack::{BinModel, IsoModel, ModelOrigin};
+use crate::model::pack::{IsoModel, ModelOrigin};
 use crate::model::structure::Components;
 use crate::synth::CleanAt;
 use crate::synth::sampler::{IsoSampler, carried_gain_ratio};
@@ -169,9 +169,7 @@ pub fn sampler_for(
     clean_at: CleanAt,
     extrapolate: bool,
 ) -> Result<IsoSampler, ModelError> {
-    // The bins the tables were built from (deconvolved with structured components), which the
-    // fine levels at the target brightness read again.
-    let (sampler, deconvolved) = IsoSampler::with_components_kept(pack, model, which);
+    let sampler = IsoSampler::with_components(pack, model, which);
     if clean_at == CleanAt::Reference {
         return baseline_levels(pack, model, kind, sampler, [1.0; POSITIONS], extrapolate);
     }
@@ -183,13 +181,13 @@ pub fn sampler_for(
     if kind != ModelKind::Noisecal {
         return baseline_levels(pack, model, kind, sampler, gains, extrapolate);
     }
-    // Near black, the levels of a bin too wide for the noise there at their own reference level.
+    // Near black, the levels of a bin too wide for the noise there at their own reference level
+    // (made from the model's own bins, deconvolved by the sampler as its bins are).
     let fine = std::array::from_fn(|p| {
         let own = &model.positions[p].bins;
-        let bins = || Cow::Borrowed(deconvolved.as_ref().map_or(&own[..], |d| &d[p][..]));
-        target_fine_levels(pack, model, p, bins, gains[p])
+        target_fine_levels(pack, model, p, || Cow::Borrowed(&own[..]), gains[p])
     });
-    Ok(sampler.with_target_fine_levels(fine))
+    Ok(sampler.with_target_fine_levels(model, fine))
 }
 
 /// A parametric baseline's sampler drawing at each clean level from its law at that level (its
@@ -221,18 +219,8 @@ impl IsoSampler {
     /// its ISO: stored, or derived from the calibrated ISOs ([`structure_at`]), then handed to
     /// the sampler ([`IsoSampler::with_structure`]); the sampler itself derives nothing.
     pub fn with_components(pack: &ModelPack, model: &IsoModel, which: Components) -> Self {
-        Self::with_components_kept(pack, model, which).0
-    }
-
-    /// [`Self::with_components`], and the deconvolved bins its tables were built from
-    /// ([`IsoSampler::with_structure_kept`]).
-    fn with_components_kept(
-        pack: &ModelPack,
-        model: &IsoModel,
-        which: Components,
-    ) -> (Self, Option<[Vec<BinModel>; POSITIONS]>) {
         let structure = if which.structured() { structure_at(pack, model.iso) } else { None };
-        Self::with_structure_kept(pack, model, structure.as_ref(), which)
+        Self::with_structure(pack, model, structure.as_ref(), which)
     }
 }
 

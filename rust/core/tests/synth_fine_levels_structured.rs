@@ -70,3 +70,32 @@ fn at_black_the_default_draws_pixel_only_less_the_offsets() {
         p / REAL_AT_BLACK
     );
 }
+
+/// The same at the target ISO's brightness (`CleanAt::Target`, `resolve::sampler_for`): the fine
+/// levels there are made for the target's levels, and must be drawn as at the reference
+/// brightness, pixel-only's tables with the offsets taken out, not made from the deconvolved
+/// bins (which drew the wrong order's excess at black).
+#[test]
+fn at_black_the_default_draws_pixel_only_less_the_offsets_at_the_target_brightness() {
+    use noisecal_core::resolve::{ModelKind, sampler_for};
+    use noisecal_core::synth::CleanAt;
+    let pack = ModelPack::from_bytes(PACK).expect("the set 002 pack loads");
+    let iso = pack.isos[0].iso;
+    let model = pack.iso(iso).expect("its ISO");
+    let st = pack.structure_of(iso);
+    let fpn = st.and_then(|s| s.fpn.as_ref()).expect("a fixed pattern from the dark burst");
+    let pattern = (0..4).map(|p| fpn.variance(p)).sum::<f64>() / 4.0;
+    let at = |which| sampler_for(&pack, model, ModelKind::Noisecal, which, CleanAt::Target, false).expect("a sampler");
+    let (default, pixel) = (at(Components::ALL), at(Components::PIXEL));
+    let (d, dm) = drawn(&default, BLACK_CODE, 4);
+    let (p, pm) = drawn(&pixel, BLACK_CODE, 4);
+    eprintln!(
+        "at black, target brightness (gain ratios {:?}): default {d:.4} (mean {dm:+.3}), pixel-only {p:.4} (mean {pm:+.3}), pattern {pattern:.4} DN²",
+        model.gain_ratio
+    );
+    assert!(
+        d - p < pattern + 0.03,
+        "at the target brightness the default adds {:.4} DN² to pixel-only at black (pattern {pattern:.4})",
+        d - p
+    );
+}

@@ -321,6 +321,28 @@ fn floor_noise(binning: &Binning, pos: usize, floor: u16, i: usize, bin: &BinMod
     FloorReach { noise: i32::from(floor) - lowest, pile_known: 16.0 * w * w <= var }
 }
 
+/// Fine levels `fine` of position `p` made from `model`'s own bins (pixel-only's tables), for a
+/// sampler adding the structured components `st`: each table deconvolved as the bin it was made
+/// from is ([`StructureSampler::deconvolved_tables`]), that bin read from `lut`, the sampler's
+/// map of clean levels to bins before the fine levels are added (the reference levels' own, or
+/// the target's at the target brightness), at the table's first level.
+fn deconvolved_fine_levels(
+    st: &StructureSampler,
+    binning: &Binning,
+    model: &IsoModel,
+    p: usize,
+    lut: &[u16],
+    mut fine: FineLevels,
+) -> FineLevels {
+    let own = &model.positions[p].bins;
+    let floor = |i: usize| Some(floor_noise(binning, p, model.range[p][0], i, &own[i]));
+    let first = |t: usize| fine.lut.iter().position(|&k| k as usize == own.len() + t);
+    let source: Vec<usize> =
+        (0..fine.extra.len()).map(|t| first(t).and_then(|l| lut.get(l)).map_or(0, |&b| b as usize)).collect();
+    fine.extra = st.deconvolved_tables(p, &fine.extra, own.len(), |t| source[t], floor);
+    fine
+}
+
 /// One past the highest bin `lut` maps a level up to `top` to.
 fn bins_up_to(lut: &[u16], top: u16) -> usize {
     lut.iter().take(top as usize + 1).map(|&b| b as usize + 1).max().unwrap_or(0)
@@ -337,20 +359,6 @@ impl IsoSampler {
         structure: Option<&IsoStructure>,
         which: Components,
     ) -> Self {
-        Self::with_structure_kept(pack, model, structure, which).0
-    }
-
-    /// [`Self::with_structure`], and, when it adds structured components, each position's bins
-    /// with their offsets taken out ([`StructureSampler::deconvolved`]) as its tables were built
-    /// from: for a caller that needs those bins again (the fine levels at the target
-    /// brightness), which would otherwise deconvolve every bin a second time. `None` when the
-    /// tables were built from the model's own bins.
-    pub(crate) fn with_structure_kept(
-        pack: &ModelPack,
-        model: &IsoModel,
-        structure: Option<&IsoStructure>,
-        which: Components,
-    ) -> (Self, Option<[Vec<BinModel>; POSITIONS]>) {
         Self::build(pack, model, structure, which, None)
     }
 
@@ -368,18 +376,17 @@ impl IsoSampler {
         which: Components,
         top: u16,
     ) -> Self {
-        Self::build(pack, model, structure, which, Some(top)).0
+        Self::build(pack, model, structure, which, Some(top))
     }
 
-    /// [`Self::with_structure_kept`], or [`Self::built_up_to`] with `top` (then no bins
-    /// are returned).
+    /// [`Self::with_structure`], or [`Self::built_up_to`] with `top`.
     fn build(
         pack: &ModelPack,
         model: &IsoModel,
         structure: Option<&IsoStructure>,
         which: Components,
         top: Option<u16>,
-    ) -> (Self, Option<[Vec<BinModel>; POSITIONS]>) {
+    ) -> Self {
         let structure = structure.filter(|_| which.structured()).and_then(|st| StructureSampler::new(st, which));
         let binning = pack.binning();
         let mut luts: [Vec<u16>; POSITIONS] = std::array::from_fn(|p| binning.lut(p));
@@ -396,14 +403,8 @@ impl IsoSampler {
                     let bins = st.deconvolved_at_floor_in(p, own, floor, 0..used);
                     // The fine levels of the model's own bins (pixel-only's tables), each table
                     // then deconvolved as the bin it was made from.
-                    let fine = position_fine_levels(pack, model, p, own).map(|mut f| {
-                        let lut = &luts[p];
-                        let first = |t: usize| f.lut.iter().position(|&k| k as usize == own.len() + t);
-                        let source: Vec<usize> =
-                            (0..f.extra.len()).map(|t| first(t).map_or(0, |l| lut[l] as usize)).collect();
-                        f.extra = st.deconvolved_tables(p, &f.extra, own.len(), |t| source[t], floor);
-                        f
-                    });
+                    let fine = position_fine_levels(pack, model, p, own)
+                        .map(|f| deconvolved_fine_levels(st, &binning, model, p, &luts[p], f));
                     (Cow::Owned(bins), fine)
                 }
                 None => (Cow::Borrowed(&own[..]), position_fine_levels(pack, model, p, own)),
@@ -439,8 +440,7 @@ impl IsoSampler {
             let c = c.min(white);
             [f.min(c) as i32, c as i32]
         });
-        let kept = (structure.is_some() && top.is_none()).then(|| sources.map(|(bins, _)| bins.into_owned()));
-        (Self { iso: model.iso, white, binning, luts, tables, snaps, range, structure, target: None }, kept)
+        Self { iso: model.iso, white, binning, luts, tables, snaps, range, structure, target: None }
     }
 
     /// The same sampler for clean images at the brightness `clean_at` says
@@ -493,13 +493,25 @@ impl IsoSampler {
 
     /// For clean images at the target brightness: the levels near black whose bin is too wide
     /// draw from the tables `fine` holds per position for them, each at the variance of its own
-    /// reference level rather than of that level rounded (`derive::fine_levels::target_fine_levels`; its `lut` is
-    /// indexed by the target's levels, its tables after the bins). Unchanged for a sampler at
-    /// the reference brightness, and at a position whose tables would pass 16-bit indices.
-    pub fn with_target_fine_levels(self, fine: [Option<FineLevels>; POSITIONS]) -> Self {
-        if self.target.is_none() {
+    /// reference level rather than of that level rounded (`derive::fine_levels::target_fine_levels`
+    /// of `model`'s own bins; its `lut` is indexed by the target's levels, its tables after the
+    /// bins). With structured components each table is deconvolved as the bin it was made from,
+    /// as at the reference brightness. Unchanged for a sampler at the reference brightness, and
+    /// at a position whose tables would pass 16-bit indices.
+    pub fn with_target_fine_levels(self, model: &IsoModel, fine: [Option<FineLevels>; POSITIONS]) -> Self {
+        let Some(target) = self.target.as_ref() else {
             return self;
-        }
+        };
+        let fine = match &self.structure {
+            Some(st) => {
+                let mut fine = fine;
+                for (p, f) in fine.iter_mut().enumerate() {
+                    *f = f.take().map(|f| deconvolved_fine_levels(st, &self.binning, model, p, &target.luts[p], f));
+                }
+                fine
+            }
+            None => fine,
+        };
         self.with_level_tables(fine)
     }
 
