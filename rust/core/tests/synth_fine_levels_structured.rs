@@ -20,6 +20,15 @@ const BLACK_CODE: u16 = 3;
 /// `tests/bench/emva1288_black.py`, "real −round").
 const REAL_AT_BLACK: f64 = 0.0921;
 
+/// The set 002 pack, its model and the fixed pattern's variance (mean over positions).
+fn set002() -> (ModelPack, f64) {
+    let pack = ModelPack::from_bytes(PACK).expect("the set 002 pack loads");
+    let st = pack.structure_of(pack.isos[0].iso);
+    let fpn = st.and_then(|s| s.fpn.as_ref()).expect("a fixed pattern from the dark burst");
+    let pattern = (0..4).map(|p| fpn.variance(p)).sum::<f64>() / 4.0;
+    (pack, pattern)
+}
+
 /// Variance and mean of `noisy − code` over `seeds` flat images at `code`.
 fn drawn(sampler: &IsoSampler, code: u16, seeds: u64) -> (f64, f64) {
     let mut v = Vec::new();
@@ -41,12 +50,10 @@ fn drawn(sampler: &IsoSampler, code: u16, seeds: u64) -> (f64, f64) {
 /// black wider (0.135 DN²) than pixel-only's (0.097) before any offset was added.
 #[test]
 fn at_black_the_default_draws_pixel_only_less_the_offsets() {
-    let pack = ModelPack::from_bytes(PACK).expect("the set 002 pack loads");
+    let (pack, pattern) = set002();
     let iso = pack.isos[0].iso;
     let model = pack.iso(iso).expect("its ISO");
     let st = pack.structure_of(iso);
-    let fpn = st.and_then(|s| s.fpn.as_ref()).expect("a fixed pattern from the dark burst");
-    let pattern = (0..4).map(|p| fpn.variance(p)).sum::<f64>() / 4.0;
     let default = IsoSampler::with_structure(&pack, model, st, Components::ALL);
     let pixel = IsoSampler::with_structure(&pack, model, st, Components::PIXEL);
     let (d, dm) = drawn(&default, BLACK_CODE, 4);
@@ -79,12 +86,8 @@ fn at_black_the_default_draws_pixel_only_less_the_offsets() {
 fn at_black_the_default_draws_pixel_only_less_the_offsets_at_the_target_brightness() {
     use noisecal_core::resolve::{ModelKind, sampler_for};
     use noisecal_core::synth::CleanAt;
-    let pack = ModelPack::from_bytes(PACK).expect("the set 002 pack loads");
-    let iso = pack.isos[0].iso;
-    let model = pack.iso(iso).expect("its ISO");
-    let st = pack.structure_of(iso);
-    let fpn = st.and_then(|s| s.fpn.as_ref()).expect("a fixed pattern from the dark burst");
-    let pattern = (0..4).map(|p| fpn.variance(p)).sum::<f64>() / 4.0;
+    let (pack, pattern) = set002();
+    let model = pack.iso(pack.isos[0].iso).expect("its ISO");
     let at = |which| sampler_for(&pack, model, ModelKind::Noisecal, which, CleanAt::Target, false).expect("a sampler");
     let (default, pixel) = (at(Components::ALL), at(Components::PIXEL));
     let (d, dm) = drawn(&default, BLACK_CODE, 4);
