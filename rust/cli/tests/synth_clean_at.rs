@@ -102,6 +102,13 @@ fn clean_at_target_adds_noise_without_mean_shift() {
         assert!((mr - shift).abs() <= 3.0 * ser + 0.5 + 0.005 * c, "level {c:.0}: default {mr:+.2} DN vs {shift:+.2}");
     }
 
+    // A single image at the target brightness (built for its levels alone) says which gain
+    // ratios divide its levels, as a folder's run does.
+    let (c, o) = (s(&clean_path), s(&dir.path().join("told.dng")));
+    let p = s(&pack_path);
+    let told = support::run(["synth", "--pack", &p, "--iso", "800", "--clean-at", "target", &c, "-o", &o]);
+    assert!(told.ok && told.stderr.contains("divided by the gain ratios"), "{}", told.stderr);
+
     // A wrong value names the option and its values.
     let (c, o) = (s(&clean_path), s(&dir.path().join("bad.dng")));
     let p = s(&pack_path);

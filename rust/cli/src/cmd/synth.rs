@@ -118,8 +118,7 @@ pub fn run(args: Args, quiet: bool) -> anyhow::Result<()> {
         let model = resolved.model;
         if args.clean_at == CleanAt::Target
             && !quiet
-            && let RunSampler::Full(s) = &sampler
-            && let Some(g) = s.target_gains()
+            && let Some(g) = sampler.target_gains()
             && g.iter().any(|g| (g - 1.0).abs() > 0.02)
         {
             eprintln!(
@@ -254,6 +253,14 @@ enum RunSampler {
 }
 
 impl RunSampler {
+    /// The gain ratios clean levels are divided by (clean images at the target brightness).
+    fn target_gains(&self) -> Option<[f64; noisecal_core::POSITIONS]> {
+        match self {
+            RunSampler::Full(s) => s.target_gains(),
+            RunSampler::UpTo(s) => s.target_gains(),
+        }
+    }
+
     fn set_pattern_cache_bytes(&self, bytes: usize) {
         match self {
             RunSampler::Full(s) => s.set_pattern_cache_bytes(bytes),

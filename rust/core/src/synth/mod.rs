@@ -51,10 +51,8 @@ pub fn synthesize_at(
     seed: u64,
     origin: (usize, usize),
 ) -> Array2<u16> {
-    match synthesize_guarded(sampler, clean, seed, origin, |_| Ok::<(), Infallible>(())) {
-        Ok(out) => out,
-        Err(never) => match never {},
-    }
+    let Ok(out) = synthesize_guarded(sampler, clean, seed, origin, |_| Ok::<(), Infallible>(()));
+    out
 }
 
 /// [`synthesize_at`], each band drawn only once `guard(band)` lets it: the first refusal is
@@ -87,10 +85,7 @@ pub fn synthesize_bands<F>(sampler: &IsoSampler, clean: ArrayView2<'_, u16>, see
 where
     F: Fn(usize, &[u16]) + Sync,
 {
-    match synthesize_bands_guarded(sampler, clean, seed, origin, sink, |_| Ok::<(), Infallible>(())) {
-        Ok(()) => {}
-        Err(never) => match never {},
-    }
+    let Ok(()) = synthesize_bands_guarded(sampler, clean, seed, origin, sink, |_| Ok::<(), Infallible>(()));
 }
 
 /// [`synthesize_bands`], each band drawn (and sunk) only once `guard(band)` lets it: the first

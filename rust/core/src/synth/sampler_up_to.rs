@@ -70,6 +70,11 @@ impl SamplerUpTo {
         self.sampler.iso
     }
 
+    /// [`IsoSampler::target_gains`].
+    pub fn target_gains(&self) -> Option<[f64; crate::POSITIONS]> {
+        self.sampler.target_gains()
+    }
+
     /// The table a clean level at a position draws from; `None` above [`Self::top`].
     pub fn table(&self, pos: usize, level: u16) -> Option<&BinTable> {
         (level <= self.top).then(|| self.sampler.table(pos, level))
