@@ -2,7 +2,14 @@
 //! Kotlin `NoisecalSession.pushFrame` reaches through the JNI layer, on Camera2-like planes
 //! (little-endian bytes, rows padded by 64 bytes), for reference frames and for target frames
 //! (registration included). No JVM: the JNI functions only hand the plane's bytes to this call.
-//! Run with `cargo bench -p noisecal-jni --bench push_plane`.
+//! Run with `cargo bench -p noisecal-jni --bench push_plane`; with `NOISECAL_BENCH_LOOP=n`,
+//! instead n planes of each in a plain loop, wall and CPU time per plane (as the core's
+//! accumulation bench: on a shared machine CPU time compares two builds where wall time measures
+//! the neighbours).
+
+#[path = "../../core/benches/support/mod.rs"]
+mod support;
+use support::cpu_seconds;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use noisecal_jni::session::{CreateParams, NativeSession, PlaneParams};
@@ -75,6 +82,33 @@ fn benches(c: &mut Criterion) {
         session.push_plane(p, &ref_params).expect("push");
     }
 
+    if let Some(n) = std::env::var("NOISECAL_BENCH_LOOP").ok().and_then(|s| s.parse::<usize>().ok()) {
+        let threads = std::thread::available_parallelism().map_or(1, |t| t.get());
+        let threads = std::env::var("RAYON_NUM_THREADS").ok().and_then(|s| s.parse().ok()).unwrap_or(threads);
+        let per_plane = |what: &str, t0: std::time::Instant, c0: f64| {
+            let (wall, cpu) = (t0.elapsed().as_secs_f64() / n as f64, (cpu_seconds() - c0) / n as f64);
+            let mpix = (W * H) as f64 / 1e6;
+            println!(
+                "JNI push, {what}: {n} planes on {threads} thread(s): wall {:.1} ms ({:.0} Mpix/s), cpu {:.1} ms ({:.0} Mpix/s per thread)",
+                wall * 1e3,
+                mpix / wall,
+                cpu * 1e3,
+                mpix / cpu
+            );
+        };
+        let (t0, c0) = (std::time::Instant::now(), cpu_seconds());
+        for k in 0..n {
+            references.push_plane(&refs[k % refs.len()], &ref_params).expect("push");
+        }
+        per_plane("reference plane", t0, c0);
+        session.push_plane(&targets[0], &tgt_params).expect("push");
+        let (t0, c0) = (std::time::Instant::now(), cpu_seconds());
+        for k in 0..n {
+            session.push_plane(&targets[k % targets.len()], &tgt_params).expect("push");
+        }
+        per_plane("target plane", t0, c0);
+        return;
+    }
     let mut g = c.benchmark_group("JNI push 12MP");
     g.throughput(Throughput::Elements((W * H) as u64));
     g.sample_size(10);
