@@ -356,8 +356,9 @@ fn fold_rows(
         if let Some((codes0, codes1)) = apart.as_mut() {
             count_codes(crow, row, top, codes0, codes1);
         }
-        // Even columns are position `2·parity`, odd ones `2·parity + 1`: one pass over the
-        // row's column pairs feeds both, each pixel's window found by its clean level.
+        // Even columns are position `2·parity`, odd ones `2·parity + 1`: the row feeds both,
+        // each pixel's window found by its clean level (a moved frame in one pass over the
+        // column pairs, a still one in a pass per position, `count_pairs`).
         if motion.is_some() {
             let mut even =
                 PositionCounts::new(p0 as u8, &mut window0, &mut *hist0, by_level.then_some(&mut *codes_out0));

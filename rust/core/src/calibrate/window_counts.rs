@@ -250,11 +250,12 @@ pub(crate) type Outside = Vec<(u32, i32)>;
 /// samples outside their windows are not added anywhere but listed in `outside` (even, odd), in
 /// column order, for the caller to add to the histograms.
 ///
-/// The one loop of the target accumulation that runs per sample: its tables are local slices
-/// whose lengths the indexing can be checked against once (the levels end at the not-flat
-/// level, the counts are a power of two long), so a sample costs a load of its level's
-/// window, a compare and an increment.
-#[inline(never)]
+/// The one loop of the target accumulation that runs per sample: one pass over the row per
+/// position, so that a pass holds one position's tables in registers (both at once spilled
+/// them to the stack, a reload per sample); its tables are local slices whose lengths the
+/// indexing can be checked against once (the levels end at the not-flat level, the counts are a
+/// power of two long), so a sample costs a load of its level's window, a compare and an
+/// increment. The positions' counts are apart, so the order of the passes changes nothing.
 pub(crate) fn count_pairs(
     even: &mut WindowCounts<'_>,
     odd: &mut WindowCounts<'_>,
@@ -263,10 +264,18 @@ pub(crate) fn count_pairs(
     outside: [&mut Outside; 2],
 ) {
     let [out0, out1] = outside;
-    let (nf0, nf1) = (even.not_flat(), odd.not_flat());
-    let (levels0, levels1) = (&even.levels[..=nf0], &odd.levels[..=nf1]);
-    let (mask0, mask1) = (even.counts.len() - 1, odd.counts.len() - 1);
-    let (counts0, counts1) = (&mut even.counts[..=mask0], &mut odd.counts[..=mask1]);
+    let n = crow.len().min(noise.len());
+    count_position::<0>(even, &crow[..n], &noise[..n], out0);
+    count_position::<1>(odd, &crow[..n], &noise[..n], out1);
+}
+
+/// [`count_pairs`] of one position: the columns `x ≡ P (mod 2)` of the row, lane `⌊x/2⌋`.
+#[inline(never)]
+fn count_position<const P: usize>(w: &mut WindowCounts<'_>, crow: &[u16], noise: &[i32], out: &mut Outside) {
+    let nf = w.not_flat();
+    let levels = &w.levels[..=nf];
+    let mask = w.counts.len() - 1;
+    let counts = &mut w.counts[..=mask];
     let n = crow.len().min(noise.len());
     let (crow, noise) = (&crow[..n], &noise[..n]);
     #[inline(always)]
@@ -292,17 +301,11 @@ pub(crate) fn count_pairs(
     let (whole, pairs) = (n - n % (2 * LANES), 2 * LANES);
     for (c, v) in crow[..whole].chunks_exact(pairs).zip(noise[..whole].chunks_exact(pairs)) {
         for lane in 0..LANES {
-            one(levels0, counts0, mask0, nf0, c[2 * lane], v[2 * lane], lane, out0);
-            one(levels1, counts1, mask1, nf1, c[2 * lane + 1], v[2 * lane + 1], lane, out1);
+            one(levels, counts, mask, nf, c[2 * lane + P], v[2 * lane + P], lane, out);
         }
     }
-    for x in whole..n {
-        let lane = (x >> 1) & (LANES - 1);
-        if x % 2 == 0 {
-            one(levels0, counts0, mask0, nf0, crow[x], noise[x], lane, out0);
-        } else {
-            one(levels1, counts1, mask1, nf1, crow[x], noise[x], lane, out1);
-        }
+    for x in (whole..n).filter(|x| x % 2 == P) {
+        one(levels, counts, mask, nf, crow[x], noise[x], (x >> 1) & (LANES - 1), out);
     }
 }
 
