@@ -252,9 +252,9 @@ pub struct CleanInputs<'a> {
 }
 
 /// Values per (position, level group) that `fill` gathers row by row over `rows`: the rows in
-/// parallel, a run of them per task, each group's values then joined in row order, so that
-/// every group holds the same values in the same order as one pass over the rows would give.
-fn grouped_by_rows(rows: &[usize], fill: impl Fn(usize, &mut Vec<Vec<f32>>) + Sync) -> Vec<Vec<f32>> {
+/// parallel, a run of them per task. [`Grouped::joined`] gives each group's values in row order,
+/// the same values in the same order as one pass over the rows would give.
+fn grouped_by_rows(rows: &[usize], fill: impl Fn(usize, &mut Vec<Vec<f32>>) + Sync) -> Grouped {
     const RUN: usize = 16;
     let parts: Vec<Vec<Vec<f32>>> = rows
         .par_chunks(RUN)
@@ -266,14 +266,31 @@ fn grouped_by_rows(rows: &[usize], fill: impl Fn(usize, &mut Vec<Vec<f32>>) + Sy
             part
         })
         .collect();
-    let mut out: Vec<Vec<f32>> =
-        (0..POSITIONS * GROUPS).map(|g| Vec::with_capacity(parts.iter().map(|p| p[g].len()).sum())).collect();
-    for part in parts {
-        for (o, p) in out.iter_mut().zip(part) {
-            o.extend_from_slice(&p);
-        }
+    Grouped { parts }
+}
+
+/// [`grouped_by_rows`]' values, per run of rows. A group's values are joined only when asked
+/// for, one group at a time into the caller's buffer: joining every group into vectors of its
+/// own put a fresh copy of all of them (12 MB at 12 MP) into pages faulted in for it.
+struct Grouped {
+    /// Per run of rows, in row order: the values per (position, level group).
+    parts: Vec<Vec<Vec<f32>>>,
+}
+
+impl Grouped {
+    /// How many values group `g` holds.
+    fn len(&self, g: usize) -> usize {
+        self.parts.iter().map(|p| p[g].len()).sum()
     }
-    out
+
+    /// Group `g`'s values in row order, in `buf` (cleared first).
+    fn joined<'b>(&self, g: usize, buf: &'b mut Vec<f32>) -> &'b mut [f32] {
+        buf.clear();
+        for p in &self.parts {
+            buf.extend_from_slice(&p[g]);
+        }
+        buf
+    }
 }
 
 /// What the flat test gives ([`clean_and_mask`]).
@@ -307,7 +324,7 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> FlatImage {
     // dominate those; edges are spread thin over many levels).
     let row_step = if h > 512 { 4 } else { 1 };
     let sampled: Vec<usize> = (0..h).step_by(row_step * 2).flat_map(|y| [y, y + 1]).filter(|&y| y < h).collect();
-    let mut diffs = grouped_by_rows(&sampled, |y, diffs| {
+    let diffs = grouped_by_rows(&sampled, |y, diffs| {
         for x in 0..w.saturating_sub(2) {
             let i = y * w + x;
             let pos = position(y, x);
@@ -318,14 +335,16 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> FlatImage {
     });
     let mut report = FlatReport::default();
     let mut spatial: [Vec<f64>; POSITIONS] = Default::default();
+    let mut buf = Vec::new();
     for pos in 0..POSITIONS {
-        let total: usize = (0..GROUPS).map(|g| diffs[pos * GROUPS + g].len()).sum();
+        let total: usize = (0..GROUPS).map(|g| diffs.len(pos * GROUPS + g)).sum();
         let (mut xs, mut ys, mut ws) = (Vec::new(), Vec::new(), Vec::new());
         for g in 0..GROUPS {
-            let v = &mut diffs[pos * GROUPS + g];
-            if v.len() < 32 || (v.len() as f64) < 0.01 * total as f64 {
+            let len = diffs.len(pos * GROUPS + g);
+            if len < 32 || (len as f64) < 0.01 * total as f64 {
                 continue;
             }
+            let v = diffs.joined(pos * GROUPS + g, &mut buf);
             let mid = v.len() / 2;
             let (_, med, _) = v.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
             let sigma = 1.4826 * *med as f64;
@@ -389,16 +408,17 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> FlatImage {
     let mut group_medians = vec![f64::NAN; POSITIONS * GROUPS];
     let mut group_pixels = vec![0usize; POSITIONS * GROUPS];
     if inp.frames >= 2 {
-        let mut vars = grouped_by_rows(&sampled, |y, vars| {
+        let vars = grouped_by_rows(&sampled, |y, vars| {
             for x in 0..w {
                 let i = y * w + x;
                 let pos = position(y, x);
                 vars[pos * GROUPS + groups.group(pos, mean(i) as f32)].push(pixel_var(i) as f32);
             }
         });
-        for ((gm, n), v) in group_medians.iter_mut().zip(group_pixels.iter_mut()).zip(vars.iter_mut()) {
-            *n = v.len();
-            if v.len() >= 32 {
+        for (g, (gm, n)) in group_medians.iter_mut().zip(group_pixels.iter_mut()).enumerate() {
+            *n = vars.len(g);
+            if *n >= 32 {
+                let v = vars.joined(g, &mut buf);
                 let mid = v.len() / 2;
                 let (_, med, _) = v.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
                 *gm = *med as f64 / median_factor;
@@ -544,6 +564,32 @@ mod tests {
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
     use rand_distr::{Distribution, Normal, StudentT};
+
+    /// Each group joined from the runs of rows holds the values one pass over the rows gives,
+    /// in the same order (so its median is the same), for rows of many runs (60 rows: four runs
+    /// of 16, the last short) and empty groups; a version that joined the runs out of order, or
+    /// dropped the last run, fails on the order or the count.
+    #[test]
+    fn grouped_is_one_pass_over_the_rows() {
+        let rows: Vec<usize> = (0..60).map(|y| 3 * y + 1).collect();
+        let fill = |y: usize, groups: &mut Vec<Vec<f32>>| {
+            for x in 0..37 {
+                let g = (y * 7 + x * 13) % (POSITIONS * GROUPS / 2);
+                groups[g].push((y * 1000 + x) as f32);
+            }
+        };
+        let mut one_pass = vec![Vec::new(); POSITIONS * GROUPS];
+        for &y in &rows {
+            fill(y, &mut one_pass);
+        }
+        let grouped = grouped_by_rows(&rows, fill);
+        let mut buf = vec![-1.0];
+        for (g, want) in one_pass.iter().enumerate() {
+            assert_eq!(grouped.len(g), want.len(), "group {g}");
+            assert_eq!(grouped.joined(g, &mut buf), &want[..], "group {g}");
+        }
+        assert!(one_pass.iter().any(|v| v.is_empty()) && one_pass.iter().any(|v| v.len() > 40));
+    }
 
     /// Share of pixels of pure noise (`m` frames each) whose burst variance exceeds
     /// `unsteady_limit(m)` times the noise variance.
