@@ -574,7 +574,7 @@ mod tests {
         let rows: Vec<usize> = (0..60).map(|y| 3 * y + 1).collect();
         let fill = |y: usize, groups: &mut Vec<Vec<f32>>| {
             for x in 0..37 {
-                let g = (y * 7 + x * 13) % (POSITIONS * GROUPS / 2);
+                let g = (y * 7 + x * 13) % 40;
                 groups[g].push((y * 1000 + x) as f32);
             }
         };
