@@ -32,7 +32,7 @@ The package, one concern per module: ``layout`` (packed raw), ``scenes`` (genera
 scenes), ``data`` (the evaluation set and training images from disk), ``metrics`` (PSNR, SSIM,
 bands, flat and edge regions), ``headroom`` (how much noise a filter removes), ``models`` (each model's training pairs), ``network`` (the UNet), ``training``,
 ``estimate`` (the clean estimate noise on noise starts from), ``scoring`` (networks scored, the
-summary and the controls), ``paired`` (the controls' paired test over training seeds), ``report`` (the table), ``run``
+summary and the controls), ``paired`` (the paired test over training seeds: the controls', and every row against the best), ``report`` (the table), ``run``
 (a whole run) and ``cli``. The names below are its public API.
 """
 
