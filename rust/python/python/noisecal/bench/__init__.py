@@ -32,7 +32,7 @@ The package, one concern per module: ``layout`` (packed raw), ``scenes`` (genera
 scenes), ``data`` (the evaluation set and training images from disk), ``metrics`` (PSNR, SSIM,
 bands, flat and edge regions), ``headroom`` (how much noise a filter removes), ``models`` (each model's training pairs), ``network`` (the UNet), ``training``,
 ``estimate`` (the clean estimate noise on noise starts from), ``scoring`` (networks scored, the
-summary and the controls), ``paired`` (the controls' paired test over training seeds), ``report`` (the table), ``run``
+summary and the controls), ``paired`` (the paired test over training seeds: the controls', and every row against the best), ``report`` (the table), ``run``
 (a whole run) and ``cli``. The names below are its public API.
 """
 
@@ -61,7 +61,7 @@ from .scaled_hg import ScaledHg, rounded_gaussian_sd, rounded_variance
 from .network import make_net
 from .estimate import DEFAULT_ESTIMATE, ESTIMATES, denoise, estimates_for, parse_estimates
 from .training import batch_plan, train_one
-from .paired import FALSE_ALARM, MIN_GAP_DB, paired_below, t_critical
+from .paired import BEST_FALSE_ALARM, FALSE_ALARM, MIN_GAP_DB, below_best, paired_below, t_critical
 from .scoring import controls, evaluate, failed_controls, noise_rms, rows_below_wrong, score_input, summary
 from .report import gain_table, gains, headroom_lines, region_table, table, verdict_line
 from .run import CAPTURED, networks_trained, run, steps_for_minutes, training_targets
@@ -93,6 +93,8 @@ __all__ = [
     "evaluate",
     "failed_controls",
     "rows_below_wrong",
+    "BEST_FALSE_ALARM",
+    "below_best",
     "FALSE_ALARM",
     "MIN_GAP_DB",
     "paired_below",

@@ -115,6 +115,26 @@ def verdict_line(iso, c: dict) -> str:
     return f"verdict at ISO {iso}: the controls ordered as expected: the benchmark tells models apart on this data{note}"
 
 
+def vs_best_line(iso, vb: dict | None) -> str:
+    """Every row against the best one (``scoring.controls``' ``vs_best``): the rows level with it
+    and the rows clearly below, each with its gap, t and the smallest gap its seeds detect."""
+    if not vb or vb.get("best") is None or not vb.get("vs"):
+        return ""
+
+    def one(k: str) -> str:
+        t = vb["vs"][k]
+        if t.get("t") is None:
+            return f"{k} (one common seed: untested)"
+        return f"{k} {t['gap_db']:.2f} dB (t {t['t']:.2f} vs {t['t_critical']:.2f}, detects ≥ {t['detectable_db']:.2f})"
+
+    level = [one(k) for k in vb["level"][1:]]
+    below = [one(k) for k in vb["below"]]
+    return (
+        f"against the best row at ISO {iso} ({vb['best']}; paired test, 5 % false alarms between two equal rows): "
+        f"level: {', '.join(level) or 'none'}; clearly below: {', '.join(below) or 'none'}"
+    )
+
+
 def _paired(t: dict | None) -> str:
     """A paired test's figures (``paired.paired_below``), for the controls line."""
     if not t or t.get("t") is None:
@@ -168,6 +188,9 @@ def table(out: dict) -> str:
         if parts:
             lines.append(f"controls at ISO {iso}: " + "; ".join(parts))
         lines.append(verdict_line(iso, c))
+        best_line = vs_best_line(iso, c.get("vs_best"))
+        if best_line:
+            lines.append(best_line)
     lines += headroom_lines(out)
     lines += [f"note: {n}" for n in out.get("notes", [])]
     n = len(out["networks"])

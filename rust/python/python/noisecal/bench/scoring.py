@@ -7,7 +7,7 @@ import numpy as np
 
 from .metrics import BANDS, REGIONS, score, summarise
 from .network import _torch
-from .paired import paired_below
+from .paired import below_best, paired_below
 
 
 def score_input(pairs: list[tuple[np.ndarray, np.ndarray]], flat_tolerance: float | None = None) -> dict:
@@ -85,7 +85,12 @@ def controls(rows: list[dict]) -> dict:
     - with a ``loud`` row (HG at twice its variance): is it clearly below HG by the same test
       (``loud_below_hg``, ``loud_margin_db``, ``loud_vs_hg``)? If not, the evaluation rewards
       smoothing more than fidelity (e.g. scenes without texture), and a model with more noise
-      than the sensor wins. The loud row is a control, not a row the wrong model must beat."""
+      than the sensor wins. The loud row is a control, not a row the wrong model must beat.
+    - every row against the best one on the means (``vs_best``: :func:`paired.below_best`, the
+      same paired test at 2.5 % per side, since the best is picked by the data): which rows are
+      level with it, which clearly below, and the smallest gap each comparison detects. Not a
+      control: a verdict on every row, read with the controls' (it means something only where
+      they held)."""
     out = {}
     for iso in sorted({r["iso"] for r in rows}):
         at = {r["model"]: r for r in rows if r["iso"] == iso and r.get("kind") != "renoise"}
@@ -129,6 +134,7 @@ def controls(rows: list[dict]) -> dict:
             c["loud_margin_db"] = mean[hg[0]] - mean[loud[0]]
             c["loud_vs_hg"] = paired_below(lo.get("psnr_per_seed", {}), h.get("psnr_per_seed", {}))
             c["loud_below_hg"] = c["loud_vs_hg"]["below"]
+        c["vs_best"] = below_best({k: r.get("psnr_per_seed", {}) for k, r in at.items()})
         c["failed"] = failed_controls(c)
         c["ordered"] = None if not has_controls(c) else not c["failed"]
         out[iso] = c
