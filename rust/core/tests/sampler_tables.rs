@@ -188,6 +188,17 @@ fn draw_time_entries_against_cells() {
             })
             .collect()
     };
+    // Build times, alternating (the cell layout first finds each bin's grid step).
+    let (mut be, mut bc) = (vec![], vec![]);
+    for _ in 0..3 {
+        let t0 = std::time::Instant::now();
+        std::hint::black_box(build(false));
+        be.push(t0.elapsed().as_secs_f64() * 1e3);
+        let t0 = std::time::Instant::now();
+        std::hint::black_box(build(true));
+        bc.push(t0.elapsed().as_secs_f64() * 1e3);
+    }
+    println!("  build (one thread, ms): entries {be:.0?}, cells {bc:.0?}");
     let (entries, cells) = (build(false), build(true));
     let bytes = |t: &Vec<Vec<BinTable>>| t.iter().flatten().map(BinTable::heap_bytes).sum::<usize>();
     println!("{path} ISO {}: entries {} bytes, cells {} bytes", m.iso, bytes(&entries), bytes(&cells));

@@ -415,7 +415,7 @@ fn tables_within(
             bins.par_iter().chain(extra.par_iter()).map(|b| BinTable::with_guide(b, guide)).collect()
         });
     }
-    let cells: [Vec<Option<BinTable>>; POSITIONS] = std::array::from_fn(|p| {
+    let mut cells: [Vec<Option<BinTable>>; POSITIONS] = std::array::from_fn(|p| {
         let (bins, extra) = &sources[p];
         bins.par_iter()
             .chain(extra.par_iter())
@@ -427,11 +427,11 @@ fn tables_within(
     let guide = Guide::for_tables(budget.saturating_sub(held), rest);
     std::array::from_fn(|p| {
         let (bins, extra) = &sources[p];
-        let done = &cells[p];
+        let done = std::mem::take(&mut cells[p]);
         bins.par_iter()
             .chain(extra.par_iter())
-            .zip(done.par_iter())
-            .map(|(b, c)| c.clone().unwrap_or_else(|| BinTable::with_guide(b, guide)))
+            .zip(done.into_par_iter())
+            .map(|(b, c)| c.unwrap_or_else(|| BinTable::with_guide(b, guide)))
             .collect()
     })
 }
