@@ -16,6 +16,10 @@ use crate::synth::CleanAt;
 use crate::synth::saturated;
 use crate::synth::structure::{FloorReach, StructureSampler};
 
+#[path = "sampler_cells.rs"]
+mod cells;
+use cells::CoarseCells;
+
 const ONE: u64 = 1 << 32;
 /// The bytes an ISO's tables are kept within where they fit with the sparse guide: the denser
 /// guide ([`Guide::Dense`]) is not allowed to take them past it ([`Guide::for_tables`]).
@@ -41,6 +45,21 @@ pub struct BinTable {
     shift: u32,
     /// Index bits dropped in a guide cell (0 unless the table has more than 2¹⁶ entries).
     guide_shift: u32,
+    /// A bin on a coarse grid drawn from its cells ([`Layout::Cells`]): then `cdf1` and `guide`
+    /// are empty.
+    cells: Option<Box<CoarseCells>>,
+}
+
+/// How a table keeps its cumulative weights; every layout draws every `u` to the same value.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Layout {
+    /// One 32-bit entry per DN, with a guide.
+    Entries(Guide),
+    /// A bin whose weights are a coarse grid's re-expansion (`model::coarse_grid::expand`) kept
+    /// as its cells' cumulative masses, 8 bytes per cell of 2 to 128 DN: the weight at each DN
+    /// is computed from them (a quadratic inside the cell) when a draw lands in the cell, and
+    /// the draw is the per-DN table's. Other bins keep their entries with the guide given.
+    Cells(Guide),
 }
 
 impl BinTable {
@@ -51,6 +70,30 @@ impl BinTable {
     /// The table of `bin` with the guide `guide`.
     pub fn with_guide(bin: &BinModel, guide: Guide) -> Self {
         Self::from_cdf(bin.first, &cdf_of(&bin.counts), guide)
+    }
+
+    /// The table of `bin` in the layout `layout`.
+    pub fn with_layout(bin: &BinModel, layout: Layout) -> Self {
+        match layout {
+            Layout::Entries(g) => Self::with_guide(bin, g),
+            Layout::Cells(g) => match CoarseCells::of(&bin.counts) {
+                Some(c) => Self {
+                    first: bin.first,
+                    cdf1: Box::new([]),
+                    lead: 0,
+                    guide: Box::new([]),
+                    shift: 0,
+                    guide_shift: 0,
+                    cells: Some(Box::new(c)),
+                },
+                None => Self::with_guide(bin, g),
+            },
+        }
+    }
+
+    /// Whether the table draws from a coarse grid's cells ([`Layout::Cells`]).
+    pub fn is_cells(&self) -> bool {
+        self.cells.is_some()
     }
 
     pub fn from_weights(first: i32, w: &[u64]) -> Self {
@@ -74,12 +117,15 @@ impl BinTable {
             }
             *cell = ((i - lead) >> guide_shift) as u16;
         }
-        Self { first, cdf1, lead: lead as u32, guide: guide.into(), shift: 32 - bits, guide_shift }
+        Self { first, cdf1, lead: lead as u32, guide: guide.into(), shift: 32 - bits, guide_shift, cells: None }
     }
 
     /// Maps a uniform 32-bit draw to a noise value.
     #[inline(always)]
     pub fn sample_u32(&self, u: u32) -> i32 {
+        if let Some(c) = &self.cells {
+            return self.first + c.sample_u32(u) as i32;
+        }
         let mut i = self.lead as usize + ((self.guide[(u >> self.shift) as usize] as usize) << self.guide_shift);
         // Four entries at a time, without a branch inside: the cumulative weights rise, so the
         // count of those below the draw is the number of steps taken among them (the walk from
@@ -108,7 +154,10 @@ impl BinTable {
 
     /// Entries of the table (values `first .. first + len`).
     pub fn len(&self) -> usize {
-        self.cdf1.len() - PAD
+        match &self.cells {
+            Some(c) => c.len(),
+            None => self.cdf1.len() - PAD,
+        }
     }
 
     /// Whether the table has no entry (never: a table draws at least one value).
@@ -119,6 +168,9 @@ impl BinTable {
     /// The cumulative weight of entry `i`, in units of 2⁻³².
     #[inline]
     fn cdf_at(&self, i: usize) -> u64 {
+        if let Some(c) = &self.cells {
+            return c.cdf_at(i);
+        }
         if i < self.lead as usize { 0 } else { self.cdf1[i] as u64 + 1 }
     }
 
@@ -131,7 +183,9 @@ impl BinTable {
 
     /// Bytes the table holds (its entries and its guide).
     pub fn heap_bytes(&self) -> usize {
-        std::mem::size_of_val(&*self.cdf1) + std::mem::size_of_val(&*self.guide)
+        std::mem::size_of_val(&*self.cdf1)
+            + std::mem::size_of_val(&*self.guide)
+            + self.cells.as_ref().map_or(0, |c| std::mem::size_of::<CoarseCells>() + c.heap_bytes())
     }
 
     /// Probability of value `n` as the table encodes it.
@@ -343,6 +397,45 @@ fn deconvolved_fine_levels(
     fine
 }
 
+/// The tables of an ISO's bins (per position, `sources`' bins then its extra tables), kept
+/// within `budget` bytes where they can be: one entry per DN with the denser guide unless it
+/// takes them past the budget ([`Guide::for_tables`]); where even the sparse guide does, the
+/// bins on a coarse grid drawn from their cells ([`Layout::Cells`]) and the others' guide chosen
+/// within what the cells leave. Every layout draws every `u` to the same value.
+fn tables_within(
+    budget: usize,
+    sources: &[(Cow<'_, [BinModel]>, Vec<BinModel>); POSITIONS],
+) -> [Vec<BinTable>; POSITIONS] {
+    let all = || sources.iter().flat_map(|(bins, extra)| bins.iter().chain(extra));
+    let entries: usize = all().map(|b| Guide::Sparse.table_bytes(b.counts.len())).sum();
+    if entries <= budget {
+        let guide = Guide::for_tables(budget, all().map(|b| b.counts.len()));
+        return std::array::from_fn(|p| {
+            let (bins, extra) = &sources[p];
+            bins.par_iter().chain(extra.par_iter()).map(|b| BinTable::with_guide(b, guide)).collect()
+        });
+    }
+    let mut cells: [Vec<Option<BinTable>>; POSITIONS] = std::array::from_fn(|p| {
+        let (bins, extra) = &sources[p];
+        bins.par_iter()
+            .chain(extra.par_iter())
+            .map(|b| Some(BinTable::with_layout(b, Layout::Cells(Guide::Dense))).filter(BinTable::is_cells))
+            .collect()
+    });
+    let held: usize = cells.iter().flatten().flatten().map(BinTable::heap_bytes).sum();
+    let rest = all().zip(cells.iter().flatten()).filter(|(_, c)| c.is_none()).map(|(b, _)| b.counts.len());
+    let guide = Guide::for_tables(budget.saturating_sub(held), rest);
+    std::array::from_fn(|p| {
+        let (bins, extra) = &sources[p];
+        let done = std::mem::take(&mut cells[p]);
+        bins.par_iter()
+            .chain(extra.par_iter())
+            .zip(done.into_par_iter())
+            .map(|(b, c)| c.unwrap_or_else(|| BinTable::with_guide(b, guide)))
+            .collect()
+    })
+}
+
 /// One past the highest bin `lut` maps a level up to `top` to.
 fn bins_up_to(lut: &[u16], top: u16) -> usize {
     lut.iter().take(top as usize + 1).map(|&b| b as usize + 1).max().unwrap_or(0)
@@ -415,13 +508,7 @@ impl IsoSampler {
             });
             (bins, extra)
         });
-        // The denser guide unless it takes the ISO's tables past the budget.
-        let lens = sources.iter().flat_map(|(bins, extra)| bins.iter().chain(extra)).map(|b| b.counts.len());
-        let guide = Guide::for_tables(TABLE_BUDGET, lens);
-        let mut tables: [Vec<BinTable>; POSITIONS] = std::array::from_fn(|p| {
-            let (bins, extra) = &sources[p];
-            bins.par_iter().chain(extra.par_iter()).map(|b| BinTable::with_guide(b, guide)).collect()
-        });
+        let mut tables = tables_within(TABLE_BUDGET, &sources);
         let white = pack.layout.white;
         // Clean levels at the reference's ceiling are saturated pixels: they read the ceiling.
         for (p, (lut, tabs)) in luts.iter_mut().zip(tables.iter_mut()).enumerate() {
@@ -907,3 +994,7 @@ mod tests {
         assert_eq!(single.sample_u32(0), -2);
     }
 }
+
+#[cfg(test)]
+#[path = "tests_sampler_cells.rs"]
+mod tests_cells;

@@ -1,0 +1,159 @@
+//! The inverse CDF of a bin kept on a coarse grid, drawn from its cells instead of one entry per
+//! DN: the same draw for every `u`, in 8 bytes per cell of `k` DN.
+//!
+//! A bin a pack keeps on a coarse grid ([`crate::model::coarse_grid`]) has the weights of
+//! [`expand`](crate::model::coarse_grid::expand) of its cell masses: inside cell `j` (mass `m`,
+//! `k` DN) the weight up to its `n`-th DN is `⌊m · cum(n) / ((a + b)·k²)⌋` with `cum(n) = a·(2kn −
+//! n²) + b·n²`, `a` and `b` the shape's densities at the cell's edges (sums of neighbouring masses
+//! to 40 significant bits; `a = b = 1` where both are 0, the even split). So the cumulative weight
+//! at every DN follows from the cells' cumulative masses alone. The per-DN table
+//! ([`super::BinTable`]) draws `u` to the first DN whose cumulative weight `acc` has `⌊acc ·
+//! 2³² / T⌋ > u` (`T` the total), that is `acc ≥ ⌈(u + 1) · T / 2³²⌉`: here that threshold is
+//! found among the cells' ends (a guide, then a walk), then within the cell by the quadratic's
+//! root and an exact integer check of its neighbours.
+
+use crate::model::coarse_grid::{GRID_STEPS, is_expansion};
+
+/// Cells of a bin on a coarse grid of `k` DN, as [`super::BinTable`] draws them.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct CoarseCells {
+    /// DN per cell.
+    k: u32,
+    /// Mass bits dropped to read the shape ([`crate::model::coarse_grid::expand`]'s).
+    shift: u32,
+    /// Total weight `T`.
+    total: u64,
+    /// Cumulative weight at each cell's end (the last is `T`).
+    ends: Box<[u64]>,
+    /// Per range of draws `g << guide_bits_dropped ..`, the first cell that can hold one.
+    guide: Box<[u16]>,
+    /// Draw bits dropped to index the guide.
+    guide_shift: u32,
+}
+
+impl CoarseCells {
+    /// The cells of weights `w` when they are a coarse grid's re-expansion (the widest step of
+    /// [`GRID_STEPS`] that gives them back), with a total below 2⁶⁴ and at most 2¹⁶ cells;
+    /// `None` otherwise.
+    pub(crate) fn of(w: &[u64]) -> Option<Self> {
+        let k = GRID_STEPS.iter().rev().copied().find(|&k| is_expansion(w, k))?;
+        let mut ends = Vec::with_capacity(w.len() / k);
+        let mut acc = 0u64;
+        for c in w.chunks(k) {
+            for &x in c {
+                acc = acc.checked_add(x)?;
+            }
+            ends.push(acc);
+        }
+        if acc == 0 || ends.len() > 1 << 16 {
+            return None;
+        }
+        let top = ends.iter().scan(0u64, |s, &e| Some(e - std::mem::replace(s, e))).max().unwrap_or(0);
+        let shift = (64 - top.leading_zeros()).saturating_sub(40);
+        let bits = (ends.len().next_power_of_two().trailing_zeros()).clamp(3, 12);
+        let guide_shift = 32 - bits;
+        let mut cells = Self { k: k as u32, shift, total: acc, ends: ends.into(), guide: Box::new([]), guide_shift };
+        let mut j = 0usize;
+        let guide: Box<[u16]> = (0..1u64 << bits)
+            .map(|g| {
+                let t = cells.threshold((g << guide_shift) as u32);
+                while cells.ends[j] < t {
+                    j += 1;
+                }
+                j as u16
+            })
+            .collect();
+        cells.guide = guide;
+        Some(cells)
+    }
+
+    /// Entries (DN) the cells cover.
+    pub(crate) fn len(&self) -> usize {
+        self.ends.len() * self.k as usize
+    }
+
+    /// Bytes held (cell ends and guide).
+    pub(crate) fn heap_bytes(&self) -> usize {
+        std::mem::size_of_val(&*self.ends) + std::mem::size_of_val(&*self.guide)
+    }
+
+    /// The least cumulative weight a draw `u` reaches: `⌈(u + 1) · T / 2³²⌉`.
+    #[inline(always)]
+    fn threshold(&self, u: u32) -> u64 {
+        ((((u as u128) + 1) * self.total as u128 + (u32::MAX as u128)) >> 32) as u64
+    }
+
+    #[inline(always)]
+    fn start(&self, j: usize) -> u64 {
+        if j == 0 { 0 } else { self.ends[j - 1] }
+    }
+
+    /// Mass of cell `j` (0 beyond the ends), to the shape's bits.
+    #[inline(always)]
+    fn shape_mass(&self, j: isize) -> u64 {
+        if j < 0 || j as usize >= self.ends.len() {
+            return 0;
+        }
+        let j = j as usize;
+        (self.ends[j] - self.start(j)) >> self.shift
+    }
+
+    /// Cell `j`'s mass `m`, edge densities `a`, `b` and `whole = (a + b)·k²`.
+    #[inline(always)]
+    fn cell(&self, j: usize) -> (u64, u64, u64, u64) {
+        let m = self.ends[j] - self.start(j);
+        let at = self.shape_mass(j as isize);
+        let (mut a, mut b) = (self.shape_mass(j as isize - 1) + at, at + self.shape_mass(j as isize + 1));
+        if a == 0 && b == 0 {
+            (a, b) = (1, 1);
+        }
+        let k = self.k as u64;
+        (m, a, b, (a + b) * k * k)
+    }
+
+    /// `cum(n) = a·(2kn − n²) + b·n²` (below 2⁵⁶: `a + b < 2⁴²`, `k ≤ 128`).
+    #[inline(always)]
+    fn cum(&self, a: u64, b: u64, n: u64) -> u64 {
+        let k = self.k as u64;
+        a * (2 * k * n - n * n) + b * n * n
+    }
+
+    /// Cumulative weight up to DN `i` (from the first), as the per-DN table's.
+    pub(crate) fn acc_at(&self, i: usize) -> u64 {
+        let (j, n) = (i / self.k as usize, (i % self.k as usize) as u64 + 1);
+        let (m, a, b, whole) = self.cell(j);
+        self.start(j) + ((m as u128 * self.cum(a, b, n) as u128) / whole as u128) as u64
+    }
+
+    /// Cumulative weight up to DN `i` in units of 2⁻³², `⌊acc · 2³² / T⌋`.
+    pub(crate) fn cdf_at(&self, i: usize) -> u64 {
+        (((self.acc_at(i) as u128) << 32) / self.total as u128) as u64
+    }
+
+    /// The DN (from the first) a uniform 32-bit draw maps to.
+    #[inline]
+    pub(crate) fn sample_u32(&self, u: u32) -> usize {
+        let t = self.threshold(u);
+        let mut j = self.guide[(u >> self.guide_shift) as usize] as usize;
+        while self.ends[j] < t {
+            j += 1;
+        }
+        // Within cell j: the least n in 1..=k with ⌊m·cum(n)/whole⌋ ≥ r, i.e. m·cum(n) ≥ r·whole.
+        let r = t - self.start(j);
+        let (m, a, b, whole) = self.cell(j);
+        let k = self.k as u64;
+        let reaches = |n: u64| m as u128 * self.cum(a, b, n) as u128 >= r as u128 * whole as u128;
+        // The root of (b − a)x² + 2a·x = (a + b)·ρ (x = n/k, ρ = r/m), in its stable form.
+        let (af, bf) = (a as f64, b as f64);
+        let rho = r as f64 / m as f64;
+        let x = (af + bf) * rho / (af + (af * af + (bf * bf - af * af) * rho).max(0.0).sqrt());
+        let mut n = ((x * k as f64).ceil() as u64).clamp(1, k);
+        while n > 1 && reaches(n - 1) {
+            n -= 1;
+        }
+        while !reaches(n) {
+            n += 1;
+        }
+        j * self.k as usize + n as usize - 1
+    }
+}
