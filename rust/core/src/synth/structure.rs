@@ -456,11 +456,10 @@ impl StructureSampler {
         if delta <= 0.0 {
             return vec![None; originals.len()];
         }
-        let (_, kv) = {
-            let (k0, k) = self.narrowing_kernel(pos);
-            kernel_moments(k0, &k)
-        };
+        // The narrowing kernel is the held kernel convolved with the dither's three taps: their
+        // variances add ([`Self::narrowing_kernel`]).
         let (h0, held) = self.kernel(pos);
+        let kv = kernel_moments(h0, &held).1 + delta;
         originals
             .par_iter()
             .zip(deconvolved)
