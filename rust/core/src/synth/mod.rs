@@ -6,6 +6,7 @@ mod clean_at;
 mod dither_lanes;
 mod pattern_cache;
 mod pattern_lanes;
+pub mod phase_tables;
 pub mod sampler;
 pub mod sampler_up_to;
 pub mod saturated;
@@ -211,6 +212,21 @@ fn structured_filler<'a, const TARGET: bool>(
         Some(_) => Vec::new(),
         None => vec![0; w],
     };
+    // Per position, the highest clean level whose table is drawn at the pixel's phase
+    // (`phase_tables.rs`), in the map of levels this image takes; `None`: no such level.
+    let phase_top: [Option<u16>; crate::POSITIONS] = std::array::from_fn(|p| {
+        let sets = sampler.phase_sets(p);
+        if sets.iter().all(Option::is_none) {
+            return None;
+        }
+        let lut = match TARGET {
+            true => sampler.target_tables(p).expect("a target sampler").0,
+            false => sampler.position_tables(p).0,
+        };
+        lut.iter()
+            .rposition(|&t| sets.get(t as usize).is_some_and(Option::is_some))
+            .map(|l| l.min(u16::MAX as usize) as u16)
+    });
     {
         Box::new(move |band: usize, chunk: &mut [u16]| {
             let mut rng = band_rng(seed, band);
@@ -218,6 +234,8 @@ fn structured_filler<'a, const TARGET: bool>(
             let mut dither: Vec<u64> = Vec::new();
             // The fixed pattern's row values, per column parity, reused from row to row.
             let mut scratch: [Vec<i64>; 2] = Default::default();
+            // A row's fixed pattern (2⁻³² DN) where some pixel draws at its phase.
+            let mut pattern_row: Vec<i64> = Vec::new();
             for (r, row) in chunk.chunks_mut(w).enumerate() {
                 let y = band * BAND_ROWS + r;
                 let src = clean_row(&clean, y);
@@ -242,12 +260,22 @@ fn structured_filler<'a, const TARGET: bool>(
                 // Dither draws from a xorshift64* stream seeded by the band's stream per row (a
                 // 32-bit threshold needs no cryptographic quality).
                 let state = rng.next_u64() | 1;
+                // Whether a pixel of this row draws at its offset's phase (then the row's pattern
+                // and dither draws are kept for it, and its pixel draws replayed).
+                let top = [phase_top[even], phase_top[odd]];
+                let phased = top.iter().any(Option::is_some)
+                    && src.iter().enumerate().any(|(i, &c)| top[i & 1].is_some_and(|t| c <= t));
                 // Drawn in lanes for the vectorised pass; the target's shift keeps the serial
-                // pass (its per-pixel lookups left the lanes no faster).
-                if !TARGET {
+                // pass (its per-pixel lookups left the lanes no faster), and draws them in lanes
+                // only for the phase (the same draws).
+                if !TARGET || phased {
                     jumps.fill(state, draws, &mut dither);
                 }
                 let d: &[u64] = if TARGET { &[] } else { &dither[..draws] };
+                if phased {
+                    pattern_row.clear();
+                    pattern_row.resize(w, 0);
+                }
                 // The row in passes, each stream drawn in its own order (a pair's pixel draw `u`
                 // from the band's stream, its dither `v` from the row's xorshift): first every
                 // pixel's integer offset `⌊o⌋ + [v < o − ⌊o⌋]` for its offset `o` and a uniform
@@ -268,6 +296,9 @@ fn structured_filler<'a, const TARGET: bool>(
                 match (&kept, &pattern, &pattern_columns) {
                     (Some(k), _, _) => {
                         let k = k.row(y);
+                        if phased {
+                            pattern_row.copy_from_slice(&k[..w]);
+                        }
                         match TARGET {
                             false => row_offsets.fill_pairs(
                                 &mut offsets_row,
@@ -280,6 +311,9 @@ fn structured_filler<'a, const TARGET: bool>(
                     (None, Some(p), Some(pc)) => {
                         let rp =
                             p.row_pattern_in(pc, origin.0 + y, std::mem::take(&mut scratch)).expect("a fixed pattern");
+                        if phased {
+                            pattern_row.iter_mut().enumerate().for_each(|(i, v)| *v = rp.at(i));
+                        }
                         match (rp.computed(), TARGET) {
                             (Some([c0, c1]), false) => row_offsets.fill_pairs(
                                 &mut offsets_row,
@@ -302,6 +336,8 @@ fn structured_filler<'a, const TARGET: bool>(
                         true => row_offsets.fill(&mut offsets_row, |_| (0, 0), |_| 0),
                     },
                 }
+                // The band's stream as the pixel draws find it, replayed for the phase.
+                let replay = phased.then(|| rng.clone());
                 let pairs = row.chunks_exact_mut(2).zip(src.chunks_exact(2)).zip(offsets_row.chunks_exact(2));
                 if finish {
                     for (i, ((o, c), k)) in pairs.enumerate() {
@@ -326,6 +362,44 @@ fn structured_filler<'a, const TARGET: bool>(
                     let alt = ((w >> 1) + (y >> 1)) & 1 == 1;
                     let a = draw(lut0, tab0, src[w - 1], u as u32) + offsets_row[w - 1];
                     row[w - 1] = sampler.finish(even, a, alt);
+                }
+                // The pixels whose table is drawn at their offset's phase: the same pixel draw
+                // `u` and dither draw `v`, one rounding of noise and offset together.
+                if let Some(mut replay) = replay {
+                    let sets = [sampler.phase_sets(even), sampler.phase_sets(odd)];
+                    let luts = [lut0, lut1];
+                    let positions = [even, odd];
+                    let at = |i: usize, u: u32, v: u32| -> Option<i32> {
+                        let (b, c) = (i & 1, src[i]);
+                        if top[b].is_none_or(|t| c > t) {
+                            return None;
+                        }
+                        let set = sets[b].get(luts[b][level(luts[b], c)] as usize)?.as_ref()?;
+                        let o = cols[i] + pattern_row[i] + ry + shift(i, c);
+                        Some(c as i32 + set.draw(o, v, u))
+                    };
+                    for i in (0..w - w % 2).step_by(2) {
+                        let u = replay.next_u64();
+                        let v = dither[i >> 1];
+                        let alt = ((i >> 1) + (y >> 1)) & 1 == 1;
+                        for (b, (uu, vv)) in
+                            [(u as u32, v as u32), ((u >> 32) as u32, (v >> 32) as u32)].into_iter().enumerate()
+                        {
+                            if let Some(a) = at(i + b, uu, vv) {
+                                row[i + b] = match finish {
+                                    true => sampler.finish(positions[b], a, alt),
+                                    false => a.clamp(0, white) as u16,
+                                };
+                            }
+                        }
+                    }
+                    if w % 2 == 1 {
+                        let u = replay.next_u64();
+                        let alt = ((w >> 1) + (y >> 1)) & 1 == 1;
+                        if let Some(a) = at(w - 1, u as u32, dither[w >> 1] as u32) {
+                            row[w - 1] = sampler.finish(even, a, alt);
+                        }
+                    }
                 }
             }
         })

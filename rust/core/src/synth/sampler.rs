@@ -13,6 +13,7 @@ use crate::model::layout::{Binning, POSITIONS, lut_at_reference_levels, referenc
 use crate::model::pack::{BinModel, IsoModel, ModelPack};
 use crate::model::structure::{Components, IsoStructure};
 use crate::synth::CleanAt;
+use crate::synth::phase_tables::PhaseSet;
 use crate::synth::saturated;
 use crate::synth::structure::{FloorReach, StructureSampler};
 
@@ -336,6 +337,10 @@ pub struct IsoSampler {
     /// The row, column and frame offsets added on top (when the pack has significant ones and
     /// they were asked for); the tables then hold the PMFs with them taken out.
     structure: Option<StructureSampler>,
+    /// Per position and table (as `tables`; missing at the end: none), the tables drawn at the
+    /// phase of the pixel's structured offset where the table's PMF sits at the lattice's floor
+    /// ([`StructureSampler::phase_sets`]).
+    phases: [Vec<Option<PhaseSet>>; POSITIONS],
     /// For clean images at the target ISO's brightness ([`CleanAt::Target`]): per position and
     /// clean level, the bin of its reference level and the offset that takes the PMF's gain
     /// shift back out. `None`: the clean image is at the reference brightness, as the pack's
@@ -387,14 +392,16 @@ fn deconvolved_fine_levels(
     p: usize,
     lut: &[u16],
     mut fine: FineLevels,
-) -> FineLevels {
+) -> (FineLevels, Vec<Option<PhaseSet>>) {
     let own = &model.positions[p].bins;
     let floor = |i: usize| Some(floor_noise(binning, p, model.range[p][0], i, &own[i]));
     let first = |t: usize| fine.lut.iter().position(|&k| k as usize == own.len() + t);
     let source: Vec<usize> =
         (0..fine.extra.len()).map(|t| first(t).and_then(|l| lut.get(l)).map_or(0, |&b| b as usize)).collect();
-    fine.extra = st.deconvolved_tables(p, &fine.extra, own.len(), |t| source[t], floor);
-    fine
+    let deconvolved = st.deconvolved_tables(p, &fine.extra, own.len(), |t| source[t], floor);
+    let phases = st.phase_sets(p, &fine.extra, &deconvolved, 0..deconvolved.len());
+    fine.extra = deconvolved;
+    (fine, phases)
 }
 
 /// The tables of an ISO's bins (per position, `sources`' bins then its extra tables), kept
@@ -483,6 +490,7 @@ impl IsoSampler {
         let structure = structure.filter(|_| which.structured()).and_then(|st| StructureSampler::new(st, which));
         let binning = pack.binning();
         let mut luts: [Vec<u16>; POSITIONS] = std::array::from_fn(|p| binning.lut(p));
+        let mut phases: [Vec<Option<PhaseSet>>; POSITIONS] = Default::default();
         let sources: [(Cow<'_, [BinModel]>, Vec<BinModel>); POSITIONS] = std::array::from_fn(|p| {
             let own = &model.positions[p].bins;
             // An estimated model's levels near black whose bin is too wide for the noise there
@@ -494,10 +502,14 @@ impl IsoSampler {
                     // The bins that hold a level up to `top` (all of them without it).
                     let used = top.map_or(own.len(), |t| bins_up_to(&luts[p], t).min(own.len()));
                     let bins = st.deconvolved_at_floor_in(p, own, floor, 0..used);
+                    phases[p] = st.phase_sets(p, own, &bins, 0..used);
                     // The fine levels of the model's own bins (pixel-only's tables), each table
                     // then deconvolved as the bin it was made from.
-                    let fine = position_fine_levels(pack, model, p, own)
-                        .map(|f| deconvolved_fine_levels(st, &binning, model, p, &luts[p], f));
+                    let fine = position_fine_levels(pack, model, p, own).map(|f| {
+                        let (f, extra_phases) = deconvolved_fine_levels(st, &binning, model, p, &luts[p], f);
+                        phases[p].extend(extra_phases);
+                        f
+                    });
                     (Cow::Owned(bins), fine)
                 }
                 None => (Cow::Borrowed(&own[..]), position_fine_levels(pack, model, p, own)),
@@ -527,7 +539,7 @@ impl IsoSampler {
             let c = c.min(white);
             [f.min(c) as i32, c as i32]
         });
-        Self { iso: model.iso, white, binning, luts, tables, snaps, range, structure, target: None }
+        Self { iso: model.iso, white, binning, luts, tables, snaps, range, structure, phases, target: None }
     }
 
     /// The same sampler for clean images at the brightness `clean_at` says
@@ -589,17 +601,22 @@ impl IsoSampler {
         let Some(target) = self.target.as_ref() else {
             return self;
         };
+        let mut phases: [Vec<Option<PhaseSet>>; POSITIONS] = Default::default();
         let fine = match &self.structure {
             Some(st) => {
                 let mut fine = fine;
                 for (p, f) in fine.iter_mut().enumerate() {
-                    *f = f.take().map(|f| deconvolved_fine_levels(st, &self.binning, model, p, &target.luts[p], f));
+                    *f = f.take().map(|f| {
+                        let (f, ph) = deconvolved_fine_levels(st, &self.binning, model, p, &target.luts[p], f);
+                        phases[p] = ph;
+                        f
+                    });
                 }
                 fine
             }
             None => fine,
         };
-        self.with_level_tables(fine)
+        self.with_phased_level_tables(fine, phases)
     }
 
     /// The levels `fine` maps to tables of their own (indices at or past the position's bins)
@@ -609,8 +626,18 @@ impl IsoSampler {
     /// a parametric baseline's law at each level (`derive::baselines::Baseline::level_tables`).
     /// A position whose tables would pass 16-bit indices, or whose map has another length, is
     /// left as it is.
-    pub fn with_level_tables(mut self, fine: [Option<FineLevels>; POSITIONS]) -> Self {
-        for (p, f) in fine.into_iter().enumerate() {
+    pub fn with_level_tables(self, fine: [Option<FineLevels>; POSITIONS]) -> Self {
+        self.with_phased_level_tables(fine, Default::default())
+    }
+
+    /// [`Self::with_level_tables`], the tables of `fine` drawn at the pixel's phase where
+    /// `phases` (per position, per table of `fine`) has tables for them.
+    fn with_phased_level_tables(
+        mut self,
+        fine: [Option<FineLevels>; POSITIONS],
+        phases: [Vec<Option<PhaseSet>>; POSITIONS],
+    ) -> Self {
+        for (p, (f, ph)) in fine.into_iter().zip(phases).enumerate() {
             let Some(f) = f else { continue };
             let (bins, base) = (self.binning.bins(p), self.tables[p].len());
             let luts = match self.target.as_mut() {
@@ -626,8 +653,19 @@ impl IsoSampler {
                 }
             }
             self.tables[p].extend(f.extra.iter().map(BinTable::new));
+            if ph.iter().any(Option::is_some) {
+                self.phases[p].resize(base, None);
+                self.phases[p].extend(ph);
+            }
         }
         self
+    }
+
+    /// Per table of a position (missing at the end: none), the tables drawn at the phase of the
+    /// pixel's structured offset ([`StructureSampler::phase_sets`]).
+    #[inline]
+    pub fn phase_sets(&self, pos: usize) -> &[Option<PhaseSet>] {
+        &self.phases[pos]
     }
 
     /// Which brightness this sampler takes clean images at.

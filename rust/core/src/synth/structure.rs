@@ -27,6 +27,7 @@ use crate::model::structure::{
 };
 use crate::synth::pattern_cache::{PatternCache, PatternRegion, Region};
 use crate::synth::pattern_lanes::{PATTERN_KEY, ParityColumns, lanes_apply, parity_row};
+use crate::synth::phase_tables::{PhaseSet, phase_set};
 
 /// Grid of the offset densities (cells per DN).
 const GRID: f64 = 32.0;
@@ -431,6 +432,61 @@ impl StructureSampler {
             .collect()
     }
 }
+
+impl StructureSampler {
+    /// Per table of `originals` (a position's bins, or its fine levels' tables made from them),
+    /// the tables drawn at the phase of the pixel's offset ([`crate::synth::phase_tables`]) where
+    /// the narrowing could not take the fixed pattern's dither out: `deconvolved[t]` (what
+    /// [`Self::deconvolved_at_floor_in`] or [`Self::deconvolved_tables`] made of `originals[t]`)
+    /// holds more than [`PHASE_GATE`] of the dither `Δ` ([`Self::pattern_dither`]) above its
+    /// target, the measured variance less the narrowing kernel's. There the PMF sits at the
+    /// lattice's floor `f(1 − f)`, and the dither would be drawn on top of it. The phase tables
+    /// are made from the table deconvolved by the other components' kernel alone
+    /// ([`Self::kernel`]), not the dither, which they draw by the pixel's own rounding. `None`
+    /// everywhere else (a clipped table, none without a fixed pattern): those pixels draw as before,
+    /// byte for byte. `range`: the tables to look at (the others get `None`).
+    pub(crate) fn phase_sets(
+        &self,
+        pos: usize,
+        originals: &[BinModel],
+        deconvolved: &[BinModel],
+        range: std::ops::Range<usize>,
+    ) -> Vec<Option<PhaseSet>> {
+        let delta = self.pattern_dither(pos);
+        if delta <= 0.0 {
+            return vec![None; originals.len()];
+        }
+        // The narrowing kernel is the held kernel convolved with the dither's three taps: their
+        // variances add ([`Self::narrowing_kernel`]).
+        let (h0, held) = self.kernel(pos);
+        let kv = kernel_moments(h0, &held).1 + delta;
+        originals
+            .par_iter()
+            .zip(deconvolved)
+            .enumerate()
+            .map(|(t, (b, d))| {
+                if !range.contains(&t) || b.clipped || b.counts.is_empty() || d.counts.is_empty() {
+                    return None;
+                }
+                let (_, pv) = b.pmf().moments();
+                let (_, dv) = d.pmf().moments();
+                if dv - (pv - kv) <= PHASE_GATE * delta {
+                    return None;
+                }
+                let q0 = match held.len() > 1 {
+                    true => deconvolve_bin_within(b, h0, &held, RL_ITERATIONS, false, None).pmf(),
+                    false => b.pmf(),
+                };
+                phase_set(q0.first, &q0.p)
+            })
+            .collect()
+    }
+}
+
+/// The share of the fixed pattern's dither a deconvolved table may hold above its target before
+/// its pixels draw at their offset's phase instead ([`StructureSampler::phase_sets`]). Where the
+/// narrowing works the excess is within the deconvolution's 1 % variance slack, far below.
+const PHASE_GATE: f64 = 0.25;
 
 /// Where the sensor's floor lies for one bin ([`StructureSampler::deconvolved_at_floor`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

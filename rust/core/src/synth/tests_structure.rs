@@ -564,3 +564,114 @@ fn a_single_cell_above_the_floor_is_not_a_pile() {
     let piled = deconvolve_bin_within(&bin, k0, &k, RL_ITERATIONS, false, Some(at)).pmf();
     assert_eq!(piled.moments().0, -1.0, "a cell at the floor is its pile: {piled:?}");
 }
+
+/// The PMF of `round(X)`, `X ~ N(m, sd²)`, by a fine quadrature, over the codes `lo ..= hi`.
+fn rounded_normal(m: f64, sd: f64, lo: i32, hi: i32) -> Vec<f64> {
+    let n = 2000;
+    let p: Vec<f64> = (lo..=hi)
+        .map(|k| {
+            (0..n)
+                .map(|g| (-0.5 * ((k as f64 - 0.5 + (g as f64 + 0.5) / n as f64 - m) / sd).powi(2)).exp())
+                .sum::<f64>()
+        })
+        .collect();
+    let t: f64 = p.iter().sum();
+    p.into_iter().map(|x| x / t).collect()
+}
+
+/// Known truth at the lattice's floor: a sub-DN sensor (noise `N(0, 0.33²)`) whose bin's clean
+/// levels sit at 0.47 of a code (one exposure, as EMVA set 002's code 4), with a Gaussian fixed
+/// pattern of 0.12 DN that the bin's PMF does not hold. The sensor rounds once: a pixel with
+/// pattern `p` reads `round(0.47 + p + n)`. Over the pattern's distribution (512 quantiles),
+/// the synthesized PMF of the old draw (the bin narrowed by the dither, then the pattern added
+/// by a dither) and of the phase tables against the truth: measured, the truth's variance
+/// 0.2578 DN² and shares at −1 / +2 DN 0.0029 / 0.0017; the old draw 0.3404 DN² (+0.083),
+/// shares 0.027 / 0.021 (the dither on top of a PMF that cannot hold less than `f(1 − f)`);
+/// the phase tables 0.2580 DN², shares 0.0029 / 0.0017.
+#[test]
+fn at_the_lattice_floor_the_pattern_is_drawn_with_the_pixel_noise() {
+    use crate::model::pack::BinSource;
+    use crate::synth::phase_tables::PHASES;
+    let (m, sd, pattern_sd) = (0.47, 0.33, 0.12);
+    let p = rounded_normal(m, sd, -3, 4);
+    let bin = BinModel::estimated(&Pmf { first: -3, p: p.clone() }, 100_000, BinSource::Measured, None, false);
+    // The pattern alone, none of it in the PMF (its change from the reference is nil).
+    let mut st = pattern_sampler(gaussian_dist(pattern_sd), [0, 0], Default::default());
+    if let Some(fp) = st.fpn.as_mut() {
+        fp.in_pixel_noise = std::array::from_fn(|_| gaussian_dist(0.0));
+    }
+    let pattern = gaussian_dist(pattern_sd).quantiles;
+    let deconvolved = st.deconvolved(0, std::slice::from_ref(&bin));
+    let sets = st.phase_sets(0, std::slice::from_ref(&bin), &deconvolved, 0..1);
+    let set = sets[0].as_ref().expect("a bin at the lattice's floor is drawn at the pixel's phase");
+    // Mixtures over the pattern on the codes −4 ..= 5.
+    let (lo, n) = (-4i32, 10usize);
+    let mut truth = vec![0.0; n];
+    let mut old = vec![0.0; n];
+    let mut new = vec![0.0; n];
+    let q_old = deconvolved[0].pmf();
+    let w = 1.0 / pattern.len() as f64;
+    for &o in &pattern {
+        let o = o as f64;
+        for (k, t) in rounded_normal(m + o, sd, lo, lo + n as i32 - 1).into_iter().enumerate() {
+            truth[k] += w * t;
+        }
+        let (fl, f) = (o.floor(), o - o.floor());
+        for (i, &q) in q_old.p.iter().enumerate() {
+            let v = q_old.first + i as i32 + fl as i32;
+            old[(v - lo) as usize] += w * q * (1.0 - f);
+            old[(v + 1 - lo) as usize] += w * q * f;
+        }
+        // The phase `f·PHASES` split between its two grid points, as the draw's `v` splits it.
+        let x = f * PHASES as f64;
+        let j = x.floor() as usize;
+        for (phase, share) in [(j, 1.0 - (x - j as f64)), (j + 1, x - j as f64)] {
+            let (base, phase) = if phase == PHASES { (fl as i32 + 1, 0) } else { (fl as i32, phase) };
+            let (first, pmf) = set.phase_pmf(phase);
+            for (i, &q) in pmf.iter().enumerate() {
+                new[(first + i as i32 + base - lo) as usize] += w * share * q;
+            }
+        }
+    }
+    let var = |p: &[f64]| {
+        let mean: f64 = p.iter().enumerate().map(|(i, &x)| (lo + i as i32) as f64 * x).sum();
+        p.iter().enumerate().map(|(i, &x)| ((lo + i as i32) as f64 - mean).powi(2) * x).sum::<f64>()
+    };
+    let share = |p: &[f64], v: i32| p[(v - lo) as usize];
+    eprintln!(
+        "truth {:.4} ({:.4} / {:.4}), old {:.4} ({:.4} / {:.4}), phases {:.4} ({:.4} / {:.4})",
+        var(&truth),
+        share(&truth, -1),
+        share(&truth, 2),
+        var(&old),
+        share(&old, -1),
+        share(&old, 2),
+        var(&new),
+        share(&new, -1),
+        share(&new, 2)
+    );
+    assert!((var(&new) - var(&truth)).abs() < 0.01, "variance {:.4} against the truth's {:.4}", var(&new), var(&truth));
+    for v in [-1, 2] {
+        assert!(
+            (share(&new, v) - share(&truth, v)).abs() < 0.005,
+            "share at {v:+}: {:.4} against the truth's {:.4} (the old draw: {:.4})",
+            share(&new, v),
+            share(&truth, v),
+            share(&old, v)
+        );
+    }
+    // The old draw fails the same bounds (so the test can fail).
+    assert!(var(&old) - var(&truth) > 0.03, "the old draw: {:.4} against {:.4}", var(&old), var(&truth));
+}
+
+/// Where the narrowing takes the dither out (a PMF of several DN), no table is drawn at the
+/// phase: those pixels draw as before, byte for byte.
+#[test]
+fn wide_bins_keep_the_dither() {
+    use crate::model::pack::BinSource;
+    let p = rounded_normal(0.47, 1.5, -8, 9);
+    let bin = BinModel::estimated(&Pmf { first: -8, p }, 100_000, BinSource::Measured, None, false);
+    let st = pattern_sampler(gaussian_dist(0.12), [0, 0], Default::default());
+    let deconvolved = st.deconvolved(0, std::slice::from_ref(&bin));
+    assert!(st.phase_sets(0, std::slice::from_ref(&bin), &deconvolved, 0..1)[0].is_none());
+}
