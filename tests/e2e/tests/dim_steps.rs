@@ -299,3 +299,57 @@ fn black_of_a_12_bit_sensor_is_its_dark_frames() {
         }
     }
 }
+
+/// What a calibration did about frame brightness: frames refused as off their burst's
+/// brightness, and frames normalised to it.
+fn brightness_verdicts(report: &CalibrateReport) -> (usize, usize) {
+    let refused = report.rejected.iter().filter(|r| r.contains("off the brightness of its burst")).count();
+    let normalised = report.warnings.iter().filter(|w| w.contains("brightness off its burst")).count();
+    (refused, normalised)
+}
+
+/// The brightness rule at a dim step (method.md, "Dim steps and dark frames"): reference frames
+/// of a 3.5 DN step on an 8-bit sensor, a sub-DN level dithered onto the integers per pixel (as
+/// noise dithers it: `floor(clean + u)`, `u` uniform per pixel and frame), are kept and not
+/// normalised; a lamp whose flicker moves the same step by ±25 % (±0.875 DN, less than the 0.94 DN
+/// that `tests/bench/sim_tiles.py`'s ordered dither moves whole frames by) has its bright frames
+/// refused.
+#[test]
+fn dim_reference_frames_dithered_by_noise_are_kept_and_a_flickering_lamp_is_refused() {
+    let s = Sensor { black: 2.87, white: 255, a: 0.019, b: 0.04 };
+    let levels: [f64; 6] = [3.5, 7.0, 14.0, 28.0, 56.0, 112.0];
+    let mut got = Vec::new();
+    for flicker in [0.0, 0.25] {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mut rng = ChaCha8Rng::seed_from_u64(2110);
+        for i in 0..2 * DARK_FRAMES {
+            let iso = if i < DARK_FRAMES { 100 } else { 200 };
+            write(dir.path(), &format!("dark_{i:03}.dng"), &s, &s.noisy(0.0, &mut rng), iso, 1000);
+        }
+        for (k, &level) in levels.iter().enumerate() {
+            let ns = (level * 10_000.0).round() as u64;
+            for j in 0..8 {
+                // The lamp at the dim step only: alternate frames ±`flicker`.
+                let lamp = if k == 0 { 1.0 + flicker * if j % 2 == 0 { -1.0 } else { 1.0 } } else { 1.0 };
+                let clean = s.black + level * lamp;
+                let px = Array2::from_shape_fn((H, W), |_| (clean + rng.random::<f64>()).floor() as u16);
+                write(dir.path(), &format!("ref_{k:03}_{j}.dng"), &s, &px, 100, 2 * ns);
+            }
+            for t in 0..TARGETS {
+                write(dir.path(), &format!("target_{k:03}_{t}.dng"), &s, &s.noisy(level, &mut rng), 200, ns);
+            }
+        }
+        let (_, report) = calibrate(dir.path());
+        let (refused, normalised) = brightness_verdicts(&report);
+        eprintln!("flicker ±{:.0} %: {refused} refused, {normalised} normalised", 100.0 * flicker);
+        for w in report.rejected.iter().chain(&report.warnings).filter(|w| w.contains("brightness")) {
+            eprintln!("  {w}");
+        }
+        got.push((refused, normalised));
+    }
+    assert_eq!(got[0], (0, 0), "steady dithered references: (refused, normalised)");
+    // The burst's first frame is a dim one: the four bright ones read +24.9 … +66.8 % off the
+    // burst's running median, and each is refused. A rule wide enough to keep the ordered
+    // dither's frames (+32 %) keeps the first of them (+24.9 %): at most 3 refused.
+    assert_eq!(got[1], (4, 0), "a lamp flickering by ±25 % at 3.5 DN: (refused, normalised)");
+}
