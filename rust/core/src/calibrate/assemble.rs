@@ -4,7 +4,7 @@
 
 use crate::calibrate::codes::{detect, output_range};
 use crate::calibrate::dark::difference;
-use crate::calibrate::estimate::{BinLevels, Pooling, estimate_position};
+use crate::calibrate::estimate::{BinLevels, Pooling, estimate_position_with_black};
 use crate::calibrate::motion::MOTION_TOLERANCE;
 use crate::calibrate::session::CalibrationSession;
 use crate::error::SessionError;
@@ -57,6 +57,7 @@ impl CalibrationSession {
                 (iso, (0..POSITIONS).find(empty))
             })
             .collect();
+        let black_noise = self.all_black_noise();
         // Every (ISO, position) is estimated on its own: in parallel, collected in order.
         let estimates: Vec<_> = jobs
             .par_iter()
@@ -66,7 +67,10 @@ impl CalibrationSession {
                 let shifts = acc.shifts_of(p);
                 let range = output_range(&acc.codes[p], self.layout.white);
                 let levels = levels[p].clone().with_range([range.floor, range.saturation]);
-                unreached[&iso].is_none().then(|| estimate_position(&folds, &shifts, &levels, pooling))
+                let black = black_noise.get(&iso).map(|h| &h[p]);
+                unreached[&iso]
+                    .is_none()
+                    .then(|| estimate_position_with_black(&folds, &shifts, &levels, pooling, black))
             })
             .collect();
         let mut isos = Vec::new();
@@ -219,6 +223,19 @@ impl CalibrationSession {
             patterns.insert(burst.iso, fp);
         }
         patterns
+    }
+
+    /// Every ISO's noise at black from its dark frames, the dark burst in progress included
+    /// (when it is the one its ISO's pattern would come from).
+    fn all_black_noise(&self) -> std::collections::BTreeMap<u32, [crate::model::histogram::NoiseHistogram; POSITIONS]> {
+        let mut out = self.black_noise.clone();
+        if let Some(burst) = self.open_dark()
+            && self.patterns.get(&burst.iso).is_none_or(|old| old.frames < burst.frames())
+            && let Some(h) = burst.black_noise(&self.binning)
+        {
+            out.insert(burst.iso, h);
+        }
+        out
     }
 
     /// Gives each calibrated ISO with dark frames its fixed pattern: significant when it stands

@@ -11,7 +11,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::calibrate::frame::FrameView;
 use crate::error::SessionError;
-use crate::model::layout::{POSITIONS, SensorLayout, position};
+use crate::model::histogram::NoiseHistogram;
+use crate::model::layout::{Binning, POSITIONS, SensorLayout, position};
 use crate::model::structure::{FixedPattern, OffsetDistribution, PATTERN_QUANTILES};
 
 /// Shading grid cells (rows, columns) per CFA position.
@@ -258,6 +259,35 @@ impl DarkBurst {
         }
         self.frames += 1;
         Ok(())
+    }
+
+    /// The noise at black that the burst measures, as the pack's bins count noise: per CFA
+    /// position, the histogram of `v − round(m)` over the pixels whose level `round(m)` falls in
+    /// bin 0 of `binning` (black's bin, which also takes the levels below black), `v` the pixel in
+    /// the burst's last frame and `m` its mean over the other frames (an estimate of its clean
+    /// level that the sample itself is not part of). `None` below three frames. Where a session's
+    /// darkest step holds only dark frames, this is the only measurement of bin 0
+    /// ([`crate::calibrate::estimate::estimate_position_with_black`]).
+    ///
+    /// `m` carries `σ²/(n − 1)` of sampling variance (3 % of `σ²` for 32 frames) and is rounded
+    /// to a whole level as a lit sample's clean level is; on a sub-DN sensor the sample is then
+    /// `round(c + e) − round(c)`, whose spread depends on where the pixels' clean levels `c`
+    /// sit in their codes, which no variance law can tell.
+    pub fn black_noise(&self, binning: &Binning) -> Option<[NoiseHistogram; POSITIONS]> {
+        if self.frames < 3 || self.previous.len() != self.sum.len() {
+            return None;
+        }
+        let w = self.width;
+        let others = (self.frames - 1) as f64;
+        let mut out: [NoiseHistogram; POSITIONS] = std::array::from_fn(|_| NoiseHistogram::default());
+        for (i, (&s, &v)) in self.sum.iter().zip(&self.previous).enumerate() {
+            let p = position(i / w, i % w);
+            let level = ((s - v as u32) as f64 / others).round();
+            if binning.bin(p, level as f32) == 0 {
+                out[p].add(v as i32 - level as i32);
+            }
+        }
+        Some(out)
     }
 
     /// Each pixel's mean over the burst minus its position's mean (DN, row-major), and the

@@ -191,6 +191,10 @@ pub struct CalibrationSession {
     /// The reference ISO's dark pattern, pixel by pixel (O(pixels)): the other ISOs' patterns
     /// are compared with it to know what their pixel PMFs hold.
     pub(super) reference_pattern: Option<ReferencePattern>,
+    /// Per ISO with dark frames, the noise they measure in bin 0 per position
+    /// ([`DarkBurst::black_noise`]), of the burst its pattern comes from.
+    #[serde(default)]
+    pub(super) black_noise: BTreeMap<u32, [NoiseHistogram; POSITIONS]>,
     dark_frames: u64,
 }
 
@@ -221,6 +225,7 @@ impl CalibrationSession {
             dark: None,
             patterns: BTreeMap::new(),
             reference_pattern: None,
+            black_noise: BTreeMap::new(),
             dark_frames: 0,
         })
     }
@@ -304,6 +309,10 @@ impl CalibrationSession {
             (fp.temporal_var.iter().sum::<f64>() / POSITIONS as f64).sqrt()
         ));
         self.patterns.insert(burst.iso, fp);
+        match burst.black_noise(&self.binning) {
+            Some(h) => self.black_noise.insert(burst.iso, h),
+            None => self.black_noise.remove(&burst.iso),
+        };
     }
 
     /// What closing `burst` gives: the reference ISO's new pattern map (when the burst is the

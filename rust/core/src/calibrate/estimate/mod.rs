@@ -116,6 +116,92 @@ pub fn estimate_position(
     estimate_position_among(folds, shifts, levels, pooling, &[0.0])
 }
 
+/// Below this variance (DN²) the noise at black is shaped by the lattice: a sample is
+/// `round(c + e) − round(c)`, whose spread depends on where the clean levels `c` sit in their
+/// codes by an amount of order `exp(−2π²σ²)` of it (0.7 % at 0.25 DN², 17 % at 0.09). Black's
+/// level sits where the sensor's black offset puts it, which tells nothing about other levels.
+pub const LATTICE_BOUND_VAR: f64 = 0.25;
+
+/// [`estimate_position`] with the noise the ISO's dark frames measure at black
+/// ([`crate::calibrate::dark::DarkBurst::black_noise`]; `None` without a dark step). Where bin 0
+/// (black's) holds fewer lit samples than [`OVERRIDE_MIN_HELDOUT`] (a session whose darkest
+/// step is all dark frames) and the dark frames reach no end of the output range there, bin 0
+/// stands on the dark frames' samples instead of its neighbours' noise moved there by the
+/// law's extrapolation (method.md, "Estimation" 8):
+/// - below [`LATTICE_BOUND_VAR`] its PMF is their histogram (with the estimator's pseudo-sample
+///   of weight `1/(N+1)`) and nothing else changes: at sub-DN noise black's variance is that of
+///   black's place in its code, which the law must not carry to the other levels;
+/// - from it up they join bin 0's lit samples, in one fold (they are one frame), so the bin
+///   keeps its own histogram (a one-frame bin, "Estimation" 5) and the law toward black is
+///   fitted on them.
+///
+/// A bin 0 with lit samples of its own is left as it is.
+pub fn estimate_position_with_black(
+    folds: &[&[NoiseHistogram]],
+    shifts: &[&[[f64; 3]]],
+    levels: &BinLevels,
+    pooling: Pooling,
+    black: Option<&NoiseHistogram>,
+) -> PositionEstimate {
+    let lit: u64 = folds.iter().filter_map(|f| f.first()).map(NoiseHistogram::total).sum();
+    let usable = |h: &&NoiseHistogram| {
+        h.total() > 0
+            && lit < OVERRIDE_MIN_HELDOUT
+            && !levels.is_empty()
+            && clip::clip_fraction(h, levels.lowest_sure(0), levels.hi[0], levels.floor, levels.white) <= CLIP_FRACTION
+    };
+    let Some(black) = black.filter(usable) else {
+        return estimate_position(folds, shifts, levels, pooling);
+    };
+    let mut own = NoiseHistogram::default();
+    for f in folds {
+        if let Some(h) = f.first() {
+            own.merge(h);
+        }
+    }
+    own.merge(black);
+    let own = own.trimmed();
+    let stat = Stat::of(&own);
+    if stat.var < LATTICE_BOUND_VAR {
+        let mut e = estimate_position(folds, shifts, levels, pooling);
+        e.bins[0] = if pooling == Pooling::Plain {
+            let (first, counts) = (own.first, own.counts.clone());
+            BinModel {
+                first,
+                counts,
+                samples: stat.n,
+                source: BinSource::Measured,
+                measured: Some([stat.mean, stat.var]),
+                clipped: false,
+            }
+        } else {
+            let eps = 1.0 / (stat.n as f64 + 1.0);
+            let mut mix = Acc::default();
+            let n = own.total() as f64;
+            mix.add(&Pmf { first: own.first, p: own.counts.iter().map(|&c| c as f64 / n).collect() }, 1.0 - eps);
+            mix.add(&laplace_pmf(stat.mean, stat.var, levels.reach()), eps);
+            let pmf = Pmf::from_weights(mix.first, mix.w.iter().copied())
+                .unwrap_or(Pmf { first: stat.mean.round() as i32, p: vec![1.0] });
+            BinModel::estimated(&pmf, stat.n, BinSource::Measured, Some([stat.mean, stat.var]), false)
+        };
+        return e;
+    }
+    // The first fold that holds samples takes them (fold 0 when none does).
+    let k = folds.iter().position(|f| f.iter().any(|h| h.total() > 0)).unwrap_or(0);
+    let mut with: Vec<NoiseHistogram> = folds.get(k).map_or_else(Vec::new, |f| f.to_vec());
+    if with.len() < levels.len() {
+        with.resize(levels.len(), NoiseHistogram::default());
+    }
+    with[0].merge(black);
+    let mut all: Vec<&[NoiseHistogram]> = folds.to_vec();
+    if all.is_empty() {
+        all.push(&with);
+    } else {
+        all[k] = &with;
+    }
+    estimate_position(&all, shifts, levels, pooling)
+}
+
 /// [`estimate_position`] with the Gaussian's weights taken among `shrinks` (ascending, `0`
 /// first): `&[0.0]` is the estimator without shrinkage, for comparisons.
 pub(crate) fn estimate_position_among(
