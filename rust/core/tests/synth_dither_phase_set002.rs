@@ -7,14 +7,11 @@
 //! the real figures are those of the set's held-out frames, `frame − round(clean)`
 //! (`tests/bench/emva1288_black.py`).
 
-use ndarray::Array2;
-use noisecal_core::ModelPack;
+mod set002;
+
 use noisecal_core::model::structure::Components;
 use noisecal_core::synth::sampler::IsoSampler;
-use noisecal_core::synth::synthesize;
-
-/// The pack calibrated from set 002 (README beside it).
-const PACK: &[u8] = include_bytes!("../../../tests/data/emva002/ladder.pack");
+use set002::{drawn_offsets, mean_var, set002};
 
 /// Per code: the real variance and the real shares at −2 … +2 DN (`/tmp/i12/black.txt`,
 /// held-out frames of set 002). Code 14's variance, 0.4342 DN², is a measurement that happens to
@@ -33,16 +30,10 @@ const REAL: [(u16, f64, [f64; 5]); 8] = [
 
 /// Variance and shares at −2 … +2 DN of `noisy − code` over `seeds` flat images at `code`.
 fn drawn(sampler: &IsoSampler, code: u16, seeds: u64) -> (f64, [f64; 5]) {
-    let mut v = Vec::new();
-    for seed in 0..seeds {
-        let clean = Array2::<u16>::from_elem((200, 512), code);
-        v.extend(synthesize(sampler, clean.view(), seed).iter().map(|&x| f64::from(x) - f64::from(code)));
-    }
+    let v = drawn_offsets(sampler, code, seeds);
     let n = v.len() as f64;
-    let mean = v.iter().sum::<f64>() / n;
-    let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n;
     let shares = std::array::from_fn(|k| v.iter().filter(|&&x| x == k as f64 - 2.0).count() as f64 / n);
-    (var, shares)
+    (mean_var(&v).1, shares)
 }
 
 /// Measured (2 seeds of 200 × 512; default / pixel-only variance, then the default's shares
@@ -56,16 +47,12 @@ fn drawn(sampler: &IsoSampler, code: u16, seeds: u64) -> (f64, [f64; 5]) {
 /// before, +0.029 / +0.078 / +0.036 DN² at codes 3 / 4 / 7.
 #[test]
 fn sub_dn_codes_draw_the_pattern_with_the_pixel_noise() {
-    let pack = ModelPack::from_bytes(PACK).expect("the set 002 pack loads");
+    let (pack, pattern) = set002();
     let iso = pack.isos[0].iso;
     let model = pack.iso(iso).expect("its ISO");
     let st = pack.structure_of(iso);
     let default = IsoSampler::with_structure(&pack, model, st, Components::ALL);
     let pixel = IsoSampler::with_structure(&pack, model, st, Components::PIXEL);
-    let pattern = {
-        let fpn = st.and_then(|s| s.fpn.as_ref()).expect("a fixed pattern from the dark burst");
-        (0..4).map(|p| fpn.variance(p)).sum::<f64>() / 4.0
-    };
     for (code, real, shares) in REAL {
         let (d, ds) = drawn(&default, code, 2);
         let (p, ps) = drawn(&pixel, code, 2);
