@@ -9,9 +9,8 @@
 
 mod set002;
 
-use noisecal_core::model::structure::Components;
 use noisecal_core::synth::sampler::IsoSampler;
-use set002::{drawn_offsets, mean_var, set002};
+use set002::{default_and_pixel, drawn_offsets, mean_var, set002};
 
 /// Per code: the real variance and the real shares at −2 … +2 DN (`/tmp/i12/black.txt`,
 /// held-out frames of set 002). Code 14's variance, 0.4342 DN², is a measurement that happens to
@@ -48,11 +47,7 @@ fn drawn(sampler: &IsoSampler, code: u16, seeds: u64) -> (f64, [f64; 5]) {
 #[test]
 fn sub_dn_codes_draw_the_pattern_with_the_pixel_noise() {
     let (pack, pattern) = set002();
-    let iso = pack.isos[0].iso;
-    let model = pack.iso(iso).expect("its ISO");
-    let st = pack.structure_of(iso);
-    let default = IsoSampler::with_structure(&pack, model, st, Components::ALL);
-    let pixel = IsoSampler::with_structure(&pack, model, st, Components::PIXEL);
+    let (default, pixel) = default_and_pixel(&pack);
     for (code, real, shares) in REAL {
         let (d, ds) = drawn(&default, code, 2);
         let (p, ps) = drawn(&pixel, code, 2);

@@ -10,7 +10,7 @@ mod set002;
 
 use noisecal_core::model::structure::Components;
 use noisecal_core::synth::sampler::IsoSampler;
-use set002::{drawn_offsets, mean_var, set002};
+use set002::{default_and_pixel, drawn_offsets, mean_var, set002};
 
 /// Black's code (black 2.83–2.92 DN by position: 0.13 DN above it).
 const BLACK_CODE: u16 = 3;
@@ -36,11 +36,7 @@ fn drawn(sampler: &IsoSampler, code: u16, seeds: u64) -> (f64, f64) {
 #[test]
 fn at_black_the_default_draws_pixel_only_less_the_offsets() {
     let (pack, pattern) = set002();
-    let iso = pack.isos[0].iso;
-    let model = pack.iso(iso).expect("its ISO");
-    let st = pack.structure_of(iso);
-    let default = IsoSampler::with_structure(&pack, model, st, Components::ALL);
-    let pixel = IsoSampler::with_structure(&pack, model, st, Components::PIXEL);
+    let (default, pixel) = default_and_pixel(&pack);
     let (d, dm) = drawn(&default, BLACK_CODE, 4);
     let (p, pm) = drawn(&pixel, BLACK_CODE, 4);
     eprintln!(

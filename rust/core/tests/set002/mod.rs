@@ -4,6 +4,7 @@
 
 use ndarray::Array2;
 use noisecal_core::ModelPack;
+use noisecal_core::model::structure::Components;
 use noisecal_core::synth::sampler::IsoSampler;
 use noisecal_core::synth::synthesize;
 
@@ -17,6 +18,15 @@ pub fn set002() -> (ModelPack, f64) {
     let fpn = st.and_then(|s| s.fpn.as_ref()).expect("a fixed pattern from the dark burst");
     let pattern = (0..4).map(|p| fpn.variance(p)).sum::<f64>() / 4.0;
     (pack, pattern)
+}
+
+/// The samplers of the pack's ISO with the default components and with pixel noise alone.
+pub fn default_and_pixel(pack: &ModelPack) -> (IsoSampler, IsoSampler) {
+    let iso = pack.isos[0].iso;
+    let model = pack.iso(iso).expect("its ISO");
+    let st = pack.structure_of(iso);
+    let at = |which| IsoSampler::with_structure(pack, model, st, which);
+    (at(Components::ALL), at(Components::PIXEL))
 }
 
 /// `noisy − code` over `seeds` flat 200 × 512 images at `code`.

@@ -165,15 +165,7 @@ pub fn estimate_position_with_black(
     if stat.var < LATTICE_BOUND_VAR {
         let mut e = estimate_position(folds, shifts, levels, pooling);
         e.bins[0] = if pooling == Pooling::Plain {
-            let (first, counts) = (own.first, own.counts.clone());
-            BinModel {
-                first,
-                counts,
-                samples: stat.n,
-                source: BinSource::Measured,
-                measured: Some([stat.mean, stat.var]),
-                clipped: false,
-            }
+            BinModel::from_histogram(&own)
         } else {
             let eps = 1.0 / (stat.n as f64 + 1.0);
             let mut mix = Acc::default();
