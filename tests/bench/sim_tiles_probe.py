@@ -32,10 +32,13 @@ lines are kept in ``OUT/calibrate-*.log``. Then, for each level of sim_tiles.py'
   (``plain``); each as variance and its ratio to the truth.
 
 The calibration steps' own levels up to ``--max-level`` (3.5, 7, … DN: codes whose bins hold
-their own samples) are printed too, marked ``*``. A second table gives the mean and the 0.1 % / 99.9 % quantiles of each. Last, the calibration's
-lines on refused, normalised or flickering frames (the pack's warnings, or ``noisecal
-calibrate``'s output with ``--cli``) and how often each reference burst's clean image
-``round(mean)`` differs from ``round(clean)`` at the steps up to ``--max-level``.
+their own samples) are printed too, marked ``*``. A second table gives the mean and the 0.1 % /
+99.9 % quantiles of each. Last, the calibration's lines on refused, normalised or flickering
+frames (the pack's warnings name the frames normalised as drift or flicker; frames *refused* are
+listed only by ``noisecal calibrate``'s output, with ``--cli``: with the ordered references, 7 at
+the 3.5 and 10.5 DN steps, as tests/e2e/tests/sim_tiles_references.rs's small set also shows) and
+how often each reference burst's clean image ``round(mean)`` differs from ``round(clean)`` at the
+steps up to ``--max-level``.
 """
 
 from __future__ import annotations
