@@ -230,14 +230,15 @@ def numpy_calibrate(folder: Path) -> dict:
 # --- the side-by-side run -----------------------------------------------------------------------
 
 
-def timed(cmd: list[str]) -> tuple[float, float]:
-    """(wall s, CPU s of the process: user + system)."""
+def timed(cmd: list[str]) -> tuple[float, float, float, float]:
+    """(wall s, CPU s of the process: user + system, its system s, its minor page faults)."""
     r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
     wall = time.perf_counter() - t0
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return wall, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+    system = r1.ru_stime - r0.ru_stime
+    return wall, (r1.ru_utime - r0.ru_utime) + system, system, float(r1.ru_minflt - r0.ru_minflt)
 
 
 def main() -> None:
@@ -260,7 +261,7 @@ def main() -> None:
             subprocess.run([exes[0], "-q", "simulate", "--dngs", str(session), "--width", "4000", "--height", "3000",
                             "--frames", "8", "--isos", "800", "--ev=0", "--seed", "5"], check=True)
         nframes = len(list(session.glob("*.dng")))
-        times: dict[str, list[tuple[float, float]]] = {"numpy": [], **{e: [] for e in exes}}
+        times: dict[str, list[tuple[float, float, float, float]]] = {"numpy": [], **{e: [] for e in exes}}
         for _ in range(a.rounds):
             times["numpy"].append(timed([sys.executable, __file__, "--numpy-only", str(session)]))
             for e in exes:
@@ -277,6 +278,11 @@ def main() -> None:
             print(f"  {k:60s} median {med[k]:7.2f} s  (runs: {', '.join(f'{x[i]:.2f}' for x in v)})")
         for e in exes:
             print(f"  noisecal / numpy ({e}): {med[e] / med['numpy']:.3f}   (bound ≤ 0.25)")
+    # Where the system time goes: mostly the kernel zeroing pages faulted in for fresh buffers.
+    print(" system time and minor page faults (medians):")
+    for k, v in times.items():
+        print(f"  {k:60s} system {statistics.median(x[2] for x in v):6.2f} s  "
+              f"faults {statistics.median(x[3] for x in v):9.0f}")
 
 if __name__ == "__main__":
     main()

@@ -596,6 +596,7 @@ fn with_noise_scale(mut f: Fit) -> Fit {
     f
 }
 
+mod anchor_bits;
 mod probe;
 use probe::GRADIENT_UNITS;
 pub use probe::{MOTION_TOLERANCE, MotionProbe};

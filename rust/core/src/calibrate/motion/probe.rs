@@ -7,6 +7,7 @@ use std::sync::OnceLock;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use super::anchor_bits::{AnchorBits, thin_anchors};
 use crate::calibrate::flat::{FlatReport, Groups, NOT_FLAT};
 use crate::math::fit::poly_eval;
 use crate::math::round::round_half_away;
@@ -93,8 +94,8 @@ fn lattice(i: usize, d: isize, n: usize) -> usize {
     }
 }
 
-/// One band of rows' edge samples and anchors (pixel, noise SD), as [`MotionProbe::new`] finds them.
-type BandSamples = (Vec<u32>, Vec<(u32, f32)>);
+/// One band of rows' edge samples and anchors, as [`MotionProbe::new`] finds them.
+type BandSamples = (Vec<u32>, AnchorBits);
 
 /// Rows per band of the probe's parallel passes.
 const BAND_ROWS: usize = 64;
@@ -142,7 +143,7 @@ impl ProbeRow<'_> {
         frames: u32,
         clip: f32,
         edges: &mut Vec<u32>,
-        anchors: &mut Vec<(u32, f32)>,
+        anchors: &mut AnchorBits,
         inner: &mut Vec<[i32; 2]>,
     ) {
         let Self { mean, levels, w, y, .. } = *self;
@@ -168,7 +169,7 @@ impl ProbeRow<'_> {
             if hypot_above(g, threshold) {
                 edges.push(i as u32);
             } else if levels[i] != NOT_FLAT {
-                anchors.push((i as u32, sd as f32));
+                anchors.set(i);
             }
         }
     }
@@ -316,9 +317,8 @@ impl MotionProbe {
             .map(|b| {
                 let rows = (b * BAND_ROWS..((b + 1) * BAND_ROWS).min(h)).filter(|&y| sampled(y, row_step));
                 let mut edges: Vec<u32> = Vec::new();
-                // At most every pixel of the band's sampled rows is an anchor: room for them
-                // all at once (pages are touched only as they fill), not regrown as they come.
-                let mut anchors: Vec<(u32, f32)> = Vec::with_capacity(rows.clone().count() * w);
+                let first = b * BAND_ROWS;
+                let mut anchors = AnchorBits::new(first * w, (((b + 1) * BAND_ROWS).min(h) - first) * w);
                 let mut inner = Vec::with_capacity(w);
                 for y in rows {
                     let row = ProbeRow { mean: &mean, levels, w, h, y, tolerance: &tolerance };
@@ -331,9 +331,18 @@ impl MotionProbe {
         // every flat pixel of the sampled rows: megabytes for the thousand kept).
         let mut samples: Vec<u32> = thin_parts(bands.iter().map(|b| b.0.as_slice()), MAX_EDGE_SAMPLES);
         let anchors_from = samples.len();
-        let anchors = thin_parts(bands.iter().map(|b| b.1.as_slice()), MAX_ANCHOR_SAMPLES);
-        samples.extend(anchors.iter().map(|a| a.0));
-        let anchor_sd: Vec<f32> = anchors.iter().map(|a| a.1).collect();
+        let anchor_bits: Vec<AnchorBits> = bands.into_iter().map(|b| b.1).collect();
+        let anchors = thin_anchors(&anchor_bits, MAX_ANCHOR_SAMPLES);
+        samples.extend_from_slice(&anchors);
+        // Each kept anchor's noise SD, as the row pass reads it ([`ProbeRow::sd`]).
+        let anchor_sd: Vec<f32> = anchors
+            .iter()
+            .map(|&i| {
+                let i = i as usize;
+                let row = ProbeRow { mean: &mean, levels, w, h, y: i / w, tolerance: &tolerance };
+                row.sd(position(i / w, i % w), i) as f32
+            })
+            .collect();
         Self { mean, samples, anchors_from, anchor_sd, gradient: GradientCache::default(), tolerance }
     }
 
