@@ -1,8 +1,8 @@
 //! Dim lit EV steps are not dark frames (issue 21 item 7; method.md, "Dim steps and dark
 //! frames"): a DNG folder laid out as EMVA 1288 set 002's converter writes it
-//! (`tests/bench/emva1288_ladder.py`, `tests/bench/sim_tiles.py`: per step 8 noiseless dithered
-//! reference frames at ISO 100 and twice the exposure, target frames at ISO 200; a dark burst at
-//! both ISOs), of a flat-field sensor with known noise, through the folder driver
+//! (`tests/bench/emva1288_ladder.py`: per step 8 noiseless dithered reference frames at ISO 100
+//! and twice the exposure, target frames at ISO 200; a dark burst at both ISOs; `tests/bench/sim_tiles.py`
+//! lays out its simulated set alike, with the sensor's own frames as references), of a flat-field sensor with known noise, through the folder driver
 //! (`calibrate_path`). Steps 0.5–5 DN above black pass `check_dark` (uniform, under 2 % of the
 //! range); they must stay EV steps, and the pack's noise there must follow the truth. A covered
 //! lens at several exposures without a separate dark burst must still give dark frames.
@@ -312,7 +312,7 @@ fn brightness_verdicts(report: &CalibrateReport) -> (usize, usize) {
 /// of a 3.5 DN step on an 8-bit sensor, a sub-DN level dithered onto the integers per pixel (as
 /// noise dithers it: `floor(clean + u)`, `u` uniform per pixel and frame), are kept and not
 /// normalised; a lamp whose flicker moves the same step by ±25 % (±0.875 DN, less than the 0.94 DN
-/// that `tests/bench/sim_tiles.py`'s ordered dither moves whole frames by) has its bright frames
+/// that the ordered dither of `tests/bench/sim_tiles.py --references ordered` moves whole frames by) has its bright frames
 /// refused.
 #[test]
 fn dim_reference_frames_dithered_by_noise_are_kept_and_a_flickering_lamp_is_refused() {
