@@ -340,7 +340,6 @@ fn structured_filler<'a, const TARGET: bool>(
                         true => row_offsets.fill(&mut offsets_row, |_| (0, 0), |_| 0),
                     },
                 }
-                let pairs = row.chunks_exact_mut(2).zip(src.chunks_exact(2)).zip(offsets_row.chunks_exact(2));
                 if phased {
                     let sets = [sampler.phase_sets(even), sampler.phase_sets(odd)];
                     let phased_row = PhasedRow {
@@ -362,6 +361,7 @@ fn structured_filler<'a, const TARGET: bool>(
                     phased_row.draw(&mut rng, row, &offsets_row);
                     continue;
                 }
+                let pairs = row.chunks_exact_mut(2).zip(src.chunks_exact(2)).zip(offsets_row.chunks_exact(2));
                 if finish {
                     for (i, ((o, c), k)) in pairs.enumerate() {
                         let u = rng.next_u64();
