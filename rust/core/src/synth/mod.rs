@@ -23,6 +23,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
 use crate::synth::dither_lanes::{DitherJumps, offsets_interleaved, offsets_split};
+use crate::synth::phase_tables::PhaseSet;
 use crate::synth::sampler::{BinTable, IsoSampler, fixed};
 use crate::synth::structure::ImageOffsets;
 
@@ -260,11 +261,14 @@ fn structured_filler<'a, const TARGET: bool>(
                 // Dither draws from a xorshift64* stream seeded by the band's stream per row (a
                 // 32-bit threshold needs no cryptographic quality).
                 let state = rng.next_u64() | 1;
-                // Whether a pixel of this row draws at its offset's phase (then the row's pattern
-                // and dither draws are kept for it, and its pixel draws replayed).
+                // Whether a pixel of this row may draw at its offset's phase (then the row's
+                // pattern and dither draws are kept for it, and its pixels drawn in the phased
+                // loop): the lowest level of each column parity against its position's top.
                 let top = [phase_top[even], phase_top[odd]];
-                let phased = top.iter().any(Option::is_some)
-                    && src.iter().enumerate().any(|(i, &c)| top[i & 1].is_some_and(|t| c <= t));
+                let phased = top.iter().any(Option::is_some) && {
+                    let lowest = parity_minima(&src);
+                    (0..2).any(|b| top[b].is_some_and(|t| lowest[b] <= u32::from(t)))
+                };
                 // Drawn in lanes for the vectorised pass; the target's shift keeps the serial
                 // pass (its per-pixel lookups left the lanes no faster), and draws them in lanes
                 // only for the phase (the same draws).
@@ -336,8 +340,27 @@ fn structured_filler<'a, const TARGET: bool>(
                         true => row_offsets.fill(&mut offsets_row, |_| (0, 0), |_| 0),
                     },
                 }
-                // The band's stream as the pixel draws find it, replayed for the phase.
-                let replay = phased.then(|| rng.clone());
+                if phased {
+                    let sets = [sampler.phase_sets(even), sampler.phase_sets(odd)];
+                    let phased_row = PhasedRow {
+                        sampler,
+                        positions: [even, odd],
+                        luts: [lut0, lut1],
+                        tabs: [tab0, tab1],
+                        sets,
+                        top,
+                        finish,
+                        y,
+                        src: &src,
+                        cols,
+                        pattern: &pattern_row,
+                        ry,
+                        dither: &dither,
+                        shift: &shift,
+                    };
+                    phased_row.draw(&mut rng, row, &offsets_row);
+                    continue;
+                }
                 let pairs = row.chunks_exact_mut(2).zip(src.chunks_exact(2)).zip(offsets_row.chunks_exact(2));
                 if finish {
                     for (i, ((o, c), k)) in pairs.enumerate() {
@@ -363,46 +386,73 @@ fn structured_filler<'a, const TARGET: bool>(
                     let a = draw(lut0, tab0, src[w - 1], u as u32) + offsets_row[w - 1];
                     row[w - 1] = sampler.finish(even, a, alt);
                 }
-                // The pixels whose table is drawn at their offset's phase: the same pixel draw
-                // `u` and dither draw `v`, one rounding of noise and offset together.
-                if let Some(mut replay) = replay {
-                    let sets = [sampler.phase_sets(even), sampler.phase_sets(odd)];
-                    let luts = [lut0, lut1];
-                    let positions = [even, odd];
-                    let at = |i: usize, u: u32, v: u32| -> Option<i32> {
-                        let (b, c) = (i & 1, src[i]);
-                        if top[b].is_none_or(|t| c > t) {
-                            return None;
-                        }
-                        let set = sets[b].get(luts[b][level(luts[b], c)] as usize)?.as_ref()?;
-                        let o = cols[i] + pattern_row[i] + ry + shift(i, c);
-                        Some(c as i32 + set.draw(o, v, u))
-                    };
-                    for i in (0..w - w % 2).step_by(2) {
-                        let u = replay.next_u64();
-                        let v = dither[i >> 1];
-                        let alt = ((i >> 1) + (y >> 1)) & 1 == 1;
-                        for (b, (uu, vv)) in
-                            [(u as u32, v as u32), ((u >> 32) as u32, (v >> 32) as u32)].into_iter().enumerate()
-                        {
-                            if let Some(a) = at(i + b, uu, vv) {
-                                row[i + b] = match finish {
-                                    true => sampler.finish(positions[b], a, alt),
-                                    false => a.clamp(0, white) as u16,
-                                };
-                            }
-                        }
-                    }
-                    if w % 2 == 1 {
-                        let u = replay.next_u64();
-                        let alt = ((w >> 1) + (y >> 1)) & 1 == 1;
-                        if let Some(a) = at(w - 1, u as u32, dither[w >> 1] as u32) {
-                            row[w - 1] = sampler.finish(even, a, alt);
-                        }
-                    }
-                }
             }
         })
+    }
+}
+
+/// A row in which some pixel draws at its offset's phase ([`structured_filler`]): its pixels'
+/// tables, phase tables and offsets. Out of line, so that the loops of the other rows compile
+/// as they did without it.
+struct PhasedRow<'a, S: Fn(usize, u16) -> i64> {
+    sampler: &'a IsoSampler,
+    /// The CFA positions of the row's even and odd columns.
+    positions: [usize; 2],
+    luts: [&'a [u16]; 2],
+    tabs: [&'a [BinTable]; 2],
+    sets: [&'a [Option<PhaseSet>]; 2],
+    /// Per column parity, the highest level drawn at the phase.
+    top: [Option<u16>; 2],
+    finish: bool,
+    y: usize,
+    src: &'a [u16],
+    cols: &'a [i64],
+    /// The row's fixed pattern (2⁻³² DN; zeros without one).
+    pattern: &'a [i64],
+    ry: i64,
+    /// The row's dither draws, one per pair ([`DitherJumps::fill`]).
+    dither: &'a [u64],
+    shift: &'a S,
+}
+
+impl<S: Fn(usize, u16) -> i64> PhasedRow<'_, S> {
+    /// The row's noisy pixels into `row`, each pair's pixel draw `u` from `rng` (in the stream's
+    /// order, as the other rows draw) and its dither draw `v`: a pixel whose table is drawn at
+    /// its offset's phase draws its noise and its offset in one rounding (`phase_tables.rs`),
+    /// the others add their integer offset from `offsets` to their table's draw.
+    #[inline(never)]
+    fn draw(&self, rng: &mut ChaCha8Rng, row: &mut [u16], offsets: &[i32]) {
+        let (src, w, y) = (self.src, self.src.len(), self.y);
+        let white = self.sampler.white as i32;
+        let noisy = |b: usize, i: usize, k: i32, u: u32, v: u32| -> i32 {
+            let (c, lut) = (src[i], self.luts[b]);
+            let t = lut[(c as usize).min(lut.len() - 1)] as usize;
+            let set = match self.top[b].is_some_and(|top| c <= top) {
+                true => self.sets[b].get(t).and_then(Option::as_ref),
+                false => None,
+            };
+            match set {
+                Some(set) => c as i32 + set.draw(self.cols[i] + self.pattern[i] + self.ry + (self.shift)(i, c), v, u),
+                None => c as i32 + self.tabs[b][t].sample_u32(u) + k,
+            }
+        };
+        let [even, odd] = self.positions;
+        for (j, (o, k)) in row.chunks_exact_mut(2).zip(offsets.chunks_exact(2)).enumerate() {
+            let (i, u, v) = (2 * j, rng.next_u64(), self.dither[j]);
+            let a = noisy(0, i, k[0], u as u32, v as u32);
+            let b = noisy(1, i + 1, k[1], (u >> 32) as u32, (v >> 32) as u32);
+            let alt = (j + (y >> 1)) & 1 == 1;
+            (o[0], o[1]) = match self.finish {
+                true => (self.sampler.finish(even, a, alt), self.sampler.finish(odd, b, alt)),
+                false => (a.clamp(0, white) as u16, b.clamp(0, white) as u16),
+            };
+        }
+        if w % 2 == 1 {
+            let u = rng.next_u64();
+            let alt = ((w >> 1) + (y >> 1)) & 1 == 1;
+            let a = noisy(0, w - 1, offsets[w - 1], u as u32, self.dither[w >> 1] as u32);
+            row[w - 1] = self.sampler.finish(even, a, alt);
+        }
     }
 }
 
@@ -470,6 +520,21 @@ impl<S: Fn(usize, u16) -> i64> RowOffsets<'_, S> {
         let k = cols[w - 1] + one(w - 1) + (self.shift)(w - 1, src[w - 1]);
         out[w - 1] = ((k + ry + (v as u32) as i64) >> 32) as i32;
     }
+}
+
+/// The lowest level of a row's even and of its odd columns (`u32::MAX` for a parity without a
+/// column): one pass the compiler vectorises.
+fn parity_minima(src: &[u16]) -> [u32; 2] {
+    let (mut m0, mut m1) = (u16::MAX, u16::MAX);
+    for c in src.chunks_exact(2) {
+        m0 = m0.min(c[0]);
+        m1 = m1.min(c[1]);
+    }
+    if src.len() % 2 == 1 {
+        m0 = m0.min(src[src.len() - 1]);
+    }
+    let seen = |m: u16, n: usize| if n > 0 { u32::from(m) } else { u32::MAX };
+    [seen(m0, src.len().div_ceil(2)), seen(m1, src.len() / 2)]
 }
 
 /// `c + n`, `n` drawn with the 32-bit uniform `u` from the table of clean level `c`'s bin

@@ -10,7 +10,7 @@
 //! with `Q ∗ K ≈ P` (non-negative deconvolution, [`crate::math::deconv`]). A pixel's
 //! marginal stays the measured one and no variance is counted twice.
 
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -66,6 +66,18 @@ pub struct StructureSampler {
     lanes: bool,
     /// The fixed pattern of the image region last synthesized (shared by clones).
     pattern_cache: Arc<PatternCache>,
+    /// Per position, [`Self::kernel`] and [`Self::pattern_dither`] once computed: they depend on
+    /// the components alone, and a sampler's build asks for them four times per position (the
+    /// bins, their phase tables, the fine levels, theirs).
+    kernels: [OnceLock<PositionKernels>; POSITIONS],
+}
+
+/// A position's kernel ([`StructureSampler::kernel`]) and the fixed pattern's dither beyond it
+/// ([`StructureSampler::pattern_dither`]).
+#[derive(Debug, Clone)]
+struct PositionKernels {
+    kernel: (i32, Vec<f64>),
+    pattern_dither: f64,
 }
 
 /// One image's offsets.
@@ -88,6 +100,7 @@ impl StructureSampler {
             lanes: fpn.as_ref().is_some_and(lanes_apply),
             fpn,
             pattern_cache: Arc::default(),
+            kernels: Default::default(),
         };
         (s.rows.iter().chain(&s.columns).any(Option::is_some) || s.frame.is_some() || s.fpn.is_some()).then_some(s)
     }
@@ -275,6 +288,19 @@ impl StructureSampler {
     /// The PMF of the integer offset a pixel at `pos` gets: `⌊o⌋ + Bernoulli(o − ⌊o⌋)` with `o`
     /// the sum of its frame, row and column offsets. Returns `(first, pmf)`.
     pub fn kernel(&self, pos: usize) -> (i32, Vec<f64>) {
+        self.kernels(pos).kernel.clone()
+    }
+
+    /// A position's kernel and pattern dither, computed on first use.
+    fn kernels(&self, pos: usize) -> &PositionKernels {
+        self.kernels[pos].get_or_init(|| PositionKernels {
+            kernel: self.compute_kernel(pos),
+            pattern_dither: self.compute_pattern_dither(pos),
+        })
+    }
+
+    /// [`Self::kernel`], computed.
+    fn compute_kernel(&self, pos: usize) -> (i32, Vec<f64>) {
         let mut dens = self.others_density(pos);
         // Of the fixed pattern, the pixel PMFs hold its change from the reference ISO's.
         if let Some(fp) = &self.fpn {
@@ -311,6 +337,11 @@ impl StructureSampler {
     /// synthesis adds the pattern to whole codes by a dither, a second rounding the sensor never
     /// made. Of that second rounding the kernel counted only its own part's.
     pub fn pattern_dither(&self, pos: usize) -> f64 {
+        self.kernels(pos).pattern_dither
+    }
+
+    /// [`Self::pattern_dither`], computed.
+    fn compute_pattern_dither(&self, pos: usize) -> f64 {
         let Some(fp) = &self.fpn else { return 0.0 };
         let others = self.others_density(pos);
         let held = convolve(&others, &quantile_density(&fp.in_pixel_noise[pos]));
