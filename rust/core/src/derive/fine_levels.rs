@@ -6,8 +6,9 @@
 //!
 //! The variance at a level is the law `b + a·x` fitted on the bins' variances read at their
 //! centres ([`crate::derive::noise_law::dark_law`]), `b` the variance at black measured by the
-//! ISO's dark step (without one, nothing is split), never below [`MIN_VARIANCE`]. A bin's shape and mean
-//! are kept; only its spread moves.
+//! ISO's dark step (without one, nothing is split), never below what the data measured
+//! ([`law_floor`]). A bin's shape and mean are kept; only its spread moves, and only where the
+//! rescale moves it toward the law ([`moves_toward`]): below about 1/6 DN² it cannot.
 
 use std::borrow::Cow;
 
@@ -25,9 +26,35 @@ pub const SPLIT_ABOVE: f64 = 0.05;
 /// Levels share one rescaled PMF while their variances lie within one step of this ratio (4 %).
 pub const GROUP_STEP: f64 = 1.04;
 
-/// The least variance a level is given (DN²): the two roundings a sample carries, the sensor's
-/// and the clean image's (1/12 each).
-pub const MIN_VARIANCE: f64 = 1.0 / 6.0;
+/// The clean image's rounding in [`variance_at_black`] (DN²): at most 1/12 (its fraction uniform
+/// over the code), 0 where the pixels' means sit on whole codes (EMVA set 002's dark means).
+pub const CLEAN_ROUNDING: f64 = 1.0 / 12.0;
+
+/// The least variance the law may give a level (DN²), from the data: with a dark step, what its
+/// frames measured at black without the clean image's rounding (the temporal variance, the frame
+/// offsets and the pattern change: `at_black − CLEAN_ROUNDING`), since a sample at black holds
+/// that plus a rounding of 0 to 1/12; without one (the fitted law of tests, as the sampler splits
+/// nothing without a dark step), one rounding, 1/12. It was a fixed 1/6 DN²
+/// (two independent roundings), an assumption a sub-DN sensor breaks: for noise of SD σ the
+/// variance about a rounded clean level is below 1/6 up to σ ≈ 0.3 DN whatever the clean
+/// level's fraction, and goes to 0 with σ (method.md, *Synthesis*, "Within a bin near black").
+pub fn law_floor(at_black: Option<f64>) -> f64 {
+    match at_black {
+        Some(v) if v.is_finite() => (v - CLEAN_ROUNDING).max(f64::MIN_POSITIVE),
+        _ => CLEAN_ROUNDING,
+    }
+}
+
+/// Whether a table rescaled to `target` is nearer it, by ratio, than the bin it was made from
+/// (`from` the bin's variance, `to` the table's): the piecewise-uniform rescale
+/// (`Pmf::rescaled`) reads a PMF's codes as unit cells, which a sub-DN PMF is not, and asked to
+/// widen set 002's bin at black (0.083 → 0.18 DN²) it narrowed it to 0.071. Such a level keeps
+/// its bin's own PMF: no smoothing step may lose to the histogram it smooths.
+pub fn moves_toward(from: f64, to: f64, target: f64) -> bool {
+    // Nearer by ratio: a table at a tenth of the law is no nearer than a bin at ten times it.
+    let off = |v: f64| (v / target).ln().abs();
+    to > 0.0 && target > 0.0 && (off(to) < off(from) || off(to) <= 1e-9)
+}
 
 /// Bins read for the first law, which decides which bins to split.
 const FIRST_LAW_BINS: usize = 6;
@@ -177,8 +204,9 @@ fn fine_levels_at(
     }
     // What the tables hold besides the pixel noise the dark frames measured (the structured
     // components a deconvolved table leaves out), read at the first bin read.
+    let floor = law_floor(at_black);
     let at_black = match (at_black, read.iter().position(Option::is_some)) {
-        (Some(v), Some(b)) => Some((v - (pack_bins[b].moments().1 - vars[b].unwrap_or(0.0))).max(MIN_VARIANCE)),
+        (Some(v), Some(b)) => Some((v - (pack_bins[b].moments().1 - vars[b].unwrap_or(0.0))).max(floor)),
         _ => None,
     };
     // Which bins to split: by the law over the darkest bins read (its intercept the measured
@@ -198,7 +226,7 @@ fn fine_levels_at(
     // bin (a bin's samples sit anywhere in it; over several bins their offsets average out).
     let count = read.iter().take(last + 2).flatten().count().max(2);
     let law = dark_law(&read, w, count, at_black)?;
-    let variance_at = |x: f64| law.variance(x).max(MIN_VARIANCE);
+    let variance_at = |x: f64| law.variance(x).max(floor);
     // Level → bin: the reference level's own, or the bin of the rounded reference level the
     // level stands for (the sampler's map for clean images at the target brightness).
     let reference = binning.lut(pos);
@@ -210,9 +238,14 @@ fn fine_levels_at(
     let flush = |run: &mut Option<(usize, i64, Vec<usize>, f64)>, lut: &mut Vec<u16>, extra: &mut Vec<BinModel>| {
         if let Some((b, _, levels, sum)) = run.take() {
             let bin: &BinModel = &bins[b];
-            let (mean, _) = bin.moments();
+            let (mean, own) = bin.moments();
             let v = sum / levels.len() as f64;
             let mut m = BinModel::from_pmf(&bin.pmf().rescaled(mean, v), bin.samples, bin.filled());
+            // The levels keep the bin's own PMF (their `lut` entry already) where the rescale
+            // cannot move it toward the law.
+            if !moves_toward(own, m.moments().1, v) {
+                return;
+            }
             m.source = bin.source;
             let index = (bins.len() + extra.len()) as u16;
             extra.push(m);
@@ -367,6 +400,69 @@ mod tests {
             worst = worst.max((v / m).max(m / v));
         }
         assert!(worst < 1.000_001, "a one-level bin's table is {worst}× off its own variance");
+    }
+
+    /// A three-point PMF: `p₋` at −1, `p₊` at +1, the rest at 0.
+    fn three_point(minus: f64, plus: f64) -> BinModel {
+        let p = Pmf::from_weights(-1, [minus, 1.0 - minus - plus, plus]).expect("pmf");
+        let mut b = BinModel::from_pmf(&p, 130_000, false);
+        b.source = crate::model::bin_source::BinSource::Measured;
+        b
+    }
+
+    #[test]
+    fn a_sub_dn_bin_at_black_keeps_its_own_pmf_where_the_rescale_cannot_reach_the_law() {
+        // EMVA set 002's bin 0 at position 2 (8 bits, 1 DN bins, black 2.87: bin 0 holds black's
+        // code 3 and the codes below): 0.083 DN² measured, the shares at −1 / +1 DN its held-out
+        // frames show. The dark frames put the law at 0.18 DN² at black (`T + 1/12`); asked for
+        // that, the piecewise-uniform rescale narrows the PMF instead (its codes are not unit
+        // cells of a density at sub-DN noise): 0.071 DN², 0.86 of the bin's own, which the
+        // sampler drew before. The level keeps its bin's PMF: nearer the law than the rescale.
+        let layout = SensorLayout { width: 8, height: 8, cfa: CfaPattern::Rggb, black: [2.87; 4], white: 255 };
+        let bn = Binning::new(&layout, 1);
+        let mut bins = vec![three_point(0.046, 0.042)];
+        bins.extend((1..bn.bins(0)).map(|k| gaussian(0.26 + 0.01 * k as f64)));
+        let own = bins[0].moments().1;
+        let rescaled = bins[0].pmf().rescaled(bins[0].moments().0, 0.18).moments().1;
+        assert!(rescaled < own, "the rescale narrows the bin ({own:.4} → {rescaled:.4}): the case the guard is for");
+        let fine = fine_levels(&bn, 0, &bins, &bins, Some(0.18));
+        let lut = fine.as_ref().map_or(bn.lut(0), |f| f.lut.clone());
+        for level in 0..4 {
+            assert_eq!(lut[level], 0, "level {level} draws from bin 0's own PMF");
+        }
+        // And where the rescale can reach the law, it still does (a wide bin, as above).
+        let bn64 = binning(64);
+        let wide = law_bins(&bn64, 3.3, 4.8);
+        let f = fine_levels(&bn64, 0, &wide, &wide, Some(4.8)).expect("split");
+        assert!(f.lut[1024] as usize >= wide.len(), "black's level draws a table rescaled to the law");
+    }
+
+    #[test]
+    fn the_law_may_reach_what_the_dark_frames_measured() {
+        // With a dark step the floor is the measured variance less the clean image's rounding
+        // (0 to 1/12): a sensor of 0.2 DN at black has T = 0.04 and `T + 1/12` = 0.123 DN², which
+        // the old floor of 1/6 lifted by 35 %. Without a dark step, one rounding.
+        assert!((law_floor(Some(0.04 + CLEAN_ROUNDING)) - 0.04).abs() < 1e-12);
+        assert_eq!(law_floor(None), CLEAN_ROUNDING);
+        assert!(law_floor(Some(0.01)) > 0.0, "a floor is positive");
+        // 14 bits, 64 DN bins, 0.123 DN² at black measured by dark frames: asked for that, the
+        // rescale of a wide bin cannot make a sub-DN table (its Sheppard correction reads the
+        // codes as cells of a smooth density: up to 16 % off below 1 DN² here), and a table
+        // farther from the law than the bin is not drawn.
+        let bn = binning(64);
+        let (a, b) = (0.02, 0.123);
+        let bins: Vec<BinModel> = (0..bn.bins(0)).map(|k| gaussian(b + a * (k as f64 + 0.5) * 64.0)).collect();
+        let f = fine_levels(&bn, 0, &bins, &bins, Some(b)).expect("split");
+        let all: Vec<BinModel> = bins.iter().chain(&f.extra).cloned().collect();
+        for x in 0..256usize {
+            let k = f.lut[1024 + x] as usize;
+            let (v, own) = (all[k].moments().1, bins[bn.lut(0)[1024 + x] as usize].moments().1);
+            let law = b + a * x as f64;
+            let off = |v: f64| (v / law).ln().abs();
+            // A group's table is nearer its group's mean law than the bin (levels share one
+            // table within a 4 % step of the law).
+            assert!(off(v) <= off(own) + GROUP_STEP.ln(), "level {x}: table {v:.4}, bin {own:.4}, law {law:.4}");
+        }
     }
 
     #[test]
