@@ -33,7 +33,7 @@ fn drawn(sampler: &IsoSampler, code: u16, seeds: u64) -> (f64, f64) {
 /// black wider (0.135 DN²) than pixel-only's (0.097) before any offset was added. With the
 /// pattern drawn with the pixel noise at the lattice's floor (`synth/phase_tables.rs`) the
 /// default draws 0.0983. On the re-cut pack with bin 0 kept whole at black (the rescale toward
-/// the dark frames' 0.18–0.23 DN² narrowed it instead; `fine_levels::moves_toward`): default /
+/// the dark frames' 0.18–0.23 DN² narrowed it instead; a one-level bin, `derive/fine_levels.rs`): default /
 /// pixel-only 0.1080 / 0.0949 (1.17× / 1.03×).
 #[test]
 fn at_black_the_default_draws_pixel_only_less_the_offsets() {
