@@ -360,7 +360,10 @@ impl Pack {
     /// `(N, H, W)`; image `i` of a batch uses seed `seed + i` (a folder's files are seeded by
     /// name instead: `noisecal.seed_for`). `components` chooses the noise components
     /// (`"pixel,row,column,frame,fpn"`; default: all the pack calibrated), as `noisecal synth
-    /// --components`. `clean_at` is the brightness the clean image is at, as `noisecal synth
+    /// --components`. The rule: a clean image from your own burst means (this sensor's frames
+    /// averaged) carries the sensor's fixed pattern already, so pass `components="own"` (the same
+    /// as `"pixel,row,column,frame"`: every component but `fpn`); a clean image without it
+    /// (rendered, another camera's, denoised) takes the default. `clean_at` is the brightness the clean image is at, as `noisecal synth
     /// --clean-at`: `"reference"` (default: the reference ISO's brightness for the same ISO ×
     /// exposure; the output gets the target ISO's, its gain ratios `gain_ratios(iso)` applied) or
     /// `"target"` (already at the target ISO's brightness: the noise has no mean shift).

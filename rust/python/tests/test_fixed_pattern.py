@@ -106,3 +106,17 @@ def test_pattern_cache_setting_changes_no_byte(dark_pack: noisecal.Pack) -> None
     assert copy.copy(p).pattern_cache_mb == 7
     assert pickle.loads(pickle.dumps(p)).pattern_cache_mb == 7
     assert dark_pack.pattern_cache_mb == 192
+
+
+def test_own_is_every_component_but_the_pattern(dark_pack: noisecal.Pack) -> None:
+    # The rule for clean images from your own burst means (docs/method.md, *Fixed pattern*,
+    # "Which components for which clean image"): components="own" is "pixel,row,column,frame",
+    # byte for byte, and differs from the default, which adds the pattern the clean image carries.
+    black = int(round(dark_pack.layout["black"][0]))
+    clean = (black + 5 + np.arange(40 * 60).reshape(40, 60) % 300).astype(np.uint16)
+    own = dark_pack.synth(clean, ISO, 4, components="own")
+    assert np.array_equal(own, dark_pack.synth(clean, ISO, 4, components="pixel,row,column,frame"))
+    assert np.array_equal(dark_pack.synth(clean, ISO, 4, components="own,fpn"), dark_pack.synth(clean, ISO, 4))
+    assert not np.array_equal(own, dark_pack.synth(clean, ISO, 4))
+    with pytest.raises(noisecal.NoisecalError, match="own"):
+        dark_pack.synth(clean, ISO, 4, components="owned")

@@ -46,9 +46,9 @@ pub struct Args {
     /// Noise components to add: pixel, row, column, frame, fpn (comma-separated; default: every
     /// component the pack calibrated). `pixel` alone is the pixel-independent model of version 2
     /// packs; the parametric baselines (`--model hg|pg|noiseprofile`) are always pixel-only.
-    /// `fpn` is the sensor's fixed pattern from the dark step: leave it out
-    /// (`pixel,row,column,frame`) for clean images averaged from this sensor's own frames, which
-    /// carry it already.
+    /// `fpn` is the sensor's fixed pattern from the dark step: for a clean image averaged from
+    /// this sensor's own frames (a burst mean), which carries it already, pass `own` (every
+    /// component but `fpn`, the same as `pixel,row,column,frame`).
     #[arg(long, value_parser = parse_components)]
     pub components: Option<Components>,
     /// The brightness the clean image is at. `reference` (default): the reference ISO's

@@ -17,6 +17,12 @@ use rayon::prelude::*;
 
 use crate::models::origin_text;
 
+/// The pack's own row: every component but the fixed pattern ([`Components::ON_OWN_CAPTURES`]),
+/// because the held-out clean images are burst means of this sensor's frames, which carry its
+/// pattern already (adding it again read above pixel-only by about the pattern's variance on
+/// EMVA 1288 set 002; method.md, *Fixed pattern*, "Which components for which clean image").
+pub(super) const OWN_LABEL: &str = "noisecal (non-parametric; components pixel,row,column,frame: no fpn, the held-out clean images are burst means, which carry the fixed pattern)";
+
 /// A model scored against held-out captures.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum CandidateKind {
@@ -162,14 +168,14 @@ pub(super) fn candidates(
         synth: (0..seeds).map(|_| fresh()).collect(),
         spatial: (0..seeds).map(|_| SpatialSamples::new()).collect(),
     };
-    let mut list =
-        vec![candidate(CandidateKind::Noisecal, "noisecal (non-parametric)".into(), origin.clone(), &model, None)];
+    let mut list = vec![candidate(CandidateKind::Noisecal, OWN_LABEL.into(), origin.clone(), &model, None)];
     // With structured components, the pixel-independent model alone is scored next to it: what
     // the components add (the pixel-only model and the full one side by side in one evaluation).
     if list[0].sampler.structure().is_some() {
         list.push(Candidate {
             kind: CandidateKind::NoisecalPixel,
-            label: "noisecal, pixel noise only (no row, column or frame offsets)".into(),
+            label: "noisecal, pixel noise only (components pixel: no row, column or frame offsets, no fixed pattern)"
+                .into(),
             origin: origin.clone(),
             sampler: IsoSampler::with_components(pack, &model, Components::PIXEL),
             synth: (0..seeds).map(|_| fresh()).collect(),
@@ -241,7 +247,9 @@ fn build(
         CandidateKind::NoisecalLoo => without.map(|w| {
             interp::interpolate_with(w, iso, false, &interp::InterpOptions::default())
                 .map(|(m, plan)| BuiltModel {
-                    label: "noisecal interpolated (leave-one-out; same components as the calibrated row)".to_string(),
+                    label:
+                        "noisecal interpolated (leave-one-out; components pixel,row,column,frame as the calibrated row)"
+                            .to_string(),
                     origin: format!("interpolated from {:?} (ISO {iso} left out)", plan.neighbours),
                     model: m,
                     from: Some(plan.neighbours),

@@ -47,7 +47,7 @@ pub fn render_text(r: &EvalReport) -> String {
         };
         let mut ranked: Vec<&ModelScore> = ie.models.iter().collect();
         ranked.sort_by(|a, b| a.conditional_overall.total_cmp(&b.conditional_overall));
-        for m in ranked {
+        for m in &ranked {
             line(&mut s, &m.name, m.conditional_overall, m.marginal_overall, m.kl_overall, &m.conditional);
         }
         if let Some(f) = &ie.floor {
@@ -63,6 +63,10 @@ pub fn render_text(r: &EvalReport) -> String {
         }
         if let Some(sp) = &ie.spatial {
             spatial_lines(&mut s, sp);
+        }
+        // What each row holds (the pack's rows: which noise components).
+        for m in ranked.iter().filter(|m| m.name.starts_with("noisecal")) {
+            let _ = writeln!(s, "  {:<14} = {}", m.name, m.label);
         }
     }
     if let Some(rows) = &r.leave_one_out {

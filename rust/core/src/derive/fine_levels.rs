@@ -6,8 +6,8 @@
 //!
 //! The variance at a level is the law `b + a·x` fitted on the bins' variances read at their
 //! centres ([`crate::derive::noise_law::dark_law`]), `b` the variance at black measured by the
-//! ISO's dark step (without one, nothing is split), never below [`MIN_VARIANCE`]. A bin's shape and mean
-//! are kept; only its spread moves.
+//! ISO's dark step (without one, nothing is split), never below what the data measured
+//! ([`law_floor`]). A bin's shape and mean are kept; only its spread moves.
 
 use std::borrow::Cow;
 
@@ -25,9 +25,24 @@ pub const SPLIT_ABOVE: f64 = 0.05;
 /// Levels share one rescaled PMF while their variances lie within one step of this ratio (4 %).
 pub const GROUP_STEP: f64 = 1.04;
 
-/// The least variance a level is given (DN²): the two roundings a sample carries, the sensor's
-/// and the clean image's (1/12 each).
-pub const MIN_VARIANCE: f64 = 1.0 / 6.0;
+/// The clean image's rounding in [`variance_at_black`] (DN²): at most 1/12 (its fraction uniform
+/// over the code), 0 where the pixels' means sit on whole codes (EMVA set 002's dark means).
+pub const CLEAN_ROUNDING: f64 = 1.0 / 12.0;
+
+/// The least variance the law may give a level (DN²), from the data: with a dark step, what its
+/// frames measured at black without the clean image's rounding (the temporal variance, the frame
+/// offsets and the pattern change: `at_black − CLEAN_ROUNDING`), since a sample at black holds
+/// that plus a rounding of 0 to 1/12; without one (the fitted law of tests, as the sampler splits
+/// nothing without a dark step), one rounding, 1/12. It was a fixed 1/6 DN²
+/// (two independent roundings), an assumption a sub-DN sensor breaks: for noise of SD σ the
+/// variance about a rounded clean level is below 1/6 up to σ ≈ 0.3 DN whatever the clean
+/// level's fraction, and goes to 0 with σ (method.md, *Synthesis*, "Within a bin near black").
+pub fn law_floor(at_black: Option<f64>) -> f64 {
+    match at_black {
+        Some(v) if v.is_finite() => (v - CLEAN_ROUNDING).max(f64::MIN_POSITIVE),
+        _ => CLEAN_ROUNDING,
+    }
+}
 
 /// Bins read for the first law, which decides which bins to split.
 const FIRST_LAW_BINS: usize = 6;
@@ -177,8 +192,9 @@ fn fine_levels_at(
     }
     // What the tables hold besides the pixel noise the dark frames measured (the structured
     // components a deconvolved table leaves out), read at the first bin read.
+    let floor = law_floor(at_black);
     let at_black = match (at_black, read.iter().position(Option::is_some)) {
-        (Some(v), Some(b)) => Some((v - (pack_bins[b].moments().1 - vars[b].unwrap_or(0.0))).max(MIN_VARIANCE)),
+        (Some(v), Some(b)) => Some((v - (pack_bins[b].moments().1 - vars[b].unwrap_or(0.0))).max(floor)),
         _ => None,
     };
     // Which bins to split: by the law over the darkest bins read (its intercept the measured
@@ -187,9 +203,17 @@ fn fine_levels_at(
     let first = at_black.map_or(first, |v| DarkLaw { intercept: v, slope: first.slope });
     // Bins one level wide (an 8-bit sensor's): above bin 0 a bin holds one whole level, its PMF
     // is that level's own, and the law would only replace what the level measured (on EMVA set
-    // 002 the levels 1–12 DN above black lost 10–40 % of their variance to it). Bin 0 still
-    // pools black's level with the one above it (and the few below black).
-    let one_level = |b: usize| binning.bin_width <= 1 && b > 0;
+    // 002 the levels 1–12 DN above black lost 10–40 % of their variance to it).
+    //
+    // Bin 0 too where it holds one whole level from half a code below black up (black's code,
+    // when black's fraction is half a code or more: EMVA set 002, black 2.82–2.92, bin 0 = codes
+    // 0–3), the levels under it below black: asked to widen that code's PMF (0.083–0.104 DN²
+    // measured, the held-out frames 0.092) to the dark frames' `T + 1/12` = 0.18–0.23, the
+    // piecewise-uniform rescale (`Pmf::rescaled`, Sheppard's 1/12 for unit cells of a smooth
+    // density, which a sub-DN PMF is not) narrowed it to 0.071–0.098. Where bin 0 holds two
+    // (black 6.3: codes 6 and 7) it is split as before.
+    let bin0_one_level = (black + 1.0).ceil() - 1.0 < (black - 0.5).ceil() + 1.0;
+    let one_level = |b: usize| binning.bin_width <= 1 && (b > 0 || bin0_one_level);
     let needs = |b: usize| {
         !one_level(b) && vars[b].is_some() && first.slope * w > SPLIT_ABOVE * first.variance((b as f64 + 0.5) * w)
     };
@@ -198,7 +222,7 @@ fn fine_levels_at(
     // bin (a bin's samples sit anywhere in it; over several bins their offsets average out).
     let count = read.iter().take(last + 2).flatten().count().max(2);
     let law = dark_law(&read, w, count, at_black)?;
-    let variance_at = |x: f64| law.variance(x).max(MIN_VARIANCE);
+    let variance_at = |x: f64| law.variance(x).max(floor);
     // Level → bin: the reference level's own, or the bin of the rounded reference level the
     // level stands for (the sampler's map for clean images at the target brightness).
     let reference = binning.lut(pos);
@@ -367,6 +391,53 @@ mod tests {
             worst = worst.max((v / m).max(m / v));
         }
         assert!(worst < 1.000_001, "a one-level bin's table is {worst}× off its own variance");
+    }
+
+    /// A three-point PMF: `p₋` at −1, `p₊` at +1, the rest at 0.
+    fn three_point(minus: f64, plus: f64) -> BinModel {
+        let p = Pmf::from_weights(-1, [minus, 1.0 - minus - plus, plus]).expect("pmf");
+        let mut b = BinModel::from_pmf(&p, 130_000, false);
+        b.source = crate::model::bin_source::BinSource::Measured;
+        b
+    }
+
+    #[test]
+    fn a_one_level_bin_at_black_keeps_its_own_pmf() {
+        // EMVA set 002's bin 0 at position 2 (8 bits, 1 DN bins, black 2.87: bin 0 holds black's
+        // code 3 and the codes below): 0.083 DN² measured, the shares at −1 / +1 DN its held-out
+        // frames show. The dark frames put the law at 0.18 DN² at black (`T + 1/12`); asked for
+        // that, the piecewise-uniform rescale narrows the PMF instead (its codes are not unit
+        // cells of a density at sub-DN noise): 0.071 DN², 0.86 of the bin's own, which the
+        // sampler drew before. Bin 0 holds one whole level at or above black here (code 3), so
+        // it keeps its PMF, as every one-level bin does.
+        let layout = SensorLayout { width: 8, height: 8, cfa: CfaPattern::Rggb, black: [2.87; 4], white: 255 };
+        let bn = Binning::new(&layout, 1);
+        let mut bins = vec![three_point(0.046, 0.042)];
+        bins.extend((1..bn.bins(0)).map(|k| gaussian(0.26 + 0.01 * k as f64)));
+        let own = bins[0].moments().1;
+        let rescaled = bins[0].pmf().rescaled(bins[0].moments().0, 0.18).moments().1;
+        assert!(rescaled < own, "the rescale narrows the bin ({own:.4} → {rescaled:.4}): the case the guard is for");
+        let fine = fine_levels(&bn, 0, &bins, &bins, Some(0.18));
+        let lut = fine.as_ref().map_or(bn.lut(0), |f| f.lut.clone());
+        for level in 0..4 {
+            assert_eq!(lut[level], 0, "level {level} draws from bin 0's own PMF");
+        }
+        // Black at 2.3 (a fraction under half a code): bin 0 holds codes 2 (−0.3) and 3 (+0.7),
+        // two levels the law tells apart, and is split as before.
+        let layout = SensorLayout { width: 8, height: 8, cfa: CfaPattern::Rggb, black: [2.3; 4], white: 255 };
+        let bn = Binning::new(&layout, 1);
+        let split = fine_levels(&bn, 0, &bins, &bins, Some(0.18)).expect("bin 0 split");
+        assert!((2..4).any(|l| split.lut[l] as usize >= bins.len()), "{:?}", &split.lut[..5]);
+    }
+
+    #[test]
+    fn the_law_may_reach_what_the_dark_frames_measured() {
+        // With a dark step the floor is the measured variance less the clean image's rounding
+        // (0 to 1/12): a sensor of 0.2 DN at black has T = 0.04 and `T + 1/12` = 0.123 DN², which
+        // the old floor of 1/6 lifted by 35 %. Without a dark step, one rounding.
+        assert!((law_floor(Some(0.04 + CLEAN_ROUNDING)) - 0.04).abs() < 1e-12);
+        assert_eq!(law_floor(None), CLEAN_ROUNDING);
+        assert!(law_floor(Some(0.01)) > 0.0, "a floor is positive");
     }
 
     #[test]

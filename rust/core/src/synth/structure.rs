@@ -437,7 +437,7 @@ impl StructureSampler {
     /// `bins` bins. So the default components draw what pixel-only draws there with the offsets
     /// taken out, as at every other level; made from the deconvolved bins instead, the fine
     /// levels' law was anchored at the dark frames' variance less what the first bin read lost
-    /// to its deconvolution, then held at `MIN_VARIANCE` (EMVA set 002 at black: 0.135 DN² drawn
+    /// to its deconvolution, then held at 1/6 DN² (EMVA set 002 at black: 0.135 DN² drawn
     /// where the bin deconvolved to 0.014, against pixel-only's 0.097).
     pub(crate) fn deconvolved_tables(
         &self,

@@ -22,11 +22,22 @@ pub fn set002() -> (ModelPack, f64) {
 
 /// The samplers of the pack's ISO with the default components and with pixel noise alone.
 pub fn default_and_pixel(pack: &ModelPack) -> (IsoSampler, IsoSampler) {
+    (sampler(pack, Components::ALL), sampler(pack, Components::PIXEL))
+}
+
+/// The sampler of the pack's ISO with every component but the fixed pattern
+/// ([`Components::ON_OWN_CAPTURES`]): what the real figures of these tests are compared with.
+/// Their clean images (the flat field's mean: the dark burst's mean plus the mean signal times
+/// the flat field's shape) carry the sensor's pattern, so `frame − round(clean)` holds none of
+/// it, and a synthetic image that adds the pattern again reads above it by the pattern's variance.
+pub fn own(pack: &ModelPack) -> IsoSampler {
+    sampler(pack, Components::ON_OWN_CAPTURES)
+}
+
+fn sampler(pack: &ModelPack, which: Components) -> IsoSampler {
     let iso = pack.isos[0].iso;
     let model = pack.iso(iso).expect("its ISO");
-    let st = pack.structure_of(iso);
-    let at = |which| IsoSampler::with_structure(pack, model, st, which);
-    (at(Components::ALL), at(Components::PIXEL))
+    IsoSampler::with_structure(pack, model, pack.structure_of(iso), which)
 }
 
 /// `noisy − code` over `seeds` flat 200 × 512 images at `code`.

@@ -80,6 +80,8 @@ class Pack:
         black_level: float | Sequence[float] | None = None,
         cfa_origin: tuple[int, int] = (0, 0),
         extrapolate: bool = False,
+        # "pixel,row,column,frame,fpn" in any combination, "all", or "own" (all but fpn: for a clean
+        # image averaged from this sensor's own frames, which carries its fixed pattern already)
         components: str | None = None,
         clean_at: CleanAt = "reference",
         out_of_range: OutOfRange = "raise",
@@ -93,6 +95,8 @@ class Pack:
         model: Model = "noisecal",
         cfa_origin: tuple[int, int] = (0, 0),
         extrapolate: bool = False,
+        # "pixel,row,column,frame,fpn" in any combination, "all", or "own" (all but fpn: for a clean
+        # image averaged from this sensor's own frames, which carries its fixed pattern already)
         components: str | None = None,
         clean_at: CleanAt = "reference",
         out_of_range: OutOfRange = "raise",

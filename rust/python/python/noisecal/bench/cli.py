@@ -51,7 +51,7 @@ def parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--captures", type=Path, help="real captures of the training scenes (<clean stem>_*.dng): oracle, noise on noise")
     p.add_argument("--set", type=Path, help="a folder laid out as `noisecal simulate --bench` writes it")
-    p.add_argument("--models", default=DEFAULT_MODELS, help=f"comma-separated [LABEL=]MODEL[:COMPONENTS][@PACK]; MODEL in {', '.join(BASE_MODELS)} [default: %(default)s]")
+    p.add_argument("--models", default=DEFAULT_MODELS, help=f"comma-separated [LABEL=]MODEL[:COMPONENTS][@PACK]; MODEL in {', '.join(BASE_MODELS)}; COMPONENTS e.g. pixel, or own (all but the fixed pattern: training clean images that carry it, e.g. your own burst means) [default: %(default)s]")
     p.add_argument("--components", action="append", help="add a noisecal row with these components (e.g. pixel), repeatable")
     p.add_argument("--plain-pack", help="the plain per-bin pack for the `plain` model (noisecal calibrate --plain)")
     p.add_argument("--isos", help="target ISOs to benchmark (comma-separated) [default: all in --eval]")
