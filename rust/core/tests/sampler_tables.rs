@@ -384,17 +384,30 @@ fn draw_time_entries_against_cells() {
             })
             .collect()
     };
-    // Build times, alternating (the cell layout first finds each bin's grid step).
-    let (mut be, mut bc) = (vec![], vec![]);
-    for _ in 0..3 {
+    // Build times, alternating: one entry per DN, the cells at the step the decoder kept, and
+    // the search for each bin's step that the cell layout made before it was kept (every bin
+    // re-expanded at the widest steps until one gives it back).
+    let search = || -> usize {
+        (0..POSITIONS)
+            .flat_map(|p| &m.positions[p].bins)
+            .map(|b| GRID_STEPS.iter().rev().copied().find(|&k| is_expansion(&b.counts, k)).unwrap_or(1))
+            .sum()
+    };
+    let (mut be, mut bc, mut bs) = (vec![], vec![], vec![]);
+    for _ in 0..5 {
         let t0 = std::time::Instant::now();
         std::hint::black_box(build(false));
         be.push(t0.elapsed().as_secs_f64() * 1e3);
         let t0 = std::time::Instant::now();
         std::hint::black_box(build(true));
         bc.push(t0.elapsed().as_secs_f64() * 1e3);
+        let t0 = std::time::Instant::now();
+        std::hint::black_box(search());
+        bs.push(t0.elapsed().as_secs_f64() * 1e3);
     }
-    println!("  build (one thread, ms): entries {be:.0?}, cells {bc:.0?}");
+    println!(
+        "  build (ms): entries {be:.0?}, cells at the kept step {bc:.0?}, the search for the steps alone {bs:.0?}"
+    );
     let (entries, cells) = (build(false), build(true));
     let bytes = |t: &Vec<Vec<BinTable>>| t.iter().flatten().map(BinTable::heap_bytes).sum::<usize>();
     println!("{path} ISO {}: entries {} bytes, cells {} bytes", m.iso, bytes(&entries), bytes(&cells));
