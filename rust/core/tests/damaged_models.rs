@@ -36,6 +36,7 @@ fn pack() -> ModelPack {
                                 source: BinSource::Measured,
                                 measured: None,
                                 clipped: false,
+                                grid_step: 0,
                             })
                             .collect(),
                     )

@@ -134,6 +134,7 @@ fn migrate_bin(bm: BinModelV1, levels: Option<&BinLevels>, b: usize) -> BinModel
         source: if bm.filled { BinSource::Filled } else { BinSource::Measured },
         measured: (!bm.filled && bm.samples > 0).then_some([moments.0, moments.1]),
         clipped,
+        grid_step: 0,
     }
 }
 

@@ -135,6 +135,7 @@ pub(crate) fn decode_iso(
                 .map(|&k| code.weight(k).ok_or_else(|| damaged(&format!("{} has a code naming no weight", here()))))
                 .collect::<Result<Vec<u64>, _>>()?;
             bin.counts = if k > 1 { expand(&values, k) } else { values };
+            bin.grid_step = if k > 1 { k as u16 } else { 0 };
             prev = Some((bin.first, bin.counts.clone()));
         }
     }

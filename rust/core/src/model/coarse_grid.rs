@@ -31,6 +31,20 @@ pub fn cell_masses(w: &[u64], k: usize) -> Vec<u64> {
     w.chunks(k.max(1)).map(|c| c.iter().fold(0u64, |a, &x| a.saturating_add(x))).collect()
 }
 
+/// The masses of weights `w` over `first ..` in cells of `k` DN whose edges lie at `origin + j·k`
+/// (the first cell the one holding `first`, the last padded with empty DN), and the first DN of
+/// the first cell.
+pub fn cell_masses_at(first: i32, w: &[u64], k: usize, origin: i32) -> (i32, Vec<u64>) {
+    let k = k.max(1);
+    let lead = (first as i64 - origin as i64).rem_euclid(k as i64) as usize;
+    let mut masses = vec![0u64; (lead + w.len()).div_ceil(k)];
+    for (i, &x) in w.iter().enumerate() {
+        let m = &mut masses[(lead + i) / k];
+        *m = m.saturating_add(x);
+    }
+    (first - lead as i32, masses)
+}
+
 /// One weight per DN from cell masses `k` DN wide: each cell's mass split along a line from the
 /// density at its left edge (the mean of its own and its left neighbour's, 0 beyond the ends) to
 /// the one at its right edge. The weights of each cell sum to its mass exactly.
@@ -172,10 +186,19 @@ pub fn stored_step(w: &[u64], precision: Precision) -> usize {
 /// [`crate::model::precision::store_bin`] gives). Compacting such a bin again leaves it as it
 /// is, whichever step its exact PMF would have been given: an exact PMF is almost never either.
 pub fn is_stored(w: &[u64], precision: Precision) -> bool {
-    stored_step(w, precision) > 1
-        || (w.iter().all(|&c| precision.holds(c))
+    stored_form(w, precision).is_some()
+}
+
+/// The step `w` is stored at when it is already in a stored form ([`is_stored`]): its
+/// [`stored_step`] when that is a coarse one, 1 for a bin stored per DN; `None` otherwise.
+pub fn stored_form(w: &[u64], precision: Precision) -> Option<usize> {
+    let k = stored_step(w, precision);
+    let per_dn = || {
+        w.iter().all(|&c| precision.holds(c))
             && crate::model::precision::measurable_span(w, crate::model::precision::TAIL_BITS)
-                .is_some_and(|(lo, hi)| lo == 0 && hi + 1 == w.len()))
+                .is_some_and(|(lo, hi)| lo == 0 && hi + 1 == w.len())
+    };
+    (k > 1 || per_dn()).then_some(k)
 }
 
 /// Mean and variance of weights over `first ..`.

@@ -135,7 +135,7 @@ impl PositionModel {
 
 /// The noise PMF of one (ISO, position, bin): weights over `first ..` (counts for a plain
 /// histogram; for estimated bins, probabilities scaled to a fixed total).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct BinModel {
     pub first: i32,
     pub counts: Vec<u64>,
@@ -148,6 +148,24 @@ pub struct BinModel {
     pub measured: Option<[f64; 2]>,
     /// The bin's samples reach 0 or white: its measured moments are shrunk by clipping.
     pub clipped: bool,
+    /// The cell width `k > 1` of the coarse grid whose re-expansion the weights are, where that
+    /// is known (`counts == expand(cell_masses(counts, k), k)`, [`crate::model::coarse_grid`]):
+    /// set by the pack decoder, which read the bin as cells of `k` DN, and by
+    /// [`ModelPack::compacted`], which stored it so. 0 where not known (kept per DN, derived,
+    /// deconvolved, built by hand): whoever changes `counts` leaves it 0. The sampler draws a
+    /// bin with a step from its cells (`synth/sampler_cells.rs`) without re-expanding it to find
+    /// the step. Not in the file's fields (the weights' stream codes the step with the bin) and
+    /// not compared by `==`: it says what the weights are, nothing besides.
+    #[serde(skip)]
+    pub grid_step: u16,
+}
+
+impl PartialEq for BinModel {
+    fn eq(&self, o: &Self) -> bool {
+        let Self { first, counts, samples, source, measured, clipped, grid_step: _ } = self;
+        (first, counts, samples, source, measured, clipped)
+            == (&o.first, &o.counts, &o.samples, &o.source, &o.measured, &o.clipped)
+    }
 }
 
 impl BinModel {
@@ -176,7 +194,7 @@ impl BinModel {
             (Some(lo), Some(hi)) => (p.first + lo as i32, counts[lo..=hi].to_vec()),
             _ => (p.first + p.p.len() as i32 / 2, vec![1]),
         };
-        Self { first, counts, samples: 0, source: BinSource::Filled, measured: None, clipped: false }
+        Self { first, counts, samples: 0, source: BinSource::Filled, measured: None, clipped: false, grid_step: 0 }
     }
 
     pub fn pmf(&self) -> Pmf {
@@ -220,6 +238,7 @@ impl BinModel {
             source: if filled { BinSource::Filled } else { BinSource::Pooled },
             measured: None,
             clipped: false,
+            grid_step: 0,
         };
         if b.counts.iter().all(|&c| c == 0) {
             b.counts = vec![1];
@@ -241,6 +260,7 @@ impl BinModel {
                 source: BinSource::Filled,
                 measured: None,
                 clipped: false,
+                grid_step: 0,
             };
         }
         Self {
@@ -250,6 +270,7 @@ impl BinModel {
             source: BinSource::Measured,
             measured: Some([m, v]),
             clipped: false,
+            grid_step: 0,
         }
     }
 }
@@ -418,7 +439,7 @@ impl ModelPack {
     /// [`crate::model::coarse_grid`]): what loading its file gives. Idempotent: a bin already in
     /// its stored form at a coarse step is left as it is.
     pub fn compacted(&self) -> ModelPack {
-        use crate::model::coarse_grid::{choose_step, is_stored, store_coarse};
+        use crate::model::coarse_grid::{choose_step, store_coarse, stored_form};
         let mut p = self.clone();
         for m in p.isos.iter_mut() {
             let calibrated = m.is_calibrated();
@@ -427,14 +448,18 @@ impl ModelPack {
                 // A sensor that writes only some codes has a PMF of spikes: kept per DN.
                 let may_coarsen = estimated && m.lattice[pos].is_none();
                 for b in q.bins.iter_mut() {
+                    // The weights change below, or are found stored at a known step.
+                    b.grid_step = 0;
                     if calibrated {
                         let precision = crate::model::precision::bin_precision(estimated, b.samples);
-                        if may_coarsen && is_stored(&b.counts, precision) {
+                        if let Some(k) = stored_form(&b.counts, precision).filter(|_| may_coarsen) {
+                            b.grid_step = if k > 1 { k as u16 } else { 0 };
                             continue;
                         }
                         let k = if may_coarsen { choose_step(&b.counts, b.samples, precision) } else { 1 };
                         if k > 1 {
                             store_coarse(&mut b.first, &mut b.counts, k, precision);
+                            b.grid_step = k as u16;
                         } else {
                             crate::model::precision::store_bin(&mut b.first, &mut b.counts, precision);
                         }
@@ -477,6 +502,7 @@ mod tests {
                 source: BinSource::Measured,
                 measured: None,
                 clipped: false,
+                grid_step: 0,
             };
             for u in [0.0, 1e-3, 0.25, 0.5, 0.999, 1.0] {
                 assert_eq!(b.quantile(u).to_bits(), b.pmf().quantile(u).to_bits(), "{:?} at {u}", b.counts);

@@ -8,6 +8,7 @@ use rayon::prelude::*;
 
 use crate::derive::fine_levels::{FineLevels, position_fine_levels};
 use crate::math::round::floor_i32;
+use crate::model::coarse_grid::GRID_STEPS;
 use crate::model::codes::Snap;
 use crate::model::layout::{Binning, POSITIONS, lut_at_reference_levels, reference_level};
 use crate::model::pack::{BinModel, IsoModel, ModelPack};
@@ -25,6 +26,10 @@ const ONE: u64 = 1 << 32;
 /// The bytes an ISO's tables are kept within where they fit with the sparse guide: the denser
 /// guide ([`Guide::Dense`]) is not allowed to take them past it ([`Guide::for_tables`]).
 pub const TABLE_BUDGET: usize = 4_000_000;
+/// The most a table put on a coarse grid to keep its ISO within [`TABLE_BUDGET`] may move its
+/// draws ([`BinTable::regridded`]): total variation distance to the per-DN table's, in units of
+/// 2⁻³².
+pub const REGRID_TV: u64 = 1 << 25;
 /// Entries past the last of a table (copies of it), so that the walk can read four at a time.
 const PAD: usize = 3;
 
@@ -56,8 +61,8 @@ pub struct BinTable {
 pub enum Layout {
     /// One 32-bit entry per DN, with a guide.
     Entries(Guide),
-    /// A bin whose weights are a coarse grid's re-expansion (`model::coarse_grid::expand`) kept
-    /// as its cells' cumulative masses, 8 bytes per cell of 2 to 128 DN: the weight at each DN
+    /// A bin whose weights are a coarse grid's re-expansion (`model::coarse_grid::expand`; its
+    /// [`BinModel::grid_step`], as the pack decoder read it) kept as its cells' cumulative masses, 8 bytes per cell of 2 to 128 DN: the weight at each DN
     /// is computed from them (a quadratic inside the cell) when a draw lands in the cell, and
     /// the draw is the per-DN table's. Other bins keep their entries with the guide given.
     Cells(Guide),
@@ -77,18 +82,34 @@ impl BinTable {
     pub fn with_layout(bin: &BinModel, layout: Layout) -> Self {
         match layout {
             Layout::Entries(g) => Self::with_guide(bin, g),
-            Layout::Cells(g) => match CoarseCells::of(&bin.counts) {
-                Some(c) => Self {
-                    first: bin.first,
-                    cdf1: Box::new([]),
-                    lead: 0,
-                    guide: Box::new([]),
-                    shift: 0,
-                    guide_shift: 0,
-                    cells: Some(Box::new(c)),
-                },
+            Layout::Cells(g) => match CoarseCells::at(&bin.counts, bin.grid_step as usize) {
+                Some(c) => Self::of_cells(bin.first, c),
                 None => Self::with_guide(bin, g),
             },
+        }
+    }
+
+    /// The table of `bin` put on a coarse grid: its weights' masses in cells of the widest step
+    /// of [`GRID_STEPS`] up to `widest` whose re-expansion draws within `bound` (total variation,
+    /// units of 2⁻³²) of the per-DN table of `bin`, on the grid through `origin`; `None` where
+    /// no step does.
+    pub(crate) fn regridded(bin: &BinModel, widest: usize, origin: i32, bound: u64) -> Option<Self> {
+        let cdf = cdf_of(&bin.counts);
+        GRID_STEPS.iter().rev().filter(|&&k| k <= widest).find_map(|&k| {
+            let (first, c, tv) = CoarseCells::regridded(bin.first, &bin.counts, &cdf, k, origin)?;
+            (tv <= bound).then(|| Self::of_cells(first, c))
+        })
+    }
+
+    fn of_cells(first: i32, cells: CoarseCells) -> Self {
+        Self {
+            first,
+            cdf1: Box::new([]),
+            lead: 0,
+            guide: Box::new([]),
+            shift: 0,
+            guide_shift: 0,
+            cells: Some(Box::new(cells)),
         }
     }
 
@@ -407,11 +428,15 @@ fn deconvolved_fine_levels(
 /// The tables of an ISO's bins (per position, `sources`' bins then its extra tables), kept
 /// within `budget` bytes where they can be: one entry per DN with the denser guide unless it
 /// takes them past the budget ([`Guide::for_tables`]); where even the sparse guide does, the
-/// bins on a coarse grid drawn from their cells ([`Layout::Cells`]) and the others' guide chosen
-/// within what the cells leave. Every layout draws every `u` to the same value.
+/// bins on a coarse grid drawn from their cells ([`Layout::Cells`]: the same draws); where the
+/// tables still pass it so, every table with a grid in `grids` (per position and table, as
+/// `sources`; missing: none) put on that grid, or a finer one, where its draws move by at most
+/// [`REGRID_TV`] ([`BinTable::regridded`]); the others' guide chosen within what the cells
+/// leave.
 fn tables_within(
     budget: usize,
     sources: &[(Cow<'_, [BinModel]>, Vec<BinModel>); POSITIONS],
+    grids: &[Vec<Option<(usize, i32)>>; POSITIONS],
 ) -> [Vec<BinTable>; POSITIONS] {
     let all = || sources.iter().flat_map(|(bins, extra)| bins.iter().chain(extra));
     let entries: usize = all().map(|b| Guide::Sparse.table_bytes(b.counts.len())).sum();
@@ -429,9 +454,32 @@ fn tables_within(
             .map(|b| Some(BinTable::with_layout(b, Layout::Cells(Guide::Dense))).filter(BinTable::is_cells))
             .collect()
     });
-    let held: usize = cells.iter().flatten().flatten().map(BinTable::heap_bytes).sum();
-    let rest = all().zip(cells.iter().flatten()).filter(|(_, c)| c.is_none()).map(|(b, _)| b.counts.len());
-    let guide = Guide::for_tables(budget.saturating_sub(held), rest);
+    let held = |cells: &[Vec<Option<BinTable>>; POSITIONS]| -> usize {
+        cells.iter().flatten().flatten().map(BinTable::heap_bytes).sum()
+    };
+    let rest = |cells: &[Vec<Option<BinTable>>; POSITIONS]| -> Vec<usize> {
+        all().zip(cells.iter().flatten()).filter(|(_, c)| c.is_none()).map(|(b, _)| b.counts.len()).collect()
+    };
+    let sparse = |lens: &[usize]| lens.iter().map(|&n| Guide::Sparse.table_bytes(n)).sum::<usize>();
+    if held(&cells) + sparse(&rest(&cells)) > budget {
+        for (p, c) in cells.iter_mut().enumerate() {
+            let (bins, extra) = &sources[p];
+            let done = std::mem::take(c);
+            *c = bins
+                .par_iter()
+                .chain(extra.par_iter())
+                .zip(done.into_par_iter())
+                .enumerate()
+                .map(|(t, (b, c))| {
+                    c.or_else(|| {
+                        let (k, origin) = grids[p].get(t).copied().flatten()?;
+                        BinTable::regridded(b, k, origin, REGRID_TV)
+                    })
+                })
+                .collect();
+        }
+    }
+    let guide = Guide::for_tables(budget.saturating_sub(held(&cells)), rest(&cells));
     std::array::from_fn(|p| {
         let (bins, extra) = &sources[p];
         let done = std::mem::take(&mut cells[p]);
@@ -459,7 +507,20 @@ impl IsoSampler {
         structure: Option<&IsoStructure>,
         which: Components,
     ) -> Self {
-        Self::build(pack, model, structure, which, None)
+        Self::build(pack, model, structure, which, None, TABLE_BUDGET)
+    }
+
+    /// [`Self::with_structure`] with the ISO's tables kept within `budget` bytes instead of
+    /// [`TABLE_BUDGET`] (`usize::MAX`: one entry per DN for every table, the exact draws): for
+    /// measuring what the budget's layouts change.
+    pub fn with_structure_within(
+        pack: &ModelPack,
+        model: &IsoModel,
+        structure: Option<&IsoStructure>,
+        which: Components,
+        budget: usize,
+    ) -> Self {
+        Self::build(pack, model, structure, which, None, budget)
     }
 
     /// [`Self::with_structure`] for clean images whose levels are all at most `top` (a single
@@ -476,7 +537,7 @@ impl IsoSampler {
         which: Components,
         top: u16,
     ) -> Self {
-        Self::build(pack, model, structure, which, Some(top))
+        Self::build(pack, model, structure, which, Some(top), TABLE_BUDGET)
     }
 
     /// [`Self::with_structure`], or [`Self::built_up_to`] with `top`.
@@ -486,6 +547,7 @@ impl IsoSampler {
         structure: Option<&IsoStructure>,
         which: Components,
         top: Option<u16>,
+        budget: usize,
     ) -> Self {
         let structure = structure.filter(|_| which.structured()).and_then(|st| StructureSampler::new(st, which));
         let binning = pack.binning();
@@ -520,7 +582,15 @@ impl IsoSampler {
             });
             (bins, extra)
         });
-        let mut tables = tables_within(TABLE_BUDGET, &sources);
+        // A bin deconvolved from one the pack keeps on a coarse grid may be put back on it.
+        let grids: [Vec<Option<(usize, i32)>>; POSITIONS] = std::array::from_fn(|p| {
+            let own = &model.positions[p].bins;
+            own.iter()
+                .zip(sources[p].0.iter())
+                .map(|(o, b)| (o.grid_step > 1 && b.grid_step <= 1).then_some((o.grid_step as usize, o.first)))
+                .collect()
+        });
+        let mut tables = tables_within(budget, &sources, &grids);
         let white = pack.layout.white;
         // Clean levels at the reference's ceiling are saturated pixels: they read the ceiling.
         for (p, (lut, tabs)) in luts.iter_mut().zip(tables.iter_mut()).enumerate() {
@@ -997,8 +1067,15 @@ mod tests {
                 })
                 .collect();
             let source = crate::model::pack::BinSource::Measured;
-            let bin =
-                BinModel { first: -7, counts: counts.clone(), samples: 10, source, measured: None, clipped: false };
+            let bin = BinModel {
+                first: -7,
+                counts: counts.clone(),
+                samples: 10,
+                source,
+                measured: None,
+                clipped: false,
+                grid_step: 0,
+            };
             let (sparse, dense) = (BinTable::with_guide(&bin, Guide::Sparse), BinTable::with_guide(&bin, Guide::Dense));
             assert_eq!(sparse.heap_bytes(), Guide::Sparse.table_bytes(len), "{len} entries");
             assert_eq!(dense.heap_bytes(), Guide::Dense.table_bytes(len), "{len} entries");

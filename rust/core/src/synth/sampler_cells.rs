@@ -12,7 +12,7 @@
 //! found among the cells' ends (a guide, then a walk), then within the cell by the quadratic's
 //! root and an exact integer check of its neighbours.
 
-use crate::model::coarse_grid::{GRID_STEPS, is_expansion};
+use crate::model::coarse_grid::{cell_masses_at, expand, is_expansion};
 
 /// Cells of a bin on a coarse grid of `k` DN, as [`super::BinTable`] draws them.
 #[derive(Debug, Clone, PartialEq)]
@@ -32,11 +32,15 @@ pub(crate) struct CoarseCells {
 }
 
 impl CoarseCells {
-    /// The cells of weights `w` when they are a coarse grid's re-expansion (the widest step of
-    /// [`GRID_STEPS`] that gives them back), with a total below 2⁶⁴ and at most 2¹⁶ cells;
-    /// `None` otherwise.
-    pub(crate) fn of(w: &[u64]) -> Option<Self> {
-        let k = GRID_STEPS.iter().rev().copied().find(|&k| is_expansion(w, k))?;
+    /// The cells of weights `w` that are the re-expansion of their cells of `k > 1` DN (a bin's
+    /// [`BinModel::grid_step`](crate::model::pack::BinModel::grid_step), which the pack decoder
+    /// knows: not looked for here), with a total below 2⁶⁴ and at most 2¹⁶ cells; `None`
+    /// otherwise (`k` of 1 or less, a length not a multiple of `k`).
+    pub(crate) fn at(w: &[u64], k: usize) -> Option<Self> {
+        if k <= 1 || !w.len().is_multiple_of(k) {
+            return None;
+        }
+        debug_assert!(is_expansion(w, k), "weights said to be on a grid of {k} DN are not its re-expansion");
         let mut ends = Vec::with_capacity(w.len() / k);
         let mut acc = 0u64;
         for c in w.chunks(k) {
@@ -45,6 +49,46 @@ impl CoarseCells {
             }
             ends.push(acc);
         }
+        Self::from_ends(ends, k)
+    }
+
+    /// The cells of `k` DN holding the masses of weights `w` over `first ..` on the grid whose
+    /// edges lie at `origin + j·k` ([`cell_masses_at`]), the first DN of their first cell, and
+    /// the total variation distance, in units of 2⁻³², between what they draw (the per-DN table
+    /// of the masses' re-expansion, [`expand`]) and what the per-DN table of `w` draws (`cdf`, its
+    /// cumulative weights). `None` where cells cannot hold them (more than 2¹⁶ cells, a total
+    /// past 2⁶⁴, no mass).
+    pub(crate) fn regridded(first: i32, w: &[u64], cdf: &[u64], k: usize, origin: i32) -> Option<(i32, Self, u64)> {
+        let (start, masses) = cell_masses_at(first, w, k, origin);
+        let mut acc = 0u64;
+        let ends = masses
+            .iter()
+            .map(|&m| {
+                acc = acc.checked_add(m)?;
+                Some(acc)
+            })
+            .collect::<Option<Vec<u64>>>()?;
+        if acc != w.iter().try_fold(0u64, |a, &x| a.checked_add(x))? {
+            return None;
+        }
+        let cells = Self::from_ends(ends, k)?;
+        let grid = super::cdf_of(&expand(&masses, k));
+        let lead = (first - start) as usize;
+        let exact = |i: usize| match i.checked_sub(lead) {
+            Some(0) => cdf[0],
+            Some(j) if j < cdf.len() => cdf[j] - cdf[j - 1],
+            _ => 0,
+        };
+        let mut below = 0u64;
+        let twice: u64 =
+            grid.iter().enumerate().map(|(i, &c)| exact(i).abs_diff(c - std::mem::replace(&mut below, c))).sum();
+        Some((start, cells, twice.div_ceil(2)))
+    }
+
+    /// The cells whose cumulative masses are `ends` (`k` DN each): they draw what the per-DN table
+    /// of `expand(masses, k)` draws. `None` for no mass or more than 2¹⁶ cells.
+    fn from_ends(ends: Vec<u64>, k: usize) -> Option<Self> {
+        let acc = ends.last().copied().unwrap_or(0);
         if acc == 0 || ends.len() > 1 << 16 {
             return None;
         }

@@ -26,5 +26,6 @@ pub fn at_the_ceiling(white: u16) -> BinModel {
         source: BinSource::Filled,
         measured: None,
         clipped: true,
+        grid_step: 0,
     }
 }

@@ -872,6 +872,7 @@ fn from_weights(b: &BinModel, first: i32, q: &[f64]) -> BinModel {
         source: b.source,
         measured: b.measured,
         clipped: b.clipped,
+        grid_step: 0,
     }
 }
 

@@ -8,8 +8,17 @@ use crate::model::coarse_grid::GRID_STEPS;
 use crate::model::coarse_grid::expand;
 use rand::SeedableRng;
 
-fn bin(first: i32, counts: Vec<u64>) -> BinModel {
-    BinModel { first, counts, samples: 1000, source: BinSource::Measured, measured: None, clipped: false }
+/// A bin of weights `counts` the pack keeps on a grid of `k` DN (0: per DN).
+fn bin(first: i32, counts: Vec<u64>, k: usize) -> BinModel {
+    BinModel {
+        first,
+        counts,
+        samples: 1000,
+        source: BinSource::Measured,
+        measured: None,
+        clipped: false,
+        grid_step: k as u16,
+    }
 }
 
 /// Cell masses of every shape the sampler meets: smooth bodies with floor-count tails, empty
@@ -50,12 +59,12 @@ fn cells_draw_what_the_entries_draw() {
     let mut as_cells = 0;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
     for (masses, k) in grids() {
-        let b = bin(-(masses.len() as i32) * k as i32 / 3, expand(&masses, k));
+        let b = bin(-(masses.len() as i32) * k as i32 / 3, expand(&masses, k), k);
         let entries = BinTable::with_guide(&b, Guide::Dense);
         let cells = BinTable::with_layout(&b, Layout::Cells(Guide::Dense));
         if !cells.is_cells() {
-            // Not a re-expansion at a step of its own (a narrower step may give it back, or
-            // none): the entries, unchanged.
+            // No mass: the entries, unchanged.
+            assert!(masses.iter().all(|&m| m == 0), "{} cells of {k} not drawn from cells", masses.len());
             assert_eq!(cells, entries);
             continue;
         }

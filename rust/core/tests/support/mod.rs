@@ -19,7 +19,15 @@ pub fn one_iso_pack(
     let positions = (0..POSITIONS)
         .map(|p| {
             let (first, counts) = pmf(p);
-            let bin = BinModel { first, counts, samples, source: BinSource::Measured, measured: None, clipped: false };
+            let bin = BinModel {
+                first,
+                counts,
+                samples,
+                source: BinSource::Measured,
+                measured: None,
+                clipped: false,
+                grid_step: 0,
+            };
             PositionModel::new(vec![bin; bins])
         })
         .collect();

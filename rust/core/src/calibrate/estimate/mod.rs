@@ -462,6 +462,7 @@ pub fn plain_empirical(hists: &[NoiseHistogram]) -> Vec<BinModel> {
                         source: if j == b { BinSource::Measured } else { BinSource::Filled },
                         measured: (own > 0).then_some([m, v]),
                         clipped: false,
+                        grid_step: 0,
                     }
                 }
                 None => BinModel {
@@ -471,6 +472,7 @@ pub fn plain_empirical(hists: &[NoiseHistogram]) -> Vec<BinModel> {
                     source: BinSource::Filled,
                     measured: None,
                     clipped: false,
+                    grid_step: 0,
                 },
             }
         })
