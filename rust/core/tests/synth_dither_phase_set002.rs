@@ -10,7 +10,7 @@
 mod set002;
 
 use noisecal_core::synth::sampler::IsoSampler;
-use set002::{default_and_pixel, drawn_offsets, mean_var, own, set002};
+use set002::{REAL_LESS_LEVEL_AT_BLACK, default_and_pixel, drawn_offsets, mean_var, own, set002};
 
 /// Per code: the real variance and the real shares at −2 … +2 DN (`/tmp/i12/black.txt`,
 /// held-out frames of set 002). Code 14's variance, 0.4342 DN², is a measurement that happens to
@@ -80,6 +80,20 @@ fn sub_dn_codes_draw_the_pattern_with_the_pixel_noise() {
             "code {code}: the default adds {:.4} DN² to pixel-only (pattern {pattern:.4}; the dither on top of \
              the lattice's floor: +0.029 / +0.078 / +0.036 at codes 3 / 4 / 7)",
             d - p
+        );
+    }
+    // At black (code 3) the bin holds the pattern (`synth_fine_levels_structured.rs`): the default
+    // draws pixel-only's variance, against the held-out `noisy − level` (the pattern kept) at the
+    // 0 and 0.1 DN exposures 1.00 / 1.05; with the pattern added on top of the bin, 0.1080 DN²,
+    // +0.0131 over pixel-only, 1.14 / 1.19.
+    let (d3, _) = drawn(&default, 3, 2);
+    let (p3, _) = drawn(&pixel, 3, 2);
+    assert!((d3 - p3).abs() < 0.004, "code 3: the default adds {:.4} DN² to pixel-only (before: 0.0131)", d3 - p3);
+    for real in REAL_LESS_LEVEL_AT_BLACK {
+        assert!(
+            (0.95..1.07).contains(&(d3 / real)),
+            "code 3: default / real noisy − level {:.3} (before: 1.14–1.19)",
+            d3 / real
         );
     }
     // Code 4's tails: the real shares at −1 / +2 DN are 0.0026 / 0.0025; the dither drew 0.027 /

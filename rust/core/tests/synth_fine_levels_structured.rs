@@ -10,7 +10,7 @@ mod set002;
 
 use noisecal_core::model::structure::Components;
 use noisecal_core::synth::sampler::IsoSampler;
-use set002::{default_and_pixel, drawn_offsets, mean_var, own, set002};
+use set002::{REAL_LESS_LEVEL_AT_BLACK, default_and_pixel, drawn_offsets, mean_var, own, set002};
 
 /// Black's code (black 2.83–2.92 DN by position: 0.13 DN above it).
 const BLACK_CODE: u16 = 3;
@@ -34,7 +34,8 @@ fn drawn(sampler: &IsoSampler, code: u16, seeds: u64) -> (f64, f64) {
 /// pattern drawn with the pixel noise at the lattice's floor (`synth/phase_tables.rs`) the
 /// default draws 0.0983. On the re-cut pack with bin 0 kept whole at black (the rescale toward
 /// the dark frames' 0.18–0.23 DN² narrowed it instead; a one-level bin, `derive/fine_levels.rs`): default /
-/// pixel-only 0.1080 / 0.0949 (1.17× / 1.03×).
+/// pixel-only 0.1080 / 0.0949 (1.17× / 1.03×). With the pattern the bin holds taken out of the
+/// phase tables' `Y` (`StructureSampler::black_phase_set`): 0.0951 / 0.0949 (1.03× / 1.03×).
 #[test]
 fn at_black_the_default_draws_pixel_only_less_the_offsets() {
     let (pack, pattern) = set002();
@@ -54,6 +55,33 @@ fn at_black_the_default_draws_pixel_only_less_the_offsets() {
         d - p
     );
     assert!(d / REAL_AT_BLACK < 1.4, "default / real variance at black {:.3} (wrong order: 1.63)", d / REAL_AT_BLACK);
+    // Black's bin holds the pattern: its samples (the 0.1 DN step's target frame) are measured
+    // about their clean level rounded, which the 0.12 DN pattern does not move off code 3, so the
+    // PMF is that of `round(black + pattern + noise)`, as the held-out `noisy − round(clean)` and
+    // `noisy − level` are. The default draws it with that pattern taken out of its `Y` and the
+    // pattern added at the pixel's phase (`StructureSampler::black_phase_set`): what pixel-only
+    // draws, within sampling (the two share their streams). Adding the pattern on top of the bin
+    // (the table drawn at the phase of the PMF as it is, before) read 0.1080 (1.17×), 0.0131 DN²
+    // over pixel-only: both bounds fail there.
+    assert!(
+        (d - p).abs() < 0.004,
+        "the default adds {:.4} DN² to pixel-only at black, where the bin holds the pattern already (before: 0.0131)",
+        d - p
+    );
+    assert!(
+        (0.95..1.08).contains(&(d / REAL_AT_BLACK)),
+        "default / real variance at black {:.3} (the pattern added twice: 1.17)",
+        d / REAL_AT_BLACK
+    );
+    // Like with like for the default: the held-out `noisy − level` (the pattern kept) at the 0 and
+    // 0.1 DN exposures, 0.99 / 1.05 now; 1.14 / 1.19 with the pattern added twice.
+    for real in REAL_LESS_LEVEL_AT_BLACK {
+        assert!(
+            (0.95..1.07).contains(&(d / real)),
+            "default / real noisy − level at black {:.3} (real {real}; the pattern added twice: 1.14–1.19)",
+            d / real
+        );
+    }
     assert!(
         (0.85..1.15).contains(&(p / REAL_AT_BLACK)),
         "pixel-only / real variance at black {:.3}",

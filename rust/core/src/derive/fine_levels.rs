@@ -44,6 +44,17 @@ pub fn law_floor(at_black: Option<f64>) -> f64 {
     }
 }
 
+/// Whether bin 0 (black's) of position `pos` holds one whole level, black's code: 1 DN bins and
+/// black's fraction half a code or more (EMVA set 002, black 2.82–2.92, bin 0 = codes 0–3, the
+/// levels under black's code below black); where it holds two (black 6.3: codes 6 and 7), no.
+/// Such a bin's samples sit at black's level (dark frames, the dimmest lit steps): its PMF is
+/// that level's own ([`fine_levels`] keeps it), and holds the fixed pattern a sub-DN pattern
+/// cannot move the rounded clean level by (`synth/structure.rs`, `black_phase_set`).
+pub fn black_bin_one_level(binning: &Binning, pos: usize) -> bool {
+    let black = binning.black[pos] as f64;
+    binning.bin_width <= 1 && (black + 1.0).ceil() - 1.0 < (black - 0.5).ceil() + 1.0
+}
+
 /// Bins read for the first law, which decides which bins to split.
 const FIRST_LAW_BINS: usize = 6;
 
@@ -212,8 +223,7 @@ fn fine_levels_at(
     // piecewise-uniform rescale (`Pmf::rescaled`, Sheppard's 1/12 for unit cells of a smooth
     // density, which a sub-DN PMF is not) narrowed it to 0.071–0.098. Where bin 0 holds two
     // (black 6.3: codes 6 and 7) it is split as before.
-    let bin0_one_level = (black + 1.0).ceil() - 1.0 < (black - 0.5).ceil() + 1.0;
-    let one_level = |b: usize| binning.bin_width <= 1 && (b > 0 || bin0_one_level);
+    let one_level = |b: usize| binning.bin_width <= 1 && (b > 0 || black_bin_one_level(binning, pos));
     let needs = |b: usize| {
         !one_level(b) && vars[b].is_some() && first.slope * w > SPLIT_ABOVE * first.variance((b as f64 + 0.5) * w)
     };

@@ -83,8 +83,78 @@ pub(crate) fn phase_set(first: i32, q: &[f64]) -> Option<PhaseSet> {
     let (mu, var) = moments(first, &q);
     let (m, sd) = fit_rounded_gaussian(mu, var);
     let y = within_codes(first, &q, m, sd);
+    Some(tables_of(first, &y))
+}
+
+/// Richardson–Lucy iterations of [`phase_set_less_held`]'s `Y` (its masses per code then match
+/// the PMF's to about 10⁻⁴ on set 002's bin at black; each costs the grid times the held points).
+const HELD_ITERATIONS: usize = 40;
+
+/// The phase tables of a bin whose PMF `q` (first value `first`) is the rounding of `Y + h`, `h`
+/// an offset the PMF holds that synthesis adds again at the pixel's phase (`held`: `(DN, weight)`
+/// points; at black on a sub-DN sensor, the fixed pattern wrapped about black's fraction, method.md,
+/// *Fixed pattern*, "Black's bin holds the pattern"): `Y` is the Gaussian whose rounding has `q`'s
+/// mean and variance with `h`'s mean and variance taken out, then re-weighted by Richardson–Lucy
+/// so that the rounding of `Y + h` has `q`'s masses (with `h` a point at 0 its first step is
+/// [`phase_set`]'s code-by-code re-weighting). `None` for an empty or non-finite PMF or `held`.
+pub(crate) fn phase_set_less_held(first: i32, q: &[f64], held: &[(f64, f64)]) -> Option<PhaseSet> {
+    let total: f64 = q.iter().sum();
+    let hw: f64 = held.iter().map(|h| h.1).sum();
+    if q.is_empty() || !(total.is_finite() && total > 0.0 && hw.is_finite() && hw > 0.0) {
+        return None;
+    }
+    let q: Vec<f64> = q.iter().map(|&x| x.max(0.0) / total).collect();
+    let held: Vec<(f64, f64)> = held.iter().map(|&(o, w)| (o, w.max(0.0) / hw)).collect();
+    let (mu, var) = moments(first, &q);
+    let hm: f64 = held.iter().map(|&(o, w)| o * w).sum();
+    let hv: f64 = held.iter().map(|&(o, w)| (o - hm).powi(2) * w).sum();
+    let (m, sd) = fit_rounded_gaussian(mu, var);
+    let (m, sd) = (m - hm, (sd * sd - hv).max(SD_MIN * SD_MIN).sqrt());
+    // `Y` on `q`'s codes: grid point `g` sits at `first − ½ + (g + ½)/GRID`.
+    let n = q.len() * GRID;
+    let at = |g: usize| f64::from(first) - 0.5 + (g as f64 + 0.5) / GRID as f64;
+    let mut y: Vec<f64> = (0..n).map(|g| (-0.5 * ((at(g) - m) / sd).powi(2)).exp()).collect();
+    let s: f64 = y.iter().sum();
+    if !(s.is_finite() && s > 0.0) {
+        return None;
+    }
+    y.iter_mut().for_each(|v| *v /= s);
+    // Per grid point and held point, the code of `q` that `Y + h` rounds to (`None` outside).
+    let code = |g: usize, o: f64| {
+        let k = floor_i32(at(g) + o + 0.5) - first;
+        (0..q.len() as i32).contains(&k).then_some(k as usize)
+    };
+    let codes: Vec<Option<usize>> = (0..n).flat_map(|g| held.iter().map(move |&(o, _)| code(g, o))).collect();
+    for _ in 0..HELD_ITERATIONS {
+        let mut pred = vec![0.0; q.len()];
+        for (g, &v) in y.iter().enumerate() {
+            for (c, &(_, w)) in codes[g * held.len()..(g + 1) * held.len()].iter().zip(&held) {
+                if let Some(k) = c {
+                    pred[*k] += v * w;
+                }
+            }
+        }
+        for (g, v) in y.iter_mut().enumerate() {
+            let r: f64 = codes[g * held.len()..(g + 1) * held.len()]
+                .iter()
+                .zip(&held)
+                .map(|(c, &(_, w))| c.map_or(0.0, |k| if pred[k] > 0.0 { w * q[k] / pred[k] } else { 0.0 }))
+                .sum();
+            *v *= r;
+        }
+        let s: f64 = y.iter().sum();
+        if !(s.is_finite() && s > 0.0) {
+            return None;
+        }
+        y.iter_mut().for_each(|v| *v /= s);
+    }
+    Some(tables_of(first, &y))
+}
+
+/// The phase tables of `Y` held on the grid of its codes from `first` ([`GRID`] points each).
+fn tables_of(first: i32, y: &[f64]) -> PhaseSet {
     // Values `round(Y + φ)` reach one code past `Y`'s last.
-    let len = q.len() + 1;
+    let len = y.len() / GRID + 1;
     let mut thresholds = Vec::with_capacity(PHASES * (len - 1));
     for j in 0..PHASES {
         let mut pmf = vec![0.0; len];
@@ -102,7 +172,7 @@ pub(crate) fn phase_set(first: i32, q: &[f64]) -> Option<PhaseSet> {
             thresholds.push((round_half_away(acc * 4294967296.0).max(0) as u64).min(1u64 << 32));
         }
     }
-    Some(PhaseSet { first, len, thresholds: thresholds.into() })
+    PhaseSet { first, len, thresholds: thresholds.into() }
 }
 
 /// Mean and variance of the PMF `q` (summing to 1) whose first value is `first`.

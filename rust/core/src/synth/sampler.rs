@@ -6,7 +6,7 @@ use multiversion::multiversion;
 use rand::Rng;
 use rayon::prelude::*;
 
-use crate::derive::fine_levels::{FineLevels, position_fine_levels};
+use crate::derive::fine_levels::{FineLevels, black_bin_one_level, position_fine_levels};
 use crate::math::round::floor_i32;
 use crate::model::coarse_grid::GRID_STEPS;
 use crate::model::codes::Snap;
@@ -565,6 +565,13 @@ impl IsoSampler {
                     let used = top.map_or(own.len(), |t| bins_up_to(&luts[p], t).min(own.len()));
                     let bins = st.deconvolved_at_floor_in(p, own, floor, 0..used);
                     phases[p] = st.phase_sets(p, own, &bins, 0..used);
+                    // Black's bin, where it holds black's level alone, holds the fixed pattern too.
+                    if used > 0 && black_bin_one_level(&binning, p) {
+                        let set = st.black_phase_set(p, &own[0], f64::from(binning.black[p]));
+                        if let (Some(set), Some(slot)) = (set, phases[p].get_mut(0)) {
+                            *slot = Some(set);
+                        }
+                    }
                     // The fine levels of the model's own bins (pixel-only's tables), each table
                     // then deconvolved as the bin it was made from.
                     let fine = position_fine_levels(pack, model, p, own).map(|f| {

@@ -27,7 +27,7 @@ use crate::model::structure::{
 };
 use crate::synth::pattern_cache::{PatternCache, PatternRegion, Region};
 use crate::synth::pattern_lanes::{PATTERN_KEY, ParityColumns, lanes_apply, parity_row};
-use crate::synth::phase_tables::{PhaseSet, phase_set};
+use crate::synth::phase_tables::{PhaseSet, phase_set, phase_set_less_held};
 
 /// Grid of the offset densities (cells per DN).
 const GRID: f64 = 32.0;
@@ -306,7 +306,52 @@ impl StructureSampler {
         if let Some(fp) = &self.fpn {
             dens = convolve(&dens, &quantile_density(&fp.in_pixel_noise[pos]));
         }
-        // Dither each grid point onto the integers.
+        dithered(dens)
+    }
+
+    /// The phase tables of black's bin `bin` at `pos` where that bin holds one level, black's
+    /// code, and so the fixed pattern (`derive/fine_levels.rs`, [`black_bin_one_level`]; method.md,
+    /// *Fixed pattern*, "Black's bin holds the pattern"): its samples (dark frames, the dimmest
+    /// lit steps) sit at black's fraction `black − round(black)` plus each pixel's pattern, and
+    /// are measured about their clean level rounded, which a pattern under a code does not move,
+    /// so the PMF holds the pattern wrapped into black's code. It is drawn at the pixel's phase
+    /// with that held pattern taken out of `Y` ([`phase_set_less_held`]) and the row, column and
+    /// frame offsets out of the PMF (their kernel, not the pattern's change from the reference,
+    /// which the whole pattern holds). `None` without a fixed pattern, for a clipped or empty
+    /// bin: it is then drawn as before.
+    ///
+    /// [`black_bin_one_level`]: crate::derive::fine_levels::black_bin_one_level
+    pub(crate) fn black_phase_set(&self, pos: usize, bin: &BinModel, black: f64) -> Option<PhaseSet> {
+        let fp = self.fpn.as_ref()?;
+        if bin.clipped || bin.counts.is_empty() || !black.is_finite() {
+            return None;
+        }
+        let (k0, others) = dithered(self.others_density(pos));
+        let q0 = match others.len() > 1 {
+            true => deconvolve_bin_within(bin, k0, &others, RL_ITERATIONS, false, None).pmf(),
+            false => bin.pmf(),
+        };
+        let f0 = black - round_half_away(black) as f64;
+        let (c0, whole) = convolve(&quantile_density(&fp.pixels[pos]), &shading_density(fp, pos));
+        // Each pattern value `o` as black's samples hold it: `f0 + o` wrapped into black's code.
+        let held: Vec<(f64, f64)> = whole
+            .iter()
+            .enumerate()
+            .filter(|(_, w)| **w > 0.0)
+            .map(|(i, &w)| {
+                let o = (c0 + i as i64) as f64 / GRID;
+                let g = f0 + o;
+                (g - floor_i64(g + 0.5) as f64 - f0, w)
+            })
+            .collect();
+        phase_set_less_held(q0.first, &q0.p, &held)
+    }
+}
+
+/// Dithers each grid point of an offset density onto the integers: the PMF `(first, pmf)` of
+/// `⌊o⌋ + Bernoulli(o − ⌊o⌋)`.
+fn dithered(dens: (i64, Vec<f64>)) -> (i32, Vec<f64>) {
+    {
         let (first_cell, w) = dens;
         let lo = floor_i32((first_cell as f64) / GRID);
         let hi = floor_i32(((first_cell + w.len() as i64) as f64) / GRID) + 1;
@@ -325,7 +370,9 @@ impl StructureSampler {
         let t: f64 = p.iter().sum();
         (lo + first as i32, p.into_iter().map(|x| x / t).collect())
     }
+}
 
+impl StructureSampler {
     /// The dither variance (DN²) that adding the whole fixed pattern brings beyond what
     /// [`Self::kernel`] holds: `E[f(1 − f)]` of the whole added offset (pattern, rows, columns,
     /// frame) less that of the offset the kernel holds (the pattern's change from the reference

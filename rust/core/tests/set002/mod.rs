@@ -11,6 +11,13 @@ use noisecal_core::synth::synthesize;
 /// The pack calibrated from set 002 (README beside it).
 const PACK: &[u8] = include_bytes!("../../../../tests/data/emva002/ladder.pack");
 
+/// The variance (DN²) of the held-out frames at black as `noisy − level` (`level` the exposure's
+/// clean image's mean per position: the pattern kept in the residual, as a clean image without
+/// the pattern calls for), at the exposures 0 and 0.1 DN above black
+/// (`tests/bench/emva1288_black.py`, table (b); 262 144 pixels each): what the default
+/// components onto a flat image at black's code are compared with.
+pub const REAL_LESS_LEVEL_AT_BLACK: [f64; 2] = [0.0944, 0.0907];
+
 /// The set 002 pack and its fixed pattern's variance (mean over positions).
 pub fn set002() -> (ModelPack, f64) {
     let pack = ModelPack::from_bytes(PACK).expect("the set 002 pack loads");
