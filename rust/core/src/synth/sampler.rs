@@ -564,13 +564,15 @@ impl IsoSampler {
                     // The bins that hold a level up to `top` (all of them without it).
                     let used = top.map_or(own.len(), |t| bins_up_to(&luts[p], t).min(own.len()));
                     let bins = st.deconvolved_at_floor_in(p, own, floor, 0..used);
-                    phases[p] = st.phase_sets(p, own, &bins, 0..used);
-                    // Black's bin, where it holds black's level alone, holds the fixed pattern too.
-                    if used > 0 && black_bin_one_level(&binning, p) {
-                        let set = st.black_phase_set(p, &own[0], f64::from(binning.black[p]));
-                        if let (Some(set), Some(slot)) = (set, phases[p].get_mut(0)) {
-                            *slot = Some(set);
-                        }
+                    // Black's bin, where it holds black's level alone, holds the fixed pattern too:
+                    // its phase set is the one without the pattern, the shared one only where
+                    // that has none (bin 0 is not drawn twice).
+                    let black_alone = used > 0 && black_bin_one_level(&binning, p);
+                    phases[p] = st.phase_sets(p, own, &bins, usize::from(black_alone)..used);
+                    if black_alone {
+                        phases[p][0] = st
+                            .black_phase_set(p, &own[0], f64::from(binning.black[p]))
+                            .or_else(|| st.phase_sets(p, own, &bins, 0..1).swap_remove(0));
                     }
                     // The fine levels of the model's own bins (pixel-only's tables), each table
                     // then deconvolved as the bin it was made from.
