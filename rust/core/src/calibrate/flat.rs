@@ -12,6 +12,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::calibrate::flat_neighbours::NeighbourLimit;
 use crate::calibrate::flat_spread::{SpreadLimit, burst_variance};
+use crate::calibrate::half_code;
 use crate::calibrate::saturated::{self, BurstView};
 use crate::math::fit::{nn_poly_fit, poly_eval};
 use crate::math::round::RoundedQuotient;
@@ -196,6 +197,11 @@ pub struct FlatReport {
     /// resumed session reports 0 here).
     #[serde(skip)]
     pub saturated: [u64; POSITIONS],
+    /// Flat pixels per position left out because the noise is sub-DN and their burst mean lies
+    /// within a few of its standard errors of a half code: their code is uncertain
+    /// ([`crate::calibrate::half_code`]). Not kept in checkpoints, as `saturated`.
+    #[serde(skip)]
+    pub half_code: [u64; POSITIONS],
     /// Per position, the lowest clean level the saturation rule left out (DN), `None` where it
     /// found no ceiling. Not kept in checkpoints, as `saturated`.
     #[serde(skip)]
@@ -555,6 +561,19 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> FlatImage {
         report.saturated[pos] = sat.left_out[pos];
     }
     report.saturation_cut = sat.cut;
+    // Where the noise is sub-DN, the pixels whose code the burst's mean leaves uncertain. The
+    // noise is the robust line's, not a level group's own measure, which falls to nothing
+    // where the reference saturated (there the code is the ceiling, not uncertain).
+    let bands: [Vec<f64>; POSITIONS] = std::array::from_fn(|pos| {
+        (0..=inp.white as u32)
+            .map(|l| half_code::band(robust_of(pos, (l as f64 - inp.black[pos] as f64).max(0.0)), inp.frames))
+            .collect()
+    });
+    let uncertain = half_code::leave_out(&mut clean, inp.sum, w, inp.frames, inp.white, NOT_FLAT, &bands);
+    for (flat, left) in report.flat.iter_mut().zip(uncertain) {
+        *flat -= left;
+    }
+    report.half_code = uncertain;
     FlatImage { clean, mean, report }
 }
 

@@ -11,7 +11,8 @@
 //! - [`step`]: which EV step a frame belongs to (the step tolerance).
 //! - [`flat`], [`drift`], [`deselect`]: the flat test, frame brightness, and the clean image's
 //!   own error; [`flat_neighbours`]: the flat test's neighbour comparison on the burst's sums;
-//!   [`flat_spread`]: its check of a pixel's own spread over the burst, on the integers.
+//!   [`flat_spread`]: its check of a pixel's own spread over the burst, on the integers;
+//!   [`half_code`]: at sub-DN noise, the pixels whose rounded mean may be the wrong code.
 //! - [`structure`]: row, column and frame offsets from the target bursts; [`flicker`]: a frame's
 //!   brightness (the lamp) parted from its black-level offset there.
 //! - [`motion`]: each target frame registered on its clean image; the flat pixels its motion
@@ -33,6 +34,7 @@ mod flat_neighbours;
 mod flat_spread;
 mod flicker;
 pub mod frame;
+pub(crate) mod half_code;
 mod line_base;
 mod line_sums;
 pub mod meta;

@@ -471,13 +471,22 @@ impl CalibrationSession {
         let (frames, index) = (image.frames, step.index);
         let considered: u64 = image.flat.considered.iter().sum();
         let unsteady: u64 = image.flat.unsteady.iter().sum();
+        let half_code: u64 = image.flat.half_code.iter().sum();
         self.note(format!(
-            "EV step {index}: reference burst of {frames} frames, {:.1} % of pixels flat{}",
+            "EV step {index}: reference burst of {frames} frames, {:.1} % of pixels flat{}{}",
             100.0 * image.flat.total_flat() as f64 / considered.max(1) as f64,
             if unsteady > 0 {
                 format!(
                     " ({:.2} % left out: their spread over the burst is beyond the noise at their level)",
                     100.0 * unsteady as f64 / considered.max(1) as f64
+                )
+            } else {
+                String::new()
+            },
+            if half_code > 0 {
+                format!(
+                    " ({:.2} % left out: sub-DN noise, their mean too near a half code to tell their code)",
+                    100.0 * half_code as f64 / considered.max(1) as f64
                 )
             } else {
                 String::new()
