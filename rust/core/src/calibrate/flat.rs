@@ -197,8 +197,8 @@ pub struct FlatReport {
     /// resumed session reports 0 here).
     #[serde(skip)]
     pub saturated: [u64; POSITIONS],
-    /// Flat pixels per position left out because the noise is sub-DN and their burst mean lies
-    /// within a few of its standard errors of a half code: their code is uncertain
+    /// Flat pixels per position left out because the noise is sub-DN and their clean code is
+    /// most likely wrong, at a code whose mean such pixels would shift
     /// ([`crate::calibrate::half_code`]). Not kept in checkpoints, as `saturated`.
     #[serde(skip)]
     pub half_code: [u64; POSITIONS],
@@ -561,15 +561,16 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> FlatImage {
         report.saturated[pos] = sat.left_out[pos];
     }
     report.saturation_cut = sat.cut;
-    // Where the noise is sub-DN, the pixels whose code the burst's mean leaves uncertain. The
-    // noise is the robust line's, not a level group's own measure, which falls to nothing
-    // where the reference saturated (there the code is the ceiling, not uncertain).
-    let bands: [Vec<f64>; POSITIONS] = std::array::from_fn(|pos| {
+    // Where the noise is sub-DN, the pixels whose code the burst's mean most likely got wrong,
+    // at the codes they would bias. The noise is the robust line's, not a level group's own
+    // measure, which falls to nothing where the reference saturated (there the code is the
+    // ceiling, not uncertain).
+    let sds: [Vec<f64>; POSITIONS] = std::array::from_fn(|pos| {
         (0..=inp.white as u32)
-            .map(|l| half_code::band(robust_of(pos, (l as f64 - inp.black[pos] as f64).max(0.0)), inp.frames))
+            .map(|l| half_code::mean_sd(robust_of(pos, (l as f64 - inp.black[pos] as f64).max(0.0)), inp.frames))
             .collect()
     });
-    let uncertain = half_code::leave_out(&mut clean, inp.sum, w, inp.frames, inp.white, NOT_FLAT, &bands);
+    let uncertain = half_code::leave_out(&mut clean, inp.sum, w, inp.frames, inp.white, NOT_FLAT, &sds);
     for (flat, left) in report.flat.iter_mut().zip(uncertain) {
         *flat -= left;
     }

@@ -12,7 +12,7 @@
 //! - [`flat`], [`drift`], [`deselect`]: the flat test, frame brightness, and the clean image's
 //!   own error; [`flat_neighbours`]: the flat test's neighbour comparison on the burst's sums;
 //!   [`flat_spread`]: its check of a pixel's own spread over the burst, on the integers;
-//!   [`half_code`]: at sub-DN noise, the pixels whose rounded mean may be the wrong code.
+//!   [`half_code`]: at sub-DN noise, the pixels whose rounded mean is most likely the wrong code, at the codes they would bias.
 //! - [`structure`]: row, column and frame offsets from the target bursts; [`flicker`]: a frame's
 //!   brightness (the lamp) parted from its black-level offset there.
 //! - [`motion`]: each target frame registered on its clean image; the flat pixels its motion

@@ -485,7 +485,7 @@ impl CalibrationSession {
             },
             if half_code > 0 {
                 format!(
-                    " ({:.2} % left out: sub-DN noise, their mean too near a half code to tell their code)",
+                    " ({:.2} % left out: sub-DN noise, their clean code most likely one off, at codes such pixels would bias)",
                     100.0 * half_code as f64 / considered.max(1) as f64
                 )
             } else {
