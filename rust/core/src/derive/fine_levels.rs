@@ -228,11 +228,12 @@ fn fine_levels_at(
     // 0–3), the levels under it below black: asked to widen that code's PMF (0.083–0.104 DN²
     // measured, the held-out frames 0.092) to the dark frames' `T + 1/12` = 0.18–0.23, the
     // piecewise-uniform rescale (`Pmf::rescaled`, Sheppard's 1/12 for unit cells of a smooth
-    // density, which a sub-DN PMF is not) narrowed it to 0.071–0.098. The split levels now use
-    // `Pmf::rescaled_to`, which meets its target, and the variance at black counts the clean
-    // image's rounding as it is (0.13–0.14 there, `black_rounding`); the level's own histogram
-    // is still the closer one (0.092 held out). Where bin 0 holds two (black 6.3: codes 6 and 7)
-    // it is split as before.
+    // density, which a sub-DN PMF is not) narrowed it to 0.071–0.098. The variance at black now
+    // counts the clean image's rounding as it is (0.11–0.17 by position there, `black_rounding`);
+    // the level's own histogram is still the closer one (0.092 held out). The split levels keep
+    // `Pmf::rescaled` (with `Pmf::rescaled_to`, which meets its target, `sub_dn_pattern`'s codes
+    // 6 / 7 read 1.38 / 1.22 against 1.17 / 0.94: method.md). Where bin 0 holds two (black 6.3:
+    // codes 6 and 7) it is split as before.
     let one_level = |b: usize| binning.bin_width <= 1 && (b > 0 || black_bin_one_level(binning, pos));
     let needs = |b: usize| {
         !one_level(b) && vars[b].is_some() && first.slope * w > SPLIT_ABOVE * first.variance((b as f64 + 0.5) * w)
@@ -256,7 +257,7 @@ fn fine_levels_at(
             let bin: &BinModel = &bins[b];
             let (mean, _) = bin.moments();
             let v = sum / levels.len() as f64;
-            let mut m = BinModel::from_pmf(&bin.pmf().rescaled_to(mean, v), bin.samples, bin.filled());
+            let mut m = BinModel::from_pmf(&bin.pmf().rescaled(mean, v), bin.samples, bin.filled());
             m.source = bin.source;
             let index = (bins.len() + extra.len()) as u16;
             extra.push(m);
