@@ -11,6 +11,7 @@
 
 use std::borrow::Cow;
 
+use crate::derive::black_rounding;
 use crate::derive::noise_law::{DarkLaw, dark_law};
 use crate::model::layout::{Binning, lut_at_reference_levels};
 use crate::model::pack::{BinModel, IsoModel, ModelOrigin, ModelPack};
@@ -106,7 +107,7 @@ fn position_fine_levels_at<'b>(
     // pack lose to the plain histogram (median pack / plain 0.917 → 0.959, worst 1.00 → 1.76).
     let at_black = match &model.origin {
         ModelOrigin::Calibrated if model.positions[pos].is_estimated() => {
-            variance_at_black(pack.structure_of(model.iso), pos)?
+            variance_at_black(pack.structure_of(model.iso), pos, pack.layout.black[pos] as f64)?
         }
         ModelOrigin::Interpolated { from } => interpolated_at_black(pack, model, pos, from)?,
         _ => return None,
@@ -125,7 +126,7 @@ pub fn interpolated_at_black(pack: &ModelPack, model: &IsoModel, pos: usize, fro
     let above = from.iter().copied().filter(|&k| k > model.iso).min()?;
     let side = |k: u32| -> Option<(f64, f64)> {
         let m = pack.iso(k).filter(|m| m.is_calibrated() && m.positions[pos].is_estimated())?;
-        let v = variance_at_black(pack.structure_of(k), pos)?;
+        let v = variance_at_black(pack.structure_of(k), pos, pack.layout.black[pos] as f64)?;
         Some((k as f64 * m.gain_ratio[pos], v))
     };
     let ((g0, v0), (g1, v1)) = (side(below)?, side(above)?);
@@ -145,14 +146,20 @@ pub fn interpolated_at_black(pack: &ModelPack, model: &IsoModel, pos: usize, fro
 }
 
 /// The variance of the pack's pixel PMFs at black at one position when its ISO has a dark
-/// step (`None` otherwise): the dark frames' temporal variance, what the PMFs hold besides
-/// (the frame offsets, the change of the fixed pattern from the reference ISO) and the clean
-/// image's rounding (1/12), as the PMFs above black carry it.
-pub fn variance_at_black(structure: Option<&IsoStructure>, pos: usize) -> Option<f64> {
+/// step (`None` otherwise), `black` the position's black level: the dark frames' temporal
+/// variance, what the PMFs hold besides (the frame offsets, the change of the fixed pattern from
+/// the reference ISO) and the clean image's rounding at black
+/// ([`black_rounding::rounding_at_black`]: 1/12 where the dark pixels' levels spread over a DN
+/// or more, less where a sub-DN pattern keeps them near one place in their code). It counted
+/// 1/12 everywhere: on EMVA set 002 (black 2.82–2.92, a 0.12 DN pattern) `T + 1/12` read
+/// 0.20 DN² where a dark frame less its rounded leave-one-out mean holds 0.14
+/// (`rust/core/tests/variance_at_black_set002.rs`).
+pub fn variance_at_black(structure: Option<&IsoStructure>, pos: usize, black: f64) -> Option<f64> {
     let st = structure?;
     let fpn = st.fpn.as_ref()?;
     let frames = st.frames.as_ref().map_or(0.0, |f| f.variance(pos));
-    let v = fpn.temporal_var[pos] + frames + fpn.in_pixel_noise[pos].variance() + 1.0 / 12.0;
+    let rounding = black_rounding::rounding_at_black(fpn, pos, black);
+    let v = fpn.temporal_var[pos] + frames + fpn.in_pixel_noise[pos].variance() + rounding;
     (v.is_finite() && fpn.temporal_var[pos] > 0.0).then_some(v)
 }
 
@@ -221,8 +228,12 @@ fn fine_levels_at(
     // 0–3), the levels under it below black: asked to widen that code's PMF (0.083–0.104 DN²
     // measured, the held-out frames 0.092) to the dark frames' `T + 1/12` = 0.18–0.23, the
     // piecewise-uniform rescale (`Pmf::rescaled`, Sheppard's 1/12 for unit cells of a smooth
-    // density, which a sub-DN PMF is not) narrowed it to 0.071–0.098. Where bin 0 holds two
-    // (black 6.3: codes 6 and 7) it is split as before.
+    // density, which a sub-DN PMF is not) narrowed it to 0.071–0.098. The variance at black now
+    // counts the clean image's rounding as it is (0.11–0.17 by position there, `black_rounding`);
+    // the level's own histogram is still the closer one (0.092 held out). The split levels keep
+    // `Pmf::rescaled` (with `Pmf::rescaled_to`, which meets its target, `sub_dn_pattern`'s codes
+    // 6 / 7 read 1.38 / 1.22 against 1.17 / 0.94: method.md). Where bin 0 holds two (black 6.3:
+    // codes 6 and 7) it is split as before.
     let one_level = |b: usize| binning.bin_width <= 1 && (b > 0 || black_bin_one_level(binning, pos));
     let needs = |b: usize| {
         !one_level(b) && vars[b].is_some() && first.slope * w > SPLIT_ABOVE * first.variance((b as f64 + 0.5) * w)
@@ -415,18 +426,16 @@ mod tests {
     fn a_one_level_bin_at_black_keeps_its_own_pmf() {
         // EMVA set 002's bin 0 at position 2 (8 bits, 1 DN bins, black 2.87: bin 0 holds black's
         // code 3 and the codes below): 0.083 DN² measured, the shares at −1 / +1 DN its held-out
-        // frames show. The dark frames put the law at 0.18 DN² at black (`T + 1/12`); asked for
-        // that, the piecewise-uniform rescale narrows the PMF instead (its codes are not unit
-        // cells of a density at sub-DN noise): 0.071 DN², 0.86 of the bin's own, which the
-        // sampler drew before. Bin 0 holds one whole level at or above black here (code 3), so
-        // it keeps its PMF, as every one-level bin does.
+        // frames show. The dark frames put the law at 0.18 DN² at black (`T + 1/12` then); asked
+        // for that, the piecewise-uniform rescale narrowed the PMF (0.071 DN², 0.86 of the bin's
+        // own), which the sampler drew before. Bin 0 holds one whole level at or above black here
+        // (code 3), so it keeps its PMF, as every one-level bin does: the level's own histogram,
+        // not the law through the bins (`Pmf::rescaled_to` meets 0.18, which would be 2× the
+        // held-out frames' 0.092).
         let layout = SensorLayout { width: 8, height: 8, cfa: CfaPattern::Rggb, black: [2.87; 4], white: 255 };
         let bn = Binning::new(&layout, 1);
         let mut bins = vec![three_point(0.046, 0.042)];
         bins.extend((1..bn.bins(0)).map(|k| gaussian(0.26 + 0.01 * k as f64)));
-        let own = bins[0].moments().1;
-        let rescaled = bins[0].pmf().rescaled(bins[0].moments().0, 0.18).moments().1;
-        assert!(rescaled < own, "the rescale narrows the bin ({own:.4} → {rescaled:.4}): the case the guard is for");
         let fine = fine_levels(&bn, 0, &bins, &bins, Some(0.18));
         let lut = fine.as_ref().map_or(bn.lut(0), |f| f.lut.clone());
         for level in 0..4 {

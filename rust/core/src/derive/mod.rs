@@ -4,6 +4,7 @@
 //! ([`structure`](mod@structure)).
 
 pub mod baselines;
+pub mod black_rounding;
 pub mod fine_levels;
 pub mod gain_switch;
 pub mod interp;

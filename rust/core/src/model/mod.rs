@@ -10,6 +10,7 @@ pub mod coarse_grid;
 pub mod codes;
 pub mod estimate_report;
 pub mod histogram;
+pub mod lattice_moments;
 pub mod layout;
 pub mod pack;
 pub mod pmf;

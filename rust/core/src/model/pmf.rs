@@ -50,7 +50,12 @@ impl Pmf {
     ///
     /// The PMF is read as a piecewise-uniform density (each integer a unit cell), mapped
     /// affinely, and integrated back over unit cells. The affine factor accounts for the 1/12
-    /// variance that cells add (Sheppard), so the result's discrete variance is close to `var`.
+    /// variance that cells add (Sheppard), so the result's discrete variance is close to `var`
+    /// for a density smooth on a cell's scale; a PMF a few cells wide misses it, by 1–30 % at
+    /// sub-DN noise ([`Pmf::rescaled_to`] meets it). The calibration's pooling moves keep this
+    /// map (`calibrate/estimate/pool.rs`, which corrects its own moves): with `rescaled_to`
+    /// there, its held-out choice no longer pooled the sparse bin of
+    /// `calibrate::estimate::tests_folds::a_sparse_bin_off_the_law_pools_with_its_own_mean`.
     pub fn rescaled(&self, mu: f64, var: f64) -> Pmf {
         let (m_s, v_s) = self.moments();
         let v_cont = v_s + 1.0 / 12.0;

@@ -42,16 +42,16 @@ fn standard_quantile(p: &Pmf) -> Vec<Cell> {
 }
 
 /// Blends the standardised quantile functions of `a` and `b` (`(1 − t)·Q_a + t·Q_b`), then maps
-/// the result to mean `mu` and variance `var` on the integer grid (as [`Pmf::rescaled`]).
+/// the result to mean `mu` and variance `var` on the integer grid (as [`Pmf::rescaled_to`]).
 pub fn blend_quantiles(a: &Pmf, b: &Pmf, t: f64, mu: f64, var: f64) -> Pmf {
     let t = t.clamp(0.0, 1.0);
     let qa = standard_quantile(a);
     let qb = standard_quantile(b);
     if qa.is_empty() || qb.is_empty() || t <= 0.0 {
-        return a.rescaled(mu, var);
+        return a.rescaled_to(mu, var);
     }
     if t >= 1.0 {
-        return b.rescaled(mu, var);
+        return b.rescaled_to(mu, var);
     }
     // Both quantile functions' cell ends ascend: merged in one pass (what sorting them gives).
     let mut knots: Vec<f64> = Vec::with_capacity(qa.len() + qb.len() + 1);
@@ -113,5 +113,5 @@ pub fn blend_quantiles(a: &Pmf, b: &Pmf, t: f64, mu: f64, var: f64) -> Pmf {
             }
         }
     }
-    Pmf::from_weights(first, out).unwrap_or_else(|| a.rescaled(mu, var))
+    Pmf::from_weights(first, out).unwrap_or_else(|| a.rescaled_to(mu, var))
 }

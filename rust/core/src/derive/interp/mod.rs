@@ -28,7 +28,9 @@
 //!    of ISO 400 itself 1.6·10⁻⁴ (the blend averages two calibrations' sampling noise), HG
 //!    interpolated parametrically 5.4·10⁻⁴ (1.9·10⁻³ in the darkest bin).
 //! 5. **Rescale** the shape to the fitted mean and variance on the integer grid (Eq. 6, as
-//!    [`Pmf::rescaled`](crate::model::pmf::Pmf::rescaled): piecewise-uniform cells, Sheppard-corrected).
+//!    [`Pmf::rescaled_to`](crate::model::pmf::Pmf::rescaled_to): piecewise-uniform cells,
+//!    Sheppard-corrected, and where those miss the moments by over 1 % (sub-DN bins) a re-binning
+//!    that meets them).
 //!
 //! Outside the calibrated range the fit is refused ([`ModelError::IsoOutOfRange`]) unless
 //! `extrapolate`, in which case the nearest three calibrated ISOs of the end segment are used and
@@ -159,8 +161,8 @@ pub fn interpolate_planned(pack: &ModelPack, plan: &InterpPlan) -> IsoModel {
                             mean,
                             var,
                         ),
-                        [a] => a.positions[pos].bins[b].pmf().rescaled(mean, var),
-                        _ => pts[0].bin.pmf().rescaled(mean, var),
+                        [a] => a.positions[pos].bins[b].pmf().rescaled_to(mean, var),
+                        _ => pts[0].bin.pmf().rescaled_to(mean, var),
                     };
                     let samples = pts.iter().map(|p| p.bin.samples).min().unwrap_or(0);
                     let filled = pts.iter().any(|p| p.bin.filled());
