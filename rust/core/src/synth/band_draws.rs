@@ -13,7 +13,7 @@ use rand_chacha::ChaCha8Rng;
 /// 64-bit values, the bytes are those draws (tested from every offset in a block).
 #[inline]
 pub(crate) fn next_u64s(rng: &mut ChaCha8Rng, n: usize, out: &mut Vec<u64>) {
-    out.clear();
+    // Every value is overwritten: only a longer row's buffer is zeroed (once per band).
     out.resize(n, 0);
     rng.fill_bytes(bytemuck::cast_slice_mut(out.as_mut_slice()));
     if cfg!(target_endian = "big") {

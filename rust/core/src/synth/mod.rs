@@ -154,17 +154,23 @@ fn band_filler<'a>(
                 let lattice = sampler.needs_finish(even) || sampler.needs_finish(odd);
                 let white = sampler.white as i32;
                 // One 64-bit draw feeds an even and an odd pixel: the stream is fixed by the band.
-                let pairs = row.chunks_exact_mut(2).zip(src.chunks_exact(2)).zip(&us);
+                let Pairs { out: o, src: c, us } = Pairs::of(row, &src, &us);
                 if lattice {
-                    for (i, ((o, c), &u)) in pairs.enumerate() {
+                    for i in 0..us.len() {
+                        let (u, c) = (us[i], c[i]);
                         let alt = (i + (y >> 1)) & 1 == 1;
-                        o[0] = sampler.finish(even, draw(lut0, tab0, c[0], u as u32), alt);
-                        o[1] = sampler.finish(odd, draw(lut1, tab1, c[1], (u >> 32) as u32), alt);
+                        o[i] = [
+                            sampler.finish(even, draw(lut0, tab0, c[0], u as u32), alt),
+                            sampler.finish(odd, draw(lut1, tab1, c[1], (u >> 32) as u32), alt),
+                        ];
                     }
                 } else {
-                    for ((o, c), &u) in pairs {
-                        o[0] = draw(lut0, tab0, c[0], u as u32).clamp(0, white) as u16;
-                        o[1] = draw(lut1, tab1, c[1], (u >> 32) as u32).clamp(0, white) as u16;
+                    for i in 0..us.len() {
+                        let (u, c) = (us[i], c[i]);
+                        o[i] = [
+                            draw(lut0, tab0, c[0], u as u32).clamp(0, white) as u16,
+                            draw(lut1, tab1, c[1], (u >> 32) as u32).clamp(0, white) as u16,
+                        ];
                     }
                 }
                 if w % 2 == 1 {
@@ -369,6 +375,8 @@ fn structured_filler<'a, const TARGET: bool>(
                     phased_row.draw(&us, row, &offsets_row);
                     continue;
                 }
+                // Zipped slices here: indexing them as the pixel-only loop does took 2 % more
+                // instructions in this loop (callgrind, 12 MP, the structured pack's ISO 1600).
                 let pairs = row.chunks_exact_mut(2).zip(src.chunks_exact(2)).zip(offsets_row.chunks_exact(2)).zip(&us);
                 if finish {
                     for (i, (((o, c), k), &u)) in pairs.enumerate() {
@@ -525,6 +533,25 @@ impl<S: Fn(usize, u16) -> i64> RowOffsets<'_, S> {
         let w = src.len();
         let k = cols[w - 1] + one(w - 1) + (self.shift)(w - 1, src[w - 1]);
         out[w - 1] = ((k + ry + (v as u32) as i64) >> 32) as i32;
+    }
+}
+
+/// A row's whole pairs of pixels as arrays of two, every slice cut to the pairs' count (the
+/// length of `us`), so that a pixel loop indexing them by pair needs no bounds check.
+struct Pairs<'a, 'b> {
+    out: &'a mut [[u16; 2]],
+    src: &'b [[u16; 2]],
+    /// One draw per pair.
+    us: &'b [u64],
+}
+
+impl<'a, 'b> Pairs<'a, 'b> {
+    /// The pairs of `row` and `src` (of one length) and the first draws of `us` (at least one
+    /// per pair).
+    #[inline(always)]
+    fn of(row: &'a mut [u16], src: &'b [u16], us: &'b [u64]) -> Self {
+        let n = row.len() / 2;
+        Self { out: &mut row.as_chunks_mut::<2>().0[..n], src: &src.as_chunks::<2>().0[..n], us: &us[..n] }
     }
 }
 
