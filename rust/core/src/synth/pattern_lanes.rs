@@ -32,6 +32,8 @@ use crate::model::structure::FixedPattern;
 const BOUND: f64 = 65536.0;
 /// 1.5·2⁵²: a sum with it has a unit in the last place of 1.
 const SHIFT: f64 = 6755399441055744.0;
+/// 0.5 − 2⁻⁵⁴, the largest `f64` below a half.
+const HALF_BELOW: f64 = 0.49999999999999994;
 /// The fixed pattern's key ([`super::structure`]'s `PATTERN_KEY`).
 pub(crate) const PATTERN_KEY: u64 = 0x6E6F_6973_6563_616C;
 
@@ -109,7 +111,7 @@ const BLOCK: usize = 256;
 pub(crate) fn parity_row(y: u64, x_first: u64, cols: &ParityColumns, line: &[f64], q: &[f32], out: &mut [i64]) {
     let Some(last) = q.len().checked_sub(2) else { return };
     let mut idx = [0u32; BLOCK];
-    let mut xs = [0f64; BLOCK];
+    let mut fracs = [0f64; BLOCK];
     let mut pairs = [0u64; BLOCK];
     let mut start = 0;
     for &(end, c0, c1) in &cols.runs {
@@ -118,36 +120,47 @@ pub(crate) fn parity_row(y: u64, x_first: u64, cols: &ParityColumns, line: &[f64
         while s < end {
             let e = (s + BLOCK).min(end);
             let n = e - s;
-            positions(y, x_first + 2 * s as u64, q.len(), last, &mut xs[..n], &mut idx[..n]);
+            positions(y, x_first + 2 * s as u64, q.len(), last, &mut fracs[..n], &mut idx[..n]);
             quantile_pairs(q, &idx[..n], &mut pairs[..n]);
-            interpolated(a, b, &cols.f[s..e], &xs[..n], &idx[..n], &pairs[..n], &mut out[s..e]);
+            interpolated(a, b, &cols.f[s..e], &fracs[..n], &pairs[..n], &mut out[s..e]);
             s = e;
         }
         start = end;
     }
 }
 
-/// Per pixel at columns `x_first, x_first + 2, …` of row `y` (one per slot of `xs`): its draw's
-/// position `x = u·(n − 1)` in the quantile function of `n` points and `⌊x⌋` (at most `last`).
+/// Per pixel at columns `x_first, x_first + 2, …` of row `y` (one per slot of `fracs`): its
+/// draw's position `x = u·(n − 1)` in the quantile function of `n` points, the index `i = ⌊x⌋`
+/// at most `last` into `idx`, and the fraction `x − i` into `fracs`. `i` is found as a float
+/// (`x` lies in `[0, n − 1]`, far below 2³², so it and the fraction are exact) and stored
+/// through the 1.5·2⁵² shift: no float-to-integer conversion, which AVX2 lacks for 64 bits.
+/// Where the target has SSE4.1's rounding instruction, `⌊x⌋` is one `trunc` (`x ≥ 0`).
 #[multiversion(targets(
     "x86_64+avx512f+avx512dq+avx512vl+avx2+avx+fma+bmi1+bmi2+lzcnt+popcnt+sse4.1+sse4.2+ssse3",
     "x86_64+avx2+avx+fma+bmi1+bmi2+lzcnt+popcnt+sse4.1+sse4.2+ssse3"
 ))]
-fn positions(y: u64, x_first: u64, n: usize, last: usize, xs: &mut [f64], idx: &mut [u32]) {
+fn positions(y: u64, x_first: u64, n: usize, last: usize, fracs: &mut [f64], idx: &mut [u32]) {
     // `u·(n − 1)` in one product: `u` is the hash's 53 bits times 2⁻⁵³, both products exact
     // but the last, so `bits·((n − 1)·2⁻⁵³)` rounds the same real number the same way.
     let scale = (n - 1) as f64 * (1.0 / (1u64 << 53) as f64);
-    for (j, (xo, io)) in xs.iter_mut().zip(idx.iter_mut()).enumerate() {
+    let last = last as f64;
+    for (j, (fo, io)) in fracs.iter_mut().zip(idx.iter_mut()).enumerate() {
         let mut z = PATTERN_KEY ^ (y << 32 | (x_first + 2 * j as u64));
         z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
         z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
         z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
         let x = (((z ^ (z >> 31)) >> 11) as i64) as f64 * scale;
-        // ⌊x⌋ for x in [0, n − 1]: the nearest integer, one less where it lies above x.
-        let m = x + SHIFT;
-        let floor = (m.to_bits() - SHIFT.to_bits()) as usize - ((m - SHIFT) > x) as usize;
-        *xo = x;
-        *io = floor.min(last) as u32;
+        let floor = match multiversion::target::target_cfg_f!(target_feature = "sse4.1") {
+            true => x.trunc(),
+            // ⌊x⌋ for x in [0, n − 1]: the nearest integer, one less where it lies above x.
+            false => {
+                let nearest = (x + SHIFT) - SHIFT;
+                nearest - if nearest > x { 1.0 } else { 0.0 }
+            }
+        };
+        let i = if floor < last { floor } else { last };
+        *fo = x - i;
+        *io = ((i + SHIFT).to_bits() - SHIFT.to_bits()) as u32;
     }
 }
 
@@ -165,28 +178,41 @@ fn quantile_pairs(q: &[f32], idx: &[u32], pairs: &mut [u64]) {
 
 /// The shaded, interpolated and rounded pattern of each pixel (2⁻³² DN) into `out`: its shading
 /// between the cells `a` and `b` at fraction `fs`, plus the residual between the quantile pair
-/// (`pairs`, [`quantile_pairs`]) at position `xs` from `idx`.
+/// (`pairs`, [`quantile_pairs`]) at fraction `fracs` ([`positions`]).
+///
+/// The rounding, half away from zero, is `trunc(v + copysign(0.5 − 2⁻⁵⁴, v))` where the target
+/// has SSE4.1's rounding instruction (the lowering compilers give `round` itself, exact for every
+/// `f64`: the sum rounds up past the next integer only from a half or more), then read out
+/// through the 1.5·2⁵² shift; elsewhere the shift's nearest integer, moved one away from zero on
+/// a tie. Both are [`crate::math::round::round_half_away_near`]'s value.
 #[multiversion(targets(
     "x86_64+avx512f+avx512dq+avx512vl+avx2+avx+fma+bmi1+bmi2+lzcnt+popcnt+sse4.1+sse4.2+ssse3",
     "x86_64+avx2+avx+fma+bmi1+bmi2+lzcnt+popcnt+sse4.1+sse4.2+ssse3"
 ))]
-fn interpolated(a: f64, b: f64, fs: &[f64], xs: &[f64], idx: &[u32], pairs: &[u64], out: &mut [i64]) {
+fn interpolated(a: f64, b: f64, fs: &[f64], fracs: &[f64], pairs: &[u64], out: &mut [i64]) {
     let n = out.len();
-    let (fs, xs, idx, pairs) = (&fs[..n], &xs[..n], &idx[..n], &pairs[..n]);
+    let (fs, fracs, pairs) = (&fs[..n], &fracs[..n], &pairs[..n]);
     for j in 0..n {
         let f = fs[j];
         let shade = a * (1.0 - f) + b * f;
-        let x = xs[j];
-        let f = x - idx[j] as f64;
+        let f = fracs[j];
         let word = pairs[j];
         let (q0, q1) = (f32::from_bits(word as u32) as f64, f32::from_bits((word >> 32) as u32) as f64);
         let residual = q0 * (1.0 - f) + q1 * f;
         // Rounded half away from zero ([`crate::math::round::round_half_away_near`]).
         let v = (shade + residual) * 4294967296.0;
-        let m = v + SHIFT;
-        let nearest = m.to_bits() as i64 - SHIFT.to_bits() as i64;
-        let d = v - (m - SHIFT);
-        out[j] = nearest + ((d >= 0.5) & (v > 0.0)) as i64 - ((d <= -0.5) & (v < 0.0)) as i64;
+        out[j] = match multiversion::target::target_cfg_f!(target_feature = "sse4.1") {
+            true => {
+                let r = (v + HALF_BELOW.copysign(v)).trunc();
+                (r + SHIFT).to_bits() as i64 - SHIFT.to_bits() as i64
+            }
+            false => {
+                let m = v + SHIFT;
+                let nearest = m.to_bits() as i64 - SHIFT.to_bits() as i64;
+                let d = v - (m - SHIFT);
+                nearest + ((d >= 0.5) & (v > 0.0)) as i64 - ((d <= -0.5) & (v < 0.0)) as i64
+            }
+        };
     }
 }
 
@@ -262,6 +288,15 @@ mod tests {
         }
         assert!(checked > 30_000, "{checked} pixels");
         assert!(ties > 1000, "{ties} pixels on a tie");
+    }
+
+    /// The rounding's constant is the largest `f64` below a half: one more ulp and 0.5 − 2⁻⁵⁴
+    /// itself would round up (the tie case in the test above catches a wrong constant too).
+    #[test]
+    fn half_below_is_the_float_below_a_half() {
+        assert_eq!(HALF_BELOW, f64::from_bits(0.5f64.to_bits() - 1));
+        assert_eq!((HALF_BELOW + HALF_BELOW.copysign(HALF_BELOW)).trunc(), 0.0);
+        assert_eq!((0.5 + HALF_BELOW).trunc(), 1.0);
     }
 
     /// The lanes apply to a pattern of finite values within the bound whose quantile functions
