@@ -449,56 +449,73 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> FlatImage {
 
     // Blocks of rows in parallel, each counting its own pixels (considered, unsteady, flat per
     // position); the counts are summed in block order afterwards, so the report is the same on
-    // any thread count. The levels `clamp(round(mean), 0, white)` of every pixel are taken
-    // once, beforehand: a neighbour test reads the level of the larger mean of a pair, which is
-    // the larger of their levels (rounding and clamping never reverse an order), and they are
-    // the burst's rounded mean, which the clean image keeps (`mean`, returned).
+    // any thread count. The levels `clamp(round(mean), 0, white)` of a block's rows are taken
+    // once, as the block starts (those of the two rows above and below it, which its neighbour
+    // tests read, into a scratch of the thread's): a neighbour test reads the level of the
+    // larger mean of a pair, which is the larger of their levels (rounding and clamping never
+    // reverse an order), and they are the burst's rounded mean, which the clean image keeps
+    // (`mean`, returned). A pass of its own over the sums before this one read the 12 MP image's
+    // sums (48 MB) twice.
     const BLOCK_ROWS: usize = 32;
     let top = inp.white as usize;
     // The levels from the sums without a division each, and the neighbour test on the sums'
     // difference where that decides it (as the means would).
     let level_of = RoundedQuotient::new(inp.frames.max(1));
-    let mut mean = vec![0u16; w * h];
-    mean.par_chunks_mut((w * BLOCK_ROWS).max(1)).zip(inp.sum.par_chunks((w * BLOCK_ROWS).max(1))).for_each(
-        |(levels, sums)| {
-            for (l, &s) in levels.iter_mut().zip(sums) {
-                *l = (level_of.of(s).max(0) as usize).min(top) as u16;
-            }
-        },
-    );
+    let level_at = |s: u32| (level_of.of(s).max(0) as usize).min(top) as u16;
     let neighbour_limits: Vec<Vec<NeighbourLimit>> =
         thresholds.iter().map(|t| t.iter().map(|&t| NeighbourLimit::new(t, inp.frames.max(1))).collect()).collect();
-    // Every pixel is written below (a fresh zeroed buffer's pages are first touched there, not
-    // filled beforehand).
+    // Every pixel of both is written below (a fresh zeroed buffer's pages are first touched
+    // there, not filled beforehand).
+    let mut mean = vec![0u16; w * h];
     let mut clean = vec![0u16; w * h];
+    let block_len = (w * BLOCK_ROWS).max(1);
     let row_counts: Vec<[[u64; POSITIONS]; 3]> = clean
-        .par_chunks_mut((w * BLOCK_ROWS).max(1))
+        .par_chunks_mut(block_len)
+        .zip(mean.par_chunks_mut(block_len))
         .enumerate()
-        .map(|(block, clean_rows)| {
+        .map_init(Vec::new, |halo: &mut Vec<u16>, (block, (clean_rows, mean_rows))| {
             let y0 = block * BLOCK_ROWS;
-            let (lo, hi) = (y0.saturating_sub(2), (y0 + clean_rows.len() / w.max(1) + 2).min(h));
-            let sums = &inp.sum[lo * w..hi * w];
-            let levels = &mean[lo * w..hi * w];
+            let y1 = y0 + clean_rows.len() / w.max(1);
+            let (lo, hi) = (y0.saturating_sub(2), (y1 + 2).min(h));
+            for (l, &s) in mean_rows.iter_mut().zip(&inp.sum[y0 * w..y1 * w]) {
+                *l = level_at(s);
+            }
+            halo.clear();
+            halo.extend(inp.sum[lo * w..y0 * w].iter().chain(&inp.sum[y1 * w..hi * w]).map(|&s| level_at(s)));
+            let (halo, mean_rows): (&[u16], &[u16]) = (halo, mean_rows);
+            // Row `yy`'s sums and levels (`lo ≤ yy < hi`).
+            let row = |yy: usize| {
+                let levels = if yy < y0 {
+                    &halo[(yy - lo) * w..(yy - lo + 1) * w]
+                } else if yy < y1 {
+                    &mean_rows[(yy - y0) * w..(yy - y0 + 1) * w]
+                } else {
+                    let r = y0 - lo + yy - y1;
+                    &halo[r * w..(r + 1) * w]
+                };
+                (&inp.sum[yy * w..(yy + 1) * w], levels)
+            };
             let mut counts = [[0u64; POSITIONS]; 3];
             let [considered, unsteady, flat_count] = &mut counts;
             for (r, clean_row) in clean_rows.chunks_mut(w.max(1)).enumerate() {
                 let y = y0 + r;
+                let (sums, levels) = row(y);
+                let up = (y >= 2).then(|| row(y - 2));
+                let down = (y + 2 < h).then(|| row(y + 2));
+                let (first, squares) = (&inp.first[y * w..(y + 1) * w], &inp.squares[y * w..(y + 1) * w]);
                 for x in 0..w {
-                    let i = y * w + x;
                     let pos = position(y, x);
                     if inp.roi.is_some_and(|r| !r.contains(x, y)) {
                         clean_row[x] = NOT_FLAT;
                         continue;
                     }
                     considered[pos] += 1;
-                    let k = i - lo * w;
-                    let (sa, la) = (sums[k], levels[k]);
+                    let (sa, la) = (sums[x], levels[x]);
                     let level = la.min(NOT_FLAT - 1);
                     let mut neighbours = 0;
                     let mut flat = true;
                     let (limits, thresholds) = (&neighbour_limits[pos], &thresholds[pos]);
-                    let mut check = |j: usize| {
-                        let (sb, lb) = (sums[j], levels[j]);
+                    let mut check = |sb: u32, lb: u16| {
                         neighbours += 1;
                         let l = la.max(lb) as usize;
                         if limits[l].beyond(sa, sb, m, thresholds[l]) {
@@ -506,26 +523,21 @@ pub fn clean_and_mask(inp: &CleanInputs<'_>) -> FlatImage {
                         }
                     };
                     if x >= 2 {
-                        check(k - 2);
+                        check(sums[x - 2], levels[x - 2]);
                     }
                     if x + 2 < w {
-                        check(k + 2);
+                        check(sums[x + 2], levels[x + 2]);
                     }
-                    if y >= 2 {
-                        check(k - 2 * w);
+                    if let Some((s, l)) = up {
+                        check(s[x], l[x]);
                     }
-                    if y + 2 < h {
-                        check(k + 2 * w);
+                    if let Some((s, l)) = down {
+                        check(s[x], l[x]);
                     }
                     if flat
                         && neighbours >= 2
                         && inp.frames >= 2
-                        && spread_limits[pos][level as usize].beyond(
-                            inp.sum[i],
-                            inp.first[i],
-                            inp.squares[i],
-                            inp.frames,
-                        )
+                        && spread_limits[pos][level as usize].beyond(sa, first[x], squares[x], inp.frames)
                     {
                         flat = false;
                         unsteady[pos] += 1;

@@ -146,14 +146,16 @@ pub fn leave_out<V: Fn(usize) -> f64, L: Fn(f64) -> Law>(view: BurstView<'_, V, 
         out.cut[pos] = Some(cut.clamp(0.0, view.white as f64) as u16);
     }
     let w = view.width.max(1);
-    for (i, c) in view.clean.iter_mut().enumerate() {
-        let pos = position(i / w, i % w);
-        if let Some(cut) = out.cut[pos]
-            && *c != view.not_flat
-            && *c >= cut
-        {
-            *c = view.not_flat;
-            out.left_out[pos] += 1;
+    for (y, row) in view.clean.chunks_mut(w).enumerate() {
+        for (x, c) in row.iter_mut().enumerate() {
+            let pos = position(y, x);
+            if let Some(cut) = out.cut[pos]
+                && *c != view.not_flat
+                && *c >= cut
+            {
+                *c = view.not_flat;
+                out.left_out[pos] += 1;
+            }
         }
     }
     out
@@ -175,21 +177,36 @@ fn find_ceiling<V: Fn(usize) -> f64, L: Fn(f64) -> Law>(view: &BurstView<'_, V, 
     let mut flagged = [0u64; GROUPS];
     let mut expected = [0f64; GROUPS];
     let mut levels: Vec<(usize, f64)> = Vec::new();
-    for (i, &c) in view.clean.iter().enumerate() {
-        let pos = position(i / w, i % w);
-        let x = c as f64 - view.black[pos] as f64;
-        if c == view.not_flat || x < lowest {
-            continue;
-        }
-        let var = poly_eval(&law[pos], x);
-        if var.is_nan() || var <= 0.0 {
-            continue;
-        }
-        let g = group(x);
-        expected[g] += false_positive_rate(view.frames, var);
-        if (view.burst_variance)(i) < q * var {
-            flagged[g] += 1;
-            levels.push((g, x));
+    // The law's variance and its false-positive rate at a clean level depend on the position and
+    // the level alone: each is computed once, on first use (a `powf` per pixel of the upper range
+    // before), the same values in the same order of additions.
+    let mut at_level: [Vec<Option<(f64, f64)>>; POSITIONS] =
+        std::array::from_fn(|_| vec![None; view.white as usize + 1]);
+    for (y, row) in view.clean.chunks(w).enumerate() {
+        for (x_col, &c) in row.iter().enumerate() {
+            let pos = position(y, x_col);
+            let x = c as f64 - view.black[pos] as f64;
+            if c == view.not_flat || x < lowest {
+                continue;
+            }
+            let of_level = || {
+                let var = poly_eval(&law[pos], x);
+                (var, false_positive_rate(view.frames, var))
+            };
+            let (var, rate) = match at_level[pos].get_mut(c as usize) {
+                Some(Some(v)) => *v,
+                Some(slot) => *slot.insert(of_level()),
+                None => of_level(),
+            };
+            if var.is_nan() || var <= 0.0 {
+                continue;
+            }
+            let g = group(x);
+            expected[g] += rate;
+            if (view.burst_variance)(y * w + x_col) < q * var {
+                flagged[g] += 1;
+                levels.push((g, x));
+            }
         }
     }
     let crowded: Vec<bool> = (0..GROUPS)
