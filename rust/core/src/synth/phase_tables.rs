@@ -129,8 +129,10 @@ pub(crate) fn phase_set_less_held(first: i32, q: &[f64], held: &[(f64, f64)]) ->
 /// the held points are folded by the grid point's phase ([`held_by_phase`]). Measured on the
 /// 10-bit phone with structured components, a fixed pattern of 3 DN and bins of 1 DN
 /// (`rust/core/tests/phase_black_cost.rs`): black's bins held 15–105 codes and 342–827 held
-/// points, tables of 9.5–69 MB and 0.3–2.2 s per position (load 17); EMVA set 002's (a 0.12 DN
-/// pattern) stay under it, drawn as before.
+/// points, tables of 9.5–69 MB and `black_phase_set` took 0.3–2.2 s per position (load 17);
+/// folded, no table, 60–350 ms (load 5–10; the rest is the Gaussian fit and the others'
+/// deconvolution, not measured apart). EMVA set 002's (a 0.12 DN pattern: 8 192–9 472) stay
+/// under it, drawn as before.
 const HELD_TABLE_CAP: usize = 1 << 16;
 
 /// [`HELD_ITERATIONS`] Richardson–Lucy steps of `Y` (normalised, on `q`'s grid) against `q`
