@@ -114,21 +114,46 @@ pub(crate) fn phase_set_less_held(first: i32, q: &[f64], held: &[(f64, f64)]) ->
     let n = q.len() * GRID;
     let at = |g: usize| f64::from(first) - 0.5 + (g as f64 + 0.5) / GRID as f64;
     let mut y: Vec<f64> = (0..n).map(|g| (-0.5 * ((at(g) - m) / sd).powi(2)).exp()).collect();
-    let s: f64 = y.iter().sum();
-    if !(s.is_finite() && s > 0.0) {
-        return None;
-    }
-    y.iter_mut().for_each(|v| *v /= s);
+    normalise(&mut y)?;
     // Per grid point and held point, the code of `q` that `Y + h` rounds to (`None` outside).
-    let code = |g: usize, o: f64| {
-        let k = floor_i32(at(g) + o + 0.5) - first;
-        (0..q.len() as i32).contains(&k).then_some(k as usize)
+    let code = |g: usize, o: f64| floor_i32(at(g) + o + 0.5) - first;
+    let y = match n * held.len() <= HELD_TABLE_CAP {
+        true => held_by_table(&q, &held, y, code)?,
+        false => held_by_phase(&q, &held, y, code)?,
     };
-    let codes: Vec<Option<usize>> = (0..n).flat_map(|g| held.iter().map(move |&(o, _)| code(g, o))).collect();
+    Some(tables_of(first, &y))
+}
+
+/// The most grid points × held points [`phase_set_less_held`] keeps as a table of codes (16
+/// bytes each: 1 MB), its Richardson–Lucy steps then costing that many products each; past it
+/// the held points are folded by the grid point's phase ([`held_by_phase`]). Measured on the
+/// 10-bit phone with structured components, a fixed pattern of 3 DN and bins of 1 DN
+/// (`rust/core/tests/phase_black_cost.rs`): black's bins held 15–105 codes and 342–827 held
+/// points, tables of 9.5–69 MB and `black_phase_set` took 0.3–2.2 s per position (load 17);
+/// folded, no table, 60–350 ms (load 5–10; the rest is the Gaussian fit and the others'
+/// deconvolution, not measured apart). EMVA set 002's (a 0.12 DN pattern: 8 192–9 472) stay
+/// under it, drawn as before.
+const HELD_TABLE_CAP: usize = 1 << 16;
+
+/// [`HELD_ITERATIONS`] Richardson–Lucy steps of `Y` (normalised, on `q`'s grid) against `q`
+/// through the held offsets `held`, `code(g, o)` the code (from `q`'s first) that grid point `g`
+/// plus offset `o` rounds to: with a table of the code of every grid point and held point.
+fn held_by_table(
+    q: &[f64],
+    held: &[(f64, f64)],
+    mut y: Vec<f64>,
+    code: impl Fn(usize, f64) -> i32,
+) -> Option<Vec<f64>> {
+    let len = q.len() as i32;
+    let code = &code;
+    let codes: Vec<Option<usize>> = (0..y.len())
+        .flat_map(|g| held.iter().map(move |&(o, _)| Some(code(g, o)).filter(|k| (0..len).contains(k))))
+        .map(|k| k.map(|k| k as usize))
+        .collect();
     for _ in 0..HELD_ITERATIONS {
         let mut pred = vec![0.0; q.len()];
         for (g, &v) in y.iter().enumerate() {
-            for (c, &(_, w)) in codes[g * held.len()..(g + 1) * held.len()].iter().zip(&held) {
+            for (c, &(_, w)) in codes[g * held.len()..(g + 1) * held.len()].iter().zip(held) {
                 if let Some(k) = c {
                     pred[*k] += v * w;
                 }
@@ -137,18 +162,73 @@ pub(crate) fn phase_set_less_held(first: i32, q: &[f64], held: &[(f64, f64)]) ->
         for (g, v) in y.iter_mut().enumerate() {
             let r: f64 = codes[g * held.len()..(g + 1) * held.len()]
                 .iter()
-                .zip(&held)
+                .zip(held)
                 .map(|(c, &(_, w))| c.map_or(0.0, |k| if pred[k] > 0.0 { w * q[k] / pred[k] } else { 0.0 }))
                 .sum();
             *v *= r;
         }
-        let s: f64 = y.iter().sum();
-        if !(s.is_finite() && s > 0.0) {
-            return None;
-        }
-        y.iter_mut().for_each(|v| *v /= s);
+        normalise(&mut y)?;
     }
-    Some(tables_of(first, &y))
+    Some(y)
+}
+
+/// [`held_by_table`]'s steps with the held points folded by the grid point's phase: grid point
+/// `g = GRID·a + r` plus offset `o` rounds to `a + code(r, o)` (`Y`'s grid moved by whole codes),
+/// so per phase `r` and code offset the held weight that lands there is summed once, and a step
+/// costs the grid times the few codes a phase's held points reach (3 for a pattern wrapped into
+/// one code) instead of the grid times the held points. The same sums, grouped otherwise.
+fn held_by_phase(
+    q: &[f64],
+    held: &[(f64, f64)],
+    mut y: Vec<f64>,
+    code: impl Fn(usize, f64) -> i32,
+) -> Option<Vec<f64>> {
+    let reach = |f: fn(i32, i32) -> i32, z: i32| {
+        (0..GRID).flat_map(|r| held.iter().map(move |&(o, _)| (r, o))).map(|(r, o)| code(r, o)).fold(z, f)
+    };
+    let (lo, hi) = (reach(i32::min, i32::MAX), reach(i32::max, i32::MIN));
+    let span = (hi - lo + 1) as usize;
+    // Per phase `r`, the held weight landing `lo + j` codes past the grid point's own code.
+    let mut folded = vec![0.0; GRID * span];
+    for r in 0..GRID {
+        for &(o, w) in held {
+            folded[r * span + (code(r, o) - lo) as usize] += w;
+        }
+    }
+    let len = q.len() as i32;
+    // The codes grid point `g` reaches, with the folded weight of each.
+    let reached = |g: usize| {
+        let base = (g / GRID) as i32 + lo;
+        let f = &folded[(g % GRID) * span..(g % GRID + 1) * span];
+        f.iter().enumerate().filter_map(move |(j, &w)| {
+            let k = base + j as i32;
+            (w > 0.0 && (0..len).contains(&k)).then_some((k as usize, w))
+        })
+    };
+    for _ in 0..HELD_ITERATIONS {
+        let mut pred = vec![0.0; q.len()];
+        for (g, &v) in y.iter().enumerate() {
+            for (k, w) in reached(g) {
+                pred[k] += v * w;
+            }
+        }
+        let ratio: Vec<f64> = q.iter().zip(&pred).map(|(&x, &p)| if p > 0.0 { x / p } else { 0.0 }).collect();
+        for (g, v) in y.iter_mut().enumerate() {
+            *v *= reached(g).map(|(k, w)| w * ratio[k]).sum::<f64>();
+        }
+        normalise(&mut y)?;
+    }
+    Some(y)
+}
+
+/// Scales `y` to sum to 1; `None` where its sum is not a positive number.
+fn normalise(y: &mut [f64]) -> Option<()> {
+    let s: f64 = y.iter().sum();
+    if !(s.is_finite() && s > 0.0) {
+        return None;
+    }
+    y.iter_mut().for_each(|v| *v /= s);
+    Some(())
 }
 
 /// The phase tables of `Y` held on the grid of its codes from `first` ([`GRID`] points each).

@@ -21,6 +21,11 @@ use crate::synth::structure::{FloorReach, StructureSampler};
 #[path = "sampler_cells.rs"]
 mod cells;
 use cells::CoarseCells;
+#[path = "sampler_alike.rs"]
+mod alike;
+#[path = "sampler_shares.rs"]
+mod shares;
+use shares::ShareBlocks;
 
 const ONE: u64 = 1 << 32;
 /// The bytes an ISO's tables are kept within where they fit with the sparse guide: the denser
@@ -32,6 +37,9 @@ pub const TABLE_BUDGET: usize = 4_000_000;
 pub const REGRID_TV: u64 = 1 << 25;
 /// Entries past the last of a table (copies of it), so that the walk can read four at a time.
 const PAD: usize = 3;
+/// The fewest entries a table kept in blocks has ([`BinTable::in_blocks`]): four blocks, about
+/// 150 bytes against 300 per DN (a shorter one saves less than the blocks' fixed cost).
+const MIN_BLOCKED: usize = 4 * shares::BLOCK;
 
 /// Inverse-CDF table of one bin. The cumulative weights `P(n ≤ first + i)` in units of 2⁻³²
 /// (the last exactly 2³²) are kept less one, in 32 bits (`cdf1[i] = cdf[i] − 1`: a draw `u`
@@ -54,6 +62,8 @@ pub struct BinTable {
     /// A bin on a coarse grid drawn from its cells ([`Layout::Cells`]): then `cdf1` and `guide`
     /// are empty.
     cells: Option<Box<CoarseCells>>,
+    /// A long table kept in blocks ([`BinTable::in_blocks`]): then `cdf1` and `guide` are empty.
+    blocks: Option<Box<ShareBlocks>>,
 }
 
 /// How a table keeps its cumulative weights; every layout draws every `u` to the same value.
@@ -82,7 +92,7 @@ impl BinTable {
     pub fn with_layout(bin: &BinModel, layout: Layout) -> Self {
         match layout {
             Layout::Entries(g) => Self::with_guide(bin, g),
-            Layout::Cells(g) => match CoarseCells::at(&bin.counts, bin.grid_step as usize) {
+            Layout::Cells(g) => match CoarseCells::at(&bin.counts, bin.grid_step as usize, Guide::Dense) {
                 Some(c) => Self::of_cells(bin.first, c),
                 None => Self::with_guide(bin, g),
             },
@@ -91,14 +101,68 @@ impl BinTable {
 
     /// The table of `bin` put on a coarse grid: its weights' masses in cells of the widest step
     /// of [`GRID_STEPS`] up to `widest` whose re-expansion draws within `bound` (total variation,
-    /// units of 2⁻³²) of the per-DN table of `bin`, on the grid through `origin`; `None` where
-    /// no step does.
+    /// units of 2⁻³²) of the per-DN table of `bin`, on the grid through `origin`, and like it at
+    /// the draws a frame makes ([`alike::draws_alike`]: mean, variance, 0.1 % and 99.9 %
+    /// quantiles); `None` where no step does.
     pub(crate) fn regridded(bin: &BinModel, widest: usize, origin: i32, bound: u64) -> Option<Self> {
         let cdf = cdf_of(&bin.counts);
         GRID_STEPS.iter().rev().filter(|&&k| k <= widest).find_map(|&k| {
             let (first, c, tv) = CoarseCells::regridded(bin.first, &bin.counts, &cdf, k, origin)?;
-            (tv <= bound).then(|| Self::of_cells(first, c))
+            let t = (tv <= bound).then(|| Self::of_cells(first, c))?;
+            alike::draws_alike(bin.first, &cdf, t.first, &t.cdf()).then_some(t)
         })
+    }
+
+    /// The table of `bin` kept in blocks of [`shares::BLOCK`] DN, each value's cumulative weight
+    /// inside its block on 16 bits ([`ShareBlocks`]), where its drawn distribution stays within
+    /// `bound` (total variation, units of 2⁻³²) of the per-DN table's (it is within 1.1·10⁻⁴ by
+    /// construction) and like it at the draws a frame makes ([`alike::draws_alike`]), and the
+    /// table has at least [`MIN_BLOCKED`] entries (shorter ones save little); `None` otherwise.
+    pub(crate) fn in_blocks(bin: &BinModel, bound: u64) -> Option<Self> {
+        let cdf = cdf_of(&bin.counts);
+        let (t, tv) = Self::of_blocks(bin.first, &cdf)?;
+        (tv <= bound && alike::draws_alike(bin.first, &cdf, t.first, &t.cdf())).then_some(t)
+    }
+
+    /// The table of cumulative weights `cdf` over `first ..` kept in blocks, and the total
+    /// variation (units of 2⁻³²) of its draws from the per-DN table's; `None` for a table shorter
+    /// than [`MIN_BLOCKED`].
+    fn of_blocks(first: i32, cdf: &[u64]) -> Option<(Self, u64)> {
+        if cdf.len() < MIN_BLOCKED {
+            return None;
+        }
+        let (blocks, tv) = ShareBlocks::of_cdf(cdf);
+        let t = Self {
+            first,
+            cdf1: Box::new([]),
+            lead: 0,
+            guide: Box::new([]),
+            shift: 0,
+            guide_shift: 0,
+            cells: None,
+            blocks: Some(Box::new(blocks)),
+        };
+        Some((t, tv))
+    }
+
+    /// Whether the table is kept in blocks ([`Self::in_blocks`]).
+    pub fn is_blocks(&self) -> bool {
+        self.blocks.is_some()
+    }
+
+    /// A table drawn from cells with the cells' guide `guide` ([`CoarseCells::with_guide`]: the
+    /// same draws); any other table as it is.
+    fn with_cell_guide(mut self, guide: Guide) -> Self {
+        self.cells = self.cells.map(|c| Box::new(c.with_guide(guide)));
+        self
+    }
+
+    /// [`Self::heap_bytes`] with the cells' guide `guide` ([`Self::with_cell_guide`]).
+    fn bytes_with_cell_guide(&self, guide: Guide) -> usize {
+        match &self.cells {
+            Some(c) => std::mem::size_of::<CoarseCells>() + c.heap_bytes_with(guide),
+            None => self.heap_bytes(),
+        }
     }
 
     fn of_cells(first: i32, cells: CoarseCells) -> Self {
@@ -110,6 +174,7 @@ impl BinTable {
             shift: 0,
             guide_shift: 0,
             cells: Some(Box::new(cells)),
+            blocks: None,
         }
     }
 
@@ -139,7 +204,16 @@ impl BinTable {
             }
             *cell = ((i - lead) >> guide_shift) as u16;
         }
-        Self { first, cdf1, lead: lead as u32, guide: guide.into(), shift: 32 - bits, guide_shift, cells: None }
+        Self {
+            first,
+            cdf1,
+            lead: lead as u32,
+            guide: guide.into(),
+            shift: 32 - bits,
+            guide_shift,
+            cells: None,
+            blocks: None,
+        }
     }
 
     /// Maps a uniform 32-bit draw to a noise value.
@@ -147,6 +221,9 @@ impl BinTable {
     pub fn sample_u32(&self, u: u32) -> i32 {
         if let Some(c) = &self.cells {
             return self.first + c.sample_u32(u) as i32;
+        }
+        if let Some(b) = &self.blocks {
+            return self.first + b.sample_u32(u) as i32;
         }
         let mut i = self.lead as usize + ((self.guide[(u >> self.shift) as usize] as usize) << self.guide_shift);
         // Four entries at a time, without a branch inside: the cumulative weights rise, so the
@@ -176,9 +253,10 @@ impl BinTable {
 
     /// Entries of the table (values `first .. first + len`).
     pub fn len(&self) -> usize {
-        match &self.cells {
-            Some(c) => c.len(),
-            None => self.cdf1.len() - PAD,
+        match (&self.cells, &self.blocks) {
+            (Some(c), _) => c.len(),
+            (None, Some(b)) => b.len(),
+            (None, None) => self.cdf1.len() - PAD,
         }
     }
 
@@ -192,6 +270,9 @@ impl BinTable {
     fn cdf_at(&self, i: usize) -> u64 {
         if let Some(c) = &self.cells {
             return c.cdf_at(i);
+        }
+        if let Some(b) = &self.blocks {
+            return b.cdf_at(i);
         }
         if i < self.lead as usize { 0 } else { self.cdf1[i] as u64 + 1 }
     }
@@ -208,6 +289,7 @@ impl BinTable {
         std::mem::size_of_val(&*self.cdf1)
             + std::mem::size_of_val(&*self.guide)
             + self.cells.as_ref().map_or(0, |c| std::mem::size_of::<CoarseCells>() + c.heap_bytes())
+            + self.blocks.as_ref().map_or(0, |b| std::mem::size_of::<ShareBlocks>() + b.heap_bytes())
     }
 
     /// Probability of value `n` as the table encodes it.
@@ -426,13 +508,21 @@ fn deconvolved_fine_levels(
 }
 
 /// The tables of an ISO's bins (per position, `sources`' bins then its extra tables), kept
-/// within `budget` bytes where they can be: one entry per DN with the denser guide unless it
-/// takes them past the budget ([`Guide::for_tables`]); where even the sparse guide does, the
-/// bins on a coarse grid drawn from their cells ([`Layout::Cells`]: the same draws); where the
-/// tables still pass it so, every table with a grid in `grids` (per position and table, as
-/// `sources`; missing: none) put on that grid, or a finer one, where its draws move by at most
-/// [`REGRID_TV`] ([`BinTable::regridded`]); the others' guide chosen within what the cells
-/// leave.
+/// within `budget` bytes where they can be, each step taken only where the ones before it leave
+/// the tables past the budget:
+/// 1. one entry per DN with the denser guide unless it takes them past the budget
+///    ([`Guide::for_tables`]);
+/// 2. the bins on a coarse grid drawn from their cells ([`Layout::Cells`]: the same draws), the
+///    cells' guide a cell per cell, else a cell per four cells ([`CoarseCells::with_guide`]: the
+///    same draws);
+/// 3. every table with a grid in `grids` (per position and table, as `sources`; missing: none)
+///    put on that grid, or a finer one, where its draws move by at most [`REGRID_TV`]
+///    ([`BinTable::regridded`]);
+/// 4. the tables still per DN kept in blocks ([`BinTable::in_blocks`], within [`REGRID_TV`] too,
+///    by construction within 1.1·10⁻⁴);
+///
+/// the cells' guide the denser one where the tables fit with it, and the per-DN tables' guide
+/// chosen within what the others leave.
 fn tables_within(
     budget: usize,
     sources: &[(Cow<'_, [BinModel]>, Vec<BinModel>); POSITIONS],
@@ -454,14 +544,20 @@ fn tables_within(
             .map(|b| Some(BinTable::with_layout(b, Layout::Cells(Guide::Dense))).filter(BinTable::is_cells))
             .collect()
     });
-    let held = |cells: &[Vec<Option<BinTable>>; POSITIONS]| -> usize {
-        cells.iter().flatten().flatten().map(BinTable::heap_bytes).sum()
+    // Whether the tables pass the budget with the cells' guide `g` and the others per DN with
+    // the sparse guide.
+    let over = |cells: &[Vec<Option<BinTable>>; POSITIONS], g: Guide| -> bool {
+        let held: usize = cells.iter().flatten().flatten().map(|t| t.bytes_with_cell_guide(g)).sum();
+        let rest: usize = all()
+            .zip(cells.iter().flatten())
+            .filter(|(_, c)| c.is_none())
+            .map(|(b, _)| Guide::Sparse.table_bytes(b.counts.len()))
+            .sum();
+        held + rest > budget
     };
-    let rest = |cells: &[Vec<Option<BinTable>>; POSITIONS]| -> Vec<usize> {
-        all().zip(cells.iter().flatten()).filter(|(_, c)| c.is_none()).map(|(b, _)| b.counts.len()).collect()
-    };
-    let sparse = |lens: &[usize]| lens.iter().map(|&n| Guide::Sparse.table_bytes(n)).sum::<usize>();
-    if held(&cells) + sparse(&rest(&cells)) > budget {
+    // Step `make` for the tables still per DN (per position, the table's index and its source).
+    let fill = |cells: &mut [Vec<Option<BinTable>>; POSITIONS],
+                make: &(dyn Fn(usize, usize, &BinModel) -> Option<BinTable> + Sync)| {
         for (p, c) in cells.iter_mut().enumerate() {
             let (bins, extra) = &sources[p];
             let done = std::mem::take(c);
@@ -470,23 +566,35 @@ fn tables_within(
                 .chain(extra.par_iter())
                 .zip(done.into_par_iter())
                 .enumerate()
-                .map(|(t, (b, c))| {
-                    c.or_else(|| {
-                        let (k, origin) = grids[p].get(t).copied().flatten()?;
-                        BinTable::regridded(b, k, origin, REGRID_TV)
-                    })
-                })
+                .map(|(t, (b, c))| c.or_else(|| make(p, t, b)))
                 .collect();
         }
+    };
+    if over(&cells, Guide::Sparse) {
+        fill(&mut cells, &|p, t, b| {
+            let (k, origin) = grids[p].get(t).copied().flatten()?;
+            BinTable::regridded(b, k, origin, REGRID_TV)
+        });
+        if over(&cells, Guide::Sparse) {
+            fill(&mut cells, &|_, _, b| BinTable::in_blocks(b, REGRID_TV));
+        }
     }
-    let guide = Guide::for_tables(budget.saturating_sub(held(&cells)), rest(&cells));
+    let cell_guide = if over(&cells, Guide::Dense) { Guide::Sparse } else { Guide::Dense };
+    let held: usize = cells.iter().flatten().flatten().map(|t| t.bytes_with_cell_guide(cell_guide)).sum();
+    let rest: Vec<usize> =
+        all().zip(cells.iter().flatten()).filter(|(_, c)| c.is_none()).map(|(b, _)| b.counts.len()).collect();
+    let guide = Guide::for_tables(budget.saturating_sub(held), rest);
     std::array::from_fn(|p| {
         let (bins, extra) = &sources[p];
         let done = std::mem::take(&mut cells[p]);
         bins.par_iter()
             .chain(extra.par_iter())
             .zip(done.into_par_iter())
-            .map(|(b, c)| c.unwrap_or_else(|| BinTable::with_guide(b, guide)))
+            .map(|(b, c)| match c {
+                Some(t) if cell_guide == Guide::Dense => t,
+                Some(t) => t.with_cell_guide(cell_guide),
+                None => BinTable::with_guide(b, guide),
+            })
             .collect()
     })
 }
@@ -1122,3 +1230,7 @@ mod tests {
 #[cfg(test)]
 #[path = "tests_sampler_cells.rs"]
 mod tests_cells;
+
+#[cfg(test)]
+#[path = "tests_sampler_shares.rs"]
+mod tests_shares;

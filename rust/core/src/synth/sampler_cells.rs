@@ -12,6 +12,7 @@
 //! found among the cells' ends (a guide, then a walk), then within the cell by the quadratic's
 //! root and an exact integer check of its neighbours.
 
+use super::Guide;
 use crate::model::coarse_grid::{cell_masses_at, expand, is_expansion};
 
 /// Cells of a bin on a coarse grid of `k` DN, as [`super::BinTable`] draws them.
@@ -34,9 +35,10 @@ pub(crate) struct CoarseCells {
 impl CoarseCells {
     /// The cells of weights `w` that are the re-expansion of their cells of `k > 1` DN (a bin's
     /// [`BinModel::grid_step`](crate::model::pack::BinModel::grid_step), which the pack decoder
-    /// knows: not looked for here), with a total below 2⁶⁴ and at most 2¹⁶ cells; `None`
-    /// otherwise (`k` of 1 or less, a length not a multiple of `k`).
-    pub(crate) fn at(w: &[u64], k: usize) -> Option<Self> {
+    /// knows: not looked for here), with a total below 2⁶⁴ and at most 2¹⁶ cells, and the guide
+    /// `guide` ([`Self::with_guide`]); `None` otherwise (`k` of 1 or less, a length not a multiple
+    /// of `k`).
+    pub(crate) fn at(w: &[u64], k: usize, guide: Guide) -> Option<Self> {
         if k <= 1 || !w.len().is_multiple_of(k) {
             return None;
         }
@@ -49,7 +51,7 @@ impl CoarseCells {
             }
             ends.push(acc);
         }
-        Self::from_ends(ends, k)
+        Self::from_ends(ends, k, guide)
     }
 
     /// The cells of `k` DN holding the masses of weights `w` over `first ..` on the grid whose
@@ -71,7 +73,7 @@ impl CoarseCells {
         if acc != w.iter().try_fold(0u64, |a, &x| a.checked_add(x))? {
             return None;
         }
-        let cells = Self::from_ends(ends, k)?;
+        let cells = Self::from_ends(ends, k, Guide::Dense)?;
         let grid = super::cdf_of(&expand(&masses, k));
         let lead = (first - start) as usize;
         let exact = |i: usize| match i.checked_sub(lead) {
@@ -87,28 +89,53 @@ impl CoarseCells {
 
     /// The cells whose cumulative masses are `ends` (`k` DN each): they draw what the per-DN table
     /// of `expand(masses, k)` draws. `None` for no mass or more than 2¹⁶ cells.
-    fn from_ends(ends: Vec<u64>, k: usize) -> Option<Self> {
+    fn from_ends(ends: Vec<u64>, k: usize, guide: Guide) -> Option<Self> {
         let acc = ends.last().copied().unwrap_or(0);
         if acc == 0 || ends.len() > 1 << 16 {
             return None;
         }
         let top = ends.iter().scan(0u64, |s, &e| Some(e - std::mem::replace(s, e))).max().unwrap_or(0);
         let shift = (64 - top.leading_zeros()).saturating_sub(40);
-        let bits = (ends.len().next_power_of_two().trailing_zeros()).clamp(3, 12);
-        let guide_shift = 32 - bits;
-        let mut cells = Self { k: k as u32, shift, total: acc, ends: ends.into(), guide: Box::new([]), guide_shift };
+        let cells = Self { k: k as u32, shift, total: acc, ends: ends.into(), guide: Box::new([]), guide_shift: 32 };
+        Some(cells.with_guide(guide))
+    }
+
+    /// The same cells with a guide of one cell per cell ([`Guide::Dense`]: 2 to 4 bytes per cell
+    /// of 8 bytes) or one per four cells ([`Guide::Sparse`]: a quarter of that, the walk from the
+    /// guide's cell up to four cells longer). Every draw is the same.
+    pub(crate) fn with_guide(mut self, guide: Guide) -> Self {
+        let less = match guide {
+            Guide::Dense => 0,
+            Guide::Sparse => 2,
+        };
+        let bits = (self.ends.len().next_power_of_two().trailing_zeros().saturating_sub(less)).clamp(3, 12);
+        self.guide_shift = 32 - bits;
         let mut j = 0usize;
         let guide: Box<[u16]> = (0..1u64 << bits)
             .map(|g| {
-                let t = cells.threshold((g << guide_shift) as u32);
-                while cells.ends[j] < t {
+                let t = self.threshold((g << self.guide_shift) as u32);
+                while self.ends[j] < t {
                     j += 1;
                 }
                 j as u16
             })
             .collect();
-        cells.guide = guide;
-        Some(cells)
+        self.guide = guide;
+        self
+    }
+
+    /// [`Self::heap_bytes`] with the guide `guide` ([`Self::with_guide`]).
+    pub(crate) fn heap_bytes_with(&self, guide: Guide) -> usize {
+        std::mem::size_of_val(&*self.ends) + self.guide_bytes(guide)
+    }
+
+    /// Bytes the guide `guide` would take ([`Self::with_guide`]).
+    fn guide_bytes(&self, guide: Guide) -> usize {
+        let less = match guide {
+            Guide::Dense => 0,
+            Guide::Sparse => 2,
+        };
+        2 << (self.ends.len().next_power_of_two().trailing_zeros().saturating_sub(less)).clamp(3, 12)
     }
 
     /// Entries (DN) the cells cover.

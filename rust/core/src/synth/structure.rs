@@ -321,7 +321,7 @@ impl StructureSampler {
     /// bin: it is then drawn as before.
     ///
     /// [`black_bin_one_level`]: crate::derive::fine_levels::black_bin_one_level
-    pub(crate) fn black_phase_set(&self, pos: usize, bin: &BinModel, black: f64) -> Option<PhaseSet> {
+    pub fn black_phase_set(&self, pos: usize, bin: &BinModel, black: f64) -> Option<PhaseSet> {
         let fp = self.fpn.as_ref()?;
         if bin.clipped || bin.counts.is_empty() || !black.is_finite() {
             return None;

@@ -160,3 +160,55 @@ fn a_bin_that_holds_the_pattern_has_it_taken_out_of_y() {
     assert!((g / t - 1.0).abs() < 0.03, "phase-0 variance {g:.4} against the truth's {t:.4}");
     assert!(o / t > 1.1, "the PMF as it is holds the pattern: {o:.4} against {t:.4}");
 }
+
+/// Black's bin on a sensor with bins of 1 DN and a fixed pattern of several DN: the pattern
+/// (SD 2.5 DN, on the 1/32 DN grid the structured offsets use) wrapped into black's code as
+/// `StructureSampler::black_phase_set` holds it, 641 held points over 10 codes, past
+/// [`HELD_TABLE_CAP`]. Known truth as above: each phase's table is the sensor's one rounding
+/// `round(m + φ + n)`. The held points folded by phase ([`held_by_phase`]) give `Y` within
+/// 10⁻¹² of the table of codes ([`held_by_table`]) on the same start, and the same thresholds
+/// to a unit of 2⁻³²: a fold that put a phase's weight one code off (`a + code(r, o)` read at
+/// the wrong phase) moves whole masses between codes, and fails both.
+#[test]
+fn held_points_folded_by_phase_are_the_table_of_codes() {
+    let (m, sd, ps, f0) = (-0.13, 0.9, 2.5, -0.13);
+    let held: Vec<(f64, f64)> = (-320..=320)
+        .map(|i| {
+            let g = f0 + i as f64 / 32.0;
+            ((g - (g + 0.5).floor()) - f0, (-0.5 * (i as f64 / 32.0 / ps).powi(2)).exp())
+        })
+        .collect();
+    let hw: f64 = held.iter().map(|h| h.1).sum();
+    let (lo, hi) = (-5, 4);
+    let mut q = vec![0.0; (hi - lo + 1) as usize];
+    for &(o, w) in &held {
+        for (k, x) in rounded_gaussian(m + o, sd, lo, hi).into_iter().enumerate() {
+            q[k] += x * w / hw;
+        }
+    }
+    assert!(q.len() * GRID * held.len() > HELD_TABLE_CAP, "the folded path is the one taken");
+    let set = phase_set_less_held(lo, &q, &held).expect("a phase set");
+    let mut worst_tv = 0.0f64;
+    for j in 0..PHASES {
+        let truth = rounded_gaussian(m + j as f64 / PHASES as f64, sd, lo, hi + 1);
+        let (first, got) = set.phase_pmf(j);
+        assert_eq!(first, lo);
+        worst_tv = worst_tv.max(tv(&got, &truth));
+    }
+    // The two ways on the same start: a Gaussian on the grid, normalised.
+    let n = q.len() * GRID;
+    let at = |g: usize| f64::from(lo) - 0.5 + (g as f64 + 0.5) / GRID as f64;
+    let held_n: Vec<(f64, f64)> = held.iter().map(|&(o, w)| (o, w / hw)).collect();
+    let mut y0: Vec<f64> = (0..n).map(|g| (-0.5 * ((at(g) - m) / 0.5).powi(2)).exp()).collect();
+    normalise(&mut y0).expect("a start");
+    let code = |g: usize, o: f64| floor_i32(at(g) + o + 0.5) - lo;
+    let by_table = held_by_table(&q, &held_n, y0.clone(), code).expect("by table");
+    let by_phase = held_by_phase(&q, &held_n, y0, code).expect("by phase");
+    let worst_y = by_table.iter().zip(&by_phase).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+    let (a, b) = (tables_of(lo, &by_table), tables_of(lo, &by_phase));
+    let worst_t = a.thresholds.iter().zip(&b.thresholds).map(|(x, y)| x.abs_diff(*y)).max().unwrap_or(0);
+    eprintln!("worst TV {worst_tv:.5}; folded against the table: y {worst_y:.2e}, thresholds {worst_t} units of 2⁻³²");
+    assert!(worst_tv < 5e-3, "total variation {worst_tv:.4} from the sensor's rounding");
+    assert!(worst_y < 1e-12, "y {worst_y:e} apart");
+    assert!(worst_t <= 1, "thresholds {worst_t} apart");
+}

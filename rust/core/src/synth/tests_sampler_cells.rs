@@ -76,8 +76,17 @@ fn cells_draw_what_the_entries_draw() {
             cdf.iter().flat_map(|&c| [c.wrapping_sub(1), c, c + 1]).map(|c| c.min(u32::MAX as u64) as u32).collect();
         us.extend([0, 1, u32::MAX, u32::MAX - 1]);
         us.extend((0..2000).map(|_| rng.next_u32()));
+        // The guide of a cell per four cells draws the same (a guide cell one past its start, or
+        // a walk that stops short, would draw a later or an earlier value).
+        let sparse = cells.clone().with_cell_guide(Guide::Sparse);
+        assert_eq!(sparse.cdf(), cdf);
+        assert_eq!(sparse.heap_bytes(), cells.bytes_with_cell_guide(Guide::Sparse));
+        assert_eq!(cells.heap_bytes(), cells.bytes_with_cell_guide(Guide::Dense));
+        assert!(sparse.heap_bytes() < cells.heap_bytes() || masses.len() <= 8, "{} cells", masses.len());
         for u in us {
-            assert_eq!(cells.sample_u32(u), entries.sample_u32(u), "u {u}, {} cells of {k}", masses.len());
+            let want = entries.sample_u32(u);
+            assert_eq!(cells.sample_u32(u), want, "u {u}, {} cells of {k}", masses.len());
+            assert_eq!(sparse.sample_u32(u), want, "u {u}, {} cells of {k}, sparse guide", masses.len());
             checked += 1;
         }
         assert!(
