@@ -475,22 +475,12 @@ impl CalibrationSession {
         self.note(format!(
             "EV step {index}: reference burst of {frames} frames, {:.1} % of pixels flat{}{}",
             100.0 * image.flat.total_flat() as f64 / considered.max(1) as f64,
-            if unsteady > 0 {
-                format!(
-                    " ({:.2} % left out: their spread over the burst is beyond the noise at their level)",
-                    100.0 * unsteady as f64 / considered.max(1) as f64
-                )
-            } else {
-                String::new()
-            },
-            if half_code > 0 {
-                format!(
-                    " ({:.2} % left out: sub-DN noise, their clean code most likely one off, at codes such pixels would bias)",
-                    100.0 * half_code as f64 / considered.max(1) as f64
-                )
-            } else {
-                String::new()
-            }
+            left_out(unsteady, considered, "their spread over the burst is beyond the noise at their level"),
+            left_out(
+                half_code,
+                considered,
+                "sub-DN noise, their clean code most likely one off, at codes such pixels would bias"
+            )
         ));
         if let Some(step) = self.step.as_mut() {
             step.phase = Phase::Targets(Box::new(TargetPhase { image, drift: BTreeMap::new() }));
@@ -659,4 +649,12 @@ impl CalibrationSession {
     pub fn target_isos(&self) -> Vec<u32> {
         self.isos.keys().copied().collect()
     }
+}
+
+/// The note's clause for `count` of `considered` pixels left out for `why`; empty when none was.
+fn left_out(count: u64, considered: u64, why: &str) -> String {
+    if count == 0 {
+        return String::new();
+    }
+    format!(" ({:.2} % left out: {why})", 100.0 * count as f64 / considered.max(1) as f64)
 }

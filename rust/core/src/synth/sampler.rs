@@ -132,17 +132,7 @@ impl BinTable {
             return None;
         }
         let (blocks, tv) = ShareBlocks::of_cdf(cdf);
-        let t = Self {
-            first,
-            cdf1: Box::new([]),
-            lead: 0,
-            guide: Box::new([]),
-            shift: 0,
-            guide_shift: 0,
-            cells: None,
-            blocks: Some(Box::new(blocks)),
-        };
-        Some((t, tv))
+        Some((Self { blocks: Some(Box::new(blocks)), ..Self::without_entries(first) }, tv))
     }
 
     /// Whether the table is kept in blocks ([`Self::in_blocks`]).
@@ -166,6 +156,11 @@ impl BinTable {
     }
 
     fn of_cells(first: i32, cells: CoarseCells) -> Self {
+        Self { cells: Some(Box::new(cells)), ..Self::without_entries(first) }
+    }
+
+    /// A table from `first` with no per-DN entries and no guide, for the cells or the blocks to fill.
+    fn without_entries(first: i32) -> Self {
         Self {
             first,
             cdf1: Box::new([]),
@@ -173,7 +168,7 @@ impl BinTable {
             guide: Box::new([]),
             shift: 0,
             guide_shift: 0,
-            cells: Some(Box::new(cells)),
+            cells: None,
             blocks: None,
         }
     }
