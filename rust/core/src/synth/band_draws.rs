@@ -24,7 +24,14 @@ pub(crate) fn next_u64s(rng: &mut ChaCha8Rng, n: usize, out: &mut Vec<u64>) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::synth::band_rng;
+    use rand::SeedableRng;
+
+    /// A stream as a band's (`synth::band_rng`, not called: the test stays inside this file).
+    fn band_rng(seed: u64, band: usize) -> ChaCha8Rng {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        rng.set_stream(band as u64);
+        rng
+    }
 
     /// From every word offset within and across the RNG's 64-word blocks (odd offsets by a
     /// 32-bit draw first), runs of 0 to 300 draws are the `next_u64` calls' values, and the
