@@ -2,6 +2,7 @@
 
 pub mod dark_levels;
 pub mod moments;
+pub mod sub_dn;
 
 use ndarray::Array2;
 use noisecal_core::calibrate::flat::NOT_FLAT;

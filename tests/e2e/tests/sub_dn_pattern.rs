@@ -30,23 +30,7 @@ const HELD_OUT: u64 = 16;
 /// 0.33 DN² at 10 DN above black), a pattern of `dsnu_dn` after the gain (the same at both ISOs,
 /// as set 002's two halves are), nothing else structured.
 fn sensor(read_dn: f32, dsnu_dn: f32) -> SensorModel {
-    let mut m = SensorModel::phone_10bit();
-    m.black = [6.3; 4];
-    m.white = 255;
-    m.base_iso = ISO / 2;
-    m.max_analog_iso = ISO;
-    m.electrons_per_dn = 60.0;
-    m.full_well_e = 7000.0;
-    m.gain_error_per_stop = 0.0;
-    m.read_noise_pre_e = 0.0;
-    m.read_noise_post_dn = read_dn;
-    m.read_noise_dof = None;
-    m.dsnu_post_dn = dsnu_dn;
-    m.row_noise_pre_e = 0.0;
-    m.row_noise_post_dn = 0.0;
-    m.bias_dn = [0.0; 4];
-    m.jitter_px = 0.0;
-    m
+    noisecal_e2e::sub_dn::sensor_8bit(6.3, ISO, read_dn, dsnu_dn)
 }
 
 /// The plan's frames, then a dark step of [`DARK_FRAMES`].
